@@ -1,0 +1,137 @@
+"""The FMI plumbing shared by the three slaves: variables from tables, checks, steps, state.
+
+Bundled into every FMU beside ``models``; imports only pythonfmu (which the FMU carries) and
+the standard library.
+"""
+
+import math
+
+from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu.enums import Fmi2Status
+
+from .models.rk4 import rk4_integrate
+
+__all__ = ["DscSlave"]
+
+
+class DscSlave(Fmi2Slave):
+    """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
+
+    Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
+    ``initial_state``, ``derivatives`` and ``outputs``. Until the first ``do_step`` the state is
+    ``initial_state()`` of the current parameters and inputs; from then on it is integrated with
+    RK4 in sub-steps no longer than the parameter ``max_step``.
+    """
+
+    PARAMETERS: tuple = ()
+    INPUTS: tuple = ()
+    OUTPUTS: tuple = ()
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        self.p = {v.name: v.start for v in self.PARAMETERS}
+        self.u = [v.start for v in self.INPUTS]
+        self.state = None
+        self.time = 0.0
+        self._cache = None
+        for v in self.PARAMETERS:
+            kind = Integer if v.integer else Real
+            variability = Fmi2Variability.tunable if v.tunable else Fmi2Variability.fixed
+            self.register_variable(kind(
+                v.name, causality=Fmi2Causality.parameter, variability=variability,
+                description=v.description, getter=lambda n=v.name: self.p[n],
+                setter=lambda value, v=v: self._set_parameter(v, value),
+            ))
+        for index, v in enumerate(self.INPUTS):
+            self.register_variable(Real(
+                v.name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
+                description=v.description, getter=lambda i=index: self.u[i],
+                setter=lambda value, i=index, v=v: self._set_input(i, v, value),
+            ))
+        for index, v in enumerate(self.OUTPUTS):
+            self.register_variable(Real(
+                v.name, causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
+                initial=Fmi2Initial.calculated, description=v.description,
+                getter=lambda i=index: self.output_values()[i],
+            ))
+
+    def _reject(self, reason: str):
+        self.log(f"{self.instance_name}: {reason}", Fmi2Status.error)
+        raise ValueError(reason)
+
+    def _set_parameter(self, v, value):
+        reason = v.check(value)
+        if reason:
+            self._reject(f"parameter {reason}; allowed: {v.allowed}")
+        self.p[v.name] = int(value) if v.integer else float(value)
+        self.parameters_changed()
+        self._cache = None
+
+    def _set_input(self, index, v, value):
+        reason = v.check(value)
+        if reason:
+            self._reject(f"input {reason}; allowed: {v.allowed}")
+        self.u[index] = float(value)
+        self._cache = None
+
+    def parameters_changed(self):
+        """Hook: drop whatever a subclass precomputed from the parameters."""
+
+    def current_state(self) -> list:
+        """The state: integrated since the first step, or the initial state before it."""
+        return self.initial_state() if self.state is None else self.state
+
+    def output_values(self) -> list:
+        """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
+        if self._cache is None:
+            self._cache = self.outputs(self.current_state())
+        return self._cache
+
+    def setup_experiment(self, start_time, stop_time, tolerance):
+        self.time = start_time
+
+    def do_step(self, current_time, step_size):
+        if self.state is None:
+            self.state = self.initial_state()
+        new = rk4_integrate(self.derivatives, current_time, self.state, step_size, self.p["max_step"])
+        if not all(math.isfinite(value) for value in new):
+            self.log(
+                f"{self.instance_name}: state not finite after the step from t = {current_time} s "
+                f"of {step_size} s; the step is discarded", Fmi2Status.error,
+            )
+            return False
+        self.state = new
+        self.time = current_time + step_size
+        self._cache = None
+        return True
+
+    def _get_fmu_state(self):
+        return {
+            "p": dict(self.p), "u": list(self.u), "time": self.time,
+            "state": None if self.state is None else list(self.state), "extra": self.extra_state(),
+        }
+
+    def _set_fmu_state(self, saved):
+        self.p = dict(saved["p"])
+        self.u = list(saved["u"])
+        self.time = saved["time"]
+        self.state = None if saved["state"] is None else list(saved["state"])
+        self.set_extra_state(saved["extra"])
+        self.parameters_changed()
+        self._cache = None
+
+    def extra_state(self) -> dict:
+        """Hook: what else a subclass must save with the FMU state."""
+        return {}
+
+    def set_extra_state(self, extra: dict):
+        """Hook: restore what ``extra_state`` saved."""
+
+    def initial_state(self) -> list:
+        raise NotImplementedError
+
+    def derivatives(self, t: float, x: list) -> list:
+        raise NotImplementedError
+
+    def outputs(self, x: list) -> list:
+        raise NotImplementedError

@@ -1,0 +1,172 @@
+"""The adaptive dynamic surface control law, steps 1-3: equations (10)-(27).
+
+Controller state ``xc`` (20 entries, SPEC 3):
+``[a1_hat, a2_hat, x2f1, x2f2, W1_hat (8), x3f1, x3f2, W2_hat (6)]``.
+Measurements ``m`` (14 entries, the controller FMU's inputs in order):
+``[x, y, theta, theta_dot, omega1, omega2, i1, i2, x_r, y_r, theta_r, v_r, omega_r, v_r_dot]``.
+"""
+
+import math
+from dataclasses import dataclass
+from typing import NamedTuple
+
+__all__ = [
+    "Gains",
+    "gains",
+    "ControlLaw",
+    "control_law",
+    "initial_controller_state",
+    "start_filters",
+    "wrap",
+    "alpha2",
+    "W1_SLICE",
+    "W2_SLICE",
+]
+
+W1_SLICE = slice(4, 12)
+W2_SLICE = slice(14, 20)
+
+
+@dataclass(frozen=True)
+class Gains:
+    """The design parameters of Section III (names as the controller FMU's parameters)."""
+
+    k1: float
+    k2: float
+    k3: float
+    k4: float
+    k5: float
+    gamma1: float
+    gamma2: float
+    sigma1: float
+    sigma2: float
+    sigma3: float
+    sigma4: float
+    tau2: float
+    tau3: float
+    Gamma1: tuple
+    Gamma2: tuple
+    beta_min: float
+
+
+def gains(p: dict) -> Gains:
+    """Gains from the controller FMU's parameter values by name."""
+    return Gains(
+        **{name: p[name] for name in Gains.__dataclass_fields__ if not name.startswith("Gamma")},
+        Gamma1=tuple(p[f"Gamma1_{i}"] for i in range(1, 9)),
+        Gamma2=tuple(p[f"Gamma2_{i}"] for i in range(1, 7)),
+    )
+
+
+class ControlLaw(NamedTuple):
+    """One evaluation of the law: the voltages, the state derivative and what is shown of it."""
+
+    u1: float
+    u2: float
+    derivative: list
+    S11: float
+    S12: float
+    S13: float
+    beta: float
+    guarded: bool
+    x2bar: tuple
+    x3bar: tuple
+
+
+def wrap(angle: float) -> float:
+    """``angle`` wrapped to (-pi, pi] (SPEC 5)."""
+    wrapped = math.remainder(angle, 2.0 * math.pi)
+    return math.pi if wrapped == -math.pi else wrapped
+
+
+def alpha2(S13: float, a: float) -> float:
+    """``integral_0^1 cos(-a + eta S13) d eta`` (step 1), free of cancellation near S13 = 0.
+
+    Equal to ``(sin(S13 - a) + sin(a)) / S13 = sinc(S13 / 2) cos(S13 / 2 - a)``.
+    """
+    half = 0.5 * S13
+    sinc = 1.0 - half * half / 6.0 if abs(half) < 1e-4 else math.sin(half) / half
+    return sinc * math.cos(half - a)
+
+
+def initial_controller_state() -> list:
+    """All estimates zero (SPEC 5); the filter states are set from the first measurements."""
+    return [0.0] * 20
+
+
+def control_law(g: Gains, xc: list, m: list) -> ControlLaw:
+    """Evaluate the three DSC steps for controller state ``xc`` and measurements ``m``."""
+    x, y, theta, theta_dot, v1, v2, i1, i2, xr, yr, thetar, vr, wr, vr_dot = m
+    a1_hat, a2_hat, x2f1, x2f2 = xc[0], xc[1], xc[2], xc[3]
+    W1_hat = xc[W1_SLICE]
+    x3f1, x3f2 = xc[12], xc[13]
+    W2_hat = xc[W2_SLICE]
+    k1 = g.k1
+
+    # Step 1, kinematics: (10), (12), (14)-(16).
+    ex, ey = xr - x, yr - y
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
+    S11 = cos_t * ex + sin_t * ey
+    S12 = -sin_t * ex + cos_t * ey
+    S13bar = wrap(thetar - theta)
+    p = k1 * S12 * vr
+    a = math.atan(p)
+    S13 = S13bar + a
+    den = 1.0 + p * p
+    sin_e, cos_e = math.sin(S13bar), math.cos(S13bar)
+    alpha1 = (k1 * vr * vr * sin_e + k1 * S12 * vr_dot) / den
+    al2 = alpha2(S13, a)
+    beta = 1.0 + k1 * vr * S11 / den
+    guarded = beta < g.beta_min
+    kv = k1 * vr
+    h1 = a1_hat * vr * cos_e + g.k2 * S11 + 0.5 * kv * kv * kv * kv * S11 * S11 * S11
+    h2 = (a1_hat * al2 * vr * S12 + a2_hat * (wr + alpha1) + g.k3 * S13 + 0.5 * S13 * S13 * S13) / (
+        g.beta_min if guarded else beta
+    )
+    x2bar1, x2bar2 = h1 + h2, h1 - h2
+    a1_hat_dot = g.gamma1 * (vr * (S11 * cos_e + al2 * S12 * S13) - g.sigma1 * a1_hat)
+    a2_hat_dot = g.gamma2 * ((wr + alpha1) * S13 - g.sigma2 * a2_hat)
+
+    # Step 2, robot dynamics: (17)-(22).
+    x2f_dot1 = (x2bar1 - x2f1) / g.tau2
+    x2f_dot2 = (x2bar2 - x2f2) / g.tau2
+    S21, S22 = v1 - x2f1, v2 - x2f2
+    phi_a = (-theta_dot * v2, 0.0, -v1, 0.0, -x2f_dot1, -x2f_dot2, 0.0, 0.0)
+    phi_b = (0.0, theta_dot * v1, 0.0, -v2, 0.0, 0.0, -x2f_dot2, -x2f_dot1)
+    x3bar1 = -g.k4 * S21 - sum(f * w for f, w in zip(phi_a, W1_hat))
+    x3bar2 = -g.k4 * S22 - sum(f * w for f, w in zip(phi_b, W1_hat))
+    W1_hat_dot = [
+        G * (fa * S21 + fb * S22 - g.sigma3 * w)
+        for G, fa, fb, w in zip(g.Gamma1, phi_a, phi_b, W1_hat)
+    ]
+
+    # Step 3, actuators: (23)-(27).
+    x3f_dot1 = (x3bar1 - x3f1) / g.tau3
+    x3f_dot2 = (x3bar2 - x3f2) / g.tau3
+    S31, S32 = i1 - x3f1, i2 - x3f2
+    G2 = g.Gamma2
+    w1, w2, w3, w4, w5, w6 = W2_hat
+    u1 = -g.k5 * S31 + i1 * w1 + v1 * w3 + x3f_dot1 * w5
+    u2 = -g.k5 * S32 + i2 * w2 + v2 * w4 + x3f_dot2 * w6
+    W2_hat_dot = [
+        G2[0] * (-i1 * S31 - g.sigma4 * w1),
+        G2[1] * (-i2 * S32 - g.sigma4 * w2),
+        G2[2] * (-v1 * S31 - g.sigma4 * w3),
+        G2[3] * (-v2 * S32 - g.sigma4 * w4),
+        G2[4] * (-x3f_dot1 * S31 - g.sigma4 * w5),
+        G2[5] * (-x3f_dot2 * S32 - g.sigma4 * w6),
+    ]
+
+    derivative = [a1_hat_dot, a2_hat_dot, x2f_dot1, x2f_dot2, *W1_hat_dot, x3f_dot1, x3f_dot2, *W2_hat_dot]
+    return ControlLaw(u1, u2, derivative, S11, S12, S13, beta, guarded, (x2bar1, x2bar2), (x3bar1, x3bar2))
+
+
+def start_filters(g: Gains, xc: list, m: list) -> list:
+    """``xc`` with ``x2f = x2bar`` and then ``x3f = x3bar`` for measurements ``m`` (SPEC 5).
+
+    With ``x2f = x2bar`` the filter derivative ``x2f_dot`` is zero when ``x3bar`` is formed.
+    """
+    xc = list(xc)
+    xc[2:4] = control_law(g, xc, m).x2bar
+    xc[12:14] = control_law(g, xc, m).x3bar
+    return xc

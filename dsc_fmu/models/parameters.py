@@ -1,0 +1,209 @@
+"""The FMUs' variables with the paper's values (Section IV): the one source of truth for defaults."""
+
+from dataclasses import dataclass
+
+__all__ = [
+    "Variable",
+    "PLANT_PARAMETERS",
+    "PLANT_INPUTS",
+    "PLANT_OUTPUTS",
+    "REFERENCE_PARAMETERS",
+    "REFERENCE_OUTPUTS",
+    "CONTROLLER_PARAMETERS",
+    "CONTROLLER_INPUTS",
+    "CONTROLLER_OUTPUTS",
+    "PROFILES",
+    "defaults",
+]
+
+POSITIVE = "positive"
+NONNEGATIVE = "nonnegative"
+ANY = "any"
+
+
+@dataclass(frozen=True)
+class Variable:
+    """One FMU variable: name, start value, SI unit, description and allowed range.
+
+    ``bound`` is ``"positive"`` (> 0), ``"nonnegative"`` (>= 0) or ``"any"`` (finite).
+    ``tunable`` parameters may change between communication points; the others are fixed.
+    ``integer`` marks an Integer variable, with ``maximum`` its largest allowed value.
+    """
+
+    name: str
+    start: float
+    unit: str
+    description: str
+    bound: str = ANY
+    tunable: bool = False
+    integer: bool = False
+    maximum: float | None = None
+
+    def check(self, value: float) -> str | None:
+        """Return why ``value`` is not allowed for this variable, or None if it is."""
+        if value != value or value in (float("inf"), float("-inf")):
+            return f"{self.name} = {value} is not finite"
+        if self.bound == POSITIVE and not value > 0:
+            return f"{self.name} = {value} is not allowed: it must be > 0"
+        if self.bound == NONNEGATIVE and not value >= 0:
+            return f"{self.name} = {value} is not allowed: it must be >= 0"
+        if self.integer and value != int(value):
+            return f"{self.name} = {value} is not allowed: it must be a whole number"
+        if self.maximum is not None and value > self.maximum:
+            return f"{self.name} = {value} is not allowed: it must be <= {self.maximum:g}"
+        return None
+
+    @property
+    def allowed(self) -> str:
+        """The allowed range in words, for error messages."""
+        text = {POSITIVE: "> 0", NONNEGATIVE: ">= 0", ANY: "finite"}[self.bound]
+        if self.maximum is not None:
+            text += f" and <= {self.maximum:g}"
+        return text + (", whole number" if self.integer else "")
+
+
+def _per_wheel(name, value, unit, what, bound=POSITIVE):
+    return tuple(
+        Variable(f"{name}{i}", value, unit, f"{what}, {side} wheel (SPEC 1, eq. 5)", bound)
+        for i, side in ((1, "right"), (2, "left"))
+    )
+
+
+MAX_STEP = Variable(
+    "max_step", 1e-3, "s",
+    "Longest internal RK4 sub-step between communication points", POSITIVE, tunable=True,
+)
+
+PLANT_PARAMETERS = (
+    Variable("R", 0.75, "m", "Half the distance between the driving wheels", POSITIVE),
+    Variable("d", 0.3, "m", "Distance from the wheel axle midpoint to the centre of mass", NONNEGATIVE),
+    Variable("r", 0.15, "m", "Wheel radius", POSITIVE),
+    Variable("mc", 30.0, "kg", "Mass of the platform without wheels and motors", POSITIVE),
+    Variable("mw", 1.0, "kg", "Mass of each wheel with its motor", POSITIVE),
+    Variable("Ic", 15.625, "kg.m2", "Platform moment of inertia about the vertical axis through the centre of mass", POSITIVE),
+    Variable("Iw", 0.005, "kg.m2", "Wheel with motor moment of inertia about the wheel axis", POSITIVE),
+    Variable("Im", 0.0025, "kg.m2", "Wheel with motor moment of inertia about a wheel diameter", NONNEGATIVE),
+    Variable("d11", 5.0, "N.m.s/rad", "Viscous damping, right wheel (matrix D)", NONNEGATIVE),
+    Variable("d22", 5.0, "N.m.s/rad", "Viscous damping, left wheel (matrix D)", NONNEGATIVE),
+    *_per_wheel("Ra", 1.6, "Ohm", "Armature resistance"),
+    *_per_wheel("La", 0.048, "H", "Armature inductance"),
+    *_per_wheel("KE", 0.19, "V.s/rad", "Back-EMF constant"),
+    *_per_wheel("KT", 0.2613, "N.m/A", "Torque constant"),
+    *_per_wheel("N", 62.55, "1", "Gear ratio"),
+    Variable("x0", 2.5, "m", "Initial x position of the robot"),
+    Variable("y0", 1.0, "m", "Initial y position of the robot"),
+    Variable("theta0", 1.5707963267948966, "rad", "Initial heading of the robot"),
+    MAX_STEP,
+)
+
+PLANT_INPUTS = (
+    Variable("u1", 0.0, "V", "Motor voltage, right wheel"),
+    Variable("u2", 0.0, "V", "Motor voltage, left wheel"),
+)
+
+PLANT_OUTPUTS = (
+    Variable("x", 0.0, "m", "Position x of the axle midpoint (eq. 1)"),
+    Variable("y", 0.0, "m", "Position y of the axle midpoint (eq. 1)"),
+    Variable("theta", 0.0, "rad", "Heading, continuous (not wrapped)"),
+    Variable("theta_dot", 0.0, "rad/s", "Heading rate, as a gyro measures it (eq. 1)"),
+    Variable("omega1", 0.0, "rad/s", "Angular velocity, right wheel (z1)"),
+    Variable("omega2", 0.0, "rad/s", "Angular velocity, left wheel (z2)"),
+    Variable("i1", 0.0, "A", "Motor current, right wheel"),
+    Variable("i2", 0.0, "A", "Motor current, left wheel"),
+)
+
+PROFILES = ("constant", "figure_eight")
+
+REFERENCE_PARAMETERS = (
+    Variable("x0", 2.0, "m", "Initial x position of the reference robot"),
+    Variable("y0", 2.0, "m", "Initial y position of the reference robot"),
+    Variable("theta0", 0.0, "rad", "Initial heading of the reference robot"),
+    Variable(
+        "profile", 0, "1", "Velocity profile: 0 = constant (v_r = vr0, omega_r = wr0), "
+        "1 = figure eight (speed and turn rate of x = A sin(2 pi t/T), y = B sin(4 pi t/T))",
+        NONNEGATIVE, integer=True, maximum=len(PROFILES) - 1,
+    ),
+    Variable("vr0", 1.0, "m/s", "Linear velocity of the constant profile (Assumption 2: > 0)", POSITIVE),
+    Variable("wr0", 0.2, "rad/s", "Angular velocity of the constant profile"),
+    Variable("eight_A", 3.0, "m", "Figure eight: half width A", POSITIVE),
+    Variable("eight_B", 1.5, "m", "Figure eight: half height of each lobe B", POSITIVE),
+    Variable("eight_T", 30.0, "s", "Figure eight: period T of one full figure", POSITIVE),
+    MAX_STEP,
+)
+
+REFERENCE_OUTPUTS = (
+    Variable("x_r", 0.0, "m", "Reference position x (eq. 9)"),
+    Variable("y_r", 0.0, "m", "Reference position y (eq. 9)"),
+    Variable("theta_r", 0.0, "rad", "Reference heading, continuous (eq. 9)"),
+    Variable("v_r", 0.0, "m/s", "Reference linear velocity vr"),
+    Variable("omega_r", 0.0, "rad/s", "Reference angular velocity wr"),
+    Variable("v_r_dot", 0.0, "m/s2", "Time derivative of vr"),
+)
+
+
+def _gains(name, values, what, unit="1"):
+    return tuple(
+        Variable(f"{name}_{i}", v, unit, f"{what}, diagonal entry {i}", POSITIVE, tunable=True)
+        for i, v in enumerate(values, start=1)
+    )
+
+
+CONTROLLER_PARAMETERS = (
+    Variable("k1", 2.0, "1", "Gain k1 of the S13 transformation (eq. 12)", POSITIVE, tunable=True),
+    Variable("k2", 2.0, "1", "Gain k2 of the virtual control h1 (eq. 14)", POSITIVE, tunable=True),
+    Variable("k3", 1.0, "1", "Gain k3 of the virtual control h2 (eq. 14)", POSITIVE, tunable=True),
+    Variable("k4", 1.0, "1", "Gain k4 of the virtual current x3bar (eq. 20)", POSITIVE, tunable=True),
+    Variable("k5", 1.0, "1", "Gain k5 of the voltage law u (eq. 26)", POSITIVE, tunable=True),
+    Variable("gamma1", 2.0, "1", "Adaptation gain of a1_hat (eq. 15)", POSITIVE, tunable=True),
+    Variable("gamma2", 2.0, "1", "Adaptation gain of a2_hat (eq. 16)", POSITIVE, tunable=True),
+    Variable("sigma1", 0.001, "1", "Sigma-modification of a1_hat (eq. 15)", POSITIVE, tunable=True),
+    Variable("sigma2", 0.001, "1", "Sigma-modification of a2_hat (eq. 16)", POSITIVE, tunable=True),
+    Variable("sigma3", 0.001, "1", "Sigma-modification of W1_hat (eq. 21)", POSITIVE, tunable=True),
+    Variable("sigma4", 0.001, "1", "Sigma-modification of W2_hat (eq. 27)", POSITIVE, tunable=True),
+    Variable("tau2", 0.01, "s", "Time constant of the first-order filter of x2bar (eq. 17)", POSITIVE, tunable=True),
+    Variable("tau3", 0.01, "s", "Time constant of the first-order filter of x3bar (eq. 23)", POSITIVE, tunable=True),
+    *_gains("Gamma1", (1e-4,) * 8, "Adaptation gain matrix Gamma1 of W1_hat (eq. 21)"),
+    *_gains("Gamma2", (0.2, 0.2, 0.2, 0.2, 1e-5, 1e-5), "Adaptation gain matrix Gamma2 of W2_hat (eq. 27)"),
+    Variable(
+        "beta_min", 0.05, "1",
+        "Guard of beta (SPEC 5): where beta < beta_min, h2 divides by beta_min instead", POSITIVE, tunable=True,
+    ),
+    MAX_STEP,
+)
+
+CONTROLLER_INPUTS = (
+    Variable("x", 0.0, "m", "Measured position x"),
+    Variable("y", 0.0, "m", "Measured position y"),
+    Variable("theta", 0.0, "rad", "Measured heading"),
+    Variable("theta_dot", 0.0, "rad/s", "Measured heading rate (gyro)"),
+    Variable("omega1", 0.0, "rad/s", "Measured angular velocity, right wheel"),
+    Variable("omega2", 0.0, "rad/s", "Measured angular velocity, left wheel"),
+    Variable("i1", 0.0, "A", "Measured motor current, right wheel"),
+    Variable("i2", 0.0, "A", "Measured motor current, left wheel"),
+    Variable("x_r", 0.0, "m", "Reference position x"),
+    Variable("y_r", 0.0, "m", "Reference position y"),
+    Variable("theta_r", 0.0, "rad", "Reference heading"),
+    Variable("v_r", 1.0, "m/s", "Reference linear velocity (Assumption 2: > 0)", POSITIVE),
+    Variable("omega_r", 0.0, "rad/s", "Reference angular velocity"),
+    Variable("v_r_dot", 0.0, "m/s2", "Time derivative of the reference linear velocity"),
+)
+
+CONTROLLER_OUTPUTS = (
+    Variable("u1", 0.0, "V", "Motor voltage, right wheel (eq. 26)"),
+    Variable("u2", 0.0, "V", "Motor voltage, left wheel (eq. 26)"),
+    Variable("S11", 0.0, "m", "Longitudinal tracking error in the robot frame (eq. 10)"),
+    Variable("S12", 0.0, "m", "Lateral tracking error in the robot frame (eq. 10)"),
+    Variable("S13", 0.0, "rad", "Transformed heading error (eq. 12)"),
+    Variable("beta", 1.0, "1", "beta = 1 + k1 vr S11 / (1 + (k1 S12 vr)^2), before the guard (eq. 14)"),
+    Variable("a1_hat", 0.0, "1/m", "Estimate of a1 = 1/r (eq. 15)"),
+    Variable("a2_hat", 0.0, "1", "Estimate of a2 = R/r (eq. 16)"),
+    Variable("W1_hat_norm", 0.0, "1", "Euclidean norm of W1_hat (eq. 21)"),
+    Variable("W2_hat_norm", 0.0, "1", "Euclidean norm of W2_hat (eq. 27)"),
+    *(Variable(f"W1_hat_{i}", 0.0, "1", f"Estimate of W1 entry {i} (eq. 21)") for i in range(1, 9)),
+    *(Variable(f"W2_hat_{i}", 0.0, "1", f"Estimate of W2 entry {i} (eq. 27)") for i in range(1, 7)),
+)
+
+
+def defaults(variables) -> dict:
+    """Map each variable's name to its start value."""
+    return {v.name: v.start for v in variables}

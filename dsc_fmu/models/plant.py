@@ -1,0 +1,90 @@
+"""The electrically driven differential-drive robot: kinematics (1), dynamics (2) and motors (5)."""
+
+import math
+from dataclasses import dataclass
+
+__all__ = ["PlantCoefficients", "plant_coefficients", "plant_derivatives", "theta_dot", "initial_plant_state"]
+
+
+@dataclass(frozen=True)
+class PlantCoefficients:
+    """The constants of equations (1)-(8), computed once from the physical parameters.
+
+    ``m11, m12`` are the entries of the inertia matrix M, ``c`` the Coriolis coefficient
+    (C = c [[0, theta_dot], [-theta_dot, 0]]), ``nkt`` = n kt, ``nke`` = n ke per wheel.
+    """
+
+    r: float
+    R: float
+    m11: float
+    m12: float
+    c: float
+    d11: float
+    d22: float
+    nkt1: float
+    nkt2: float
+    nke1: float
+    nke2: float
+    ra1: float
+    ra2: float
+    la1: float
+    la2: float
+
+    @property
+    def det_M(self) -> float:
+        """Determinant of M, m11^2 - m12^2 (> 0: M is positive definite)."""
+        return self.m11 * self.m11 - self.m12 * self.m12
+
+
+def plant_coefficients(p: dict) -> PlantCoefficients:
+    """Coefficients of (2) and (5) from the parameters of SPEC 4 (names as the FMU's)."""
+    r, R, d, mc, mw = p["r"], p["R"], p["d"], p["mc"], p["mw"]
+    m = mc + 2.0 * mw
+    inertia = mc * d * d + 2.0 * mw * R * R + p["Ic"] + 2.0 * p["Im"]
+    k = 0.25 * r * r / (R * R)
+    return PlantCoefficients(
+        r=r,
+        R=R,
+        m11=k * (m * R * R + inertia) + p["Iw"],
+        m12=k * (m * R * R - inertia),
+        c=0.5 * r * r * mc * d / R,
+        d11=p["d11"],
+        d22=p["d22"],
+        nkt1=p["N1"] * p["KT1"],
+        nkt2=p["N2"] * p["KT2"],
+        nke1=p["N1"] * p["KE1"],
+        nke2=p["N2"] * p["KE2"],
+        ra1=p["Ra1"],
+        ra2=p["Ra2"],
+        la1=p["La1"],
+        la2=p["La2"],
+    )
+
+
+def theta_dot(k: PlantCoefficients, v1: float, v2: float) -> float:
+    """Heading rate from the wheel speeds, third row of (1)."""
+    return 0.5 * k.r / k.R * (v1 - v2)
+
+
+def initial_plant_state(p: dict) -> list:
+    """``[x, y, theta, v1, v2, i1, i2]`` at rest at the initial pose (SPEC 5)."""
+    return [p["x0"], p["y0"], p["theta0"], 0.0, 0.0, 0.0, 0.0]
+
+
+def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float) -> list:
+    """Time derivative of ``[x, y, theta, v1, v2, i1, i2]`` under voltages ``u1, u2`` (6)-(8)."""
+    _, _, theta, v1, v2, i1, i2 = x
+    speed = 0.5 * k.r * (v1 + v2)
+    w = 0.5 * k.r / k.R * (v1 - v2)
+    f1 = k.nkt1 * i1 - k.c * w * v2 - k.d11 * v1
+    f2 = k.nkt2 * i2 + k.c * w * v1 - k.d22 * v2
+    det = k.m11 * k.m11 - k.m12 * k.m12
+    return [
+        speed * math.cos(theta),
+        speed * math.sin(theta),
+        w,
+        (k.m11 * f1 - k.m12 * f2) / det,
+        (k.m11 * f2 - k.m12 * f1) / det,
+        (u1 - k.ra1 * i1 - k.nke1 * v1) / k.la1,
+        (u2 - k.ra2 * i2 - k.nke2 * v2) / k.la2,
+    ]

@@ -1,0 +1,32 @@
+"""Classical fourth-order Runge-Kutta over one communication step, in equal sub-steps."""
+
+import math
+
+__all__ = ["substeps", "rk4_integrate"]
+
+
+def substeps(step_size: float, max_step: float) -> int:
+    """Number of equal sub-steps no longer than ``max_step`` that make up ``step_size``."""
+    return max(1, math.ceil(step_size / max_step * (1.0 - 1e-12)))
+
+
+def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> list:
+    """Integrate ``x_dot = f(t, x)`` from ``t0`` over ``step_size`` with RK4 sub-steps.
+
+    Sub-step k starts at ``t0 + k h``: time is never accumulated.
+    """
+    n = substeps(step_size, max_step)
+    h = step_size / n
+    half = 0.5 * h
+    sixth = h / 6.0
+    for k in range(n):
+        t = t0 + k * h
+        k1 = f(t, x)
+        k2 = f(t + half, [xi + half * di for xi, di in zip(x, k1)])
+        k3 = f(t + half, [xi + half * di for xi, di in zip(x, k2)])
+        k4 = f(t + h, [xi + h * di for xi, di in zip(x, k3)])
+        x = [
+            xi + sixth * (a + 2.0 * b + 2.0 * c + d)
+            for xi, a, b, c, d in zip(x, k1, k2, k3, k4)
+        ]
+    return x

@@ -1,0 +1,96 @@
+"""DSCController.fmu: the adaptive dynamic surface controller of SPEC 3 (equations 10-27)."""
+
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer
+from pythonfmu.enums import Fmi2Status
+
+from dsc_fmu.fmi_slave import DscSlave
+from dsc_fmu.models.controller import (
+    W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters,
+)
+from dsc_fmu.models.parameters import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS
+
+
+def _norm(values):
+    return sum(v * v for v in values) ** 0.5
+
+
+class DSCController(DscSlave):
+    """Inputs: measurements and reference. Outputs: voltages u1, u2 (direct feedthrough) and internals.
+
+    The measured inputs are held over a step; the 20 controller states are integrated with RK4.
+    The filter states start at x2f = x2bar, x3f = x3bar of the inputs present at the first step.
+    """
+
+    description = "Adaptive dynamic surface controller for the electrically driven mobile robot (Section III)"
+    author = "dsc-fmu"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
+    PARAMETERS = CONTROLLER_PARAMETERS
+    INPUTS = CONTROLLER_INPUTS
+    OUTPUTS = CONTROLLER_OUTPUTS
+
+    def __init__(self, **kwargs):
+        self.g = None
+        self.beta_guard_count = 0
+        self._guarded_last_step = False
+        self._guard_seen = None
+        super().__init__(**kwargs)
+        self.register_variable(Integer(
+            "beta_guard_count", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+            initial=Fmi2Initial.calculated,
+            description="Number of steps in which beta fell below beta_min and the guard acted (SPEC 5)",
+        ))
+        self.register_variable(Boolean(
+            "beta_guard_active", causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+            initial=Fmi2Initial.calculated,
+            description="True while beta < beta_min at the current inputs and state",
+            getter=lambda: self.law().guarded,
+        ))
+
+    def parameters_changed(self):
+        self.g = None
+
+    def gains(self):
+        if self.g is None:
+            self.g = gains(self.p)
+        return self.g
+
+    def law(self):
+        return control_law(self.gains(), self.current_state(), self.u)
+
+    def initial_state(self):
+        return start_filters(self.gains(), initial_controller_state(), self.u)
+
+    def derivatives(self, t, x):
+        law = control_law(self.gains(), x, self.u)
+        if law.guarded and self._guard_seen is None:
+            self._guard_seen = (t, law.beta)
+        return law.derivative
+
+    def do_step(self, current_time, step_size):
+        self._guard_seen = None
+        ok = super().do_step(current_time, step_size)
+        if self._guard_seen is not None:
+            self.beta_guard_count += 1
+            if not self._guarded_last_step:
+                t, beta = self._guard_seen
+                self.log(
+                    f"{self.instance_name}: beta = {beta:.6g} < beta_min = {self.p['beta_min']:g} at t = {t:.6g} s: "
+                    "h2 divides by beta_min (outside the region of Remark 3)", Fmi2Status.warning,
+                )
+        self._guarded_last_step = self._guard_seen is not None
+        return ok
+
+    def outputs(self, x):
+        law = control_law(self.gains(), x, self.u)
+        W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
+        return [
+            law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, x[0], x[1],
+            _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat,
+        ]
+
+    def extra_state(self):
+        return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step}
+
+    def set_extra_state(self, extra):
+        self.beta_guard_count = extra["beta_guard_count"]
+        self._guarded_last_step = extra["guarded_last_step"]
