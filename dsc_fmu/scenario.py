@@ -1,0 +1,177 @@
+"""Scenarios: TOML files read into a validated, typed ``Scenario`` with every FMU parameter set."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import tomllib
+from dataclasses import dataclass
+from pathlib import Path
+
+from .models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, PROFILES, REFERENCE_PARAMETERS
+from .models.reference import min_speed
+
+__all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
+
+ORDERS = ("gauss-seidel", "jacobi")
+_HERE = Path(__file__).parent
+SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
+
+TABLES = {"plant": PLANT_PARAMETERS, "controller": CONTROLLER_PARAMETERS, "reference": REFERENCE_PARAMETERS}
+FMU_OF_TABLE = {"plant": "MobileRobot", "controller": "DSCController", "reference": "ReferenceRobot"}
+
+
+class ScenarioError(ValueError):
+    """A scenario (file, key or value) that cannot be run; the message names what and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Simulation:
+    """How the scenario is co-simulated: stop time (s), communication step (s), coupling order,
+    output interval (s) and the bound on |signal| beyond which a run counts as diverged."""
+
+    stop_time: float = 30.0
+    step_size: float = 1e-3
+    order: str = "gauss-seidel"
+    output_interval: float = 0.01
+    bound: float = 1e6
+
+    def check(self, where: str) -> None:
+        """Raise ScenarioError naming ``where`` if a setting is out of its range."""
+        for key in ("stop_time", "step_size", "output_interval", "bound"):
+            value = getattr(self, key)
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not a number; allowed: > 0")
+            if not (math.isfinite(value) and value > 0):
+                raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
+        if self.order not in ORDERS:
+            raise ScenarioError(
+                f"{where}: [simulation] order = {self.order!r} is not allowed; allowed: {', '.join(ORDERS)}"
+            )
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """A validated scenario: settings and the value of every parameter of the three FMUs."""
+
+    name: str
+    description: str
+    source: str
+    simulation: Simulation
+    plant: dict
+    controller: dict
+    reference: dict
+
+    def parameters(self, fmu: str) -> dict:
+        """Parameter values of the FMU named ``fmu`` (``MobileRobot``, ``DSCController``, ``ReferenceRobot``)."""
+        table = {v: k for k, v in FMU_OF_TABLE.items()}[fmu]
+        return getattr(self, table)
+
+    def with_simulation(self, **settings) -> Scenario:
+        """This scenario with some simulation settings replaced (None leaves a setting as it is)."""
+        changed = {k: v for k, v in settings.items() if v is not None}
+        unknown = set(changed) - {f.name for f in dataclasses.fields(Simulation)}
+        if unknown:
+            raise ScenarioError(f"{self.source}: unknown simulation setting {sorted(unknown)[0]}")
+        simulation = dataclasses.replace(self.simulation, **changed)
+        simulation.check(self.source)
+        scenario = dataclasses.replace(self, simulation=simulation)
+        _check_reference_speed(scenario)
+        return scenario
+
+
+def scenario_names() -> list[str]:
+    """Names of the scenarios shipped in ``scenarios/``."""
+    return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
+
+
+def _resolve(name_or_path: str | Path) -> Path:
+    path = Path(name_or_path)
+    if path.suffix == ".toml" or path.exists():
+        if not path.is_file():
+            raise ScenarioError(f"{path}: scenario file not found")
+        return path
+    candidate = SCENARIO_DIR / f"{name_or_path}.toml"
+    if not candidate.is_file():
+        raise ScenarioError(
+            f"unknown scenario {str(name_or_path)!r}; allowed: a path to a TOML file or one of "
+            f"{', '.join(scenario_names())}"
+        )
+    return candidate
+
+
+def _table(data: dict, key: str, where: str) -> dict:
+    value = data.get(key, {})
+    if not isinstance(value, dict):
+        raise ScenarioError(f"{where}: {key} must be a table [{key}]")
+    return value
+
+
+def _parameters(table_name: str, given: dict, where: str) -> dict:
+    variables = {v.name: v for v in TABLES[table_name]}
+    values = {name: v.start for name, v in variables.items()}
+    for key, value in given.items():
+        v = variables.get(key)
+        if v is None:
+            raise ScenarioError(
+                f"{where}: unknown key [{table_name}] {key}; allowed: {', '.join(variables)}"
+            )
+        if key == "profile":
+            if value not in PROFILES:
+                raise ScenarioError(
+                    f"{where}: [reference] profile = {value!r} is not allowed; allowed: {', '.join(PROFILES)}"
+                )
+            values[key] = PROFILES.index(value)
+            continue
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise ScenarioError(f"{where}: [{table_name}] {key} = {value!r} is not a number; allowed: {v.allowed}")
+        reason = v.check(value)
+        if reason:
+            raise ScenarioError(f"{where}: [{table_name}] {reason}; allowed: {v.allowed}")
+        values[key] = float(value)
+    return values
+
+
+def _check_reference_speed(scenario: Scenario) -> None:
+    """Assumption 2: vr > 0 over the whole run, else a usage error (SPEC 2)."""
+    lowest = min_speed(scenario.reference, scenario.simulation.stop_time)
+    if not lowest > 0:
+        raise ScenarioError(
+            f"{scenario.source}: [reference] v_r reaches {lowest:g} m/s during the run; "
+            "allowed: v_r > 0 at all times (Assumption 2)"
+        )
+
+
+def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
+    """Read and validate a scenario given by name (from ``scenarios/``) or by path to a TOML file."""
+    path = _resolve(name_or_path)
+    where = str(path)
+    try:
+        data = tomllib.loads(path.read_text())
+    except (OSError, UnicodeDecodeError) as error:
+        raise ScenarioError(f"{where}: cannot read: {error}") from None
+    except tomllib.TOMLDecodeError as error:
+        raise ScenarioError(f"{where}: not valid TOML: {error}") from None
+    allowed = {"name", "description", "simulation", *TABLES}
+    for key in data:
+        if key not in allowed:
+            raise ScenarioError(f"{where}: unknown key {key}; allowed: {', '.join(sorted(allowed))}")
+    settings = _table(data, "simulation", where)
+    fields = {f.name for f in dataclasses.fields(Simulation)}
+    for key in settings:
+        if key not in fields:
+            raise ScenarioError(f"{where}: unknown key [simulation] {key}; allowed: {', '.join(sorted(fields))}")
+    simulation = Simulation(**settings)
+    simulation.check(where)
+    for key in ("name", "description"):
+        if not isinstance(data.get(key, ""), str):
+            raise ScenarioError(f"{where}: {key} = {data[key]!r} must be a string")
+    scenario = Scenario(
+        name=data.get("name", path.stem),
+        description=data.get("description", ""),
+        source=where,
+        simulation=simulation,
+        **{name: _parameters(name, _table(data, name, where), where) for name in TABLES},
+    )
+    _check_reference_speed(scenario)
+    return scenario

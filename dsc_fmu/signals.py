@@ -1,0 +1,43 @@
+"""The columns of a result: what is recorded from each FMU, what is derived, and their units."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from .models.controller import wrap
+from .models.parameters import CONTROLLER_OUTPUTS, PLANT_OUTPUTS, REFERENCE_OUTPUTS
+
+__all__ = ["RECORDED", "DERIVED", "COLUMNS", "UNITS", "DTYPE", "add_tracking_errors"]
+
+RECORDED = {
+    "ReferenceRobot": tuple(v.name for v in REFERENCE_OUTPUTS),
+    "MobileRobot": tuple(v.name for v in PLANT_OUTPUTS),
+    "DSCController": (*(v.name for v in CONTROLLER_OUTPUTS), "beta_guard_count"),
+}
+
+DERIVED = ("xe", "ye", "thetae", "position_error")
+
+_FIRST = (
+    "x", "y", "theta", "x_r", "y_r", "theta_r", "xe", "ye", "thetae", "position_error",
+    "u1", "u2", "omega1", "omega2", "i1", "i2", "a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm",
+)
+COLUMNS = (
+    "time",
+    *_FIRST,
+    *(name for names in RECORDED.values() for name in names if name not in _FIRST),
+)
+
+UNITS = {
+    "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m", "beta_guard_count": "1",
+    **{v.name: v.unit for v in (*REFERENCE_OUTPUTS, *PLANT_OUTPUTS, *CONTROLLER_OUTPUTS)},
+}
+
+DTYPE = np.dtype([(name, np.float64) for name in COLUMNS])
+
+
+def add_tracking_errors(result: np.ndarray) -> None:
+    """Fill ``xe = x_r - x``, ``ye = y_r - y``, ``thetae = wrap(theta_r - theta)`` and the position error (SPEC 5)."""
+    result["xe"] = result["x_r"] - result["x"]
+    result["ye"] = result["y_r"] - result["y"]
+    result["thetae"] = [wrap(a) for a in result["theta_r"] - result["theta"]]
+    result["position_error"] = np.hypot(result["xe"], result["ye"])
