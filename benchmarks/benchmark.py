@@ -1,0 +1,103 @@
+"""Benchmark: the paper scenario through the FMUs beside the reference solution and beside a floor.
+
+The floor is the same master driving three trivial pythonfmu FMUs with the same interfaces (same
+variable names, no model math): what FMI and pythonfmu cost per communication step by themselves.
+Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import tempfile
+import time
+from pathlib import Path
+
+from pythonfmu import FmuBuilder
+
+from dsc_fmu.build import FMUS, ensure_fmus
+from dsc_fmu.master import cosimulate
+from dsc_fmu.reference_solution import reference_solution
+from dsc_fmu.scenario import load_scenario
+
+TRIVIAL_SLAVE = '''
+from pythonfmu import Fmi2Slave, Real, Integer, Fmi2Causality, Fmi2Variability, Fmi2Initial
+
+
+class {name}(Fmi2Slave):
+    """Same interface as {name}.fmu, no model: outputs stay at zero."""
+
+    def __init__(self, **kwargs):
+        super().__init__(**kwargs)
+        for name, integer, tunable in {parameters!r}:
+            setattr(self, name, 1 if integer else 1.0)
+            variability = Fmi2Variability.tunable if tunable else Fmi2Variability.fixed
+            kind = Integer if integer else Real
+            self.register_variable(kind(name, causality=Fmi2Causality.parameter, variability=variability))
+        for name in {inputs!r}:
+            setattr(self, name, 1.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.input))
+        for name in {outputs!r}:
+            setattr(self, name, 1.0)
+            self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+        for name in {integer_outputs!r}:
+            setattr(self, name, 0)
+            self.register_variable(Integer(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+
+    def do_step(self, current_time, step_size):
+        return True
+'''
+
+
+def build_trivial_fmus(out_dir: Path) -> dict[str, Path]:
+    """Build FMUs with the interfaces of ours and no model behind them."""
+    paths = {}
+    for name, spec in FMUS.items():
+        script = out_dir / f"trivial_{name.lower()}.py"
+        script.write_text(TRIVIAL_SLAVE.format(
+            name=name,
+            parameters=[(v.name, v.integer, v.tunable) for v in spec.parameters],
+            inputs=[v.name for v in spec.inputs],
+            outputs=[v.name for v in spec.outputs],
+            integer_outputs=["beta_guard_count"] if name == "DSCController" else [],
+        ))
+        paths[name] = FmuBuilder.build_FMU(script, dest=out_dir / f"{name}.fmu")
+    return paths
+
+
+def _best(function, repeat: int) -> float:
+    times = []
+    for _ in range(repeat):
+        start = time.perf_counter()
+        function()
+        times.append(time.perf_counter() - start)
+    return min(times)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stop-time", type=float, default=30.0)
+    parser.add_argument("--step-size", type=float, default=1e-3)
+    parser.add_argument("--repeat", type=int, default=3, help="best of this many runs")
+    args = parser.parse_args()
+    scenario = load_scenario("paper").with_simulation(stop_time=args.stop_time, step_size=args.step_size)
+    steps = round(args.stop_time / args.step_size)
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_bench_") as tmp:
+        ours = ensure_fmus(Path(tmp) / "fmus")
+        trivial = build_trivial_fmus(Path(tmp))
+        fmus = _best(lambda: cosimulate(scenario, ours), args.repeat)
+        floor = _best(lambda: cosimulate(scenario, trivial), args.repeat)
+    monolithic = _best(lambda: reference_solution(scenario), args.repeat)
+    print(f"paper scenario, {args.stop_time:g} s at a {args.step_size:g} s step ({steps} steps), best of {args.repeat}")
+    print(f"{'route':<42}{'wall time (s)':>15}{'per step (us)':>15}{'ratio':>8}")
+    rows = (
+        ("three FMUs under the fmpy master", fmus),
+        ("reference solution (one ODE, scipy)", monolithic),
+        ("floor: same master, three trivial FMUs", floor),
+    )
+    for label, seconds in rows:
+        print(f"{label:<42}{seconds:>15.3f}{seconds / steps * 1e6:>15.1f}{seconds / fmus:>8.2f}")
+    print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,67 @@
+"""The builder: FMUs rebuilt only when missing or built from other sources; unique bundled names."""
+
+import json
+import zipfile
+
+import pytest
+
+from dsc_fmu import build
+from dsc_fmu.build import BUILD_ID_FILE, FMUS, ensure_fmus, fmu_build_id, source_hash
+
+
+def test_ensure_builds_missing_fmus_then_reuses_them(tmp_path):
+    first = ensure_fmus(tmp_path)
+    assert set(first) == set(FMUS)
+    stamps = {name: path.stat().st_mtime_ns for name, path in first.items()}
+    second = ensure_fmus(tmp_path)
+    assert {name: path.stat().st_mtime_ns for name, path in second.items()} == stamps
+    for name, path in first.items():
+        assert fmu_build_id(path) == source_hash(FMUS[name])
+
+
+def test_ensure_rebuilds_an_fmu_built_from_other_sources(tmp_path):
+    paths = ensure_fmus(tmp_path)
+    stale = paths["MobileRobot"]
+    with zipfile.ZipFile(stale) as archive:
+        entries = {item: archive.read(item) for item in archive.namelist()}
+    entries[BUILD_ID_FILE] = json.dumps({"source_hash": "from an older checkout"}).encode()
+    with zipfile.ZipFile(stale, "w") as archive:
+        for item, data in entries.items():
+            archive.writestr(item, data)
+    assert fmu_build_id(stale) == "from an older checkout"
+    ensure_fmus(tmp_path)
+    assert fmu_build_id(stale) == source_hash(FMUS["MobileRobot"])
+
+
+def test_ensure_replaces_a_file_that_is_not_an_fmu(tmp_path):
+    (tmp_path / "DSCController.fmu").write_text("not a zip")
+    path = ensure_fmus(tmp_path)["DSCController"]
+    assert zipfile.is_zipfile(path)
+
+
+def test_source_hash_follows_the_sources(monkeypatch, tmp_path):
+    spec = FMUS["ReferenceRobot"]
+    before = source_hash(spec)
+    fake = tmp_path / "fmu_sources"
+    fake.mkdir()
+    for script in (build._sources_dir()).glob("*.py"):
+        (fake / script.name).write_text(script.read_text())
+    monkeypatch.setattr(build, "_sources_dir", lambda: fake)
+    assert source_hash(spec) == before
+    (fake / spec.script).write_text((fake / spec.script).read_text() + "\n# changed\n")
+    assert source_hash(spec) != before
+
+
+@pytest.mark.parametrize("name", list(FMUS))
+def test_bundled_modules_carry_a_name_unique_to_the_build(fmu_paths, name):
+    with zipfile.ZipFile(fmu_paths[name]) as archive:
+        module = archive.read("resources/slavemodule.txt").decode()
+        files = archive.namelist()
+    digest = source_hash(FMUS[name])[:12]
+    assert module.endswith(digest)
+    package = f"resources/dsc_fmu_{name.lower()}_{digest}/"
+    assert f"{package}models/controller.py" in files
+    assert not any(f.startswith("resources/dsc_fmu/") for f in files)
+    with zipfile.ZipFile(fmu_paths[name]) as archive:
+        script = archive.read(f"resources/{module}.py").decode()
+    assert "from dsc_fmu." not in script
