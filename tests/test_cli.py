@@ -1,0 +1,118 @@
+"""The command line: the main job's files, and one-line errors with a non-zero exit for bad input."""
+
+import csv
+import json
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from dsc_fmu.cli import main
+from dsc_fmu.scenario import load_scenario
+from dsc_fmu.signals import COLUMNS
+
+REQUIRED = (
+    "time x y theta x_r y_r theta_r xe ye thetae u1 u2 omega1 omega2 i1 i2 "
+    "a1_hat a2_hat W1_hat_norm W2_hat_norm"
+).split()
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(fmu_paths):
+    return next(iter(fmu_paths.values())).parent
+
+
+def test_run_writes_results_summary_and_figures(tmp_path, fmu_dir, capsys):
+    out = tmp_path / "out"
+    status = main(["run", "paper", "--stop-time", "1.5", "--step-size", "2e-3", "--order", "jacobi",
+                   "--output-interval", "0.1", "--out", str(out), "--fmu-dir", str(fmu_dir)])
+    assert status == 0
+    printed = capsys.readouterr().out
+    assert "scenario paper: jacobi, step 0.002 s, stop 1.5 s" in printed
+    with open(out / "results.csv") as f:
+        rows = list(csv.reader(f))
+    header = rows[0]
+    assert header[: len(REQUIRED)] == REQUIRED[:1] + header[1: len(REQUIRED)]
+    assert set(REQUIRED) <= set(header) and header[0] == "time"
+    assert header == list(COLUMNS)
+    times = np.array([float(r[0]) for r in rows[1:]])
+    np.testing.assert_allclose(times, np.arange(16) * 0.1, atol=1e-12)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["scenario"] == "paper"
+    settings = summary["settings"]
+    assert (settings["step_size"], settings["order"], settings["stop_time"], settings["steps"]) == (2e-3, "jacobi", 1.5, 750)
+    assert settings["wall_time_s"] > 0
+    for key in ("final_position_error_m", "rms_position_error_m", "max_position_error_m", "max_abs_thetae_rad",
+                "settling_time_0p1_s", "max_abs_u_V"):
+        assert key in summary["metrics"]
+    assert summary["units"]["u1"] == "V" and summary["units"]["thetae"] == "rad"
+    for figure in ("trajectory.png", "signals.png"):
+        assert (out / figure).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_run_without_plots(tmp_path, fmu_dir):
+    out = tmp_path / "out"
+    assert main(["run", "--stop-time", "0.2", "--no-plots", "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    assert sorted(p.name for p in out.iterdir()) == ["results.csv", "summary.json"]
+
+
+BAD_SCENARIO = "[plant]\nmc = -30.0\n"
+
+
+@pytest.mark.parametrize(
+    "arguments, message",
+    [
+        (["run", "--step-size", "0"], "step_size = 0.0 is not allowed; allowed: > 0"),
+        (["run", "--step-size=-1e-3"], "step_size = -0.001 is not allowed"),
+        (["run", "--stop-time=-5"], "stop_time = -5.0 is not allowed"),
+        (["run", "--output-interval", "nan"], "output_interval = nan is not allowed"),
+        (["run", "no_such_scenario"], "unknown scenario 'no_such_scenario'; allowed:"),
+        (["run", "{bad}"], "[plant] mc = -30.0 is not allowed: it must be > 0"),
+        (["run", "{missing}"], "scenario file not found"),
+    ],
+)
+def test_bad_input_gives_one_line_and_writes_nothing(tmp_path, capsys, arguments, message):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(BAD_SCENARIO)
+    arguments = [a.format(bad=bad, missing=tmp_path / "missing.toml") for a in arguments]
+    out = tmp_path / "out"
+    status = main([*arguments, "--out", str(out), "--fmu-dir", str(tmp_path / "fmus")])
+    captured = capsys.readouterr()
+    assert status == 1
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("dsc-fmu: error: ")
+    assert message in lines[0]
+    assert captured.out == ""
+    assert not out.exists() and not (tmp_path / "fmus").exists()
+
+
+def test_bad_order_is_refused_by_the_parser(capsys):
+    with pytest.raises(SystemExit) as exit_:
+        main(["run", "--order", "random"])
+    assert exit_.value.code == 2
+    assert "invalid choice: 'random'" in capsys.readouterr().err
+
+
+def test_console_script_error_has_no_traceback(tmp_path):
+    process = subprocess.run(
+        [shutil.which("dsc-fmu"), "run", "--step-size", "0"], capture_output=True, text=True, cwd=tmp_path,
+    )
+    assert process.returncode == 1
+    assert "Traceback" not in process.stderr
+    assert process.stderr.strip() == (
+        f"dsc-fmu: error: {load_scenario('paper').source}"
+        + ": [simulation] step_size = 0.0 is not allowed; allowed: > 0"
+    )
+
+
+def test_build_command(tmp_path, capsys):
+    assert main(["build", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out.split()
+    assert sorted(printed) == sorted(str(tmp_path / f"{n}.fmu") for n in ("ReferenceRobot", "MobileRobot", "DSCController"))
+
+
+def test_scenarios_command_lists_the_shipped_ones(capsys):
+    assert main(["scenarios"]) == 0
+    names = [line.split(":")[0] for line in capsys.readouterr().out.splitlines()]
+    assert {"paper", "figure_eight", "ahead_start"} <= set(names)
