@@ -1,0 +1,119 @@
+"""The monolithic reference solution: plant, controller and reference robot as one ODE, solved tightly."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from . import signals
+from .models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
+from .models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from .models.reference import initial_reference_state, reference_derivatives, velocity
+from .scenario import Scenario
+
+__all__ = [
+    "PLANT",
+    "CONTROLLER",
+    "REFERENCE",
+    "output_times",
+    "measurements",
+    "closed_loop_derivatives",
+    "initial_closed_loop_state",
+    "reference_solution",
+]
+
+PLANT = slice(0, 7)
+CONTROLLER = slice(7, 27)
+REFERENCE = slice(27, 30)
+
+
+def _norm(values) -> float:
+    """Euclidean norm, as the controller FMU computes it."""
+    return sum(v * v for v in values) ** 0.5
+
+
+def output_times(stop_time: float, output_interval: float) -> np.ndarray:
+    """The output grid ``k * output_interval`` for k = 0, 1, ..., ending exactly at ``stop_time``."""
+    n = math.floor(stop_time / output_interval * (1.0 + 1e-12))
+    times = np.arange(n + 1) * output_interval
+    if stop_time - times[-1] > 1e-9 * output_interval:
+        return np.append(times, stop_time)
+    times[-1] = stop_time
+    return times
+
+
+def measurements(k: PlantCoefficients, ref_params: dict, t: float, plant: list, reference: list) -> list:
+    """The controller's inputs ``m`` (models/controller.py) from the plant and reference states at ``t``."""
+    x, y, theta, v1, v2, i1, i2 = plant
+    vr, wr, vr_dot = velocity(ref_params, t)
+    return [x, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *reference, vr, wr, vr_dot]
+
+
+def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
+    """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by u of (26),
+    controller (15)-(27) fed the current measurements, reference robot (9)."""
+    state = list(state)
+    plant, reference = state[PLANT], state[REFERENCE]
+    law = control_law(g, state[CONTROLLER], measurements(k, ref_params, t, plant, reference))
+    return [
+        *plant_derivatives(k, plant, law.u1, law.u2),
+        *law.derivative,
+        *reference_derivatives(ref_params, t, reference),
+    ]
+
+
+def initial_closed_loop_state(scenario: Scenario) -> list:
+    """Plant at rest at its initial pose, estimates zero, filters started from the t = 0 measurements (SPEC 5)."""
+    k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
+    plant, reference = initial_plant_state(scenario.plant), initial_reference_state(scenario.reference)
+    m0 = measurements(k, scenario.reference, 0.0, plant, reference)
+    return [*plant, *start_filters(g, initial_controller_state(), m0), *reference]
+
+
+def reference_solution(
+    scenario: Scenario, times=None, rtol: float = 1e-10, atol: float = 1e-10, method: str = "DOP853"
+) -> np.ndarray:
+    """Solve the closed loop from t = 0 with ``solve_ivp`` and return one ``signals.DTYPE`` row per time.
+
+    ``times`` (ascending, >= 0) defaults to the scenario's output grid; ``method`` is any solve_ivp method.
+    ``beta_guard_count`` counts the output rows so far at which the beta guard acts (SPEC 5).
+    """
+    sim = scenario.simulation
+    times = output_times(sim.stop_time, sim.output_interval) if times is None else np.asarray(times, float)
+    if times.ndim != 1 or times.size == 0 or times[0] < 0 or np.any(np.diff(times) <= 0):
+        raise ValueError("times must be a non-empty, strictly ascending sequence of times >= 0")
+    k, g, ref = plant_coefficients(scenario.plant), gains(scenario.controller), scenario.reference
+    solution = solve_ivp(
+        closed_loop_derivatives, (0.0, times[-1]), initial_closed_loop_state(scenario),
+        method=method, t_eval=times, args=(k, g, ref), rtol=rtol, atol=atol,
+    )
+    if not solution.success:
+        raise RuntimeError(f"reference solution of {scenario.name!r} failed: {solution.message}")
+
+    rows = []
+    guard_count = 0
+    for t, state in zip(solution.t, solution.y.T):
+        state = list(state)
+        xc = state[CONTROLLER]
+        m = measurements(k, ref, t, state[PLANT], state[REFERENCE])
+        law = control_law(g, xc, m)
+        guard_count += law.guarded
+        W1_hat, W2_hat = xc[W1_SLICE], xc[W2_SLICE]
+        controller = [  # as the controller FMU's outputs()
+            law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, xc[0], xc[1],
+            _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat, guard_count,
+        ]
+        rows.append({
+            "time": t,
+            **dict(zip(signals.RECORDED["MobileRobot"], m[:8], strict=True)),
+            **dict(zip(signals.RECORDED["ReferenceRobot"], m[8:], strict=True)),
+            **dict(zip(signals.RECORDED["DSCController"], controller, strict=True)),
+        })
+    result = np.zeros(len(rows), dtype=signals.DTYPE)
+    for name in signals.COLUMNS:
+        if name not in signals.DERIVED:
+            result[name] = [row[name] for row in rows]
+    signals.add_tracking_errors(result)
+    return result
