@@ -41,7 +41,9 @@ class {name}(Fmi2Slave):
             self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
         for name in {integer_outputs!r}:
             setattr(self, name, 0)
-            self.register_variable(Integer(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
+            self.register_variable(Integer(
+                name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete, initial=Fmi2Initial.exact,
+            ))
 
     def do_step(self, current_time, step_size):
         return True

@@ -160,6 +160,8 @@ def _complete_model_description(xml: bytes, spec: FmuSpec) -> bytes:
             continue
         if typed.tag == "Real":
             typed.set("unit", v.unit)
+            if typed.get("start") is not None:
+                typed.set("start", repr(float(v.start)))
         if v.bound == NONNEGATIVE:
             typed.set("min", "0")
         if v.maximum is not None:

@@ -18,9 +18,15 @@ class DscSlave(Fmi2Slave):
     """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
 
     Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
-    ``initial_state``, ``derivatives`` and ``outputs``. Until the first ``do_step`` the state is
-    ``initial_state()`` of the current parameters and inputs; from then on it is integrated with
-    RK4 in sub-steps no longer than the parameter ``max_step``.
+    ``initial_state``, ``derivatives`` and ``outputs``. Until initialisation ends, the state is
+    ``initial_state()`` of the current parameters and inputs; it is fixed at the first output read
+    or step after ``exit_initialization_mode`` and then integrated with RK4 in sub-steps no longer
+    than the parameter ``max_step``.
+
+    A value outside its allowed range is refused without raising: pythonfmu 0.7.0 turns a Python
+    exception into fmi2Fatal and a later fmi2FreeInstance then crashes the importer. The refusal is
+    logged as an error naming the variable and its range, the variable keeps its last valid value,
+    and every ``do_step`` returns fmi2Discard until a valid value is set.
     """
 
     PARAMETERS: tuple = ()
@@ -32,6 +38,8 @@ class DscSlave(Fmi2Slave):
         self.p = {v.name: v.start for v in self.PARAMETERS}
         self.u = [v.start for v in self.INPUTS]
         self.state = None
+        self.initializing = True
+        self.rejected = {}
         self.time = 0.0
         self._cache = None
         for v in self.PARAMETERS:
@@ -55,31 +63,37 @@ class DscSlave(Fmi2Slave):
                 getter=lambda i=index: self.output_values()[i],
             ))
 
-    def _reject(self, reason: str):
-        self.log(f"{self.instance_name}: {reason}", Fmi2Status.error)
-        raise ValueError(reason)
+    def _accept(self, kind: str, v, value) -> bool:
+        """Whether ``value`` is allowed for ``v``; if not, log why and hold the FMU until it is."""
+        reason = v.check(value)
+        if reason is None:
+            self.rejected.pop(v.name, None)
+            return True
+        self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
+        self.log(f"{self.instance_name}: {self.rejected[v.name]}", Fmi2Status.error)
+        return False
 
     def _set_parameter(self, v, value):
-        reason = v.check(value)
-        if reason:
-            self._reject(f"parameter {reason}; allowed: {v.allowed}")
-        self.p[v.name] = int(value) if v.integer else float(value)
-        self.parameters_changed()
-        self._cache = None
+        if self._accept("parameter", v, value):
+            self.p[v.name] = int(value) if v.integer else float(value)
+            self.parameters_changed()
+            self._cache = None
 
     def _set_input(self, index, v, value):
-        reason = v.check(value)
-        if reason:
-            self._reject(f"input {reason}; allowed: {v.allowed}")
-        self.u[index] = float(value)
-        self._cache = None
+        if self._accept("input", v, value):
+            self.u[index] = float(value)
+            self._cache = None
 
     def parameters_changed(self):
         """Hook: drop whatever a subclass precomputed from the parameters."""
 
     def current_state(self) -> list:
-        """The state: integrated since the first step, or the initial state before it."""
-        return self.initial_state() if self.state is None else self.state
+        """The state: the initial state while initialising, fixed at the first use after it."""
+        if self.state is None:
+            if self.initializing:
+                return self.initial_state()
+            self.state = self.initial_state()
+        return self.state
 
     def output_values(self) -> list:
         """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
@@ -90,10 +104,19 @@ class DscSlave(Fmi2Slave):
     def setup_experiment(self, start_time, stop_time, tolerance):
         self.time = start_time
 
+    def exit_initialization_mode(self):
+        self.initializing = False
+        self._cache = None
+
     def do_step(self, current_time, step_size):
-        if self.state is None:
-            self.state = self.initial_state()
-        new = rk4_integrate(self.derivatives, current_time, self.state, step_size, self.p["max_step"])
+        if self.rejected:
+            self.log(
+                f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}",
+                Fmi2Status.error,
+            )
+            return False
+        self.initializing = False
+        new = rk4_integrate(self.derivatives, current_time, self.current_state(), step_size, self.p["max_step"])
         if not all(math.isfinite(value) for value in new):
             self.log(
                 f"{self.instance_name}: state not finite after the step from t = {current_time} s "
@@ -107,14 +130,17 @@ class DscSlave(Fmi2Slave):
 
     def _get_fmu_state(self):
         return {
-            "p": dict(self.p), "u": list(self.u), "time": self.time,
-            "state": None if self.state is None else list(self.state), "extra": self.extra_state(),
+            "p": dict(self.p), "u": list(self.u), "time": self.time, "initializing": self.initializing,
+            "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
+            "extra": self.extra_state(),
         }
 
     def _set_fmu_state(self, saved):
         self.p = dict(saved["p"])
         self.u = list(saved["u"])
         self.time = saved["time"]
+        self.initializing = saved["initializing"]
+        self.rejected = dict(saved["rejected"])
         self.state = None if saved["state"] is None else list(saved["state"])
         self.set_extra_state(saved["extra"])
         self.parameters_changed()

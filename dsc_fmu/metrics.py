@@ -1,0 +1,51 @@
+"""Tracking metrics of a result: errors over the last third of the run, settling time, peak voltage."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["SETTLING_THRESHOLD", "tracking_metrics", "settling_time"]
+
+SETTLING_THRESHOLD = 0.1  # m
+
+
+def settling_time(time: np.ndarray, error: np.ndarray, threshold: float) -> float | None:
+    """The first recorded time (s) from which ``error`` stays below ``threshold`` in every later
+    row, or None if the last row is not below it."""
+    above = np.flatnonzero(~(np.asarray(error) < threshold))  # NaN counts as not settled
+    if len(above) == 0:
+        return float(time[0])
+    if above[-1] == len(error) - 1:
+        return None
+    return float(time[above[-1] + 1])
+
+
+def tracking_metrics(result: np.ndarray, stop_time: float) -> dict:
+    """Metrics of a result with the columns of ``signals.COLUMNS`` that ends at ``stop_time`` (s).
+
+    Over the window [2/3 stop_time, stop_time] (the rows recorded in it): the position error
+    (``sqrt(xe^2 + ye^2)``, m) of the last row, its RMS over the rows and its maximum, and the
+    largest ``|thetae|`` (rad). Over the whole run: ``settling_time_0p1_s``, the first recorded time
+    from which the position error stays below 0.1 m (None if it never does), the largest voltage
+    ``max(|u1|, |u2|)`` (V) and the number of steps in which the controller's beta guard acted.
+    Values are plain floats (or None, or an int for the count), so the dict is JSON-serialisable.
+    """
+    if not stop_time > 0:
+        raise ValueError(f"stop_time = {stop_time!r} is not allowed; allowed: > 0")
+    time = result["time"]
+    start = 2.0 * stop_time / 3.0
+    window = time >= start - 1e-9 * stop_time
+    if not window.any():
+        raise ValueError(f"no row recorded in the window [{start:g}, {stop_time:g}] s")
+    error = result["position_error"][window]
+    return {
+        "window_start_s": start,
+        "window_end_s": float(stop_time),
+        "final_position_error_m": float(error[-1]),
+        "rms_position_error_m": float(np.sqrt(np.mean(error**2))),
+        "max_position_error_m": float(np.max(error)),
+        "max_abs_thetae_rad": float(np.max(np.abs(result["thetae"][window]))),
+        "settling_time_0p1_s": settling_time(time, result["position_error"], SETTLING_THRESHOLD),
+        "max_abs_u_V": float(max(np.max(np.abs(result["u1"])), np.max(np.abs(result["u2"])))),
+        "beta_guard_count": int(result["beta_guard_count"][-1]),
+    }

@@ -1,0 +1,63 @@
+"""The paper's figures from a result: Fig. 1 (paths in the plane) and Fig. 2 (errors, voltages, estimates)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+from matplotlib.backends.backend_agg import FigureCanvasAgg
+from matplotlib.figure import Figure
+
+__all__ = ["plot_trajectory", "plot_signals"]
+
+
+def _figure(width: float, height: float) -> Figure:
+    """A figure on an Agg canvas, outside pyplot: no display, no global state, nothing to close."""
+    figure = Figure(figsize=(width, height), layout="constrained")
+    FigureCanvasAgg(figure)
+    return figure
+
+
+def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
+    """Fig. 1: the reference path (x_r, y_r) and the robot's path (x, y) in the plane (m), start
+    points marked; saved to ``path`` (format from its suffix)."""
+    figure = _figure(6.0, 6.0)
+    axes = figure.add_subplot()
+    axes.plot(result["x_r"], result["y_r"], "--", color="tab:blue", label="reference robot")
+    axes.plot(result["x"], result["y"], "-", color="tab:red", label="robot")
+    axes.plot(result["x_r"][0], result["y_r"][0], "o", color="tab:blue", label="reference start")
+    axes.plot(result["x"][0], result["y"][0], "s", color="tab:red", label="robot start")
+    axes.set_aspect("equal", adjustable="datalim")
+    axes.set(xlabel="x (m)", ylabel="y (m)", title="Paths in the plane")
+    axes.grid(True, alpha=0.3)
+    axes.legend(loc="best")
+    figure.savefig(path, dpi=120)
+    return Path(path)
+
+
+def plot_signals(result: np.ndarray, path: Path | str) -> Path:
+    """Fig. 2 against time (s): (a) tracking errors xe, ye (m) and thetae (rad); (b) voltages u1, u2
+    (V); (c) estimates a1_hat (1/m) and a2_hat (1); (d) norms of W1_hat and W2_hat (1); saved to
+    ``path`` (format from its suffix)."""
+    time = result["time"]
+    figure = _figure(10.0, 7.5)
+    (errors, voltages), (estimates, norms) = figure.subplots(2, 2, sharex=True)
+    panels = (
+        (errors, "(a) tracking errors", "error (m, rad)",
+         (("xe", "-", "xe (m)"), ("ye", "--", "ye (m)"), ("thetae", ":", "thetae (rad)"))),
+        (voltages, "(b) control voltages", "voltage (V)", (("u1", "-", "u1 (V)"), ("u2", "--", "u2 (V)"))),
+        (estimates, "(c) estimates of a1 = 1/r and a2 = R/r", "estimate",
+         (("a1_hat", "-", "a1_hat (1/m)"), ("a2_hat", ":", "a2_hat (1)"))),
+        (norms, "(d) norms of the parameter estimates", "norm (1)",
+         (("W1_hat_norm", "-", "||W1_hat||"), ("W2_hat_norm", ":", "||W2_hat||"))),
+    )
+    for axes, title, ylabel, curves in panels:
+        for column, style, label in curves:
+            axes.plot(time, result[column], style, label=label)
+        axes.set(title=title, ylabel=ylabel)
+        axes.grid(True, alpha=0.3)
+        axes.legend(loc="best")
+    for axes in (estimates, norms):
+        axes.set_xlabel("time (s)")
+    figure.savefig(path, dpi=120)
+    return Path(path)

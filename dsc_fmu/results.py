@@ -1,0 +1,64 @@
+"""Writing a run to disk (results.csv, summary.json) and summarising it in a few lines of text."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+from fmpy.util import write_csv
+
+from . import signals
+from .master import CosimulationResult
+from .scenario import Scenario
+
+__all__ = ["write_results", "summary", "format_summary"]
+
+
+def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
+    """What ``summary.json`` holds: scenario, settings, metrics, units of the CSV columns, FMU build ids."""
+    return {
+        "scenario": scenario.name,
+        "scenario_source": scenario.source,
+        "settings": {
+            "step_size": run.settings["step_size"],
+            "order": run.settings["order"],
+            "stop_time": run.settings["stop_time"],
+            "output_interval": run.settings["output_interval"],
+            "steps": run.steps,
+            "wall_time_s": run.wall_time,
+        },
+        "metrics": metrics,
+        "units": dict(signals.UNITS),
+        "fmus": {name: fmu["build_id"] for name, fmu in run.fmus.items()},
+    }
+
+
+def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict[str, Path]:
+    """Write ``results.csv`` (fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``) and
+    ``summary.json`` into ``out_dir`` (created if missing); return their paths by kind."""
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    paths = {"csv": out_dir / "results.csv", "summary": out_dir / "summary.json"}
+    write_csv(paths["csv"], run.result)
+    paths["summary"].write_text(json.dumps(summary(run, scenario, metrics), indent=2) + "\n")
+    return paths
+
+
+def _number(value, unit: str) -> str:
+    return "never" if value is None else f"{value:.4g} {unit}"
+
+
+def format_summary(run: CosimulationResult, metrics: dict) -> str:
+    """A short multi-line text of the run's settings, cost and metrics, for the command line."""
+    s = run.settings
+    return "\n".join([
+        f"scenario {s['scenario']}: {s['order']}, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
+        f"output every {s['output_interval']:g} s",
+        f"  {run.steps} steps in {run.wall_time:.2f} s wall time",
+        f"  position error over [{metrics['window_start_s']:g}, {metrics['window_end_s']:g}] s: "
+        f"final {_number(metrics['final_position_error_m'], 'm')}, "
+        f"RMS {_number(metrics['rms_position_error_m'], 'm')}, max {_number(metrics['max_position_error_m'], 'm')}",
+        f"  max |thetae| over the same window: {_number(metrics['max_abs_thetae_rad'], 'rad')}",
+        f"  position error below 0.1 m from: {_number(metrics['settling_time_0p1_s'], 's')}",
+        f"  max |u|: {_number(metrics['max_abs_u_V'], 'V')}; beta guard acted in {metrics['beta_guard_count']} steps",
+    ])
