@@ -6,7 +6,7 @@ the standard library.
 
 import math
 
-from pythonfmu import Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
 from .models.rk4 import rk4_integrate
@@ -29,6 +29,8 @@ class DscSlave(Fmi2Slave):
     and every ``do_step`` returns fmi2Discard until a valid value is set.
     """
 
+    author = "dsc-fmu"
+    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
     PARAMETERS: tuple = ()
     INPUTS: tuple = ()
     OUTPUTS: tuple = ()
@@ -36,6 +38,7 @@ class DscSlave(Fmi2Slave):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         self.p = {v.name: v.start for v in self.PARAMETERS}
+        self._constants = None
         self.u = [v.start for v in self.INPUTS]
         self.state = None
         self.initializing = True
@@ -76,7 +79,7 @@ class DscSlave(Fmi2Slave):
     def _set_parameter(self, v, value):
         if self._accept("parameter", v, value):
             self.p[v.name] = int(value) if v.integer else float(value)
-            self.parameters_changed()
+            self._constants = None
             self._cache = None
 
     def _set_input(self, index, v, value):
@@ -84,8 +87,12 @@ class DscSlave(Fmi2Slave):
             self.u[index] = float(value)
             self._cache = None
 
-    def parameters_changed(self):
-        """Hook: drop whatever a subclass precomputed from the parameters."""
+    @property
+    def constants(self):
+        """``derive(p)`` of the current parameters, computed once per change of a parameter."""
+        if self._constants is None:
+            self._constants = self.derive(self.p)
+        return self._constants
 
     def current_state(self) -> list:
         """The state: the initial state while initialising, fixed at the first use after it."""
@@ -143,7 +150,7 @@ class DscSlave(Fmi2Slave):
         self.rejected = dict(saved["rejected"])
         self.state = None if saved["state"] is None else list(saved["state"])
         self.set_extra_state(saved["extra"])
-        self.parameters_changed()
+        self._constants = None
         self._cache = None
 
     def extra_state(self) -> dict:
@@ -152,6 +159,10 @@ class DscSlave(Fmi2Slave):
 
     def set_extra_state(self, extra: dict):
         """Hook: restore what ``extra_state`` saved."""
+
+    def derive(self, p: dict):
+        """What the model needs from the parameters ``p``, precomputed (``constants``)."""
+        return p
 
     def initial_state(self) -> list:
         raise NotImplementedError

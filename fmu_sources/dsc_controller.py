@@ -1,6 +1,6 @@
 """DSCController.fmu: the adaptive dynamic surface controller of SPEC 3 (equations 10-27)."""
 
-from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer
+from pythonfmu import Boolean, Fmi2Causality, Fmi2Initial, Fmi2Variability, Integer
 from pythonfmu.enums import Fmi2Status
 
 from dsc_fmu.fmi_slave import DscSlave
@@ -18,18 +18,16 @@ class DSCController(DscSlave):
     """Inputs: measurements and reference. Outputs: voltages u1, u2 (direct feedthrough) and internals.
 
     The measured inputs are held over a step; the 20 controller states are integrated with RK4.
-    The filter states start at x2f = x2bar, x3f = x3bar of the inputs present at the first step.
+    The filter states start at x2f = x2bar, x3f = x3bar of the inputs present at the first output
+    read or step after initialisation (SPEC 5: the first measurements the controller sees).
     """
 
     description = "Adaptive dynamic surface controller for the electrically driven mobile robot (Section III)"
-    author = "dsc-fmu"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
     PARAMETERS = CONTROLLER_PARAMETERS
     INPUTS = CONTROLLER_INPUTS
     OUTPUTS = CONTROLLER_OUTPUTS
 
     def __init__(self, **kwargs):
-        self.g = None
         self.beta_guard_count = 0
         self._guarded_last_step = False
         self._guard_seen = None
@@ -46,22 +44,17 @@ class DSCController(DscSlave):
             getter=lambda: self.law().guarded,
         ))
 
-    def parameters_changed(self):
-        self.g = None
-
-    def gains(self):
-        if self.g is None:
-            self.g = gains(self.p)
-        return self.g
+    def derive(self, p):
+        return gains(p)
 
     def law(self):
-        return control_law(self.gains(), self.current_state(), self.u)
+        return control_law(self.constants, self.current_state(), self.u)
 
     def initial_state(self):
-        return start_filters(self.gains(), initial_controller_state(), self.u)
+        return start_filters(self.constants, initial_controller_state(), self.u)
 
     def derivatives(self, t, x):
-        law = control_law(self.gains(), x, self.u)
+        law = control_law(self.constants, x, self.u)
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative
@@ -81,7 +74,7 @@ class DSCController(DscSlave):
         return ok
 
     def outputs(self, x):
-        law = control_law(self.gains(), x, self.u)
+        law = control_law(self.constants, x, self.u)
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
         return [
             law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, x[0], x[1],

@@ -1,7 +1,5 @@
 """ReferenceRobot.fmu: the reference robot of SPEC 2 (equation 9) with its velocity profile."""
 
-from pythonfmu import DefaultExperiment
-
 from dsc_fmu.fmi_slave import DscSlave
 from dsc_fmu.models.parameters import REFERENCE_OUTPUTS, REFERENCE_PARAMETERS
 from dsc_fmu.models.reference import initial_reference_state, reference_derivatives, velocity
@@ -11,8 +9,6 @@ class ReferenceRobot(DscSlave):
     """No inputs. Outputs: reference pose, vr, wr and vr_dot at the current time."""
 
     description = "Reference robot of the tracking problem (equation 9): constant or figure-eight profile"
-    author = "dsc-fmu"
-    default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
     PARAMETERS = REFERENCE_PARAMETERS
     OUTPUTS = REFERENCE_OUTPUTS
 

@@ -304,7 +304,7 @@ def test_isolation_check_catches_an_fmu_that_imports_numpy(tmp_path, monkeypatch
     shutil.copytree(build_module._sources_dir(), sources)
     script = sources / FMUS["MobileRobot"].script
     text = script.read_text()
-    marker = "from pythonfmu import DefaultExperiment"
+    marker = "from dsc_fmu.fmi_slave import DscSlave"
     assert marker in text, "the test's source patch no longer applies to mobile_robot.py"
     script.write_text(text.replace(marker, marker + "\ntry:\n    import numpy\nexcept ImportError:\n    numpy = None\n", 1))
     monkeypatch.setattr(build_module, "_sources_dir", lambda: sources)
