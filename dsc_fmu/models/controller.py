@@ -130,31 +130,40 @@ def control_law(g: Gains, xc: list, m: list) -> ControlLaw:
     # Step 2, robot dynamics: (17)-(22).
     x2f_dot1 = (x2bar1 - x2f1) / g.tau2
     x2f_dot2 = (x2bar2 - x2f2) / g.tau2
+    # Phi1 = [[-theta_dot v2, 0, -v1, 0, -x2f_dot1, -x2f_dot2, 0, 0],
+    #         [0, theta_dot v1, 0, -v2, 0, 0, -x2f_dot2, -x2f_dot1]], its products written out.
     S21, S22 = v1 - x2f1, v2 - x2f2
-    phi_a = (-theta_dot * v2, 0.0, -v1, 0.0, -x2f_dot1, -x2f_dot2, 0.0, 0.0)
-    phi_b = (0.0, theta_dot * v1, 0.0, -v2, 0.0, 0.0, -x2f_dot2, -x2f_dot1)
-    x3bar1 = -g.k4 * S21 - sum(f * w for f, w in zip(phi_a, W1_hat))
-    x3bar2 = -g.k4 * S22 - sum(f * w for f, w in zip(phi_b, W1_hat))
+    w1, w2, w3, w4, w5, w6, w7, w8 = W1_hat
+    x3bar1 = -g.k4 * S21 + theta_dot * v2 * w1 + v1 * w3 + x2f_dot1 * w5 + x2f_dot2 * w6
+    x3bar2 = -g.k4 * S22 - theta_dot * v1 * w2 + v2 * w4 + x2f_dot2 * w7 + x2f_dot1 * w8
+    G1, s3 = g.Gamma1, g.sigma3
     W1_hat_dot = [
-        G * (fa * S21 + fb * S22 - g.sigma3 * w)
-        for G, fa, fb, w in zip(g.Gamma1, phi_a, phi_b, W1_hat)
+        G1[0] * (-theta_dot * v2 * S21 - s3 * w1),
+        G1[1] * (theta_dot * v1 * S22 - s3 * w2),
+        G1[2] * (-v1 * S21 - s3 * w3),
+        G1[3] * (-v2 * S22 - s3 * w4),
+        G1[4] * (-x2f_dot1 * S21 - s3 * w5),
+        G1[5] * (-x2f_dot2 * S21 - s3 * w6),
+        G1[6] * (-x2f_dot2 * S22 - s3 * w7),
+        G1[7] * (-x2f_dot1 * S22 - s3 * w8),
     ]
 
     # Step 3, actuators: (23)-(27).
     x3f_dot1 = (x3bar1 - x3f1) / g.tau3
     x3f_dot2 = (x3bar2 - x3f2) / g.tau3
+    # Phi2 = [[-i1, 0, -v1, 0, -x3f_dot1, 0], [0, -i2, 0, -v2, 0, -x3f_dot2]], written out.
     S31, S32 = i1 - x3f1, i2 - x3f2
-    G2 = g.Gamma2
-    w1, w2, w3, w4, w5, w6 = W2_hat
-    u1 = -g.k5 * S31 + i1 * w1 + v1 * w3 + x3f_dot1 * w5
-    u2 = -g.k5 * S32 + i2 * w2 + v2 * w4 + x3f_dot2 * w6
+    r1, r2, e1, e2, l1, l2 = W2_hat
+    u1 = -g.k5 * S31 + i1 * r1 + v1 * e1 + x3f_dot1 * l1
+    u2 = -g.k5 * S32 + i2 * r2 + v2 * e2 + x3f_dot2 * l2
+    G2, s4 = g.Gamma2, g.sigma4
     W2_hat_dot = [
-        G2[0] * (-i1 * S31 - g.sigma4 * w1),
-        G2[1] * (-i2 * S32 - g.sigma4 * w2),
-        G2[2] * (-v1 * S31 - g.sigma4 * w3),
-        G2[3] * (-v2 * S32 - g.sigma4 * w4),
-        G2[4] * (-x3f_dot1 * S31 - g.sigma4 * w5),
-        G2[5] * (-x3f_dot2 * S32 - g.sigma4 * w6),
+        G2[0] * (-i1 * S31 - s4 * r1),
+        G2[1] * (-i2 * S32 - s4 * r2),
+        G2[2] * (-v1 * S31 - s4 * e1),
+        G2[3] * (-v2 * S32 - s4 * e2),
+        G2[4] * (-x3f_dot1 * S31 - s4 * l1),
+        G2[5] * (-x3f_dot2 * S32 - s4 * l2),
     ]
 
     derivative = [a1_hat_dot, a2_hat_dot, x2f_dot1, x2f_dot2, *W1_hat_dot, x3f_dot1, x3f_dot2, *W2_hat_dot]
