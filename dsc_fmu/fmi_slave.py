@@ -70,7 +70,8 @@ class DscSlave(Fmi2Slave):
         """Whether ``value`` is allowed for ``v``; if not, log why and hold the FMU until it is."""
         reason = v.check(value)
         if reason is None:
-            self.rejected.pop(v.name, None)
+            if self.rejected:
+                self.rejected.pop(v.name, None)
             return True
         self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
         self.log(f"{self.instance_name}: {self.rejected[v.name]}", Fmi2Status.error)

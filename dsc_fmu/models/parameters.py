@@ -1,5 +1,6 @@
 """The FMUs' variables with the paper's values (Section IV): the one source of truth for defaults."""
 
+import math
 from dataclasses import dataclass
 
 __all__ = [
@@ -41,7 +42,7 @@ class Variable:
 
     def check(self, value: float) -> str | None:
         """Return why ``value`` is not allowed for this variable, or None if it is."""
-        if value != value or value in (float("inf"), float("-inf")):
+        if not math.isfinite(value):
             return f"{self.name} = {value} is not finite"
         if self.bound == POSITIVE and not value > 0:
             return f"{self.name} = {value} is not allowed: it must be > 0"
