@@ -103,6 +103,10 @@ class DscSlave(Fmi2Slave):
             self.state = self.initial_state()
         return self.state
 
+    def integrate(self, t: float, x: list, step_size: float) -> list:
+        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
+        return rk4_integrate(self.derivatives, t, x, step_size, self.p["max_step"])
+
     def output_values(self) -> list:
         """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
         if self._cache is None:
@@ -124,7 +128,7 @@ class DscSlave(Fmi2Slave):
             )
             return False
         self.initializing = False
-        new = rk4_integrate(self.derivatives, current_time, self.current_state(), step_size, self.p["max_step"])
+        new = self.integrate(current_time, self.current_state(), step_size)
         if not all(math.isfinite(value) for value in new):
             self.log(
                 f"{self.instance_name}: state not finite after the step from t = {current_time} s "

@@ -8,7 +8,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
-from .models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, PROFILES, REFERENCE_PARAMETERS
+from .models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, REFERENCE_PARAMETERS
 from .models.reference import min_speed
 
 __all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
@@ -116,12 +116,12 @@ def _parameters(table_name: str, given: dict, where: str) -> dict:
             raise ScenarioError(
                 f"{where}: unknown key [{table_name}] {key}; allowed: {', '.join(variables)}"
             )
-        if key == "profile":
-            if value not in PROFILES:
+        if v.choices:
+            if value not in v.choices:
                 raise ScenarioError(
-                    f"{where}: [reference] profile = {value!r} is not allowed; allowed: {', '.join(PROFILES)}"
+                    f"{where}: [{table_name}] {key} = {value!r} is not allowed; allowed: {', '.join(v.choices)}"
                 )
-            values[key] = PROFILES.index(value)
+            values[key] = v.choices.index(value)
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ScenarioError(f"{where}: [{table_name}] {key} = {value!r} is not a number; allowed: {v.allowed}")

@@ -7,7 +7,10 @@ from dsc_fmu.fmi_slave import DscSlave
 from dsc_fmu.models.controller import (
     W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters,
 )
-from dsc_fmu.models.parameters import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS
+from dsc_fmu.models.parameters import CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS
+from dsc_fmu.models.rk4 import euler_step
+
+EULER = DISCRETIZATIONS.index("euler")
 
 
 def _norm(values):
@@ -17,7 +20,8 @@ def _norm(values):
 class DSCController(DscSlave):
     """Inputs: measurements and reference. Outputs: voltages u1, u2 (direct feedthrough) and internals.
 
-    The measured inputs are held over a step; the 20 controller states are integrated with RK4.
+    The measured inputs are held over a step; the 20 controller states are integrated with RK4
+    (``discretization`` = 0) or one explicit Euler step per communication step (1).
     The filter states start at x2f = x2bar, x3f = x3bar of the inputs present at the first output
     read or step after initialisation (SPEC 5: the first measurements the controller sees).
     """
@@ -58,6 +62,11 @@ class DSCController(DscSlave):
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative
+
+    def integrate(self, t, x, step_size):
+        if self.p["discretization"] == EULER:
+            return euler_step(self.derivatives, t, x, step_size)
+        return super().integrate(t, x, step_size)
 
     def do_step(self, current_time, step_size):
         self._guard_seen = None

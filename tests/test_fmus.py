@@ -56,7 +56,7 @@ EXPECTED = {
         "parameter": (
             "k1", "k2", "k3", "k4", "k5", "gamma1", "gamma2", "sigma1", "sigma2", "sigma3", "sigma4",
             "tau2", "tau3", *(f"Gamma1_{i}" for i in range(1, 9)), *(f"Gamma2_{i}" for i in range(1, 7)),
-            "beta_min", "max_step",
+            "discretization", "beta_min", "max_step",
         ),
         "input": (
             "x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2",
@@ -249,11 +249,14 @@ def test_types_and_variability_follow_the_tables(md, name):
     assert problems == []
 
 
-def test_profile_is_a_fixed_integer_parameter_with_its_range(md):
-    profile = scalar(md["ReferenceRobot"], "profile")
-    assert (profile.type, profile.causality, profile.variability) == ("Integer", "parameter", "fixed")
-    assert int(profile.start) == REFERENCE["profile"] == 0
-    assert int(profile.min) == 0 and int(profile.max) == len(P.PROFILES) - 1
+@pytest.mark.parametrize("name, variable, choices", [
+    ("ReferenceRobot", "profile", P.PROFILES), ("DSCController", "discretization", P.DISCRETIZATIONS),
+])
+def test_choices_are_fixed_integer_parameters_with_their_range(md, name, variable, choices):
+    scalar_ = scalar(md[name], variable)
+    assert (scalar_.type, scalar_.causality, scalar_.variability) == ("Integer", "parameter", "fixed")
+    assert int(scalar_.start) == 0
+    assert int(scalar_.min) == 0 and int(scalar_.max) == len(choices) - 1
 
 
 @pytest.mark.parametrize("name", NAMES)
@@ -456,6 +459,24 @@ def test_controller_state_follows_inputs_until_initialisation_ends(md, fmu_unzip
     law = control_law(g, fixed, M_PAPER)
     assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
     inst.close()
+
+
+def test_euler_discretization_takes_one_explicit_euler_step(new):
+    """discretization = 1: the controller state after a step is x + h f(x) with the inputs held."""
+    h = 5e-3
+    g = gains(CONTROLLER)
+    state = start_filters(g, initial_controller_state(), M_PAPER)
+    euler = [x + h * d for x, d in zip(state, control_law(g, state, M_PAPER).derivative)]
+    expected = control_law(g, euler, M_PAPER)
+    ctrl = new("DSCController", integer={"discretization": 1})
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    ctrl.step(0.0, h)
+    assert ctrl.get(("u1", "u2", "a1_hat", "a2_hat")) == pytest.approx(
+        [expected.u1, expected.u2, euler[0], euler[1]], rel=1e-12, abs=1e-12)
+    rk4 = new("DSCController")
+    rk4.set(CONTROLLER_IN, M_PAPER)
+    rk4.step(0.0, h)
+    assert rk4.get1("a1_hat") != pytest.approx(euler[0], rel=1e-9)
 
 
 def _steady_speed(U, wheel):

@@ -55,6 +55,8 @@ def test_defaults_fill_what_a_file_leaves_out(tmp_path):
         ("[reference]\nvr0 = 0.0\n", r"\[reference\] vr0 = 0.0 is not allowed: it must be > 0"),
         ("[reference]\nvr0 = -1.0\n", r"vr0 = -1.0 is not allowed"),
         ("[reference]\nprofile = 'spiral'\n", r"profile = 'spiral' is not allowed; allowed: constant, figure_eight"),
+        ("[controller]\ndiscretization = 'tustin'\n", r"discretization = 'tustin' is not allowed; allowed: rk4, euler"),
+        ("[controller]\ndiscretization = 1\n", r"discretization = 1 is not allowed; allowed: rk4, euler"),
         ("[simulation]\nstep_size = 0\n", r"\[simulation\] step_size = 0 is not allowed; allowed: > 0"),
         ("[simulation]\nstep_size = -1e-3\n", r"step_size = -0.001 is not allowed"),
         ("[simulation]\nstop_time = 'long'\n", r"stop_time = 'long' is not a number"),
@@ -91,3 +93,8 @@ def test_with_simulation_checks_overrides():
     for bad in (0.0, -1e-3, float("nan"), float("inf")):
         with pytest.raises(ScenarioError, match="step_size"):
             s.with_simulation(step_size=bad)
+
+
+def test_choices_are_given_by_name(tmp_path):
+    s = load_scenario(write(tmp_path, "[controller]\ndiscretization = 'euler'\n[reference]\nprofile = 'figure_eight'\n"))
+    assert s.controller["discretization"] == 1 and s.reference["profile"] == 1

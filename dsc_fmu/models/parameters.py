@@ -14,6 +14,7 @@ __all__ = [
     "CONTROLLER_INPUTS",
     "CONTROLLER_OUTPUTS",
     "PROFILES",
+    "DISCRETIZATIONS",
     "defaults",
 ]
 
@@ -28,7 +29,8 @@ class Variable:
 
     ``bound`` is ``"positive"`` (> 0), ``"nonnegative"`` (>= 0) or ``"any"`` (finite).
     ``tunable`` parameters may change between communication points; the others are fixed.
-    ``integer`` marks an Integer variable, with ``maximum`` its largest allowed value.
+    ``integer`` marks an Integer variable, with ``maximum`` its largest allowed value; ``choices``
+    names its values 0, 1, ... (a scenario gives the name, the FMU takes the number).
     """
 
     name: str
@@ -39,6 +41,7 @@ class Variable:
     tunable: bool = False
     integer: bool = False
     maximum: float | None = None
+    choices: tuple = ()
 
     def check(self, value: float) -> str | None:
         """Return why ``value`` is not allowed for this variable, or None if it is."""
@@ -114,6 +117,7 @@ PLANT_OUTPUTS = (
 )
 
 PROFILES = ("constant", "figure_eight")
+DISCRETIZATIONS = ("rk4", "euler")
 
 REFERENCE_PARAMETERS = (
     Variable("x0", 2.0, "m", "Initial x position of the reference robot"),
@@ -122,7 +126,7 @@ REFERENCE_PARAMETERS = (
     Variable(
         "profile", 0, "1", "Velocity profile: 0 = constant (v_r = vr0, omega_r = wr0), "
         "1 = figure eight (speed and turn rate of x = A sin(2 pi t/T), y = B sin(4 pi t/T))",
-        NONNEGATIVE, integer=True, maximum=len(PROFILES) - 1,
+        NONNEGATIVE, integer=True, maximum=len(PROFILES) - 1, choices=PROFILES,
     ),
     Variable("vr0", 1.0, "m/s", "Linear velocity of the constant profile (Assumption 2: > 0)", POSITIVE),
     Variable("wr0", 0.2, "rad/s", "Angular velocity of the constant profile"),
@@ -165,6 +169,13 @@ CONTROLLER_PARAMETERS = (
     Variable("tau3", 0.01, "s", "Time constant of the first-order filter of x3bar (eq. 23)", POSITIVE, tunable=True),
     *_gains("Gamma1", (1e-4,) * 8, "Adaptation gain matrix Gamma1 of W1_hat (eq. 21)"),
     *_gains("Gamma2", (0.2, 0.2, 0.2, 0.2, 1e-5, 1e-5), "Adaptation gain matrix Gamma2 of W2_hat (eq. 27)"),
+    Variable(
+        "discretization", 0, "1",
+        "Integration of the controller states over a communication step: 0 = rk4 (RK4 in sub-steps of "
+        "at most max_step: the continuous law), 1 = euler (one explicit Euler step per communication "
+        "step: an embedded controller sampled at the communication step)",
+        NONNEGATIVE, integer=True, maximum=len(DISCRETIZATIONS) - 1, choices=DISCRETIZATIONS,
+    ),
     Variable(
         "beta_min", 0.05, "1",
         "Guard of beta (SPEC 5): where beta < beta_min, h2 divides by beta_min instead", POSITIVE, tunable=True,

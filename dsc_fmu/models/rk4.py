@@ -1,8 +1,8 @@
-"""Classical fourth-order Runge-Kutta over one communication step, in equal sub-steps."""
+"""Fixed-step integration over one communication step: classical RK4 in equal sub-steps, explicit Euler."""
 
 import math
 
-__all__ = ["substeps", "rk4_integrate"]
+__all__ = ["substeps", "rk4_integrate", "euler_step"]
 
 
 def substeps(step_size: float, max_step: float) -> int:
@@ -30,3 +30,8 @@ def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> l
             for xi, a, b, c, d in zip(x, k1, k2, k3, k4)
         ]
     return x
+
+
+def euler_step(f, t0: float, x: list, step_size: float) -> list:
+    """One explicit Euler step ``x + h f(t0, x)``: a controller sampled at the communication step."""
+    return [xi + step_size * di for xi, di in zip(x, f(t0, x))]
