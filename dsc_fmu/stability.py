@@ -1,0 +1,299 @@
+"""Predicted stability boundary of the sampled-data co-simulation: linearised loop, ZOH sampling, spectral radius."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import control
+import numpy as np
+from scipy.integrate import solve_ivp
+
+from .models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
+from .models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from .models.parameters import DISCRETIZATIONS, PROFILES
+from .models.reference import initial_reference_state
+from .scenario import ORDERS, Scenario
+
+__all__ = [
+    "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
+    "error_measurements", "closed_loop", "jacobian", "operating_point", "linearise", "sampled_pieces",
+    "transition_matrix", "spectral_radius", "spectral_radius_curve", "predicted_boundary",
+]
+
+# Indices, in the stacked state z = [xp (7); xc (20)], of the parameter estimates a1_hat, a2_hat, W1_hat, W2_hat.
+ESTIMATES = (7, 8, *range(7 + W1_SLICE.start, 7 + W1_SLICE.stop), *range(7 + W2_SLICE.start, 7 + W2_SLICE.stop))
+_FREE = tuple(i for i in range(27) if i not in ESTIMATES)  # S11, S12, S13bar, v1, v2, i1, i2, x2f, x3f
+DEFAULT_STEPS = np.logspace(-5.0, 0.0, 201)
+
+
+class OperatingPointError(RuntimeError):
+    """No operating point of steady tracking was found (Newton's method did not converge)."""
+
+
+@dataclass
+class LinearLoop:
+    """The loop linearised about an operating point: plant ``xp' = Ap xp + Bp u, y = Cp xp`` and controller
+    ``xc' = Ac xc + Bc y, u = Cc xc + Dc y`` (deviations from the operating point).
+
+    ``operating_point`` is ``[xp; xc]`` (27) in error coordinates (``operating_point()``), ``drift`` the largest
+    |derivative| there (0 at an equilibrium; the frozen estimates' slow drift otherwise), ``at_time`` the time (s)
+    the point was taken at and ``discretization`` the scenario's controller setting. Any small system can be
+    built directly, e.g. ``LinearLoop([[-a]], [[b]], [[1]], [], [], [], [[-k]])`` (static u = -k y).
+    """
+
+    Ap: np.ndarray
+    Bp: np.ndarray
+    Cp: np.ndarray
+    Ac: np.ndarray
+    Bc: np.ndarray
+    Cc: np.ndarray
+    Dc: np.ndarray
+    operating_point: np.ndarray | None = None
+    drift: float = 0.0
+    at_time: float | None = None
+    discretization: str = "rk4"
+
+    def __post_init__(self):
+        for name in ("Ap", "Bp", "Cp", "Ac", "Bc", "Cc", "Dc"):
+            setattr(self, name, np.atleast_2d(np.asarray(getattr(self, name), float)))
+        if self.Ac.size == 0:  # a static controller: shapes (0, 0), (0, ny), (nu, 0)
+            self.Ac = np.zeros((0, 0))
+            self.Bc = np.zeros((0, self.Cp.shape[0]))
+            self.Cc = np.zeros((self.Bp.shape[1], 0))
+
+    @property
+    def plant(self) -> control.StateSpace:
+        """The linearised plant as a python-control system (Dp = 0)."""
+        return control.ss(self.Ap, self.Bp, self.Cp, np.zeros((self.Cp.shape[0], self.Bp.shape[1])))
+
+    @property
+    def controller(self) -> control.StateSpace:
+        """The linearised controller as a python-control system (direct feedthrough Dc)."""
+        return control.ss(self.Ac, self.Bc, self.Cc, self.Dc)
+
+    @property
+    def closed_loop_matrix(self) -> np.ndarray:
+        """Continuous closed-loop matrix ``[[Ap + Bp Dc Cp, Bp Cc], [Bc Cp, Ac]]`` of ``[xp; xc]``."""
+        return np.block([[self.Ap + self.Bp @ self.Dc @ self.Cp, self.Bp @ self.Cc], [self.Bc @ self.Cp, self.Ac]])
+
+    @property
+    def poles(self) -> np.ndarray:
+        """Continuous closed-loop poles, u = Cc xc + Dc y fed back with sign +1, sorted by real part."""
+        p = control.poles(control.feedback(self.plant, self.controller, sign=1))
+        return p[np.argsort(p.real)]
+
+
+def _check_constant(scenario: Scenario) -> tuple[float, float]:
+    """``(vr0, wr0)``; ValueError unless the profile is constant (the only one with steady tracking)."""
+    if PROFILES[int(scenario.reference["profile"])] != "constant":
+        raise ValueError(f"{scenario.name}: the reference profile must be 'constant' for an operating point "
+                         f"of steady tracking; got {PROFILES[int(scenario.reference['profile'])]!r}")
+    return scenario.reference["vr0"], scenario.reference["wr0"]
+
+
+def error_coordinates(plant: list, reference: list) -> list:
+    """World plant state ``[x, y, theta, v1, v2, i1, i2]`` and ``[xr, yr, thetar]`` to
+    ``xp = [S11, S12, S13bar, v1, v2, i1, i2]``, eqs. (10), (12) (S13bar not wrapped)."""
+    x, y, theta = plant[:3]
+    ex, ey = reference[0] - x, reference[1] - y
+    c, s = math.cos(theta), math.sin(theta)
+    return [c * ex + s * ey, -s * ex + c * ey, reference[2] - theta, *plant[3:]]
+
+
+def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -> list:
+    """Derivative of ``xp`` under voltages ``u``: eq. (11) of the paper for S11, S12, S13bar and the
+    wheel and motor rows (7), (8) of ``plant_derivatives`` (which do not depend on the pose)."""
+    S11, S12, S13bar, v1, v2, i1, i2 = xp
+    w = theta_dot(k, v1, v2)
+    rows = plant_derivatives(k, [0.0, 0.0, 0.0, v1, v2, i1, i2], u[0], u[1])
+    return [w * S12 - 0.5 * k.r * (v1 + v2) + vr * math.cos(S13bar), -w * S11 + vr * math.sin(S13bar),
+            wr - w, *rows[3:]]
+
+
+def error_outputs(k: PlantCoefficients, xp) -> list:
+    """Measurement ``y = [S11, S12, S13bar, theta_dot, v1, v2, i1, i2]`` (theta_dot from eq. 1)."""
+    S11, S12, S13bar, v1, v2, i1, i2 = xp
+    return [S11, S12, S13bar, theta_dot(k, v1, v2), v1, v2, i1, i2]
+
+
+def error_measurements(y, vr: float, wr: float) -> list:
+    """Controller inputs ``m`` equivalent to ``y``: robot at the origin heading 0, so xr = S11, yr = S12,
+    thetar = S13bar (eq. 10 with theta = 0), and vr_dot = 0."""
+    S11, S12, S13bar, td, v1, v2, i1, i2 = y
+    return [0.0, 0.0, 0.0, td, v1, v2, i1, i2, S11, S12, S13bar, vr, wr, 0.0]
+
+
+def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
+    """Derivative of ``z = [xp; xc]`` (27): plant (11), (7), (8) driven by u of (26), controller (15)-(27)."""
+    xp, xc = list(z[:7]), list(z[7:])
+    law = control_law(g, xc, error_measurements(error_outputs(k, xp), vr, wr))
+    return np.array([*error_plant_derivatives(k, vr, wr, xp, (law.u1, law.u2)), *law.derivative])
+
+
+def jacobian(f, x, rel: float = 1e-6) -> np.ndarray:
+    """Central finite-difference Jacobian of ``f`` at ``x``, step ``rel * max(1, |x_j|)`` per entry."""
+    x = np.asarray(x, float)
+    columns = []
+    for j in range(x.size):
+        d = rel * max(1.0, abs(x[j]))
+        e = np.zeros_like(x)
+        e[j] = d
+        columns.append((np.asarray(f(x + e), float) - np.asarray(f(x - e), float)) / (2.0 * d))
+    return np.array(columns).T.reshape(-1, x.size)
+
+
+def _newton(f, z, free, tol: float = 1e-12, iterations: int = 50) -> np.ndarray:
+    """Newton's method on ``f(z)[free] = 0`` over ``z[free]`` (other entries held); OperatingPointError if it fails."""
+    z = np.array(z, float)
+    free = list(free)
+    for _ in range(iterations):
+        def restricted(v, z=z):
+            w = z.copy()
+            w[free] = v
+            return f(w)[free]
+
+        try:
+            dz = np.linalg.solve(jacobian(restricted, z[free]), -f(z)[free])
+        except np.linalg.LinAlgError:
+            break
+        z[free] += dz
+        if not np.all(np.isfinite(z)):
+            break
+        if np.max(np.abs(dz)) <= tol * max(1.0, np.max(np.abs(z[free]))):
+            return z
+    residual = np.max(np.abs(f(z)[free]))
+    raise OperatingPointError(f"no operating point of steady tracking found: Newton's method did not converge "
+                              f"(last residual {residual:.3g})")
+
+
+def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bool = True,
+                    state=None) -> tuple[np.ndarray, float]:
+    """Operating point ``z`` (27) of steady tracking in error coordinates and the time (s) it was taken at.
+
+    The continuous closed loop is integrated from the scenario's initial state (SPEC 5) to ``at_time``
+    (default: the scenario's stop time), or ``state`` (27, error coordinates, e.g. from a co-simulation at
+    ``at_time``) is taken instead; then it is polished by Newton's method:
+
+    - ``frozen`` (default): the 16 estimates (a1_hat, a2_hat, W1_hat, W2_hat) keep the values reached there and
+      the derivatives of the 11 other states vanish: steady tracking with the adaptation frozen (it is slow:
+      the leakage poles are -sigma gamma, down to -1e-8 1/s, so a 30 s run stays far from its equilibrium);
+    - otherwise all 27 derivatives vanish: the equilibrium of the whole adaptive loop, unique thanks to
+      sigma-modification (15), (16), (21), (27). For the paper's gains it is unstable (e.g. ra_hat = 3.47 >
+      Ra + k5 there: the current loop (26) has negative resistance), and reached only after ~1e4 s.
+
+    OperatingPointError if the integration or Newton's method fails.
+    """
+    vr, wr = _check_constant(scenario)
+    k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
+    T = scenario.simulation.stop_time if at_time is None else float(at_time)
+    f = lambda z: closed_loop(k, g, vr, wr, z)  # noqa: E731
+    if state is None:
+        xp0 = error_coordinates(initial_plant_state(scenario.plant), initial_reference_state(scenario.reference))
+        xc0 = start_filters(g, initial_controller_state(), error_measurements(error_outputs(k, xp0), vr, wr))
+        solution = solve_ivp(lambda t, z: f(z), (0.0, T), [*xp0, *xc0], method="LSODA", rtol=1e-10, atol=1e-10)
+        if not solution.success:
+            raise OperatingPointError(f"{scenario.name}: the continuous closed loop failed: {solution.message}")
+        state = solution.y[:, -1]
+    return _newton(f, state, _FREE if frozen else range(27)), T
+
+
+def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = True, rel: float = 1e-6,
+              state=None) -> LinearLoop:
+    """Linearise plant (Ap, Bp, Cp) and controller (Ac, Bc, Cc, Dc) about ``operating_point`` by central
+    differences of ``error_plant_derivatives``, ``error_outputs`` and ``control_law`` (step ``rel * max(1, |x|)``)."""
+    vr, wr = _check_constant(scenario)
+    k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
+    z, T = operating_point(scenario, at_time, frozen, state)
+    xp, xc = z[:7], z[7:]
+    y = np.array(error_outputs(k, xp))
+    law = control_law(g, list(xc), error_measurements(y, vr, wr))
+    u = np.array([law.u1, law.u2])
+    fp = lambda v: error_plant_derivatives(k, vr, wr, v[:7], v[7:])  # noqa: E731
+    def fc(v):
+        c = control_law(g, list(v[:20]), error_measurements(v[20:], vr, wr))
+        return [*c.derivative, c.u1, c.u2]
+    P = jacobian(fp, np.concatenate([xp, u]), rel)
+    Cp = jacobian(lambda v: error_outputs(k, v), xp, rel)
+    K = jacobian(fc, np.concatenate([xc, y]), rel)
+    return LinearLoop(P[:, :7], P[:, 7:], Cp, K[:20, :20], K[:20, 20:], K[20:, :20], K[20:, 20:],
+                      operating_point=z, drift=float(np.max(np.abs(closed_loop(k, g, vr, wr, z)))),
+                      at_time=T, discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
+
+
+def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.ndarray, ...]:
+    """``(Phi_p, Gamma_p, Phi_c, Gamma_c)`` at step ``h``: plant by ZOH (``control.c2d``, exact with u held);
+    controller by ZOH ("rk4": RK4 sub-steps, ~ exact with y held) or by one explicit Euler step ("euler":
+    Phi_c = I + h Ac, Gamma_c = h Bc)."""
+    if discretization not in DISCRETIZATIONS:
+        raise ValueError(f"discretization {discretization!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
+    plant = control.c2d(loop.plant, h, method="zoh")
+    if discretization == "euler":
+        return plant.A, plant.B, np.eye(loop.Ac.shape[0]) + h * loop.Ac, h * loop.Bc
+    if loop.Ac.shape[0] == 0:
+        return plant.A, plant.B, loop.Ac, loop.Bc
+    ctl = control.c2d(loop.controller, h, method="zoh")
+    return plant.A, plant.B, ctl.A, ctl.B
+
+
+def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
+    """Transition matrix M of the stacked state ``[xp; xc]`` over one communication step (master.cosimulate).
+
+    At t_k the controller's inputs hold y_k = Cp xp_k and u_k = Cc xc_k + Dc y_k is read (feedthrough), so
+    ``xp_{k+1} = Phi_p xp_k + Gamma_p u_k = Kp xp_k + Kc xc_k``, ``Kp = Phi_p + Gamma_p Dc Cp``, ``Kc = Gamma_p Cc``.
+
+    - Jacobi: the controller integrates with y_k held, ``xc_{k+1} = Gamma_c Cp xp_k + Phi_c xc_k``, so
+      ``M = [[Kp, Kc], [Gamma_c Cp, Phi_c]]``.
+    - Gauss-Seidel: the plant steps first and the controller holds ``y_{k+1} = Cp xp_{k+1}``, so
+      ``xc_{k+1} = Gamma_c Cp Kp xp_k + (Phi_c + Gamma_c Cp Kc) xc_k`` and
+      ``M = [[Kp, Kc], [Gamma_c Cp Kp, Phi_c + Gamma_c Cp Kc]]``
+      (u_{k+1} = Cc xc_{k+1} + Dc y_{k+1} then uses the same y_{k+1}: no further term).
+    """
+    if order not in ORDERS:
+        raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    Phi_p, Gamma_p, Phi_c, Gamma_c = sampled_pieces(loop, h, discretization or loop.discretization)
+    Kp = Phi_p + Gamma_p @ loop.Dc @ loop.Cp
+    Kc = Gamma_p @ loop.Cc
+    if order == "jacobi":
+        bottom = [Gamma_c @ loop.Cp, Phi_c]
+    else:
+        bottom = [Gamma_c @ loop.Cp @ Kp, Phi_c + Gamma_c @ loop.Cp @ Kc]
+    return np.block([[Kp, Kc], bottom])
+
+
+def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> float:
+    """Largest |eigenvalue| of ``transition_matrix``: the sampled loop is stable where it is < 1."""
+    return float(np.max(np.abs(np.linalg.eigvals(transition_matrix(loop, h, order, discretization)))))
+
+
+def spectral_radius_curve(loop: LinearLoop, steps, order: str, discretization: str | None = None) -> np.ndarray:
+    """``spectral_radius`` at each communication step in ``steps`` (s), for plotting against h."""
+    return np.array([spectral_radius(loop, h, order, discretization) for h in np.asarray(steps, float)])
+
+
+def predicted_boundary(loop: LinearLoop | Scenario, order: str, discretization: str | None = None, *,
+                       steps=DEFAULT_STEPS, rtol: float = 1e-3, tol: float = 1e-9) -> float:
+    """Smallest step h (s) at which the spectral radius reaches 1 (+ ``tol``, above rounding of the slow
+    adaptation modes, |lambda| = 1 - O(1e-8 h)): the first crossing on the ascending grid ``steps``,
+    bisected (geometrically) to ``rtol``. 0.0 if unstable at ``steps[0]``, inf if stable on the whole grid.
+    Only the first crossing counts: the curve need not be monotonic (stable windows can follow).
+    A Scenario is linearised first (``linearise``); ``discretization`` defaults to the loop's.
+    """
+    if isinstance(loop, Scenario):
+        loop = linearise(loop)
+    unstable = lambda h: spectral_radius(loop, h, order, discretization) >= 1.0 + tol  # noqa: E731
+    steps = np.asarray(steps, float)
+    previous = None
+    for h in steps:
+        if unstable(h):
+            break
+        previous = h
+    else:
+        return math.inf
+    if previous is None:
+        return 0.0
+    lo, hi = previous, h
+    while hi / lo - 1.0 > rtol:
+        mid = math.sqrt(lo * hi)
+        lo, hi = (lo, mid) if unstable(mid) else (mid, hi)
+    return math.sqrt(lo * hi)

@@ -1,0 +1,347 @@
+"""Analysis of a step-size sweep: observed convergence order, stability boundary, and sweep.json."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = [
+    "DEVIATION_QUANTITIES", "AGREEMENT_TOLERANCE", "OrderFit", "Boundary", "fit_order", "grid_bracket",
+    "refine_boundary", "overrides", "group_label", "group_rows", "fit_orders", "grid_brackets", "summarise",
+    "to_json", "write_summary_json",
+]
+
+DEVIATION_QUANTITIES = ("max_position_deviation_m", "max_heading_deviation_rad", "max_u_deviation_V")
+AGREEMENT_TOLERANCE = 0.2  # predicted and measured boundary agree if |predicted / measured - 1| <= 20 %
+
+
+@dataclass(frozen=True)
+class OrderFit:
+    """A straight line ``log10(deviation) = intercept + slope * log10(h)`` through the asymptotic range.
+
+    ``slope`` is the observed convergence order p (deviation ~ 10**intercept * h**p); ``h_min`` and
+    ``h_max`` (s) bound the steps used; ``points`` is their number; ``max_residual`` is the largest
+    |residual| in log10 (0.03 is a 7 % factor); ``r2`` is the coefficient of determination in log-log.
+    """
+
+    slope: float
+    intercept: float
+    h_min: float
+    h_max: float
+    points: int
+    max_residual: float
+    r2: float
+
+    def deviation(self, step_size):
+        """The fitted deviation at ``step_size`` (s), in the unit of the fitted data."""
+        return 10.0**self.intercept * np.asarray(step_size, dtype=float) ** self.slope
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """A stability boundary bracketed by ``h_stable`` < h* <= ``h_unstable`` (s).
+
+    ``h_stable`` is the largest step known stable, the estimate of h*; ``evaluated`` lists the
+    ``(step_size, stable)`` pairs run during the refinement, in the order run.
+    """
+
+    h_stable: float
+    h_unstable: float
+    evaluated: tuple[tuple[float, bool], ...] = ()
+
+    @property
+    def estimate(self) -> float:
+        return self.h_stable
+
+    @property
+    def relative_width(self) -> float:
+        return (self.h_unstable - self.h_stable) / self.h_stable
+
+
+def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, np.ndarray]:
+    slope, intercept = np.polyfit(x, y, 1)
+    return float(slope), float(intercept), y - (intercept + slope * x)
+
+
+def fit_order(step_sizes: Sequence[float], deviations: Sequence[float], *, tolerance: float = 0.03,
+              min_points: int = 3) -> OrderFit:
+    """The observed convergence order: least squares of log10(deviation) against log10(h) over the
+    asymptotic range of small steps.
+
+    The rule: points whose deviation is NaN, None, infinite or not positive (diverged runs) are left
+    out and the rest sorted by step size h (s). The range starts with the ``min_points`` smallest
+    steps and grows one step at a time toward larger h for as long as the least-squares line through
+    the range keeps every point within ``tolerance`` in log10 (0.03: a factor 1.07); it stops at the
+    first step that breaks the line (the knee where higher-order terms or instability take over),
+    even if larger steps would fall back onto it. If the ``min_points`` smallest steps are not on a
+    line themselves (a floor set by the reference solution's own accuracy), the start moves up one
+    step at a time. Step sizes must be distinct.
+
+    Raises ValueError if fewer than ``min_points`` usable points remain or no ``min_points``
+    consecutive points lie on a line.
+
+    >>> fit = fit_order([1e-3, 2e-3, 4e-3, 8e-3], [0.5e-3, 1e-3, 2e-3, 4e-3])
+    >>> round(fit.slope, 9), fit.h_min, fit.h_max, fit.points
+    (1.0, 0.001, 0.008, 4)
+    """
+    h = np.asarray(step_sizes, dtype=float)
+    d = np.asarray(deviations, dtype=float)
+    if h.ndim != 1 or h.shape != d.shape:
+        raise ValueError(f"step_sizes and deviations must be 1-D of equal length; got shapes {h.shape} and {d.shape}")
+    if min_points < 2:
+        raise ValueError(f"min_points = {min_points} is not allowed; allowed: >= 2")
+    usable = np.isfinite(h) & (h > 0) & np.isfinite(d) & (d > 0)
+    h, d = h[usable], d[usable]
+    if len(h) < min_points:
+        raise ValueError(f"{len(h)} usable points (finite, positive deviation) of {len(usable)}; "
+                         f"a convergence order needs at least {min_points}")
+    sort = np.argsort(h, kind="stable")
+    h, d = h[sort], d[sort]
+    x, y = np.log10(h), np.log10(d)
+    if np.any(np.diff(x) == 0):
+        raise ValueError(f"step sizes must be distinct; got {sorted(h.tolist())} (average repeated runs first)")
+    n = len(x)
+    for start in range(n - min_points + 1):
+        stop = start + min_points
+        if np.abs(_line(x[start:stop], y[start:stop])[2]).max() >= tolerance:
+            continue
+        while stop < n and np.abs(_line(x[start:stop + 1], y[start:stop + 1])[2]).max() < tolerance:
+            stop += 1
+        xs, ys = x[start:stop], y[start:stop]
+        slope, intercept, residual = _line(xs, ys)
+        total = float(np.sum((ys - ys.mean()) ** 2))
+        return OrderFit(slope=slope, intercept=intercept, h_min=float(h[start]), h_max=float(h[stop - 1]),
+                        points=stop - start, max_residual=float(np.abs(residual).max()),
+                        r2=1.0 if total == 0 else 1.0 - float(np.sum(residual**2)) / total)
+    raise ValueError(f"no {min_points} consecutive step sizes of {n} lie on a straight line in log-log "
+                     f"within {tolerance} (log10): no asymptotic range")
+
+
+def grid_bracket(step_sizes: Sequence[float], stable_flags: Sequence[bool]) -> tuple[float, float] | None:
+    """The grid's bracket ``(h_stable, h_unstable)`` (s) around the FIRST unstable step.
+
+    ``h_unstable`` is the smallest unstable step, ``h_stable`` the largest stable step below it.
+    Stability need not be monotone in h (a stable step may lie above ``h_unstable``); the bracket is
+    always around the first loss of stability. A step that appears more than once (samples,
+    overrides) counts as stable only if all its runs are. None if every step is stable or no step
+    below the first unstable one is stable: no boundary within the grid (the caller says which).
+
+    >>> grid_bracket([0.001, 0.002, 0.005, 0.01], [True, True, False, True])
+    (0.002, 0.005)
+    """
+    if len(step_sizes) != len(stable_flags):
+        raise ValueError(f"{len(step_sizes)} step sizes but {len(stable_flags)} stability flags")
+    stable: dict[float, bool] = {}
+    for h, flag in zip(step_sizes, stable_flags):
+        stable[float(h)] = stable.get(float(h), True) and bool(flag)
+    steps = sorted(stable)
+    first = next((i for i, h in enumerate(steps) if not stable[h]), None)
+    if first is None or first == 0:
+        return None
+    return steps[first - 1], steps[first]
+
+
+def refine_boundary(is_stable: Callable[[float], bool], h_stable: float, h_unstable: float,
+                    rel_tol: float = 0.02) -> Boundary:
+    """Bisect the bracket ``h_stable`` < h* <= ``h_unstable`` (s) at geometric midpoints
+    ``sqrt(h_stable * h_unstable)`` until ``(h_unstable - h_stable) / h_stable <= rel_tol``.
+
+    ``is_stable(h)`` runs (or looks up) one co-simulation at step h. It takes
+    ``ceil(log2(ln(h_unstable / h_stable) / ln(1 + rel_tol)))`` evaluations. If stability is not
+    monotone in h, the result is one transition from stable to unstable inside the bracket.
+    """
+    if not 0 < h_stable < h_unstable:
+        raise ValueError(f"bracket ({h_stable!r}, {h_unstable!r}) is not allowed; allowed: 0 < h_stable < h_unstable")
+    if not rel_tol > 0:
+        raise ValueError(f"rel_tol = {rel_tol!r} is not allowed; allowed: > 0")
+    h_stable, h_unstable = float(h_stable), float(h_unstable)
+    evaluated = []
+    while (h_unstable - h_stable) / h_stable > rel_tol:
+        h = math.sqrt(h_stable * h_unstable)
+        stable = bool(is_stable(h))
+        evaluated.append((h, stable))
+        if stable:
+            h_stable = h
+        else:
+            h_unstable = h
+    return Boundary(h_stable, h_unstable, tuple(evaluated))
+
+
+def overrides(row: Mapping) -> dict:
+    """The parameter overrides of a sweep row: its keys with a dot, like ``controller.k4``."""
+    return {name: value for name, value in row.items() if "." in name}
+
+
+def _value(value) -> str:
+    return f"{value:g}" if isinstance(value, (int, float, np.number)) and not isinstance(value, bool) else str(value)
+
+
+def group_label(row: Mapping) -> str:
+    """The label of a row's series in a sweep: ``order/discretization``, then any overrides
+    ``name=value`` and ``sample N``; e.g. ``gauss-seidel/rk4 controller.k4=2 sample 3``."""
+    parts = [f"{row['order']}/{row.get('discretization', 'rk4')}"]
+    parts += [f"{name}={_value(value)}" for name, value in sorted(overrides(row).items())]
+    if row.get("sample") is not None:
+        parts.append(f"sample {row['sample']}")
+    return " ".join(parts)
+
+
+def group_rows(rows: Sequence[Mapping]) -> dict[str, list[Mapping]]:
+    """The rows by ``group_label``, groups in order of first appearance, rows sorted by step size."""
+    groups: dict[str, list[Mapping]] = {}
+    for row in rows:
+        groups.setdefault(group_label(row), []).append(row)
+    return {label: sorted(group, key=lambda row: row["step_size"]) for label, group in groups.items()}
+
+
+def _float(value) -> float:
+    return math.nan if value is None else float(value)
+
+
+def fit_orders(rows: Sequence[Mapping], quantities: Sequence[str] = DEVIATION_QUANTITIES,
+               **fit_options) -> dict[str, dict[str, OrderFit | str]]:
+    """``fit_order`` of each quantity of each group of ``rows`` against its step sizes:
+    label -> quantity -> OrderFit, or the ValueError's message if no order could be fitted."""
+    fits: dict[str, dict[str, OrderFit | str]] = {}
+    for label, group in group_rows(rows).items():
+        fits[label] = {}
+        for quantity in quantities:
+            try:
+                fits[label][quantity] = fit_order([row["step_size"] for row in group],
+                                                  [_float(row.get(quantity)) for row in group], **fit_options)
+            except ValueError as error:
+                fits[label][quantity] = str(error)
+    return fits
+
+
+def grid_brackets(rows: Sequence[Mapping]) -> dict[str, tuple[float, float] | None]:
+    """``grid_bracket`` of each group of ``rows`` from their ``stable`` flags: label -> bracket or None."""
+    return {label: grid_bracket([row["step_size"] for row in group], [row["stable"] for row in group])
+            for label, group in group_rows(rows).items()}
+
+
+def _stability(group: Sequence[Mapping], boundary: Boundary | None) -> dict:
+    steps = sorted({float(row["step_size"]) for row in group})
+    bracket = grid_bracket([row["step_size"] for row in group], [row["stable"] for row in group])
+    result = {"grid_bracket_s": list(bracket) if bracket else None, "refined": None, "estimate_s": None}
+    if boundary is not None:
+        result["refined"] = {"h_stable_s": boundary.h_stable, "h_unstable_s": boundary.h_unstable,
+                             "relative_width": boundary.relative_width,
+                             "evaluated": [{"step_size": h, "stable": s} for h, s in boundary.evaluated]}
+        result["estimate_s"] = boundary.h_stable
+        result["status"] = "refined"
+        result["message"] = (f"stable up to {boundary.h_stable:.3g} s, unstable at {boundary.h_unstable:.3g} s "
+                             f"(refined in {len(boundary.evaluated)} runs)")
+    elif bracket is not None:
+        result["estimate_s"] = bracket[0]
+        result["status"] = "grid"
+        result["message"] = f"stable up to {bracket[0]:.3g} s, unstable at {bracket[1]:.3g} s (grid only, not refined)"
+    elif all(row["stable"] for row in group):
+        result["status"] = "all stable"
+        result["message"] = f"no boundary within the grid: every step up to {steps[-1]:.3g} s is stable"
+    else:
+        result["status"] = "none stable"
+        result["message"] = f"no boundary within the grid: already unstable at the smallest step {steps[0]:.3g} s"
+    result["grid_range_s"] = [steps[0], steps[-1]]
+    return result
+
+
+def _comparison(stability: dict, predicted: float | None, tolerance: float) -> dict:
+    result = {"predicted_boundary_s": predicted, "ratio_predicted_to_measured": None, "agrees": None}
+    low, high = stability["grid_range_s"]
+    if predicted is None:
+        result["statement"] = "no prediction"
+    elif stability["estimate_s"] is not None:
+        ratio = predicted / stability["estimate_s"]
+        result["ratio_predicted_to_measured"] = ratio
+        result["agrees"] = abs(ratio - 1.0) <= tolerance
+        result["statement"] = (f"predicted {predicted:.3g} s, measured {stability['estimate_s']:.3g} s: ratio "
+                               f"{ratio:.3g}, " + (f"agreeing within {tolerance:.0%}" if result["agrees"] else
+                                                   f"more than {tolerance:.0%} apart"))
+    elif stability["status"] == "all stable":
+        result["agrees"] = predicted > high * (1.0 - tolerance)
+        result["statement"] = (f"predicted {predicted:.3g} s, every measured step up to {high:.3g} s stable: "
+                               + ("consistent" if result["agrees"] else "the prediction is too small"))
+    else:
+        result["agrees"] = predicted < low * (1.0 + tolerance)
+        result["statement"] = (f"predicted {predicted:.3g} s, already unstable at the smallest step {low:.3g} s: "
+                               + ("consistent" if result["agrees"] else "the prediction is too large"))
+    return result
+
+
+def summarise(rows: Sequence[Mapping], *, stability_definition: str, settings: Mapping | None = None,
+              fits: Mapping[str, Mapping[str, OrderFit | str]] | None = None,
+              boundaries: Mapping[str, Boundary | None] | None = None,
+              predictions: Mapping[str, float | None] | None = None, notes: Sequence[str] = (),
+              tolerance: float = AGREEMENT_TOLERANCE) -> dict:
+    """The content of ``sweep.json``, JSON-serialisable (NaN and infinity as null).
+
+    ``rows``: one dict per run (keys of the sweep engine); ``stability_definition``: what "stable"
+    means, in words; ``settings``: the sweep's settings, stored as given; ``fits``: as from
+    ``fit_orders`` (computed from ``rows`` if None); ``boundaries``: label -> refined Boundary (groups
+    without one use the grid bracket); ``predictions``: the linearised boundary h* (s) by group label,
+    or by coupling order for the groups with nominal parameters (no overrides, no sample);
+    ``notes``: reasons for any disagreement (> ``tolerance``) between predicted and measured
+    boundaries, and other remarks. Per group: its order, discretization, overrides and
+    sample, counts, observed orders, stability boundary and the comparison with the prediction.
+    """
+    fits = fit_orders(rows) if fits is None else fits
+    boundaries, predictions = boundaries or {}, predictions or {}
+    groups = {}
+    for label, group in group_rows(rows).items():
+        first = group[0]
+        stability = _stability(group, boundaries.get(label))
+        nominal = not overrides(first) and first.get("sample") is None
+        predicted = predictions.get(label, predictions.get(first["order"]) if nominal else None)
+        groups[label] = {
+            "order": first["order"], "discretization": first.get("discretization"),
+            "overrides": overrides(first), "sample": first.get("sample"),
+            "runs": len(group), "diverged": sum(bool(row["diverged"]) for row in group),
+            "unstable": sum(not row["stable"] for row in group),
+            "step_sizes_s": sorted({float(row["step_size"]) for row in group}),
+            "observed_order": {quantity: asdict(fit) if isinstance(fit, OrderFit) else {"error": fit}
+                               for quantity, fit in fits.get(label, {}).items()},
+            "stability_boundary": stability,
+            "prediction": _comparison(stability, None if predicted is None else float(predicted), tolerance),
+        }
+    return to_json({
+        "scenario": ", ".join(sorted({str(row["scenario"]) for row in rows})),
+        "settings": dict(settings or {}),
+        "stability_definition": stability_definition,
+        "agreement_tolerance": tolerance,
+        "counts": {"runs": len(rows), "diverged": sum(bool(row["diverged"]) for row in rows),
+                   "unstable": sum(not row["stable"] for row in rows)},
+        "groups": groups,
+        "notes": list(notes),
+    })
+
+
+def to_json(value):
+    """``value`` with NumPy scalars and arrays as Python numbers and lists, tuples and Paths as lists
+    and strings, and NaN and infinities as None, so ``json.dumps`` writes strict JSON."""
+    if isinstance(value, Mapping):
+        return {str(key): to_json(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple, np.ndarray)):
+        return [to_json(item) for item in value]
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        return float(value) if math.isfinite(value) else None
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def write_summary_json(out_dir: Path | str, summary: Mapping) -> Path:
+    """Write ``summary`` (as from ``summarise``) to ``out_dir/sweep.json``; return its path."""
+    path = Path(out_dir) / "sweep.json"
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps(to_json(summary), indent=2, allow_nan=False) + "\n")
+    return path
