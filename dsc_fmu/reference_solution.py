@@ -69,7 +69,7 @@ def initial_closed_loop_state(scenario: Scenario) -> list:
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     plant, reference = initial_plant_state(scenario.plant), initial_reference_state(scenario.reference)
     m0 = measurements(k, scenario.reference, 0.0, plant, reference)
-    return [*plant, *start_filters(g, initial_controller_state(), m0), *reference]
+    return [*plant, *start_filters(g, initial_controller_state(scenario.controller), m0), *reference]
 
 
 def reference_solution(

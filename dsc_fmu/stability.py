@@ -190,7 +190,7 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
     f = lambda z: closed_loop(k, g, vr, wr, z)  # noqa: E731
     if state is None:
         xp0 = error_coordinates(initial_plant_state(scenario.plant), initial_reference_state(scenario.reference))
-        xc0 = start_filters(g, initial_controller_state(), error_measurements(error_outputs(k, xp0), vr, wr))
+        xc0 = start_filters(g, initial_controller_state(scenario.controller), error_measurements(error_outputs(k, xp0), vr, wr))
         solution = solve_ivp(lambda t, z: f(z), (0.0, T), [*xp0, *xc0], method="LSODA", rtol=1e-10, atol=1e-10)
         if not solution.success:
             raise OperatingPointError(f"{scenario.name}: the continuous closed loop failed: {solution.message}")

@@ -55,7 +55,7 @@ class DSCController(DscSlave):
         return control_law(self.constants, self.current_state(), self.u)
 
     def initial_state(self):
-        return start_filters(self.constants, initial_controller_state(), self.u)
+        return start_filters(self.constants, initial_controller_state(self.p), self.u)
 
     def derivatives(self, t, x):
         law = control_law(self.constants, x, self.u)

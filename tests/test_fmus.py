@@ -42,7 +42,8 @@ EXPECTED = {
     "MobileRobot": {
         "parameter": (
             "R", "d", "r", "mc", "mw", "Ic", "Iw", "Im", "d11", "d22", "Ra1", "Ra2", "La1", "La2",
-            "KE1", "KE2", "KT1", "KT2", "N1", "N2", "x0", "y0", "theta0", "max_step",
+            "KE1", "KE2", "KT1", "KT2", "N1", "N2", "x0", "y0", "theta0",
+            "omega1_0", "omega2_0", "i1_0", "i2_0", "max_step",
         ),
         "input": ("u1", "u2"),
         "output": ("x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2"),
@@ -56,6 +57,7 @@ EXPECTED = {
         "parameter": (
             "k1", "k2", "k3", "k4", "k5", "gamma1", "gamma2", "sigma1", "sigma2", "sigma3", "sigma4",
             "tau2", "tau3", *(f"Gamma1_{i}" for i in range(1, 9)), *(f"Gamma2_{i}" for i in range(1, 7)),
+            "a1_hat0", "a2_hat0", *(f"W1_hat0_{i}" for i in range(1, 9)), *(f"W2_hat0_{i}" for i in range(1, 7)),
             "discretization", "beta_min", "max_step",
         ),
         "input": (
@@ -429,7 +431,7 @@ def test_controller_direct_feedthrough(new):
     measurements seen); from then on u follows every new input vector at that state."""
     ctrl = new("DSCController")
     g = gains(CONTROLLER)
-    state = start_filters(g, initial_controller_state(), M_PAPER)
+    state = start_filters(g, initial_controller_state(CONTROLLER), M_PAPER)
     results = []
     for m in (M_PAPER, M_OTHER):
         ctrl.set(CONTROLLER_IN, m)
@@ -450,10 +452,10 @@ def test_controller_state_follows_inputs_until_initialisation_ends(md, fmu_unzip
     inst.fmu.enterInitializationMode()
     for m in (M_PAPER, M_OTHER):
         inst.set(CONTROLLER_IN, m)
-        law = control_law(g, start_filters(g, initial_controller_state(), m), m)
+        law = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), m), m)
         assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
     inst.fmu.exitInitializationMode()
-    fixed = start_filters(g, initial_controller_state(), M_OTHER)
+    fixed = start_filters(g, initial_controller_state(CONTROLLER), M_OTHER)
     inst.get(("u1",))
     inst.set(CONTROLLER_IN, M_PAPER)
     law = control_law(g, fixed, M_PAPER)
@@ -465,7 +467,7 @@ def test_euler_discretization_takes_one_explicit_euler_step(new):
     """discretization = 1: the controller state after a step is x + h f(x) with the inputs held."""
     h = 5e-3
     g = gains(CONTROLLER)
-    state = start_filters(g, initial_controller_state(), M_PAPER)
+    state = start_filters(g, initial_controller_state(CONTROLLER), M_PAPER)
     euler = [x + h * d for x, d in zip(state, control_law(g, state, M_PAPER).derivative)]
     expected = control_law(g, euler, M_PAPER)
     ctrl = new("DSCController", integer={"discretization": 1})
@@ -477,6 +479,20 @@ def test_euler_discretization_takes_one_explicit_euler_step(new):
     rk4.set(CONTROLLER_IN, M_PAPER)
     rk4.step(0.0, h)
     assert rk4.get1("a1_hat") != pytest.approx(euler[0], rel=1e-9)
+
+
+def test_initial_state_parameters_set_the_state_at_t0(new):
+    """omega1_0 ... i2_0 and a1_hat0 ... W2_hat0_6 start the plant and the estimates (SPEC 5 defaults: 0)."""
+    plant = new("MobileRobot", real={"omega1_0": 7.5, "omega2_0": 5.5, "i1_0": 2.0, "i2_0": -1.0})
+    assert plant.get(("omega1", "omega2", "i1", "i2")) == [7.5, 5.5, 2.0, -1.0]
+    assert plant.get1("theta_dot") == pytest.approx(0.5 * PLANT["r"] / PLANT["R"] * 2.0, rel=1e-15)
+    estimates = {"a1_hat0": 8.0, "a2_hat0": 6.0, "W1_hat0_3": 0.05, "W2_hat0_1": 1.6}
+    ctrl = new("DSCController", real=estimates)
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    assert ctrl.get(("a1_hat", "a2_hat", "W1_hat_3", "W2_hat_1")) == list(estimates.values())
+    state = start_filters(gains(CONTROLLER), initial_controller_state({**CONTROLLER, **estimates}), M_PAPER)
+    law = control_law(gains(CONTROLLER), state, M_PAPER)
+    assert ctrl.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12)
 
 
 def _steady_speed(U, wheel):

@@ -89,9 +89,13 @@ def alpha2(S13: float, a: float) -> float:
     return sinc * math.cos(half - a)
 
 
-def initial_controller_state() -> list:
-    """All estimates zero (SPEC 5); the filter states are set from the first measurements."""
-    return [0.0] * 20
+def initial_controller_state(p: dict) -> list:
+    """The estimates from the parameters ``a1_hat0, a2_hat0, W1_hat0_i, W2_hat0_i`` (SPEC 5: zero by
+    default); the filter states are zero here and set from the first measurements by ``start_filters``."""
+    return [
+        p["a1_hat0"], p["a2_hat0"], 0.0, 0.0, *(p[f"W1_hat0_{i}"] for i in range(1, 9)),
+        0.0, 0.0, *(p[f"W2_hat0_{i}"] for i in range(1, 7)),
+    ]
 
 
 def control_law(g: Gains, xc: list, m: list) -> ControlLaw:

@@ -97,6 +97,10 @@ PLANT_PARAMETERS = (
     Variable("x0", 2.5, "m", "Initial x position of the robot"),
     Variable("y0", 1.0, "m", "Initial y position of the robot"),
     Variable("theta0", 1.5707963267948966, "rad", "Initial heading of the robot"),
+    Variable("omega1_0", 0.0, "rad/s", "Initial angular velocity, right wheel (SPEC 5: at rest)"),
+    Variable("omega2_0", 0.0, "rad/s", "Initial angular velocity, left wheel (SPEC 5: at rest)"),
+    Variable("i1_0", 0.0, "A", "Initial motor current, right wheel"),
+    Variable("i2_0", 0.0, "A", "Initial motor current, left wheel"),
     MAX_STEP,
 )
 
@@ -169,6 +173,10 @@ CONTROLLER_PARAMETERS = (
     Variable("tau3", 0.01, "s", "Time constant of the first-order filter of x3bar (eq. 23)", POSITIVE, tunable=True),
     *_gains("Gamma1", (1e-4,) * 8, "Adaptation gain matrix Gamma1 of W1_hat (eq. 21)"),
     *_gains("Gamma2", (0.2, 0.2, 0.2, 0.2, 1e-5, 1e-5), "Adaptation gain matrix Gamma2 of W2_hat (eq. 27)"),
+    Variable("a1_hat0", 0.0, "1/m", "Initial estimate a1_hat(0) (SPEC 5: zero)"),
+    Variable("a2_hat0", 0.0, "1", "Initial estimate a2_hat(0) (SPEC 5: zero)"),
+    *(Variable(f"W1_hat0_{i}", 0.0, "1", f"Initial estimate W1_hat(0), entry {i}") for i in range(1, 9)),
+    *(Variable(f"W2_hat0_{i}", 0.0, "1", f"Initial estimate W2_hat(0), entry {i}") for i in range(1, 7)),
     Variable(
         "discretization", 0, "1",
         "Integration of the controller states over a communication step: 0 = rk4 (RK4 in sub-steps of "

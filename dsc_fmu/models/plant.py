@@ -67,8 +67,8 @@ def theta_dot(k: PlantCoefficients, v1: float, v2: float) -> float:
 
 
 def initial_plant_state(p: dict) -> list:
-    """``[x, y, theta, v1, v2, i1, i2]`` at rest at the initial pose (SPEC 5)."""
-    return [p["x0"], p["y0"], p["theta0"], 0.0, 0.0, 0.0, 0.0]
+    """``[x, y, theta, v1, v2, i1, i2]`` from the initial-state parameters (SPEC 5: at rest by default)."""
+    return [p["x0"], p["y0"], p["theta0"], p["omega1_0"], p["omega2_0"], p["i1_0"], p["i2_0"]]
 
 
 def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float) -> list:
