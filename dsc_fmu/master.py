@@ -7,6 +7,7 @@ import shutil
 import tempfile
 import time as clock
 import traceback
+import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
 from zipfile import BadZipFile
@@ -22,7 +23,7 @@ from . import signals
 from .build import fmu_build_id
 from .scenario import Scenario
 
-__all__ = ["CosimulationError", "CosimulationResult", "LogMessage", "cosimulate", "step_count"]
+__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "cosimulate", "step_count"]
 
 REFERENCE, PLANT, CONTROLLER = "ReferenceRobot", "MobileRobot", "DSCController"
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
@@ -53,13 +54,19 @@ class CosimulationResult:
 
 
 class CosimulationError(RuntimeError):
-    """A run that diverged or in which an FMU failed; carries the time (s), the signal, its value and
-    the rows recorded before the failure (``result``)."""
+    """A run that diverged or in which an FMU failed; carries the time (s), the signal, its value,
+    the rows recorded before the failure (``result``), the communication steps completed
+    (``steps``) and, for a failing FMI call, the FMU's name (``fmu``)."""
 
     def __init__(self, message: str, time: float, signal: str | None = None, value: float | None = None):
         super().__init__(message)
         self.time, self.signal, self.value = time, signal, value
         self.result: np.ndarray | None = None
+        self.steps: int | None = None  # communication steps completed before the failure
+        self.fmu: str | None = None  # the FMU whose FMI call failed, if one did
+
+    def __reduce__(self):  # picklable with its attributes, to cross from a worker process
+        return type(self), (str(self), self.time, self.signal, self.value), self.__dict__
 
 
 def step_count(stop_time: float, step_size: float) -> int:
@@ -104,13 +111,32 @@ class _Fmu:
         except (ValidationError, BadZipFile) as error:
             raise CosimulationError(f"{path}: not a valid FMU for {self.name}: {error}", 0.0) from None
         extract(str(path), unzipdir=self.folder)
+        self.guid, self.model_identifier = md.guid, md.coSimulation.modelIdentifier
         self.variables = {v.name: v for v in md.modelVariables}
         self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
         self.inputs = [v.name for v in md.modelVariables if v.causality == "input"]
-        slave = FMU2Slave(guid=md.guid, unzipDirectory=self.folder,
-                          modelIdentifier=md.coSimulation.modelIdentifier, instanceName=self.name)
+        self.instantiate(callbacks)
+
+    def instantiate(self, callbacks) -> None:
+        """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used)."""
+        slave = FMU2Slave(guid=self.guid, unzipDirectory=self.folder,
+                          modelIdentifier=self.model_identifier, instanceName=self.name)
         slave.instantiate(callbacks=callbacks, loggingOn=True)
         self.slave = slave  # only an instantiated slave is freed
+        self.used = False
+
+    def renew(self, callbacks) -> None:
+        """Bring a used instance back to its state after instantiation: fmi2Reset, or, if the reset
+        fails, free the instance and instantiate it again from the same folder."""
+        if not self.used:
+            return
+        self.terminate()
+        try:
+            self.slave.reset()
+            self.used = False
+        except Exception:  # noqa: BLE001 - an instance that cannot be reset is replaced whatever the reason
+            self.free()
+            self.instantiate(callbacks)
 
     def variable(self, name: str):
         """The model variable named ``name``; CosimulationError if this FMU has none (a wrong FMU file)."""
@@ -124,6 +150,7 @@ class _Fmu:
 
     def initialise(self, stop_time: float, parameters: dict) -> None:
         """Set up the experiment on [0, stop_time] and set every parameter (Real or Integer)."""
+        self.used = True
         self.slave.setupExperiment(startTime=0.0, stopTime=stop_time)
         self.slave.enterInitializationMode()
         self.initialised = True
@@ -133,16 +160,26 @@ class _Fmu:
         self.slave.setReal(self.refs(reals), [float(parameters[name]) for name in reals])
         self.slave.exitInitializationMode()
 
+    def terminate(self) -> None:
+        """fmi2Terminate if initialised; an FMU in an error state may refuse, which is ignored."""
+        if self.initialised:
+            self.initialised = False
+            try:
+                self.slave.terminate()
+            except FMICallException:
+                pass  # freeing or resetting it still applies
+
+    def free(self) -> None:
+        """Free the instance (and unload its library), if there is one."""
+        slave, self.slave = self.slave, None
+        if slave is not None:
+            slave.freeInstance()
+
     def close(self) -> None:
         """Terminate (if initialised) and free the instance, then remove the extracted folder."""
         try:
-            if self.initialised:
-                try:
-                    self.slave.terminate()
-                except FMICallException:
-                    pass  # an FMU in an error state may refuse; freeing it still applies
-            if self.slave is not None:
-                self.slave.freeInstance()
+            self.terminate()
+            self.free()
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
 
@@ -155,6 +192,175 @@ def _failing_fmu(error: FMICallException, fmus: list[_Fmu]) -> str:
         if name is not None:
             return name
     return "an FMU"
+
+
+class Cosimulator:
+    """The three FMUs loaded once (extracted into ``workdir`` and instantiated) for many runs.
+
+    ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances
+    are reset (``fmi2Reset``) instead of extracted again, and an instance that cannot be reset is
+    freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every instance and
+    removes the extracted folders. One Cosimulator serves one thread at a time.
+    """
+
+    def __init__(self, fmu_paths: dict[str, Path], workdir: Path | None = None):
+        paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in (REFERENCE, PLANT, CONTROLLER)}
+        for name, path in paths.items():
+            if name not in fmu_paths or not path.is_file():
+                raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+        self.paths = paths
+        self.fmus = {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()}
+        self.runs = 0
+        self.log: list[LogMessage] = []
+        self._callbacks = _callbacks(self.log)
+        self._loaded: list[_Fmu] = []
+        self._finalizer = weakref.finalize(self, _close_all, self._loaded)
+        try:
+            for name in (REFERENCE, PLANT, CONTROLLER):
+                self._loaded.append(_Fmu(name, workdir))
+                self._loaded[-1].load(paths[name], self._callbacks)
+            self._wire()
+        except BaseException:
+            self.close()
+            raise
+
+    def _wire(self) -> None:
+        """Look up, once, the value references the exchange and the recording use."""
+        for fmu in self._loaded:  # each FMU has the outputs recorded from it: a wrong file fails here
+            fmu.refs(signals.RECORDED[fmu.name])
+        ref, plant, ctl = self._loaded
+        self.measured_plant = [name for name in ctl.inputs if name in plant.outputs]
+        self.measured_ref = [name for name in ctl.inputs if name not in plant.outputs]
+        self.plant_out, self.ref_out = plant.refs(self.measured_plant), ref.refs(self.measured_ref)
+        self.ctl_in = ctl.refs(self.measured_plant + self.measured_ref)
+        self.ctl_u, self.plant_u = ctl.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
+        self.checked = [f"{PLANT}.{s}" for s in self.measured_plant] + [f"{REFERENCE}.{s}" for s in self.measured_ref]
+        self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
+        self.readers, offset = [], 1  # (FMU index, kind, value references, table columns) of every recorded output
+        for index, fmu in enumerate(self._loaded):
+            names = signals.RECORDED[fmu.name]
+            for kind in ("Real", "Integer"):
+                chosen = [i for i, name in enumerate(names) if fmu.variable(name).type == kind]
+                self.readers.append((index, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
+            offset += len(names)
+
+    def __enter__(self) -> Cosimulator:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        """Terminate and free every instance and remove the extracted folders (idempotent)."""
+        self._finalizer()
+
+    def _prepare(self) -> None:
+        """Bring every instance back to the state after instantiation: fmi2Reset, or free and
+        instantiate anew if the reset fails."""
+        if not self._finalizer.alive:
+            raise RuntimeError("this Cosimulator is closed")
+        for fmu in self._loaded:
+            fmu.renew(self._callbacks)
+
+    def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
+            order: str | None = None, output_interval: float | None = None) -> CosimulationResult:
+        """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
+        ``wall_time`` counts this run only (not loading the FMUs)."""
+        scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
+                                            output_interval=output_interval)
+        settings = scenario.simulation
+        h, stop, bound = settings.step_size, settings.stop_time, settings.bound
+        jacobi = settings.order == "jacobi"
+        n = step_count(stop, h)
+        every = max(1, round(settings.output_interval / h))
+        started = clock.perf_counter()
+        self._prepare()
+        self.runs += 1
+        self.log.clear()
+        fmus = self._loaded
+        columns = self.columns
+        table = np.full((n // every + 1 + (n % every != 0), len(columns)), np.nan)
+        row, t, k = 0, 0.0, 0
+        try:
+            for fmu in fmus:
+                fmu.initialise(stop, scenario.parameters(fmu.name))
+            ref_slave, plant_slave, ctl_slave = (fmu.slave for fmu in fmus)
+            plant_out, ref_out, ctl_in = self.plant_out, self.ref_out, self.ctl_in
+            ctl_u, plant_u, checked = self.ctl_u, self.plant_u, self.checked
+            readers = [((fmus[i].slave.getReal if kind == "Real" else fmus[i].slave.getInteger), refs, cols)
+                       for i, kind, refs, cols in self.readers]
+
+            def check(values, names, at):
+                for name, value in zip(names, values):
+                    if not -bound <= value <= bound:
+                        reason = "is not finite" if not math.isfinite(value) else f"exceeds the bound {bound:g}"
+                        raise CosimulationError(f"diverged at t = {at:.6g} s: {name} = {value:.6g} {reason}",
+                                                at, name, value)
+
+            def exchange(at, measurements, set_inputs):
+                if set_inputs:
+                    ctl_slave.setReal(ctl_in, measurements)
+                u = ctl_slave.getReal(ctl_u)
+                check(u, (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2"), at)
+                plant_slave.setReal(plant_u, u)
+
+            def record(at):
+                nonlocal row
+                table[row, 0] = at
+                for get, refs, cols in readers:
+                    if refs:
+                        table[row, cols] = get(refs)
+                row += 1
+
+            measurements = plant_slave.getReal(plant_out) + ref_slave.getReal(ref_out)
+            check(measurements, checked, t)
+            for k in range(n):
+                t = k * h
+                exchange(t, measurements, jacobi or k == 0)
+                if k % every == 0:
+                    record(t)
+                step = h if k < n - 1 else stop - t
+                ref_slave.doStep(t, step)
+                plant_slave.doStep(t, step)
+                measurements = plant_slave.getReal(plant_out) + ref_slave.getReal(ref_out)
+                check(measurements, checked, stop if k == n - 1 else (k + 1) * h)
+                if not jacobi:
+                    ctl_slave.setReal(ctl_in, measurements)
+                ctl_slave.doStep(t, step)
+            k, t = n, stop
+            exchange(t, measurements, jacobi)
+            record(t)
+        except CosimulationError as error:
+            error.result, error.steps = _result(table[:row], columns), k
+            raise
+        except FMICallException as error:
+            name = _failing_fmu(error, fmus)
+            messages = "; ".join([f"[{m.status}] {m.message}" for m in self.log if m.fmu == name][-3:]) or "none"
+            failure = CosimulationError(f"{name} failed at t = {t:.6g} s: {error} Its last log messages: {messages}", t)
+            failure.result, failure.steps, failure.fmu = _result(table[:row], columns), k, name
+            raise failure from None
+        finally:
+            for fmu in reversed(fmus):
+                fmu.terminate()
+        return CosimulationResult(
+            result=_result(table, columns),
+            steps=n,
+            wall_time=clock.perf_counter() - started,
+            settings={"scenario": scenario.name, "step_size": h, "order": settings.order, "stop_time": stop,
+                      "output_interval": settings.output_interval},
+            log=list(self.log),
+            fmus={name: dict(entry) for name, entry in self.fmus.items()},
+        )
+
+
+def _close_all(fmus: list[_Fmu]) -> None:
+    """Close every FMU of ``fmus`` (last loaded first), removing all folders even if one fails."""
+    try:
+        while fmus:
+            fmus.pop().close()
+    finally:
+        for fmu in fmus:
+            shutil.rmtree(fmu.folder, ignore_errors=True)
 
 
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
@@ -183,108 +389,15 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     within ``scenario.simulation.bound``, else CosimulationError; a failing FMI call also raises
     CosimulationError, with the FMU's last log messages. FMUs are extracted into temporary folders
     (inside ``workdir`` if given), and every instance is freed and every folder removed at the end.
+    For many runs, load the FMUs once with ``Cosimulator`` instead: its runs give the same results.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                         output_interval=output_interval)
-    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in (REFERENCE, PLANT, CONTROLLER)}
-    for name, path in paths.items():
-        if name not in fmu_paths or not path.is_file():
-            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
-    settings = scenario.simulation
-    h, stop, bound = settings.step_size, settings.stop_time, settings.bound
-    jacobi = settings.order == "jacobi"
-    n = step_count(stop, h)
-    every = max(1, round(settings.output_interval / h))
-    log: list[LogMessage] = []
-    callbacks = _callbacks(log)
-    fmus: list[_Fmu] = []
-    columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
-    table = np.full((n // every + 1 + (n % every != 0), len(columns)), np.nan)
-    row, t = 0, 0.0
     started = clock.perf_counter()
-    try:
-        for name in (REFERENCE, PLANT, CONTROLLER):
-            fmus.append(_Fmu(name, workdir))
-            fmus[-1].load(paths[name], callbacks)
-        for fmu in fmus:
-            fmu.initialise(stop, scenario.parameters(fmu.name))
-        ref, plant, ctl = fmus
-        ref_slave, plant_slave, ctl_slave = ref.slave, plant.slave, ctl.slave
-        measured_plant = [name for name in ctl.inputs if name in plant.outputs]
-        measured_ref = [name for name in ctl.inputs if name not in plant.outputs]
-        plant_out, ref_out = plant.refs(measured_plant), ref.refs(measured_ref)
-        ctl_in = ctl.refs(measured_plant + measured_ref)
-        ctl_u, plant_u = ctl.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
-        checked = [f"{PLANT}.{s}" for s in measured_plant] + [f"{REFERENCE}.{s}" for s in measured_ref]
-        readers, offset = [], 1  # (get, value references, table columns) of every recorded output
-        for fmu in fmus:
-            names = signals.RECORDED[fmu.name]
-            for kind, get in (("Real", fmu.slave.getReal), ("Integer", fmu.slave.getInteger)):
-                chosen = [i for i, name in enumerate(names) if fmu.variable(name).type == kind]
-                readers.append((get, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
-            offset += len(names)
-
-        def check(values, names, at):
-            for name, value in zip(names, values):
-                if not -bound <= value <= bound:
-                    reason = "is not finite" if not math.isfinite(value) else f"exceeds the bound {bound:g}"
-                    raise CosimulationError(f"diverged at t = {at:.6g} s: {name} = {value:.6g} {reason}",
-                                            at, name, value)
-
-        def exchange(at, measurements, set_inputs):
-            if set_inputs:
-                ctl_slave.setReal(ctl_in, measurements)
-            u = ctl_slave.getReal(ctl_u)
-            check(u, (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2"), at)
-            plant_slave.setReal(plant_u, u)
-
-        def record(at):
-            nonlocal row
-            table[row, 0] = at
-            for get, refs, cols in readers:
-                if refs:
-                    table[row, cols] = get(refs)
-            row += 1
-
-        measurements = plant_slave.getReal(plant_out) + ref_slave.getReal(ref_out)
-        check(measurements, checked, t)
-        for k in range(n):
-            t = k * h
-            exchange(t, measurements, jacobi or k == 0)
-            if k % every == 0:
-                record(t)
-            step = h if k < n - 1 else stop - t
-            ref_slave.doStep(t, step)
-            plant_slave.doStep(t, step)
-            measurements = plant_slave.getReal(plant_out) + ref_slave.getReal(ref_out)
-            check(measurements, checked, stop if k == n - 1 else (k + 1) * h)
-            if not jacobi:
-                ctl_slave.setReal(ctl_in, measurements)
-            ctl_slave.doStep(t, step)
-        t = stop
-        exchange(t, measurements, jacobi)
-        record(t)
-    except CosimulationError as error:
-        error.result = _result(table[:row], columns)
-        raise
-    except FMICallException as error:
-        name = _failing_fmu(error, fmus)
-        messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
-        failure = CosimulationError(f"{name} failed at t = {t:.6g} s: {error} Its last log messages: {messages}", t)
-        failure.result = _result(table[:row], columns)
-        raise failure from None
-    finally:
-        for fmu in reversed(fmus):
-            fmu.close()
-    return CosimulationResult(
-        result=_result(table, columns),
-        steps=n,
-        wall_time=clock.perf_counter() - started,
-        settings={"scenario": scenario.name, "step_size": h, "order": settings.order, "stop_time": stop,
-                  "output_interval": settings.output_interval},
-        log=log,
-        fmus={name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()},
-    )
+    with Cosimulator(fmu_paths, workdir) as simulator:
+        run = simulator.run(scenario)
+    run.wall_time = clock.perf_counter() - started
+    return run
 
 
 def _result(table: np.ndarray, columns: list[str]) -> np.ndarray:

@@ -1,0 +1,301 @@
+"""Step-size sensitivity sweeps: the cases (step, order, discretisation, parameter values, samples) and their grid.
+
+A sweep runs one co-simulation per ``Case``; ``build_cases`` makes the full grid from the options of
+``dsc-fmu sweep`` (``parse_set``, ``parse_perturb``), ``apply`` turns a case into the scenario it runs.
+Running them (cached, on a process pool or a Dask cluster) is ``dsc_fmu.sweep_exec.execute``, also
+importable from here, as are ``run_case``, ``load_trajectory``, ``load_reference``, ``STABILITY_DEFINITION``
+and ``ROW_KEYS``.
+
+>>> parse_set("controller.k4=0.5,1,2")
+('controller.k4', (0.5, 1.0, 2.0))
+>>> str(parse_perturb("plant.mc=20%")), str(parse_perturb("plant.mc=25:35"))
+('plant.mc=20%', 'plant.mc=25:35')
+>>> default_step_sizes()[:3], default_step_sizes()[-1]
+([0.0001, 0.000176, 0.00031], 0.05)
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from .models.parameters import DISCRETIZATIONS, Variable
+from .scenario import ORDERS, TABLES, Scenario, ScenarioError
+
+__all__ = [
+    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
+    "execute", "run_case", "load_trajectory", "load_reference", "STABILITY_DEFINITION", "ROW_KEYS",
+]
+
+_EXECUTION = ("execute", "run_case", "load_trajectory", "load_reference", "STABILITY_DEFINITION", "ROW_KEYS")
+_OWN_OPTION = {"controller.discretization": "the sweep's discretizations option (rk4, euler)"}
+
+
+class SweepError(RuntimeError):
+    """A sweep that cannot run as asked (for example an unreachable Dask scheduler); one-line message."""
+
+
+def __getattr__(name: str):
+    """The execution names, imported from ``sweep_exec`` when first used (it imports this module)."""
+    if name in _EXECUTION:
+        from . import sweep_exec
+
+        return getattr(sweep_exec, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def _number(value):
+    """A parameter value as stored in a case: a choice's name stays a string, a number becomes a float."""
+    if isinstance(value, str):
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ScenarioError(f"{value!r} is not a number or a choice name")
+    return float(value)
+
+
+@dataclass(frozen=True)
+class Case:
+    """One run of a sweep: communication step (s), coupling order, controller discretisation,
+    parameter overrides as ``("table.name", value)`` pairs (a choice by its name) and the Monte Carlo
+    sample index (None without perturbations). Numbers are stored as floats."""
+
+    step_size: float
+    order: str = "gauss-seidel"
+    discretization: str = "rk4"
+    overrides: tuple = ()
+    sample: int | None = None
+
+    def __post_init__(self):
+        object.__setattr__(self, "step_size", float(self.step_size))
+        object.__setattr__(self, "overrides", tuple((str(k), _number(v)) for k, v in self.overrides))
+        if self.sample is not None:
+            object.__setattr__(self, "sample", int(self.sample))
+
+    @property
+    def label(self) -> str:
+        """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, controller.k4 = 0.5``."""
+        parts = [f"h = {self.step_size:g} s", self.order, self.discretization]
+        parts += [f"{key} = {value:g}" if isinstance(value, float) else f"{key} = {value}"
+                  for key, value in self.overrides]
+        return ", ".join(parts + ([] if self.sample is None else [f"sample {self.sample}"]))
+
+
+@dataclass(frozen=True)
+class Perturbation:
+    """A plant parameter drawn uniformly per Monte Carlo sample: within ``relative`` (a fraction, 0.2
+    for 20 %) of its nominal value, or in the absolute range ``[low, high]``."""
+
+    key: str
+    relative: float | None = None
+    low: float | None = None
+    high: float | None = None
+
+    def bounds(self, nominal: float) -> tuple[float, float]:
+        """The range ``[low, high]`` drawn from, for the parameter's ``nominal`` value."""
+        if self.relative is None:
+            return self.low, self.high
+        return nominal * (1.0 - self.relative), nominal * (1.0 + self.relative)
+
+    def __str__(self) -> str:
+        if self.relative is None:
+            return f"{self.key}={self.low:g}:{self.high:g}"
+        return f"{self.key}={100.0 * self.relative:g}%"
+
+
+def _variable(key: str, option: str) -> Variable:
+    """The Variable named by ``key`` (``table.name``), else ScenarioError listing what is allowed."""
+    table, _, name = key.partition(".")
+    if table == "simulation":
+        raise ScenarioError(f"{option} {key}: simulation settings are not swept this way; the step size and the "
+                            "coupling order have their own options, the rest comes from the scenario file")
+    if table not in TABLES or not name:
+        raise ScenarioError(f"{option} {key}: unknown parameter; allowed: TABLE.NAME with TABLE one of "
+                            f"{', '.join(TABLES)} (for example controller.k4)")
+    variables = {v.name: v for v in TABLES[table]}
+    if name not in variables:
+        raise ScenarioError(f"{option} {key}: unknown parameter; allowed: "
+                            f"{', '.join(f'{table}.{n}' for n in variables)}")
+    if key in _OWN_OPTION:
+        raise ScenarioError(f"{option} {key}: not allowed here; it is swept with {_OWN_OPTION[key]}")
+    return variables[name]
+
+
+def _value(key: str, variable: Variable, value, option: str):
+    """``value`` (text or number) checked for ``variable``: a choice's name, or a float in range."""
+    if variable.choices:
+        if value not in variable.choices:
+            raise ScenarioError(f"{option} {key} = {value!r} is not allowed; allowed: {', '.join(variable.choices)}")
+        return value
+    try:
+        number = float(value) if isinstance(value, str) else _number(value)
+    except (ValueError, ScenarioError):
+        raise ScenarioError(f"{option} {key} = {value!r} is not a number; allowed: {variable.allowed}") from None
+    reason = variable.check(number)
+    if reason:
+        raise ScenarioError(f"{option} {key}: {reason}; allowed: {variable.allowed}")
+    return number
+
+
+def parse_set(text: str) -> tuple[str, tuple]:
+    """``"table.name=v1,v2,..."`` as ``(key, values)``: the values of one parameter to sweep over.
+
+    ``table`` is plant, controller or reference and ``name`` one of its parameters; values are
+    numbers in the parameter's range, or names for a choice (``reference.profile=constant,figure_eight``).
+    Repeated values are kept once. ScenarioError (one line, naming the key and what is allowed) otherwise.
+    """
+    key, sep, raw = (part.strip() for part in text.partition("="))
+    if not sep or not key or not raw:
+        raise ScenarioError(f"--set {text!r}: expected TABLE.NAME=VALUE[,VALUE...], for example controller.k4=0.5,1,2")
+    variable = _variable(key, "--set")
+    values = [_value(key, variable, item.strip(), "--set") for item in raw.split(",")]
+    return key, tuple(dict.fromkeys(values))
+
+
+def parse_perturb(text: str) -> Perturbation:
+    """``"plant.name=P%"`` (uniform within P % of the nominal value) or ``"plant.name=LOW:HIGH"``
+    (uniform in [LOW, HIGH]) as a Perturbation. Only plant parameters can be perturbed: the paper's
+    Assumption 1 (unknown but bounded parameters) concerns the plant. ScenarioError otherwise."""
+    key, sep, raw = (part.strip() for part in text.partition("="))
+    if not sep or not key or not raw:
+        raise ScenarioError(f"--perturb {text!r}: expected plant.NAME=P% or plant.NAME=LOW:HIGH, "
+                            "for example plant.mc=20% or plant.mc=25:35")
+    if key.partition(".")[0] in TABLES and key.partition(".")[0] != "plant":
+        raise ScenarioError(f"--perturb {key}: only plant parameters can be perturbed (the paper's Assumption 1 "
+                            "concerns the plant's parameters); allowed: plant.NAME, for example plant.mc")
+    variable = _variable(key, "--perturb")
+    if variable.name == "max_step":
+        raise ScenarioError(f"--perturb {key}: max_step is a solver setting, not a physical parameter; "
+                            "allowed: the other plant parameters")
+    try:
+        if raw.endswith("%"):
+            relative = float(raw[:-1]) / 100.0
+            if not (math.isfinite(relative) and relative > 0):
+                raise ValueError
+            return Perturbation(key, relative=relative)
+        low, colon, high = raw.partition(":")
+        low, high = float(low), float(high)
+        if not colon or not (math.isfinite(low) and math.isfinite(high) and low < high):
+            raise ValueError
+    except ValueError:
+        raise ScenarioError(f"--perturb {key}={raw}: not a bound; allowed: P% with P > 0 (e.g. 20%) "
+                            "or LOW:HIGH with LOW < HIGH (e.g. 25:35)") from None
+    perturbation = Perturbation(key, low=low, high=high)
+    _check_range(perturbation, variable, low, high)
+    return perturbation
+
+
+def _check_range(perturbation: Perturbation, variable: Variable, low: float, high: float) -> None:
+    """ScenarioError if the range ``[low, high]`` holds values the parameter does not allow."""
+    for end in (low, high):
+        reason = variable.check(end)
+        if reason:
+            raise ScenarioError(f"--perturb {perturbation}: the range [{low:g}, {high:g}] allows {reason}; "
+                                f"allowed: {variable.allowed}")
+
+
+def default_step_sizes(count: int = 12, smallest: float = 1e-4, largest: float = 5e-2) -> list[float]:
+    """``count`` communication steps (s), log-spaced from ``smallest`` to ``largest`` (both included),
+    rounded to 3 significant digits."""
+    return [float(f"{h:.3g}") for h in np.geomspace(smallest, largest, count)]
+
+
+def _draw(scenario: Scenario, perturbations, samples, seed) -> list[tuple[int | None, tuple]]:
+    """``(sample, ((key, value), ...))`` per Monte Carlo sample, drawn with ``default_rng(seed)``;
+    ``[(None, ())]`` without perturbations."""
+    if not perturbations:
+        if samples not in (None, 0, 1):
+            raise ScenarioError(f"samples = {samples!r} needs at least one perturbation (--perturb plant.NAME=P%)")
+        return [(None, ())]
+    if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
+        raise ScenarioError(f"samples = {samples!r} is not allowed with perturbations; allowed: a whole number >= 1")
+    if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
+        raise ScenarioError(f"seed = {seed!r} is not allowed; allowed: a whole number >= 0")
+    ranges = []
+    for p in perturbations:
+        variable = _variable(p.key, "--perturb")
+        low, high = p.bounds(scenario.plant[variable.name])
+        if not low < high:
+            raise ScenarioError(f"--perturb {p}: the nominal value is {scenario.plant[variable.name]:g}, so the range "
+                                "is empty; allowed: an absolute range LOW:HIGH")
+        _check_range(p, variable, low, high)
+        ranges.append((p.key, variable, low, high))
+    rng = np.random.default_rng(seed)
+    draws = []
+    for sample in range(samples):
+        values = []
+        for key, variable, low, high in ranges:
+            value = float(rng.uniform(low, high))
+            if variable.check(value):  # cannot happen for a range checked at both ends; never run it unchecked
+                raise ScenarioError(f"--perturb {key}: drew {value!r}: {variable.check(value)}")
+            values.append((key, value))
+        draws.append((sample, tuple(values)))
+    return draws
+
+
+def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretizations=None, sets=(), perturbations=(),
+                samples: int | None = None, seed: int = 0) -> list[Case]:
+    """The full grid: every step size x order x discretisation x combination of the ``sets`` values
+    x Monte Carlo sample, in that nesting (the step size outermost).
+
+    ``step_sizes`` default to ``default_step_sizes()``, ``orders`` and ``discretizations`` to the
+    scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
+    (``parse_perturb``) drawn for ``samples`` samples from ``numpy.random.default_rng(seed)``: sample
+    ``i`` is the same plant at every step, order and ``sets`` combination. Every case is checked up
+    front (ScenarioError).
+    """
+    steps = default_step_sizes() if step_sizes is None else list(dict.fromkeys(step_sizes))
+    for h in steps:
+        if isinstance(h, bool) or not isinstance(h, (int, float)) or not (math.isfinite(h) and h > 0):
+            raise ScenarioError(f"step size {h!r} is not allowed; allowed: > 0 (s)")
+    orders = [scenario.simulation.order] if orders is None else list(dict.fromkeys(orders))
+    for order in orders:
+        if order not in ORDERS:
+            raise ScenarioError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    own = DISCRETIZATIONS[int(scenario.controller["discretization"])]
+    chosen = list(dict.fromkeys([own] if discretizations is None else discretizations))
+    for name in chosen:
+        if name not in DISCRETIZATIONS:
+            raise ScenarioError(f"discretization {name!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
+    if not (steps and orders and chosen):
+        raise ScenarioError("a sweep needs at least one step size, one order and one discretization")
+    axes, keys = [], set()
+    for key, values in sets:
+        variable = _variable(key, "--set")
+        if key in keys or not values:
+            raise ScenarioError(f"--set {key}: given twice or without values; allowed: one --set per parameter")
+        keys.add(key)
+        axes.append([(key, _value(key, variable, value, "--set")) for value in dict.fromkeys(values)])
+    for p in perturbations:
+        if p.key in keys:
+            raise ScenarioError(f"--perturb {p.key}: also given with --set or twice; allowed: one option per parameter")
+        keys.add(p.key)
+    draws = _draw(scenario, perturbations, samples, seed)
+    physical = [(tuple(combo) + drawn, sample) for combo in itertools.product(*axes) for sample, drawn in draws]
+    for overrides, sample in physical:  # Assumption 2 and the ranges, once per physical case
+        apply(scenario, Case(steps[0], orders[0], chosen[0], overrides, sample))
+    return [Case(h, order, name, overrides, sample)
+            for h in steps for order in orders for name in chosen for overrides, sample in physical]
+
+
+def apply(scenario: Scenario, case: Case) -> Scenario:
+    """``scenario`` with the case's overrides (checked), its discretisation (as the controller's
+    integer ``discretization``) and its step size and order: the scenario this case runs."""
+    where = scenario.source
+    if case.order not in ORDERS:
+        raise ScenarioError(f"{where}: order {case.order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    if case.discretization not in DISCRETIZATIONS:
+        raise ScenarioError(f"{where}: discretization {case.discretization!r} is not allowed; "
+                            f"allowed: {', '.join(DISCRETIZATIONS)}")
+    tables = {name: dict(getattr(scenario, name)) for name in TABLES}
+    for key, value in case.overrides:
+        variable = _variable(key, f"{where}:")
+        value = _value(key, variable, value, f"{where}:")
+        table = key.partition(".")[0]
+        tables[table][variable.name] = variable.choices.index(value) if variable.choices else value
+    tables["controller"]["discretization"] = DISCRETIZATIONS.index(case.discretization)
+    changed = dataclasses.replace(scenario, **tables)
+    return changed.with_simulation(step_size=case.step_size, order=case.order)

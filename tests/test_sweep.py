@@ -1,0 +1,470 @@
+"""Sweeps: cases and grids, the reusable master, rows, the cache, local and Dask execution, cleanup."""
+
+import dataclasses
+import json
+import math
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from dsc_fmu import sweep_cache, sweep_dask, sweep_exec
+from dsc_fmu.master import CosimulationError, Cosimulator, cosimulate
+from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
+from dsc_fmu.scenario import ScenarioError, load_scenario
+from dsc_fmu.sweep import (
+    Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, execute, load_reference, load_trajectory,
+    parse_perturb, parse_set, run_case,
+)
+from dsc_fmu.sweep_exec import ROW_KEYS, STABILITY_DEFINITION, STABLE_POSITION_ERROR, TRAJECTORY
+
+ORDERS = ("gauss-seidel", "jacobi")
+MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
+
+
+@pytest.fixture(scope="module")
+def short():
+    """The paper scenario cut to 1 s, recorded every 10 ms."""
+    return load_scenario("paper").with_simulation(stop_time=1.0)
+
+
+def without_wall_time(rows):
+    """Rows as JSON text without their wall times: equal text means equal values, bit for bit (NaN too)."""
+    return [json.dumps({k: v for k, v in row.items() if k != "wall_time_s"}) for row in rows]
+
+
+@pytest.fixture
+def counted(monkeypatch):
+    """Counts of the runs and reference solutions computed in this process (jobs = 1)."""
+    counts = {"run": 0, "reference": 0}
+    simulate, reference = sweep_exec.simulate, sweep_exec.compute_reference
+
+    def counting_simulate(*args):
+        counts["run"] += 1
+        return simulate(*args)
+
+    def counting_reference(*args):
+        counts["reference"] += 1
+        return reference(*args)
+
+    monkeypatch.setattr(sweep_exec, "simulate", counting_simulate)
+    monkeypatch.setattr(sweep_exec, "compute_reference", counting_reference)
+    return counts
+
+
+def leftovers(out_dir):
+    """What is left in ``out_dir/.work`` (nothing, or the folder is gone)."""
+    work = out_dir / ".work"
+    return sorted(p.name for p in work.rglob("*")) if work.exists() else []
+
+
+# --- parsing --------------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(("text", "key", "values"), [
+    ("controller.k4=0.5,1,2", "controller.k4", (0.5, 1.0, 2.0)),
+    (" plant.mc = 27.31 ", "plant.mc", (27.31,)),
+    ("reference.profile=figure_eight,constant", "reference.profile", ("figure_eight", "constant")),
+    ("controller.tau2=0.01,1e-2,0.02", "controller.tau2", (0.01, 0.02)),  # repeated values kept once
+])
+def test_parse_set(text, key, values):
+    assert parse_set(text) == (key, values)
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    ("controller.k4", "expected TABLE.NAME=VALUE"),
+    ("controller.k4=", "expected TABLE.NAME=VALUE"),
+    ("k4=1", r"k4: unknown parameter; allowed: TABLE\.NAME with TABLE one of plant, controller, reference"),
+    ("controller.k9=1", r"controller\.k9: unknown parameter; allowed: controller\.k1, controller\.k2"),
+    ("simulation.step_size=0.1", "step size and the coupling order have their own options"),
+    ("controller.discretization=euler", "discretizations option"),
+    ("controller.k4=fast", r"controller\.k4 = 'fast' is not a number; allowed: > 0"),
+    ("controller.k4=1,-2", r"k4 = -2.0 is not allowed: it must be > 0; allowed: > 0"),
+    ("plant.mc=nan", "not finite"),
+    ("reference.profile=square", "allowed: constant, figure_eight"),
+])
+def test_parse_set_rejects_with_one_line(text, match):
+    with pytest.raises(ScenarioError, match=match) as info:
+        parse_set(text)
+    assert "\n" not in str(info.value)
+
+
+def test_parse_perturb():
+    assert parse_perturb("plant.mc=20%") == Perturbation("plant.mc", relative=0.2)
+    assert parse_perturb("plant.mc=25:35") == Perturbation("plant.mc", low=25.0, high=35.0)
+    assert parse_perturb("plant.mc=20%").bounds(30.0) == pytest.approx((24.0, 36.0))
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    ("controller.k4=20%", "only plant parameters can be perturbed"),
+    ("reference.vr0=20%", "only plant parameters"),
+    ("plant.max_step=20%", "solver setting"),
+    ("plant.mass=20%", r"plant\.mass: unknown parameter; allowed: plant\.R, plant\.d"),
+    ("plant.mc=20", "not a bound; allowed: P% with P > 0"),
+    ("plant.mc=-5%", "not a bound"),
+    ("plant.mc=35:25", "LOW < HIGH"),
+    ("plant.mc=-5:35", r"range \[-5, 35\] allows mc = -5.0 is not allowed: it must be > 0"),
+])
+def test_parse_perturb_rejects_with_one_line(text, match):
+    with pytest.raises(ScenarioError, match=match) as info:
+        parse_perturb(text)
+    assert "\n" not in str(info.value)
+
+
+# --- grids ----------------------------------------------------------------------------------------------------
+
+
+def test_default_step_sizes_are_log_spaced_and_print_nicely():
+    steps = default_step_sizes()
+    assert len(steps) == 12 and steps[0] == 1e-4 and steps[-1] == 0.05
+    assert all(float(f"{h:.3g}") == h for h in steps)
+    ratios = np.diff(np.log(steps))
+    np.testing.assert_allclose(ratios, ratios.mean(), rtol=0.01)
+
+
+def test_build_cases_is_the_full_grid_with_the_step_outermost(short):
+    cases = build_cases(short, step_sizes=[1e-3, 2e-3, 5e-3], orders=ORDERS, discretizations=DISCRETIZATIONS,
+                        sets=[parse_set("controller.k4=0.5,1"), parse_set("plant.mc=27.31,30,33")])
+    assert len(cases) == 3 * 2 * 2 * 2 * 3
+    assert len(set(cases)) == len(cases)
+    assert [c.step_size for c in cases[:24]] == [1e-3] * 24
+    assert cases[0] == Case(1e-3, "gauss-seidel", "rk4", (("controller.k4", 0.5), ("plant.mc", 27.31)))
+    assert cases[1].overrides == (("controller.k4", 0.5), ("plant.mc", 30.0))
+    assert cases[-1] == Case(5e-3, "jacobi", "euler", (("controller.k4", 1.0), ("plant.mc", 33.0)))
+
+
+def test_build_cases_defaults_to_the_scenarios_order_and_discretization(short):
+    cases = build_cases(short)
+    assert [c.step_size for c in cases] == default_step_sizes()
+    assert {(c.order, c.discretization, c.overrides, c.sample) for c in cases} == {("gauss-seidel", "rk4", (), None)}
+
+
+def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(short):
+    def grid(seed):
+        return build_cases(short, step_sizes=[1e-3, 1e-2], orders=ORDERS, samples=20, seed=seed,
+                           perturbations=[parse_perturb("plant.mc=20%"), parse_perturb("plant.Ra1=1.5:1.7")])
+
+    cases = grid(7)
+    assert len(cases) == 2 * 2 * 20 and cases == grid(7) and cases != grid(8)
+    draws = {}
+    for case in cases:
+        values = dict(case.overrides)
+        assert 24.0 <= values["plant.mc"] <= 36.0 and 1.5 <= values["plant.Ra1"] <= 1.7
+        assert draws.setdefault(case.sample, values) == values  # the same plant at every step and order
+    assert sorted(draws) == list(range(20))
+    assert len({v["plant.mc"] for v in draws.values()}) == 20
+
+
+@pytest.mark.parametrize(("kwargs", "match"), [
+    ({"perturbations": [Perturbation("plant.mc", relative=1.5)], "samples": 3}, r"range \[-15, 75\] allows mc"),
+    ({"perturbations": [Perturbation("plant.mc", relative=0.2)]}, "samples = None is not allowed"),
+    ({"samples": 5}, "needs at least one perturbation"),
+    ({"sets": [parse_set("plant.mc=30")], "perturbations": [parse_perturb("plant.mc=20%")], "samples": 2},
+     "also given with --set"),
+    ({"step_sizes": [1e-3, 0.0]}, "step size 0.0 is not allowed"),
+    ({"orders": ["backwards"]}, "order 'backwards' is not allowed"),
+    ({"discretizations": ["trapezoidal"]}, "allowed: rk4, euler"),
+    ({"sets": [("reference.vr0", (1.0, -1.0))]}, r"vr0 = -1.0 is not allowed"),
+])
+def test_build_cases_rejects_up_front(short, kwargs, match):
+    with pytest.raises(ScenarioError, match=match):
+        build_cases(short, **kwargs)
+
+
+def test_apply_sets_overrides_discretization_step_and_order(short):
+    overrides = (("controller.k4", 0.5), ("plant.mc", 27.31), ("reference.profile", "figure_eight"))
+    case = Case(2e-3, "jacobi", "euler", overrides)
+    applied = apply(short, case)
+    assert applied.controller["k4"] == 0.5 and applied.plant["mc"] == 27.31
+    assert applied.reference["profile"] == 1 and applied.controller["discretization"] == DISCRETIZATIONS.index("euler")
+    assert (applied.simulation.step_size, applied.simulation.order) == (2e-3, "jacobi")
+    assert short.controller["k4"] == 1.0  # the scenario itself is unchanged
+    with pytest.raises(ScenarioError, match="k4 = -1.0 is not allowed"):
+        apply(short, Case(1e-3, overrides=(("controller.k4", -1),)))
+
+
+# --- the reusable master ---------------------------------------------------------------------------------------
+
+
+def test_a_reused_cosimulator_is_bit_for_bit_a_fresh_one(short, fmu_paths, tmp_path):
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        assert len(list(tmp_path.iterdir())) == 3
+        for order in (*ORDERS, *ORDERS):
+            reused = simulator.run(short, order=order, step_size=2e-3).result
+            fresh = cosimulate(short, fmu_paths, order=order, step_size=2e-3).result
+            assert reused.tobytes() == fresh.tobytes(), order
+        for bound, h in ((1e6, 0.2), (1e300, 0.1)):  # diverged, then an FMU's doStep failed
+            with pytest.raises(CosimulationError):
+                simulator.run(short.with_simulation(bound=bound), step_size=h, stop_time=10.0)
+            for order in ORDERS:
+                assert simulator.run(short, order=order).result.tobytes() == \
+                    cosimulate(short, fmu_paths, order=order).result.tobytes()
+        assert simulator.runs == 10
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_instance_that_cannot_be_reset_is_instantiated_again(short, fmu_paths, tmp_path, monkeypatch):
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    resets = []
+
+    def failing_reset(self):
+        resets.append(self.instanceName)
+        raise FMICallException(function="fmi2Reset", status=3)
+
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        first = simulator.run(short).result
+        monkeypatch.setattr(FMU2Slave, "reset", failing_reset)
+        again = simulator.run(short).result
+    assert sorted(resets) == ["DSCController", "MobileRobot", "ReferenceRobot"]
+    assert again.tobytes() == first.tobytes()
+    assert list(tmp_path.iterdir()) == []
+
+
+# --- rows -------------------------------------------------------------------------------------------------------
+
+
+def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tmp_path):
+    case = Case(2e-3, "jacobi", "euler", (("controller.k4", 0.5),))
+    own = cosimulate(apply(short, case), fmu_paths).result
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        row = run_case(short, case, simulator, own)
+    expected = [k for k in ROW_KEYS if not k.startswith("<")]
+    assert list(row) == expected[:5] + ["controller.k4"] + expected[5:]
+    assert json.dumps(json.loads(json.dumps(row))) == json.dumps(row)
+    assert row["controller.k4"] == 0.5 and row["steps"] == 500 and row["diverged"] is False
+    for name in ("position", "heading", "u"):
+        unit = {"position": "m", "heading": "rad", "u": "V"}[name]
+        assert row[f"max_{name}_deviation_{unit}"] == 0.0 and row[f"rms_{name}_deviation_{unit}"] == 0.0
+    assert row["key"] == sweep_cache.case_key(short, case, sweep_cache.fmu_identities(fmu_paths))
+    assert row["reference_key"] == sweep_cache.reference_key(short, dataclasses.replace(case, step_size=0.1))
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_the_deviation_from_the_reference_solution_is_first_order_in_the_step(short, fmu_paths, tmp_path, order):
+    scenario = short.with_simulation(stop_time=2.0)
+    reference, why = sweep_exec.compute_reference(apply(scenario, Case(1e-3)))
+    assert why is None and reference["time"][-1] == 2.0 and np.all(np.diff(reference["time"]) > 0)
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        rows = [run_case(scenario, Case(h, order), simulator, reference) for h in (1e-3, 2e-3)]
+    for name in ("max_position_deviation_m", "rms_heading_deviation_rad", "rms_u_deviation_V"):
+        assert 1.6 < rows[1][name] / rows[0][name] < 2.4, name
+
+
+@pytest.mark.slow
+def test_stability_over_the_papers_run(fmu_paths, tmp_path):
+    """The paper's 30 s: settled by the last third at h = 10 ms; Jacobi diverges at 20 ms, Gauss-Seidel not."""
+    paper = load_scenario("paper")
+    cases = [Case(0.01), Case(0.02, "jacobi"), Case(0.02)]
+    rows = execute(paper, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert [row["stable"] for row in rows] == [True, False, True]
+    assert rows[0]["max_position_error_m"] < STABLE_POSITION_ERROR and rows[1]["diverged"]
+    assert "0.5 m over the last third of the run" in STABILITY_DEFINITION
+
+
+@pytest.mark.parametrize(("bound", "h", "signal"), [(1e6, 0.2, None), (1e-3, 1e-3, "MobileRobot.x")],
+                         ids=["destabilising-step", "tiny-bound"])
+def test_a_diverging_run_is_a_row_with_its_reason(short, fmu_paths, tmp_path, bound, h, signal):
+    scenario = short.with_simulation(stop_time=10.0, bound=bound)
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        row = run_case(scenario, Case(h), simulator, None)
+    assert row["diverged"] is True and row["stable"] is False
+    assert row["diverged_signal"] == (signal or row["diverged_signal"]) and row["diverged_signal"]
+    assert row["diverged_time"] == (0.0 if signal else row["diverged_time"]) and row["diverged_time"] < 10.0
+    assert "diverged at t = " in row["diverged_reason"] or "failed at t = " in row["diverged_reason"]
+    assert math.isnan(row["max_position_deviation_m"]) and math.isnan(row["final_position_error_m"])
+    if signal is None:  # found after the step that reached diverged_time, or at the exchange there
+        assert row["diverged_time"] > 0 and row["steps"] in (round(row["diverged_time"] / h) - 1,
+                                                             round(row["diverged_time"] / h))
+
+
+# --- the cache ---------------------------------------------------------------------------------------------------
+
+
+def test_second_execute_runs_nothing_and_a_new_step_only_itself(short, fmu_paths, tmp_path, counted):
+    cases = build_cases(short, step_sizes=[2e-3, 0.01], orders=ORDERS)
+    first = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert counted == {"run": 4, "reference": 1}
+    files = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")}
+    assert len(files) == 2 + 4 * 2 + 1  # two folders, a row and a trajectory per run, one reference
+    again = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert counted == {"run": 4, "reference": 1}
+    assert json.dumps(again) == json.dumps(first)  # wall times too: they come from the cache
+    assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")} == files
+    more = execute(short, build_cases(short, step_sizes=[2e-3, 5e-3, 0.01], orders=ORDERS), tmp_path, fmu_paths,
+                   jobs=1, progress=False)
+    assert counted == {"run": 6, "reference": 1}  # the reference of the physical case is cached too
+    assert json.dumps([more[0], more[1], more[4], more[5]]) == json.dumps(first)
+    trajectory = load_trajectory(tmp_path, first[0])
+    assert trajectory.dtype.names == TRAJECTORY and len(trajectory) == 101 and trajectory["time"][-1] == 1.0
+    reference = load_reference(tmp_path, first[0])
+    assert len(reference) == 1001 and reference["time"][-1] == 1.0 and reference["x"][0] == short.plant["x0"]
+    assert len({row["reference_key"] for row in more}) == 1
+    assert leftovers(tmp_path) == []
+
+
+def test_a_changed_scenario_value_or_fmu_build_invalidates(short, fmu_paths, tmp_path, counted, monkeypatch):
+    cases = [Case(0.01), Case(0.01, "jacobi")]
+    execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    renamed = dataclasses.replace(short, name="renamed", source="elsewhere.toml")
+    rows = execute(renamed, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert counted["run"] == 2 and {row["scenario"] for row in rows} == {"renamed"}  # name and file do not count
+    changed = dataclasses.replace(short, controller={**short.controller, "k5": 1.5})
+    execute(changed, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert counted == {"run": 4, "reference": 2}
+    monkeypatch.setattr(sweep_cache, "fmu_build_id", lambda path: f"rebuilt {path.name}")
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert counted == {"run": 6, "reference": 2}  # same physics: the reference solution is still valid
+    assert rows[0]["key"] == sweep_cache.case_key(short, cases[0], sweep_cache.fmu_identities(fmu_paths))
+
+
+def test_a_partial_cache_entry_is_a_miss(short, fmu_paths, tmp_path, counted):
+    [row] = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)
+    (tmp_path / "cache" / "runs" / f"{row['key']}.npz").unlink()
+    assert execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)[0]["key"] == row["key"]
+    assert counted["run"] == 2
+    assert not list((tmp_path / "cache").rglob("*.partial"))
+
+
+# --- execution and cleanup --------------------------------------------------------------------------------------
+
+
+def test_diverging_cases_are_rows_in_a_sweep(short, fmu_paths, tmp_path):
+    rows = execute(short.with_simulation(stop_time=5.0), [Case(0.01), Case(0.25)], tmp_path, fmu_paths, jobs=1,
+                   progress=False)
+    assert [row["diverged"] for row in rows] == [False, True]
+    assert rows[1]["diverged_time"] > 0 and rows[1]["diverged_signal"]
+
+
+def test_an_interrupted_sweep_cleans_up_and_resumes(short, fmu_paths, tmp_path, monkeypatch):
+    calls = []
+    simulate = sweep_exec.simulate
+
+    def interrupted(*args):
+        calls.append(args)
+        if len(calls) == 2:
+            raise KeyboardInterrupt
+        return simulate(*args)
+
+    monkeypatch.setattr(sweep_exec, "simulate", interrupted)
+    cases = [Case(0.01), Case(0.02), Case(0.05)]
+    with pytest.raises(KeyboardInterrupt):
+        execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert leftovers(tmp_path) == []
+    assert len(list((tmp_path / "cache" / "runs").glob("*.json"))) == 1
+    calls.clear()
+    monkeypatch.setattr(sweep_exec, "simulate", lambda *args: calls.append(args) or simulate(*args))
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    assert len(calls) == 2 and [row["step_size"] for row in rows] == [0.01, 0.02, 0.05]
+    assert leftovers(tmp_path) == []
+
+
+def test_a_failing_sweep_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
+    def failing(*args):
+        raise RuntimeError("boom")
+
+    monkeypatch.setattr(sweep_exec, "simulate", failing)
+    with pytest.raises(RuntimeError, match="boom"):
+        execute(short, [Case(0.01), Case(0.02)], tmp_path, fmu_paths, jobs=1, progress=False)
+    assert leftovers(tmp_path) == []
+
+
+@pytest.mark.slow
+def test_two_jobs_give_the_rows_of_one(short, fmu_paths, tmp_path):
+    scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
+    cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
+    one = execute(scenario, cases, tmp_path / "one", fmu_paths, jobs=1, progress=False)
+    two = execute(scenario, cases, tmp_path / "two", fmu_paths, jobs=2, progress=False)
+    assert without_wall_time(two) == without_wall_time(one)
+    assert any(row["diverged"] for row in one) and not all(row["diverged"] for row in one)
+    assert leftovers(tmp_path / "two") == []
+
+
+@pytest.mark.slow
+def test_a_failing_worker_is_reported_and_cleaned_up(short, fmu_paths, tmp_path):
+    broken = tmp_path / "broken.fmu"
+    broken.write_text("not an FMU")
+    paths = {**fmu_paths, "DSCController": broken}
+    with pytest.raises(CosimulationError, match=r"broken\.fmu: not a valid FMU for DSCController"):
+        execute(short, [Case(0.01), Case(0.02)], tmp_path / "out", paths, jobs=2, progress=False)
+    assert leftovers(tmp_path / "out") == []
+
+
+@pytest.mark.slow
+def test_an_interrupt_stops_the_pool_and_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
+    """Ctrl-C in the parent while the workers run: they are stopped, .work is removed, and the
+    rows cached before the interrupt (here: the first one) are kept; the next sweep resumes."""
+    psutil = pytest.importorskip("psutil")
+    store_run = sweep_cache.SweepCache.store_run
+    stored = []
+
+    def interrupted(self, key, row, trajectory):
+        if stored:
+            raise KeyboardInterrupt
+        stored.append(key)
+        store_run(self, key, row, trajectory)
+
+    monkeypatch.setattr(sweep_cache.SweepCache, "store_run", interrupted)
+    cases = [Case(h, order) for h in (1e-3, 2e-3, 5e-3) for order in ORDERS]
+    with pytest.raises(KeyboardInterrupt):
+        execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False)
+    workers = [p for p in psutil.Process().children(recursive=True) if "spawn_main" in " ".join(p.cmdline())]
+    assert workers == [] and leftovers(tmp_path) == []
+    assert [p.stem for p in (tmp_path / "cache" / "runs").glob("*.json")] == stored
+    monkeypatch.setattr(sweep_cache.SweepCache, "store_run", store_run)
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False)
+    assert len({row["key"] for row in rows}) == 6 and stored[0] in {row["key"] for row in rows}
+
+
+def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths, tmp_path):
+    started = time.perf_counter()
+    with pytest.raises(SweepError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:1 within 1 s") as info:
+        execute(short, [Case(0.01)], tmp_path / "out", fmu_paths, scheduler="tcp://127.0.0.1:1", scheduler_timeout=1,
+                progress=False)
+    assert time.perf_counter() - started < 10
+    assert "\n" not in str(info.value)
+    assert not (tmp_path / "out").exists()
+
+
+def test_the_worker_cleanup_frees_the_cosimulator_and_its_folder(short, fmu_paths):
+    blobs = {name: path.read_bytes() for name, path in fmu_paths.items()}
+    outcome = sweep_dask._run_on_worker(blobs, apply(short, Case(0.01)))
+    status = sweep_dask.worker_status()
+    assert outcome["metrics"] is not None and status["runs"] == 1
+    sweep_dask._run_on_worker(blobs, apply(short, Case(0.02)))
+    assert sweep_dask.worker_status() == {**status, "runs": 2}  # the same Cosimulator, reused
+    sweep_dask.CosimulatorCleanup().teardown(worker=None)
+    assert sweep_dask.worker_status() == {"folder": None, "runs": 0}
+    assert not Path(status["folder"]).exists()
+
+
+@pytest.mark.slow
+def test_a_dask_cluster_gives_the_rows_of_a_local_run(short, fmu_paths, tmp_path):
+    distributed = pytest.importorskip("distributed")
+    scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
+    cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
+    local = execute(scenario, cases, tmp_path / "local", fmu_paths, jobs=1, progress=False)
+    scratch = tmp_path / "dask"
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
+                                  host="127.0.0.1", local_directory=str(scratch)) as cluster:
+        remote = execute(scenario, cases, tmp_path / "remote", fmu_paths, scheduler=cluster.scheduler_address,
+                         progress=False)
+        with distributed.Client(cluster.scheduler_address, set_as_default=False) as client:
+            status = client.run(sweep_dask.worker_status)
+    assert without_wall_time(remote) == without_wall_time(local)
+    assert any(row["diverged"] for row in local) and not all(row["diverged"] for row in local)
+    assert sum(s["runs"] for s in status.values()) == len(cases)  # one Cosimulator per worker, reused
+    folders = [s["folder"] for s in status.values() if s["folder"]]
+    assert folders and all(str(scratch) in folder for folder in folders)
+    assert not any((scratch).rglob("dsc_fmu_sweep_*"))  # removed when the workers closed
+    assert not (tmp_path / "remote" / ".work").exists()
+
+
+def test_cache_files_are_complete_or_absent(tmp_path):
+    target = tmp_path / "a" / "row.json"
+    sweep_cache.atomic_write(target, b"{}")
+    with pytest.raises(TypeError):  # a write that fails midway leaves no file behind
+        sweep_cache.atomic_write(tmp_path / "a" / "other.json", object())
+    assert target.read_bytes() == b"{}" and [p.name for p in target.parent.iterdir()] == ["row.json"]
