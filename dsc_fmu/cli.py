@@ -8,8 +8,11 @@ from pathlib import Path
 
 from .build import DEFAULT_FMU_DIR, build_fmus
 from .master import CosimulationError
+from .models.parameters import DISCRETIZATIONS
 from .run import run_scenario
 from .scenario import ORDERS, ScenarioError, load_scenario, scenario_names
+from .step_study import run_sweep
+from .sweep import SweepError, parse_perturb, parse_set
 
 __all__ = ["main"]
 
@@ -34,8 +37,39 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
     run.add_argument("--no-plots", action="store_true", help="write no figures")
 
+    sweep = commands.add_parser("sweep", help="step-size sensitivity study: a grid of co-simulations and a report")
+    sweep.add_argument("scenario", nargs="?", default="paper", help="a scenario name or a TOML file (default: %(default)s)")
+    sweep.add_argument("--step-sizes", type=_floats, help="communication steps in s, comma-separated "
+                       "(default: 12 log-spaced from 1e-4 to 5e-2)")
+    sweep.add_argument("--orders", type=_names, help=f"coupling orders, comma-separated (default: {','.join(ORDERS)})")
+    sweep.add_argument("--discretizations", type=_names,
+                       help=f"controller discretizations, comma-separated: {', '.join(DISCRETIZATIONS)} (default: rk4)")
+    sweep.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=V1,V2,...",
+                       help="sweep a scenario value too, e.g. controller.k4=0.5,1,2 (repeat for a grid)")
+    sweep.add_argument("--perturb", action="append", default=[], metavar="plant.KEY=P%|LOW:HIGH",
+                       help="draw a plant parameter at random, e.g. plant.mc=20%% (Monte Carlo, with --samples)")
+    sweep.add_argument("--samples", type=int, help="number of Monte Carlo samples of the --perturb parameters")
+    sweep.add_argument("--seed", type=int, default=0, help="seed of the Monte Carlo draws (default: %(default)s)")
+    sweep.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
+    sweep.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
+    sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786")
+    sweep.add_argument("--no-refine", action="store_true", help="do not bisect the stability boundaries")
+    sweep.add_argument("--out", type=Path, help="output folder (default: results/sweep-<scenario name>)")
+    sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
+
     commands.add_parser("scenarios", help="list the scenarios shipped with dsc-fmu")
     return parser
+
+
+def _floats(text: str) -> list[float]:
+    try:
+        return [float(item) for item in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
+
+
+def _names(text: str) -> list[str]:
+    return [item.strip() for item in text.split(",") if item.strip()]
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -45,6 +79,17 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "build":
             for path in build_fmus(args.out).values():
                 print(path)
+        elif args.command == "sweep":
+            scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
+            if args.jobs is not None and args.jobs < 1:
+                raise ScenarioError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
+            print(run_sweep(
+                scenario, args.out or Path("results") / f"sweep-{scenario.name}", fmu_dir=args.fmu_dir,
+                step_sizes=args.step_sizes, orders=args.orders, discretizations=args.discretizations,
+                sets=[parse_set(text) for text in args.set], perturbations=[parse_perturb(text) for text in args.perturb],
+                samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler,
+                refine=not args.no_refine,
+            ))
         elif args.command == "scenarios":
             for name in scenario_names():
                 print(f"{name}: {load_scenario(name).description}")
@@ -58,9 +103,12 @@ def main(argv: list[str] | None = None) -> int:
                 plots=not args.no_plots,
             )
             print(report)
-    except (ScenarioError, CosimulationError, OSError) as error:
+    except (ScenarioError, CosimulationError, SweepError, OSError) as error:
         print(f"dsc-fmu: error: {error}", file=sys.stderr)
         return 1
+    except KeyboardInterrupt:
+        print("dsc-fmu: interrupted; finished runs are kept in the cache", file=sys.stderr)
+        return 130
     return 0
 
 

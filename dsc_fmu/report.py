@@ -121,7 +121,7 @@ def _boundaries(summary: Mapping, notes: Sequence[str]) -> list[str]:
         statements.append(f"- {label}: {stability['message']}; {prediction['statement']}.")
         if prediction["agrees"] is False:
             disagreements.append(label)
-    text = [f"A run counts as stable if: {summary['stability_definition']}. The measured boundary h* is the "
+    text = [f"{summary['stability_definition'].rstrip('.')}. The measured boundary h* is the "
             "largest step known stable below the first unstable one (stability need not be monotone in h); "
             "the bracket from the grid is refined by bisection at geometric midpoints. The predicted boundary "
             "is where the spectral radius of the linearised co-simulation step reaches 1.", "",

@@ -28,15 +28,18 @@ from .sweep import Case, SweepError, apply
 from .sweep_cache import REFERENCE_GRID, REFERENCE_SETTINGS, SweepCache, case_key, fmu_identities, reference_key
 
 __all__ = [
-    "STABLE_POSITION_ERROR", "STABILITY_DEFINITION", "TRAJECTORY", "REFERENCE_COLUMNS", "ROW_KEYS", "simulate",
+    "STABLE_POSITION_ERROR", "STABILITY_DEFINITION", "error_grows", "TRAJECTORY", "REFERENCE_COLUMNS", "ROW_KEYS", "simulate",
     "compute_reference", "make_row", "deviations", "run_case", "execute", "load_trajectory", "load_reference",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
+GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m
 STABILITY_DEFINITION = (
     "A run is stable if it did not diverge (every exchanged signal stayed finite and within the scenario's "
-    f"bound, and no FMU failed) and its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
-    "over the last third of the run."
+    f"bound, and no FMU failed), its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
+    "over the last third of the run, and it did not grow there: its maximum over the last sixth of the run is "
+    f"at most {GROWTH_FACTOR:g} times its maximum over the sixth before, plus {GROWTH_SLACK * 1e3:g} mm (a slowly "
+    "growing oscillation, a spectral radius just above 1, is unstable even if it has not diverged yet)."
 )
 TRAJECTORY = ("time", "x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2")
 REFERENCE_COLUMNS = ("time", "x", "y", "theta", "u1", "u2")
@@ -86,6 +89,18 @@ def compute_reference(applied: Scenario) -> tuple[np.ndarray | None, str | None]
     return _columns(solution, REFERENCE_COLUMNS), None
 
 
+def error_grows(trajectory: np.ndarray) -> bool:
+    """Whether the position error grows over the last third of the run (``STABILITY_DEFINITION``)."""
+    t = trajectory["time"]
+    error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
+    end = t[-1]
+    earlier = error[(t >= 2.0 * end / 3.0) & (t < 5.0 * end / 6.0)]
+    later = error[t >= 5.0 * end / 6.0]
+    if not len(earlier) or not len(later):
+        return False
+    return bool(later.max() > GROWTH_FACTOR * earlier.max() + GROWTH_SLACK)
+
+
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
     """Largest and RMS deviation of a run from the reference solution (interpolated linearly at the
     run's times) over all its rows: position (m), wrapped heading (rad), voltage of both wheels (V)."""
@@ -112,7 +127,8 @@ def make_row(scenario_name: str, case: Case, keys: tuple[str, str], outcome: dic
            "reference_key": keys[1],
            "diverged": diverged, "diverged_time": outcome["diverged_time"],
            "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
-           "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR}
+           "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
+           and not error_grows(outcome["trajectory"])}
     usable = not diverged and reference is not None and len(outcome["trajectory"])
     row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
     row.update({name: math.nan if value is None else value for name, value in metrics.items()})

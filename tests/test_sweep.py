@@ -468,3 +468,22 @@ def test_cache_files_are_complete_or_absent(tmp_path):
     with pytest.raises(TypeError):  # a write that fails midway leaves no file behind
         sweep_cache.atomic_write(tmp_path / "a" / "other.json", object())
     assert target.read_bytes() == b"{}" and [p.name for p in target.parent.iterdir()] == ["row.json"]
+
+
+def _trajectory_with_error(error):
+    t = np.linspace(0.0, 30.0, len(error))
+    out = np.zeros(len(t), dtype=[(n, float) for n in ("time", "x", "y", "x_r", "y_r")])
+    out["time"], out["x_r"], out["x"] = t, error, 0.0
+    return out
+
+
+@pytest.mark.parametrize("shape, grows", [
+    (lambda t: 0.5 * np.exp(-t / 5.0), False),                       # converging
+    (lambda t: 0.01 + 0.002 * np.sin(7.0 * t), False),              # steady small oscillation
+    (lambda t: 0.005 * np.exp(t / 8.0) * np.abs(np.sin(3.0 * t)), True),  # slow exponential growth
+    (lambda t: 0.001 * (t > 28.0), False),                          # a step within the 1 mm slack
+])
+def test_error_growth_criterion(shape, grows):
+    from dsc_fmu.sweep_exec import error_grows
+    t = np.linspace(0.0, 30.0, 3001)
+    assert error_grows(_trajectory_with_error(shape(t))) is grows

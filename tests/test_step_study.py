@@ -1,0 +1,68 @@
+"""``dsc-fmu sweep`` end to end: files, refined boundaries beside the prediction, one-line errors."""
+
+import csv
+import json
+
+import pytest
+
+from dsc_fmu.cli import main
+
+pytestmark = pytest.mark.slow
+
+
+@pytest.fixture(scope="module")
+def fmu_dir(fmu_paths):
+    return next(iter(fmu_paths.values())).parent
+
+
+@pytest.fixture(scope="module")
+def sweep(tmp_path_factory, fmu_dir):
+    out = tmp_path_factory.mktemp("sweep")
+    status = main(["sweep", "on_reference", "--step-sizes", "0.02,0.04,0.06", "--orders", "gauss-seidel,jacobi",
+                   "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
+    assert status == 0
+    return out
+
+
+def test_sweep_writes_table_summary_figures_and_report(sweep):
+    with open(sweep / "sweep.csv") as file:
+        rows = list(csv.DictReader(file))
+    assert [(float(r["step_size"]), r["order"]) for r in rows] == [
+        (h, order) for h in (0.02, 0.04, 0.06) for order in ("gauss-seidel", "jacobi")]
+    for name in ("deviation.png", "tracking_and_cost.png", "paths.png", "spectral_radius.png"):
+        assert (sweep / name).read_bytes()[:4] == b"\x89PNG"
+    report = (sweep / "report.md").read_text()
+    assert "](deviation.png)" in report and "## Stability boundary" in report
+    assert not (sweep / ".work").exists()
+
+
+def test_on_reference_boundaries_agree_with_the_linearised_prediction(sweep):
+    summary = json.loads((sweep / "sweep.json").read_text())
+    assert set(summary["groups"]) == {"gauss-seidel/rk4", "jacobi/rk4"}
+    for label, group in summary["groups"].items():
+        boundary = group["stability_boundary"]
+        refined = boundary["refined"]
+        assert refined["h_unstable_s"] / refined["h_stable_s"] <= 1.02 + 1e-9, label
+        assert group["prediction"]["agrees"] is True, group["prediction"]["statement"]
+        assert 0.8 <= group["prediction"]["ratio_predicted_to_measured"] <= 1.2
+
+
+@pytest.mark.parametrize("arguments, message", [
+    (["--step-sizes", "0,1e-3"], "step size 0.0 is not allowed; allowed: > 0"),
+    (["--step-sizes", "fast"], None),
+    (["--set", "controller.k9=1,2"], "controller.k9"),
+    (["--orders", "random"], "order 'random' is not allowed"),
+    (["--jobs", "0"], "--jobs 0 is not allowed"),
+    (["--scheduler", "tcp://127.0.0.1:1"], "cannot reach the Dask scheduler"),
+])
+def test_bad_sweep_options_fail_in_one_line_and_write_nothing(tmp_path, fmu_dir, capsys, arguments, message):
+    out = tmp_path / "out"
+    try:
+        status = main(["sweep", "on_reference", *arguments, "--out", str(out), "--fmu-dir", str(fmu_dir)])
+    except SystemExit as exit_:  # argparse refuses what it can parse itself
+        status = exit_.code
+    error = capsys.readouterr().err.strip().splitlines()
+    assert status in (1, 2)
+    if message is not None:
+        assert status == 1 and len(error) == 1 and message in error[0], error
+    assert not out.exists()
