@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 import shutil
 import tempfile
 import time as clock
@@ -101,7 +102,7 @@ class _Fmu:
         self.name = name
         self.initialised = False
         self.slave = None
-        self.folder = tempfile.mkdtemp(prefix=f"dsc_fmu_{name}_", dir=workdir)
+        self.folder = os.path.abspath(tempfile.mkdtemp(prefix=f"dsc_fmu_{name}_", dir=workdir))  # a file URI needs it
 
     def load(self, path: Path, callbacks) -> None:
         """Read the model description, extract the FMU and instantiate it with ``callbacks``."""

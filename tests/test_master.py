@@ -2,6 +2,7 @@
 
 import math
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -235,3 +236,10 @@ def test_swapped_fmus_are_reported(paper, fmu_paths):
     paths = {**fmu_paths, "DSCController": fmu_paths["MobileRobot"]}
     with pytest.raises(CosimulationError, match="DSCController has no variable"):
         cosimulate(paper, paths, stop_time=0.1)
+
+
+def test_a_relative_work_folder_is_fine(fmu_paths, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "work").mkdir()
+    run = cosimulate(load_scenario("paper"), fmu_paths, stop_time=0.01, workdir=Path("work"))
+    assert run.steps == 10 and not any((tmp_path / "work").iterdir())
