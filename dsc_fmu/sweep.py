@@ -197,10 +197,13 @@ def _check_range(perturbation: Perturbation, variable: Variable, low: float, hig
                                 f"allowed: {variable.allowed}")
 
 
-def default_step_sizes(count: int = 12, smallest: float = 1e-4, largest: float = 5e-2) -> list[float]:
-    """``count`` communication steps (s), log-spaced from ``smallest`` to ``largest`` (both included),
-    rounded to 3 significant digits."""
-    return [float(f"{h:.3g}") for h in np.geomspace(smallest, largest, count)]
+def default_step_sizes(per_decade: int = 4, smallest: float = 1e-4, largest: float = 5e-2) -> list[float]:
+    """Communication steps (s) log-spaced ``per_decade`` to a decade from ``smallest`` up to
+    ``largest`` (both included), rounded to 3 significant digits; the decades (1e-3, 1e-2 s) are on
+    the grid. The default: 1e-4, 1.78e-4, 3.16e-4, 5.62e-4, 1e-3, ..., 3.16e-2, 5e-2 (12 steps)."""
+    count = math.floor(per_decade * math.log10(largest / smallest) + 1e-9)
+    steps = [float(f"{smallest * 10 ** (k / per_decade):.3g}") for k in range(count + 1)]
+    return steps if steps[-1] == largest else [*steps, largest]
 
 
 def _draw(scenario: Scenario, perturbations, samples, seed) -> list[tuple[int | None, tuple]]:

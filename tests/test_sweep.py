@@ -118,9 +118,11 @@ def test_parse_perturb_rejects_with_one_line(text, match):
 def test_default_step_sizes_are_log_spaced_and_print_nicely():
     steps = default_step_sizes()
     assert len(steps) == 12 and steps[0] == 1e-4 and steps[-1] == 0.05
+    assert 1e-3 in steps and 1e-2 in steps
     assert all(float(f"{h:.3g}") == h for h in steps)
-    ratios = np.diff(np.log(steps))
-    np.testing.assert_allclose(ratios, ratios.mean(), rtol=0.01)
+    ratios = np.diff(np.log(steps[:-1]))
+    np.testing.assert_allclose(ratios, np.log(10) / 4, rtol=0.01)
+    assert steps[-2] < 0.05
 
 
 def test_build_cases_is_the_full_grid_with_the_step_outermost(short):
