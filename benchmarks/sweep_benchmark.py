@@ -23,17 +23,18 @@ import psutil
 from dsc_fmu.build import ensure_fmus
 from dsc_fmu.master import Cosimulator
 from dsc_fmu.scenario import ORDERS, load_scenario
-from dsc_fmu.sweep import Case, apply, build_cases, default_step_sizes
+from dsc_fmu.sweep import Case, apply, build_cases
 from dsc_fmu.sweep_exec import execute, simulate
 
 MB = 1024.0**2
+STEPS = (1e-4, 2.4e-4, 5.6e-4, 1.3e-3, 3.2e-3, 7.5e-3, 1.8e-2, 5e-2)  # 8 steps x 2 orders = 16 runs
 
 
 def speed_up(fmu_paths: dict, stop_time: float) -> None:
     scenario = load_scenario("paper").with_simulation(stop_time=stop_time)
-    cases = build_cases(scenario, step_sizes=default_step_sizes(8), orders=ORDERS)
+    cases = build_cases(scenario, step_sizes=STEPS, orders=ORDERS)
     print(f"(a) {len(cases)}-run sweep, paper scenario, stop time {stop_time:g} s, "
-          f"steps {', '.join(f'{h:g}' for h in default_step_sizes(8))} s x {', '.join(ORDERS)}; "
+          f"steps {', '.join(f'{h:g}' for h in STEPS)} s x {', '.join(ORDERS)}; "
           f"{os.cpu_count()} CPUs")
     times = {}
     for jobs in (1, 2):

@@ -10,8 +10,8 @@ and ``ROW_KEYS``.
 ('controller.k4', (0.5, 1.0, 2.0))
 >>> str(parse_perturb("plant.mc=20%")), str(parse_perturb("plant.mc=25:35"))
 ('plant.mc=20%', 'plant.mc=25:35')
->>> default_step_sizes()[:3], default_step_sizes()[-1]
-([0.0001, 0.000176, 0.00031], 0.05)
+>>> default_step_sizes()[:5], default_step_sizes()[-1]
+([0.0001, 0.000178, 0.000316, 0.000562, 0.001], 0.05)
 """
 
 from __future__ import annotations
