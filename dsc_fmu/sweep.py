@@ -214,7 +214,7 @@ def _draw(scenario: Scenario, perturbations, samples, seed) -> list[tuple[int | 
             raise ScenarioError(f"samples = {samples!r} needs at least one perturbation (--perturb plant.NAME=P%)")
         return [(None, ())]
     if isinstance(samples, bool) or not isinstance(samples, int) or samples < 1:
-        raise ScenarioError(f"samples = {samples!r} is not allowed with perturbations; allowed: a whole number >= 1")
+        raise ScenarioError(f"--samples {samples} is not allowed with --perturb; allowed: a whole number >= 1")
     if isinstance(seed, bool) or not isinstance(seed, int) or seed < 0:
         raise ScenarioError(f"seed = {seed!r} is not allowed; allowed: a whole number >= 0")
     ranges = []

@@ -39,7 +39,9 @@ STABILITY_DEFINITION = (
     f"bound, and no FMU failed), its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
     "over the last third of the run, and it did not grow there: its maximum over the last sixth of the run is "
     f"at most {GROWTH_FACTOR:g} times its maximum over the sixth before, plus {GROWTH_SLACK * 1e3:g} mm (a slowly "
-    "growing oscillation, a spectral radius just above 1, is unstable even if it has not diverged yet)."
+    "growing oscillation, a spectral radius just above 1, is unstable even if it has not diverged yet). The "
+    "criterion assumes a run long enough for the start-up transient to have decayed by its last third "
+    "(30 s for the paper's scenario)."
 )
 TRAJECTORY = ("time", "x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2")
 REFERENCE_COLUMNS = ("time", "x", "y", "theta", "u1", "u2")

@@ -160,7 +160,7 @@ def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(sho
 
 @pytest.mark.parametrize(("kwargs", "match"), [
     ({"perturbations": [Perturbation("plant.mc", relative=1.5)], "samples": 3}, r"range \[-15, 75\] allows mc"),
-    ({"perturbations": [Perturbation("plant.mc", relative=0.2)]}, "samples = None is not allowed"),
+    ({"perturbations": [Perturbation("plant.mc", relative=0.2)]}, "--samples None is not allowed with --perturb"),
     ({"samples": 5}, "needs at least one perturbation"),
     ({"sets": [parse_set("plant.mc=30")], "perturbations": [parse_perturb("plant.mc=20%")], "samples": 2},
      "also given with --set"),
