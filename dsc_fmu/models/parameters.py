@@ -1,7 +1,7 @@
 """The FMUs' variables with the paper's values (Section IV): the one source of truth for defaults."""
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 __all__ = [
     "Variable",
@@ -192,20 +192,9 @@ CONTROLLER_PARAMETERS = (
 )
 
 CONTROLLER_INPUTS = (
-    Variable("x", 0.0, "m", "Measured position x"),
-    Variable("y", 0.0, "m", "Measured position y"),
-    Variable("theta", 0.0, "rad", "Measured heading"),
-    Variable("theta_dot", 0.0, "rad/s", "Measured heading rate (gyro)"),
-    Variable("omega1", 0.0, "rad/s", "Measured angular velocity, right wheel"),
-    Variable("omega2", 0.0, "rad/s", "Measured angular velocity, left wheel"),
-    Variable("i1", 0.0, "A", "Measured motor current, right wheel"),
-    Variable("i2", 0.0, "A", "Measured motor current, left wheel"),
-    Variable("x_r", 0.0, "m", "Reference position x"),
-    Variable("y_r", 0.0, "m", "Reference position y"),
-    Variable("theta_r", 0.0, "rad", "Reference heading"),
-    Variable("v_r", 1.0, "m/s", "Reference linear velocity (Assumption 2: > 0)", POSITIVE),
-    Variable("omega_r", 0.0, "rad/s", "Reference angular velocity"),
-    Variable("v_r_dot", 0.0, "m/s2", "Time derivative of the reference linear velocity"),
+    *(replace(v, description=f"Measured: {v.description[0].lower()}{v.description[1:]}") for v in PLANT_OUTPUTS),
+    *(replace(v, start=1.0, bound=POSITIVE, description=f"{v.description} (Assumption 2: > 0)") if v.name == "v_r"
+      else v for v in REFERENCE_OUTPUTS),
 )
 
 CONTROLLER_OUTPUTS = (
