@@ -1,4 +1,4 @@
-"""Build the three FMUs into build/fmus/ (same as ``dsc-fmu build``)."""
+"""Build the three FMUs into build/fmus/ (``--fmi-version 3``: FMI 3.0 into build/fmus3/); same as ``dsc-fmu build``."""
 
 import sys
 

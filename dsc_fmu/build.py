@@ -1,4 +1,4 @@
-"""Build the three FMUs with pythonfmu and complete their model descriptions (units, ranges, structure)."""
+"""Build the three FMUs (FMI 2.0 with pythonfmu, FMI 3.0 with pythonfmu3) and complete their model descriptions."""
 
 from __future__ import annotations
 
@@ -16,6 +16,7 @@ import pythonfmu
 from pythonfmu import FmuBuilder
 
 from . import __version__
+from .fmu_docs import documentation_html
 from .models.parameters import (
     CONTROLLER_INPUTS,
     CONTROLLER_OUTPUTS,
@@ -28,11 +29,19 @@ from .models.parameters import (
     REFERENCE_PARAMETERS,
 )
 
-__all__ = ["FmuSpec", "FMUS", "DEFAULT_FMU_DIR", "build_fmus", "ensure_fmus", "source_hash", "fmu_build_id"]
+__all__ = [
+    "FmuSpec", "FMUS", "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmus", "ensure_fmus",
+    "source_hash", "fmu_build_id", "default_fmu_dir",
+]
 
 PACKAGE_DIR = Path(__file__).parent
 DEFAULT_FMU_DIR = Path("build") / "fmus"
+DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
+FMI_VERSIONS = (2, 3)
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
+DOCUMENTATION_FILE = "documentation/index.html"
+# The FMI glue bundled beside ``models`` and ``slave_core`` for each FMI version.
+_GLUE = {2: "fmi_slave.py", 3: "fmi3_slave.py"}
 
 # Exponents of the SI base units (kg, m, s, A, rad) of every unit the FMUs use.
 UNITS = {
@@ -61,7 +70,7 @@ _ALL_CONTROLLER_INPUTS = tuple(v.name for v in CONTROLLER_INPUTS)
 
 @dataclass(frozen=True)
 class FmuSpec:
-    """One FMU: its slave script in ``fmu_sources`` and its variable tables."""
+    """One FMU: its slave scripts in ``fmu_sources`` (FMI 2.0 and 3.0) and its variable tables."""
 
     name: str
     script: str
@@ -69,6 +78,14 @@ class FmuSpec:
     inputs: tuple
     outputs: tuple
     depends: dict = field(default_factory=dict)
+
+    @property
+    def script3(self) -> str:
+        """The FMI 3.0 slave script: ``<script stem>_fmi3.py``."""
+        return f"{Path(self.script).stem}_fmi3.py"
+
+    def script_for(self, fmi_version: int) -> str:
+        return self.script3 if fmi_version == 3 else self.script
 
 
 FMUS = {
@@ -100,15 +117,37 @@ def _sources_dir() -> Path:
     raise FileNotFoundError(f"fmu_sources not found beside {PACKAGE_DIR}")
 
 
-def _bundled_files(spec: FmuSpec) -> list[Path]:
+def _check_version(fmi_version: int) -> int:
+    if fmi_version not in FMI_VERSIONS:
+        raise ValueError(f"fmi_version = {fmi_version!r} is not allowed; allowed: 2 or 3")
+    return fmi_version
+
+
+def default_fmu_dir(fmi_version: int = 2) -> Path:
+    """Where the FMUs of ``fmi_version`` are built by default: build/fmus (2.0), build/fmus3 (3.0)."""
+    return DEFAULT_FMU_DIRS[_check_version(fmi_version)]
+
+
+def _library_version(fmi_version: int) -> str:
+    if fmi_version == 3:
+        import pythonfmu3
+
+        return f"pythonfmu3 {pythonfmu3.__version__}"
+    return f"pythonfmu {pythonfmu.__version__}"
+
+
+def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
     models = sorted((PACKAGE_DIR / "models").glob("*.py"))
-    return [_sources_dir() / spec.script, PACKAGE_DIR / "fmi_slave.py", *models, Path(__file__)]
+    return [_sources_dir() / spec.script_for(fmi_version), PACKAGE_DIR / _GLUE[fmi_version],
+            PACKAGE_DIR / "slave_core.py", *models, Path(__file__), PACKAGE_DIR / "fmu_docs.py"]
 
 
-def source_hash(spec: FmuSpec) -> str:
-    """Hash of everything the FMU is built from: its sources, this builder and pythonfmu's version."""
-    digest = hashlib.sha256(f"{__version__} {pythonfmu.__version__} {spec.name}".encode())
-    for path in _bundled_files(spec):
+def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
+    """Hash of everything the FMU is built from: its sources, this builder and the FMI library's version."""
+    _check_version(fmi_version)
+    library = _library_version(fmi_version)
+    digest = hashlib.sha256(f"{__version__} {library} {spec.name}".encode())
+    for path in _bundled_files(spec, fmi_version):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
@@ -123,31 +162,52 @@ def fmu_build_id(fmu: Path) -> str | None:
         return None
 
 
-def _stage(spec: FmuSpec, stage: Path, digest: str) -> tuple[Path, Path]:
+def _stage(spec: FmuSpec, stage: Path, digest: str, fmi_version: int = 2) -> tuple[Path, Path]:
     """Copy the slave script and its package under names unique to this build (pythonfmu issue 228)."""
     package = f"dsc_fmu_{spec.name.lower()}_{digest[:12]}"
     package_dir = stage / package
     (package_dir / "models").mkdir(parents=True)
     (package_dir / "__init__.py").write_text('"""dsc-fmu code bundled into this FMU."""\n')
-    shutil.copy2(PACKAGE_DIR / "fmi_slave.py", package_dir)
+    shutil.copy2(PACKAGE_DIR / _GLUE[fmi_version], package_dir)
+    shutil.copy2(PACKAGE_DIR / "slave_core.py", package_dir)
     for module in (PACKAGE_DIR / "models").glob("*.py"):
         shutil.copy2(module, package_dir / "models")
-    script = stage / f"{Path(spec.script).stem}_{digest[:12]}.py"
-    source = (_sources_dir() / spec.script).read_text()
+    script_name = spec.script_for(fmi_version)
+    script = stage / f"{Path(script_name).stem}_{digest[:12]}.py"
+    source = (_sources_dir() / script_name).read_text()
     script.write_text(source.replace("from dsc_fmu.", f"from {package}."))
     return script, package_dir
 
 
-def _complete_model_description(xml: bytes, spec: FmuSpec) -> bytes:
-    """Add units, ranges, output dependencies and initial unknowns that pythonfmu does not write."""
-    root = ET.fromstring(xml)
-    tables = {v.name: v for v in (*spec.parameters, *spec.inputs, *spec.outputs)}
-    used = sorted({v.unit for v in tables.values() if not v.integer})
+def _unit_definitions(used) -> ET.Element:
     units = ET.Element("UnitDefinitions")
-    for name in used:
+    for name in sorted(used):
         ET.SubElement(ET.SubElement(units, "Unit", name=name), "BaseUnit", {k: str(e) for k, e in UNITS[name].items()})
+    return units
+
+
+def _tables(spec: FmuSpec) -> dict:
+    return {v.name: v for v in (*spec.parameters, *spec.inputs, *spec.outputs)}
+
+
+def _complete_variable(typed: ET.Element, v, real: bool) -> None:
+    """Unit and exact start value (Real / Float64), ``min`` and ``max`` of the table variable ``v``."""
+    if real:
+        typed.set("unit", v.unit)
+        if typed.get("start") is not None:
+            typed.set("start", repr(float(v.start)))
+    if v.bound == NONNEGATIVE:
+        typed.set("min", "0")
+    if v.maximum is not None:
+        typed.set("max", f"{v.maximum:g}")
+
+
+def _complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
+    """Add units, ranges, output dependencies and initial unknowns that pythonfmu does not write (FMI 2.0)."""
+    root = ET.fromstring(xml)
+    tables = _tables(spec)
     position = list(root).index(root.find("CoSimulation")) + 1
-    root.insert(position, units)
+    root.insert(position, _unit_definitions({v.unit for v in tables.values() if not v.integer}))
 
     variables = root.find("ModelVariables")
     index = {}
@@ -155,17 +215,8 @@ def _complete_model_description(xml: bytes, spec: FmuSpec) -> bytes:
         name = scalar.get("name")
         index[name] = i
         v = tables.get(name)
-        typed = scalar[0]
-        if v is None:
-            continue
-        if typed.tag == "Real":
-            typed.set("unit", v.unit)
-            if typed.get("start") is not None:
-                typed.set("start", repr(float(v.start)))
-        if v.bound == NONNEGATIVE:
-            typed.set("min", "0")
-        if v.maximum is not None:
-            typed.set("max", f"{v.maximum:g}")
+        if v is not None:
+            _complete_variable(scalar[0], v, scalar[0].tag == "Real")
 
     structure = root.find("ModelStructure")
     structure.clear()
@@ -178,31 +229,90 @@ def _complete_model_description(xml: bytes, spec: FmuSpec) -> bytes:
         depends = " ".join(str(index[d]) for d in spec.depends.get(name, ()))
         ET.SubElement(outputs, "Unknown", index=str(index[name]), dependencies=depends)
         ET.SubElement(initial, "Unknown", index=str(index[name]))
-    ET.indent(root)
-    return ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+    return root
 
 
-def build_fmu(spec: FmuSpec, out_dir: Path) -> Path:
-    """Build one FMU into ``out_dir`` atomically and return its path."""
+def _complete_model_description3(xml: bytes, spec: FmuSpec) -> ET.Element:
+    """The same for FMI 3.0: units, exact starts, ranges, and ModelStructure with real dependencies
+    (by value reference); pythonfmu3 writes units only if registered and no dependencies."""
+    root = ET.fromstring(xml)
+    tables = _tables(spec)
+    cosimulation = root.find("CoSimulation")
+    # pythonfmu3 0.3.4 copies the last common option's value into canHandleVariableCommunicationStepSize.
+    cosimulation.set("canHandleVariableCommunicationStepSize", "true")
+    for old in root.findall("UnitDefinitions"):
+        root.remove(old)
+    position = list(root).index(cosimulation) + 1
+    root.insert(position, _unit_definitions({"s"} | {v.unit for v in tables.values() if not v.integer}))
+
+    variables = root.find("ModelVariables")
+    refs = {}
+    for variable in variables:
+        name = variable.get("name")
+        refs[name] = variable.get("valueReference")
+        if variable.get("causality") == "independent":
+            variable.set("unit", "s")
+        v = tables.get(name)
+        if v is not None:
+            _complete_variable(variable, v, variable.tag == "Float64")
+
+    structure = root.find("ModelStructure")
+    structure.clear()
+    outputs = [variable.get("name") for variable in variables if variable.get("causality") == "output"]
+    for name in outputs:
+        depends = " ".join(refs[d] for d in spec.depends.get(name, ()))
+        ET.SubElement(structure, "Output", valueReference=refs[name], dependencies=depends)
+    for name in outputs:
+        ET.SubElement(structure, "InitialUnknown", valueReference=refs[name])
+    return root
+
+
+def _documentation(root: ET.Element, spec: FmuSpec) -> bytes:
+    units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in _tables(spec).items()}}
+    return documentation_html(root, spec.name, units).encode("utf-8")
+
+
+def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> Path:
+    """The FMU as the FMI library builds it from the staged script and package."""
+    if fmi_version == 3:
+        from pythonfmu3 import FmuBuilder as Fmu3Builder
+
+        return Fmu3Builder.build_FMU(
+            script, dest=dest, project_files=[package_dir],
+            needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+            canGetAndSetFMUState="true", canSerializeFMUState="true",
+        )
+    return FmuBuilder.build_FMU(
+        script, dest=dest, project_files=[package_dir],
+        needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+        canGetAndSetFMUstate="true", canSerializeFMUstate="true",
+    )
+
+
+def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
+    """Build one FMU (FMI ``fmi_version``: 2 or 3) into ``out_dir`` atomically and return its path."""
+    _check_version(fmi_version)
     out_dir.mkdir(parents=True, exist_ok=True)
-    digest = source_hash(spec)
+    digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
+    complete = _complete_model_description3 if fmi_version == 3 else _complete_model_description
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
         tmp = Path(tmp)
-        script, package_dir = _stage(spec, tmp / "stage", digest)
-        raw = FmuBuilder.build_FMU(
-            script, dest=tmp / f"{spec.name}_raw.fmu", project_files=[package_dir],
-            needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
-            canGetAndSetFMUstate="true", canSerializeFMUstate="true",
-        )
+        script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
+        raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", fmi_version)
         staged = tmp / f"{spec.name}.fmu"
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
             for item in src.infolist():
                 data = src.read(item)
                 if item.filename == "modelDescription.xml":
-                    data = _complete_model_description(data, spec)
-                dst.writestr(item.filename, data)
-            dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__}))
+                    root = complete(data, spec)
+                    ET.indent(root)
+                    data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
+                    dst.writestr(DOCUMENTATION_FILE, _documentation(root, spec))
+                if item.filename != DOCUMENTATION_FILE:
+                    dst.writestr(item.filename, data)
+            dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,
+                                                    "fmi_version": fmi_version}))
         fd, partial = tempfile.mkstemp(dir=out_dir, suffix=".fmu.partial")
         os.close(fd)
         shutil.copyfile(staged, partial)
@@ -210,18 +320,21 @@ def build_fmu(spec: FmuSpec, out_dir: Path) -> Path:
     return target
 
 
-def build_fmus(out_dir: Path | str = DEFAULT_FMU_DIR, names=tuple(FMUS)) -> dict[str, Path]:
-    """Build the named FMUs (all three by default) into ``out_dir``."""
-    return {name: build_fmu(FMUS[name], Path(out_dir)) for name in names}
+def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int = 2) -> dict[str, Path]:
+    """Build the named FMUs (all three by default) as FMI ``fmi_version`` (2 or 3) FMUs into ``out_dir``
+    (default: ``default_fmu_dir(fmi_version)``)."""
+    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
+    return {name: build_fmu(FMUS[name], out_dir, fmi_version) for name in names}
 
 
-def ensure_fmus(out_dir: Path | str = DEFAULT_FMU_DIR) -> dict[str, Path]:
-    """Paths of the three FMUs in ``out_dir``, building those that are missing or stale."""
-    out_dir = Path(out_dir)
+def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict[str, Path]:
+    """Paths of the three FMI ``fmi_version`` FMUs in ``out_dir`` (default: ``default_fmu_dir(fmi_version)``),
+    building those that are missing or stale."""
+    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
     paths = {}
     for name, spec in FMUS.items():
         path = out_dir / f"{name}.fmu"
-        if fmu_build_id(path) != source_hash(spec):
-            path = build_fmu(spec, out_dir)
+        if fmu_build_id(path) != source_hash(spec, fmi_version):
+            path = build_fmu(spec, out_dir, fmi_version)
         paths[name] = path
     return paths

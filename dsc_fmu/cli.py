@@ -6,15 +6,19 @@ import argparse
 import sys
 from pathlib import Path
 
-from .build import DEFAULT_FMU_DIR, build_fmus
+from .build import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, build_fmus, ensure_fmus
+from .container import export_fmu
 from .master import CosimulationError
 from .models.parameters import DISCRETIZATIONS
 from .run import run_scenario
 from .scenario import ORDERS, ScenarioError, load_scenario, scenario_names
 from .step_study import run_sweep
+from .ssp import SSPError, export_ssp
 from .sweep import SweepError, parse_perturb, parse_set
 
 __all__ = ["main"]
+
+EXPORTS = {"export-ssp": export_ssp, "export-fmu": export_fmu}
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -22,7 +26,20 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True)
 
     build = commands.add_parser("build", help="build the three FMUs")
-    build.add_argument("--out", type=Path, default=DEFAULT_FMU_DIR, help="folder for the FMUs (default: %(default)s)")
+    build.add_argument("--out", type=Path, help=f"folder for the FMUs (default: {DEFAULT_FMU_DIRS[2]}, "
+                       f"{DEFAULT_FMU_DIRS[3]} with --fmi-version 3)")
+    build.add_argument("--fmi-version", type=int, choices=FMI_VERSIONS, default=2,
+                       help="FMI version of the FMUs (default: %(default)s)")
+
+    for command, what in (("export-ssp", "an SSP 1.0 archive of the closed loop"),
+                          ("export-fmu", "one co-simulation FMU of the closed loop (fmpy's container FMU)")):
+        export = commands.add_parser(command, help=f"write {what}")
+        export.add_argument("scenario", nargs="?", default="paper", help="a scenario name or a TOML file (default: %(default)s)")
+        export.add_argument("-o", "--out", type=Path, required=True, help="the file to write")
+        export.add_argument("--step-size", type=float, help="communication step in s (default: the scenario's)")
+        export.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
+        export.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR,
+                            help="where the FMUs are built (default: %(default)s)")
 
     run = commands.add_parser("run", help="co-simulate a scenario and write results, metrics and figures")
     run.add_argument(
@@ -77,8 +94,11 @@ def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         if args.command == "build":
-            for path in build_fmus(args.out).values():
+            for path in build_fmus(args.out, fmi_version=args.fmi_version).values():
                 print(path)
+        elif args.command in EXPORTS:
+            scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
+            print(EXPORTS[args.command](scenario, args.out, ensure_fmus(args.fmu_dir)))
         elif args.command == "sweep":
             scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
             if args.jobs is not None and args.jobs < 1:
@@ -103,7 +123,7 @@ def main(argv: list[str] | None = None) -> int:
                 plots=not args.no_plots,
             )
             print(report)
-    except (ScenarioError, CosimulationError, SweepError, OSError) as error:
+    except (ScenarioError, CosimulationError, SweepError, SSPError, OSError) as error:
         print(f"dsc-fmu: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:

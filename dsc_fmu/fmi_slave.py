@@ -1,179 +1,57 @@
-"""The FMI plumbing shared by the three slaves: variables from tables, checks, steps, state.
+"""The FMI 2.0 plumbing shared by the three slaves: ``SlaveCore`` on pythonfmu's ``Fmi2Slave``.
 
-Bundled into every FMU beside ``models``; imports only pythonfmu (which the FMU carries) and
-the standard library.
+Bundled into every FMI 2.0 FMU beside ``slave_core`` and ``models``; imports only pythonfmu
+(which the FMU carries) and the standard library.
 """
-
-import math
 
 from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
-from .models.rk4 import rk4_integrate
+from .slave_core import SlaveCore
 
 __all__ = ["DscSlave"]
 
 
-class DscSlave(Fmi2Slave):
+class DscSlave(SlaveCore, Fmi2Slave):
     """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
 
-    Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
-    ``initial_state``, ``derivatives`` and ``outputs``. Until initialisation ends, the state is
-    ``initial_state()`` of the current parameters and inputs; it is fixed at the first output read
-    or step after ``exit_initialization_mode`` and then integrated with RK4 in sub-steps no longer
-    than the parameter ``max_step``.
-
-    A value outside its allowed range is refused without raising: pythonfmu 0.7.0 turns a Python
-    exception into fmi2Fatal and a later fmi2FreeInstance then crashes the importer. The refusal is
-    logged as an error naming the variable and its range, the variable keeps its last valid value,
-    and every ``do_step`` returns fmi2Discard until a valid value is set.
+    Everything but the FMI 2.0 registration and logging is in ``SlaveCore``: a value outside its
+    allowed range is refused without raising (pythonfmu 0.7.0 turns a Python exception into
+    fmi2Fatal and a later fmi2FreeInstance then crashes the importer), logged as an error, and
+    every ``do_step`` returns fmi2Discard until a valid value is set.
     """
 
     author = "dsc-fmu"
     default_experiment = DefaultExperiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
-    PARAMETERS: tuple = ()
-    INPUTS: tuple = ()
-    OUTPUTS: tuple = ()
 
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
-        self.p = {v.name: v.start for v in self.PARAMETERS}
-        self._constants = None
-        self.u = [v.start for v in self.INPUTS]
-        self.state = None
-        self.initializing = True
-        self.rejected = {}
-        self.time = 0.0
-        self._cache = None
-        for v in self.PARAMETERS:
+        self._init_core()
+
+    def _register(self, v, causality, getter, setter=None):
+        if causality == "parameter":
             kind = Integer if v.integer else Real
             variability = Fmi2Variability.tunable if v.tunable else Fmi2Variability.fixed
             self.register_variable(kind(
                 v.name, causality=Fmi2Causality.parameter, variability=variability,
-                description=v.description, getter=lambda n=v.name: self.p[n],
-                setter=lambda value, v=v: self._set_parameter(v, value),
+                description=v.description, getter=getter, setter=setter,
             ))
-        for index, v in enumerate(self.INPUTS):
+        elif causality == "input":
             self.register_variable(Real(
                 v.name, causality=Fmi2Causality.input, variability=Fmi2Variability.continuous,
-                description=v.description, getter=lambda i=index: self.u[i],
-                setter=lambda value, i=index, v=v: self._set_input(i, v, value),
+                description=v.description, getter=getter, setter=setter,
             ))
-        for index, v in enumerate(self.OUTPUTS):
+        else:
             self.register_variable(Real(
                 v.name, causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
-                initial=Fmi2Initial.calculated, description=v.description,
-                getter=lambda i=index: self.output_values()[i],
+                initial=Fmi2Initial.calculated, description=v.description, getter=getter,
             ))
 
-    def _accept(self, kind: str, v, value) -> bool:
-        """Whether ``value`` is allowed for ``v``; if not, log why and hold the FMU until it is."""
-        reason = v.check(value)
-        if reason is None:
-            if self.rejected:
-                self.rejected.pop(v.name, None)
-            return True
-        self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
-        self.log(f"{self.instance_name}: {self.rejected[v.name]}", Fmi2Status.error)
-        return False
+    def log_error(self, message):
+        self.log(message, Fmi2Status.error)
 
-    def _set_parameter(self, v, value):
-        if self._accept("parameter", v, value):
-            self.p[v.name] = int(value) if v.integer else float(value)
-            self._constants = None
-            self._cache = None
-
-    def _set_input(self, index, v, value):
-        if self._accept("input", v, value):
-            self.u[index] = float(value)
-            self._cache = None
-
-    @property
-    def constants(self):
-        """``derive(p)`` of the current parameters, computed once per change of a parameter."""
-        if self._constants is None:
-            self._constants = self.derive(self.p)
-        return self._constants
-
-    def current_state(self) -> list:
-        """The state: the initial state while initialising, fixed at the first use after it."""
-        if self.state is None:
-            if self.initializing:
-                return self.initial_state()
-            self.state = self.initial_state()
-        return self.state
-
-    def integrate(self, t: float, x: list, step_size: float) -> list:
-        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
-        return rk4_integrate(self.derivatives, t, x, step_size, self.p["max_step"])
-
-    def output_values(self) -> list:
-        """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
-        if self._cache is None:
-            self._cache = self.outputs(self.current_state())
-        return self._cache
+    def log_warning(self, message):
+        self.log(message, Fmi2Status.warning)
 
     def setup_experiment(self, start_time, stop_time, tolerance):
         self.time = start_time
-
-    def exit_initialization_mode(self):
-        self.initializing = False
-        self._cache = None
-
-    def do_step(self, current_time, step_size):
-        if self.rejected:
-            self.log(
-                f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}",
-                Fmi2Status.error,
-            )
-            return False
-        self.initializing = False
-        new = self.integrate(current_time, self.current_state(), step_size)
-        if not all(math.isfinite(value) for value in new):
-            self.log(
-                f"{self.instance_name}: state not finite after the step from t = {current_time} s "
-                f"of {step_size} s; the step is discarded", Fmi2Status.error,
-            )
-            return False
-        self.state = new
-        self.time = current_time + step_size
-        self._cache = None
-        return True
-
-    def _get_fmu_state(self):
-        return {
-            "p": dict(self.p), "u": list(self.u), "time": self.time, "initializing": self.initializing,
-            "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
-            "extra": self.extra_state(),
-        }
-
-    def _set_fmu_state(self, saved):
-        self.p = dict(saved["p"])
-        self.u = list(saved["u"])
-        self.time = saved["time"]
-        self.initializing = saved["initializing"]
-        self.rejected = dict(saved["rejected"])
-        self.state = None if saved["state"] is None else list(saved["state"])
-        self.set_extra_state(saved["extra"])
-        self._constants = None
-        self._cache = None
-
-    def extra_state(self) -> dict:
-        """Hook: what else a subclass must save with the FMU state."""
-        return {}
-
-    def set_extra_state(self, extra: dict):
-        """Hook: restore what ``extra_state`` saved."""
-
-    def derive(self, p: dict):
-        """What the model needs from the parameters ``p``, precomputed (``constants``)."""
-        return p
-
-    def initial_state(self) -> list:
-        raise NotImplementedError
-
-    def derivatives(self, t: float, x: list) -> list:
-        raise NotImplementedError
-
-    def outputs(self, x: list) -> list:
-        raise NotImplementedError

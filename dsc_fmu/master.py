@@ -1,4 +1,4 @@
-"""The co-simulation master: the three FMUs on fmpy, a fixed communication step, Gauss-Seidel or Jacobi."""
+"""The co-simulation master: the three FMUs (FMI 2.0 or 3.0) on fmpy, a fixed communication step, Gauss-Seidel or Jacobi."""
 
 from __future__ import annotations
 
@@ -18,6 +18,7 @@ from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
+from fmpy.fmi3 import FMU3Slave
 from fmpy.model_description import ValidationError
 
 from . import signals
@@ -95,11 +96,51 @@ def _callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
     return callbacks
 
 
-class _Fmu:
-    """One loaded FMU: its instance and the value references and types of its variables by name."""
+class _Fmi3Slave(FMU3Slave):
+    """fmpy's FMU3Slave under the FMI 2.0 names the master calls: Real is Float64, Integer is Int32;
+    ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``."""
 
-    def __init__(self, name: str, workdir: Path | None):
+    getReal = FMU3Slave.getFloat64
+    setReal = FMU3Slave.setFloat64
+    getInteger = FMU3Slave.getInt32
+    setInteger = FMU3Slave.setInt32
+    _experiment = (0.0, None)
+
+    def setupExperiment(self, startTime: float = 0.0, stopTime: float | None = None) -> None:
+        self._experiment = (startTime, stopTime)
+
+    def enterInitializationMode(self) -> None:
+        start, stop = self._experiment
+        super().enterInitializationMode(startTime=start, stopTime=stop)
+
+    def doStep(self, currentCommunicationPoint: float, communicationStepSize: float) -> None:
+        super().doStep(currentCommunicationPoint, communicationStepSize)
+
+
+_KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 2.0 names
+
+
+def _kind(variable) -> str:
+    """The FMI 2.0 type name of ``variable`` (``Real``, ``Integer``, ...), for either FMI version."""
+    return _KINDS.get(variable.type, variable.type)
+
+
+def _fmi3_logger(log: list[LogMessage], name: str):
+    """An FMI 3.0 logMessage callback appending to ``log`` as FMU ``name`` (FMI 3.0 passes no instance name)."""
+
+    def logger(environment, status, category, message):
+        text = (message or b"").decode(errors="replace")
+        log.append(LogMessage(name, _STATUS[status] if 0 <= status < len(_STATUS) else str(status), text))
+
+    return logger
+
+
+class _Fmu:
+    """One loaded FMU (FMI 2.0 or 3.0): its instance and the value references and types of its variables by name."""
+
+    def __init__(self, name: str, workdir: Path | None, log: list[LogMessage] | None = None):
         self.name = name
+        self.log = log if log is not None else []
         self.initialised = False
         self.slave = None
         self.folder = os.path.abspath(tempfile.mkdtemp(prefix=f"dsc_fmu_{name}_", dir=workdir))  # a file URI needs it
@@ -113,21 +154,28 @@ class _Fmu:
             raise CosimulationError(f"{path}: not a valid FMU for {self.name}: {error}", 0.0) from None
         extract(str(path), unzipdir=self.folder)
         self.guid, self.model_identifier = md.guid, md.coSimulation.modelIdentifier
+        self.fmi_version = 3 if md.fmiVersion.startswith("3") else 2
         self.variables = {v.name: v for v in md.modelVariables}
         self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
         self.inputs = [v.name for v in md.modelVariables if v.causality == "input"]
         self.instantiate(callbacks)
 
     def instantiate(self, callbacks) -> None:
-        """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used)."""
-        slave = FMU2Slave(guid=self.guid, unzipDirectory=self.folder,
-                          modelIdentifier=self.model_identifier, instanceName=self.name)
-        slave.instantiate(callbacks=callbacks, loggingOn=True)
+        """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used); an FMI 3.0
+        FMU logs through its own callback instead, into the same log."""
+        if self.fmi_version == 3:
+            slave = _Fmi3Slave(guid=self.guid, unzipDirectory=self.folder,
+                               modelIdentifier=self.model_identifier, instanceName=self.name)
+            slave.instantiate(loggingOn=True, logMessage=_fmi3_logger(self.log, self.name))
+        else:
+            slave = FMU2Slave(guid=self.guid, unzipDirectory=self.folder,
+                              modelIdentifier=self.model_identifier, instanceName=self.name)
+            slave.instantiate(callbacks=callbacks, loggingOn=True)
         self.slave = slave  # only an instantiated slave is freed
         self.used = False
 
     def renew(self, callbacks) -> None:
-        """Bring a used instance back to its state after instantiation: fmi2Reset, or, if the reset
+        """Bring a used instance back to its state after instantiation: fmiReset, or, if the reset
         fails, free the instance and instantiate it again from the same folder."""
         if not self.used:
             return
@@ -155,14 +203,14 @@ class _Fmu:
         self.slave.setupExperiment(startTime=0.0, stopTime=stop_time)
         self.slave.enterInitializationMode()
         self.initialised = True
-        integers = [name for name in parameters if self.variable(name).type == "Integer"]
+        integers = [name for name in parameters if _kind(self.variable(name)) == "Integer"]
         reals = [name for name in parameters if name not in integers]
         self.slave.setInteger(self.refs(integers), [int(parameters[name]) for name in integers])
         self.slave.setReal(self.refs(reals), [float(parameters[name]) for name in reals])
         self.slave.exitInitializationMode()
 
     def terminate(self) -> None:
-        """fmi2Terminate if initialised; an FMU in an error state may refuse, which is ignored."""
+        """fmiTerminate if initialised; an FMU in an error state may refuse, which is ignored."""
         if self.initialised:
             self.initialised = False
             try:
@@ -198,8 +246,11 @@ def _failing_fmu(error: FMICallException, fmus: list[_Fmu]) -> str:
 class Cosimulator:
     """The three FMUs loaded once (extracted into ``workdir`` and instantiated) for many runs.
 
+    Each FMU may be FMI 2.0 or 3.0 co-simulation (read from its model description; fmpy's
+    FMU2Slave or FMU3Slave), with the same variable names; the runs are the same either way.
+
     ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances
-    are reset (``fmi2Reset``) instead of extracted again, and an instance that cannot be reset is
+    are reset (``fmi2Reset`` / ``fmi3Reset``) instead of extracted again, and an instance that cannot be reset is
     freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every instance and
     removes the extracted folders. One Cosimulator serves one thread at a time.
     """
@@ -218,7 +269,7 @@ class Cosimulator:
         self._finalizer = weakref.finalize(self, _close_all, self._loaded)
         try:
             for name in (REFERENCE, PLANT, CONTROLLER):
-                self._loaded.append(_Fmu(name, workdir))
+                self._loaded.append(_Fmu(name, workdir, self.log))
                 self._loaded[-1].load(paths[name], self._callbacks)
             self._wire()
         except BaseException:
@@ -241,7 +292,7 @@ class Cosimulator:
         for index, fmu in enumerate(self._loaded):
             names = signals.RECORDED[fmu.name]
             for kind in ("Real", "Integer"):
-                chosen = [i for i, name in enumerate(names) if fmu.variable(name).type == kind]
+                chosen = [i for i, name in enumerate(names) if _kind(fmu.variable(name)) == kind]
                 self.readers.append((index, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
             offset += len(names)
 

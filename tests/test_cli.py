@@ -125,3 +125,35 @@ def test_build_fmus_script(tmp_path):
     process = subprocess.run([sys.executable, str(script), "--out", str(tmp_path)], capture_output=True, text=True)
     assert process.returncode == 0, process.stderr
     assert sorted(p.name for p in tmp_path.iterdir()) == ["DSCController.fmu", "MobileRobot.fmu", "ReferenceRobot.fmu"]
+
+
+@pytest.mark.parametrize("command, suffix", [("export-ssp", ".ssp"), ("export-fmu", ".fmu")])
+def test_exports_write_one_file(tmp_path, fmu_dir, capsys, command, suffix):
+    out = tmp_path / f"loop{suffix}"
+    assert main([command, "on_reference", "-o", str(out), "--stop-time", "2", "--fmu-dir", str(fmu_dir)]) == 0
+    assert capsys.readouterr().out.strip() == str(out)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]
+    if suffix == ".ssp":
+        from dsc_fmu.ssp import validate_ssp
+        validate_ssp(out)
+    else:
+        from fmpy.validation import validate_fmu
+        assert validate_fmu(str(out)) == []
+
+
+@pytest.mark.parametrize("command", ["export-ssp", "export-fmu"])
+def test_export_of_a_bad_scenario_writes_nothing(tmp_path, fmu_dir, capsys, command):
+    bad = tmp_path / "bad.toml"
+    bad.write_text(BAD_SCENARIO)
+    out = tmp_path / "loop.out"
+    assert main([command, str(bad), "-o", str(out), "--fmu-dir", str(fmu_dir)]) == 1
+    error = capsys.readouterr().err.strip().splitlines()
+    assert len(error) == 1 and "[plant] mc = -30.0 is not allowed" in error[0]
+    assert not out.exists()
+
+
+def test_build_fmi_3(tmp_path, capsys):
+    assert main(["build", "--fmi-version", "3", "--out", str(tmp_path)]) == 0
+    from fmpy import read_model_description
+    for path in capsys.readouterr().out.split():
+        assert read_model_description(path).fmiVersion == "3.0"

@@ -1,0 +1,152 @@
+"""The closed loop as one FMI 2.0 co-simulation FMU: fmpy's container FMU around our three FMUs.
+
+fmpy's container (``fmpy.container_fmu``, a Rust shared library) couples its components like
+this (read from its source, ``native/container-fmu/container-fmu/src/lib.rs``):
+
+- at instantiation it sets the start values of the container's variables on the mapped
+  component variables (here: every parameter of the scenario, instantiated state);
+- ``fmi2ExitInitializationMode``: one transfer of every connection, in the order of the
+  configuration (get the source's output, set the destination's input), then exit on all;
+- every internal step of the fixed size ``fixedInternalStepSize``: all components
+  ``doStep(t, h)`` (sequentially, ``parallelDoStep`` False), then every connection transferred in
+  order, ``t += h``; an ``fmi2DoStep`` of the container of length H runs H / h internal steps.
+
+The connections are listed measurements first, then the controller's ``u1, u2``: the transfer
+sets the controller's new inputs before reading ``u``, so ``u_k = law(c_k, m_k)``, exactly our
+master's Jacobi at step h (``dsc_fmu.master``, ``order="jacobi"``). (With ``u`` first the
+container would behave as libcosim does, see ``dsc_fmu.exchange``.)
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import shutil
+import tempfile
+import uuid
+import zipfile
+from pathlib import Path
+
+from fmpy import read_model_description
+from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
+
+from . import signals
+from .master import CONTROLLER, PLANT, REFERENCE
+from .scenario import Scenario, ScenarioError
+from .ssp import connections
+
+__all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
+
+ORDER = (REFERENCE, PLANT, CONTROLLER)
+EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
+
+
+def parameter_name(fmu: str, parameter: str) -> str:
+    """The container's name of a component's parameter: ``MobileRobot.x0``."""
+    return f"{fmu}.{parameter}"
+
+
+def _literal(value, integer: bool) -> str:
+    return str(int(value)) if integer else repr(float(value))
+
+
+def _repair(staged: Path, repaired: Path) -> None:
+    """Work around two slips of fmpy 0.3.32's ``create_container_fmu`` for FMI 2.0 components:
+    connections are written with the FMI 2 type names (``Real``, ``Integer``), which the container
+    refuses ("unknown variant `Real`"): they become ``Float64`` and ``Int32`` as the variables are;
+    and the archive holds a stray empty ``Container.zip``, which is dropped."""
+    names = {"Real": "Float64", "Integer": "Int32"}
+    with zipfile.ZipFile(staged) as src, zipfile.ZipFile(repaired, "w", zipfile.ZIP_DEFLATED) as dst:
+        for item in src.infolist():
+            if item.filename == "Container.zip":
+                continue
+            data = src.read(item)
+            if item.filename == "resources/container.json":
+                config = json.loads(data)
+                for connection in config["connections"]:
+                    connection["variableType"] = names.get(connection["variableType"], connection["variableType"])
+                data = json.dumps(config, indent=4).encode()
+            dst.writestr(item, data)
+
+
+def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
+               stop_time: float | None = None) -> Path:
+    """Write one co-simulation FMU ``out_file`` of the scenario's closed loop and return its path.
+
+    Its internal fixed step is the scenario's step size (or ``step_size``); every parameter of the
+    three FMUs is a parameter of the container named ``<FMU>.<parameter>`` whose start value is the
+    scenario's; its outputs are every output of ``signals.RECORDED`` under its own name. A bad
+    setting raises ScenarioError, a missing FMU FileNotFoundError, before anything is written.
+    """
+    from fmpy.container_fmu.cli import create_container_fmu
+    from fmpy.container_fmu.config import Component, Configuration, Connection
+
+    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
+    h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
+    if not (math.isfinite(h) and math.isfinite(stop)):
+        raise ScenarioError(f"{scenario.source}: [simulation] step_size and stop_time must be finite")
+    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
+    for name, path in paths.items():
+        if name not in fmu_paths or not path.is_file():
+            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+    descriptions = {name: read_model_description(str(path)) for name, path in paths.items()}
+    variables = {name: {v.name: v for v in md.modelVariables} for name, md in descriptions.items()}
+    components = {name: Component(name=name, filename=paths[name], modelDescription=descriptions[name])
+                  for name in ORDER}
+
+    guid = "{" + str(uuid.uuid4()) + "}"
+    model_variables = [ModelVariable(type="Real", variability="continuous", causality="independent", name="time")]
+    mappings = {}
+    for name in ORDER:
+        for key, value in scenario.parameters(name).items():
+            inner = variables[name].get(key)
+            if inner is None:
+                raise ScenarioError(f"{paths[name]}: {name} has no parameter {key!r}: not the FMU expected")
+            integer = inner.type == "Integer"
+            outer = ModelVariable(type=inner.type, variability=inner.variability, causality="parameter",
+                                  initial="exact", name=parameter_name(name, key), start=_literal(value, integer),
+                                  description=inner.description)
+            outer.unit = getattr(inner, "unit", None) if not integer else None
+            model_variables.append(outer)
+            mappings[outer] = [(components[name], inner)]
+    outputs = []
+    for name in ORDER:
+        for key in signals.RECORDED[name]:
+            inner = variables[name][key]
+            outer = ModelVariable(type=inner.type, variability=inner.variability, causality="output",
+                                  initial="calculated", name=key, description=f"{name}.{key}: {inner.description}")
+            outer.unit = getattr(inner, "unit", None)
+            model_variables.append(outer)
+            mappings[outer] = [(components[name], inner)]
+            outputs.append(outer)
+
+    model_description = ModelDescription(
+        fmiVersion="2.0", modelName=f"DSCClosedLoop_{scenario.name}", instantiationToken=guid,
+        description=f"dsc-fmu closed loop (ReferenceRobot, MobileRobot, DSCController), scenario {scenario.name}, "
+                    f"fmpy container, Jacobi coupling at a fixed internal step of {h!r} s",
+        defaultExperiment=DefaultExperiment(startTime="0.0", stopTime=repr(float(stop)), stepSize=repr(float(h))),
+        coSimulation=CoSimulation(modelIdentifier="container_fmu", fixedInternalStepSize=h,
+                                  needsExecutionTool=True),
+        modelVariables=model_variables,
+        unitDefinitions=list({unit.name: unit for md in descriptions.values() for unit in md.unitDefinitions}.values()),
+    )
+    model_description.outputs = [Unknown(index=model_variables.index(v) + 1, variable=v) for v in outputs]
+    model_description.initialUnknowns = [Unknown(index=model_variables.index(v) + 1, variable=v) for v in outputs]
+    model_description.guid = guid
+    connection_list = [
+        Connection(components[start], [variables[start][start_connector]], components[end],
+                   [variables[end][end_connector]])
+        for start, start_connector, end, end_connector in connections(variables)
+    ]
+    configuration = Configuration(parallelDoStep=False, modelDescription=model_description,
+                                  components=[components[name] for name in ORDER], connections=connection_list,
+                                  variableMappings=mappings)
+    out_file = Path(out_file)
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_container_") as tmp:
+        unzipdir = Path(tmp) / "container"
+        unzipdir.mkdir()
+        staged = Path(tmp) / "DSCClosedLoop.fmu"
+        create_container_fmu(configuration, unzipdir, staged)
+        _repair(staged, Path(tmp) / "repaired.fmu")
+        shutil.copyfile(Path(tmp) / "repaired.fmu", out_file)
+    return out_file

@@ -1,0 +1,116 @@
+"""FMI cross-check artefacts for the three FMUs (the layout of the fmi-cross-check repository).
+
+``write_crosscheck(out_dir, fmu_paths)`` writes, for each FMU,
+``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>/`` with ``<Model>.fmu``, ``<Model>_ref.csv``
+(its outputs at every communication point), ``<Model>_in.csv`` (for models with inputs: the
+inputs it held over each step), ``<Model>_ref.opt`` (StartTime, StopTime, StepSize, RelTol) and
+``ReadMe.md``. The data come from one closed-loop run of the scenario (Jacobi, the same values as
+``dsc_fmu.master``, see ``dsc_fmu.exchange``), recording what each FMU saw: replaying an FMU alone
+at the same step with its input file reproduces its reference outputs.
+
+The input files are sample-and-hold: every step ``[t_k, t_k+1)`` is two rows, ``(t_k, v_k)`` and
+``(t_k+1, v_k)``, so a time appears twice where the value jumps (the cross-check rules' way of
+writing a discontinuity). A co-simulation importer that sets inputs at the communication points
+``t_k`` takes the value after the jump, ``v_k``; one that interpolates sees the held value.
+
+The controller's ``u1, u2`` (and S11, S12, S13, beta) depend on its inputs directly. An importer
+replaying it alone samples its outputs right after each ``doStep``, before it sets the inputs of
+the next point (fmpy.simulate_fmu does), so its ``_ref.csv`` holds those values: at ``t_k+1``
+the outputs with the inputs of ``t_k``. The closed loop itself used the outputs after the update.
+"""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from . import __version__, signals
+from .exchange import ORDER, cosimulate_exchange
+from .master import CONTROLLER
+from .scenario import Scenario, load_scenario
+
+__all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "model_dir", "held_inputs"]
+
+DEFAULT_STOP_TIME = 2.0
+TOOL = "dsc-fmu"
+
+
+def model_dir(out_dir: Path, model: str, platform: str = "linux64", version: str = __version__) -> Path:
+    """``out_dir/fmus/2.0/cs/<platform>/dsc-fmu/<version>/<model>``."""
+    return Path(out_dir) / "fmus" / "2.0" / "cs" / platform / TOOL / version / model
+
+
+def held_inputs(inputs: np.ndarray, stop_time: float) -> np.ndarray:
+    """Inputs held over each step (``time`` = the step's start) as sample-and-hold rows."""
+    starts = inputs["time"]
+    ends = np.append(starts[1:], stop_time)
+    rows = np.empty(2 * len(inputs), dtype=inputs.dtype)
+    rows[0::2] = inputs
+    rows[1::2] = inputs
+    rows["time"][1::2] = ends
+    return rows
+
+
+def _write_csv(path: Path, table: np.ndarray) -> None:
+    names = table.dtype.names
+    with open(path, "w", newline="") as f:
+        f.write(",".join(names) + "\n")
+        for row in table:
+            f.write(",".join(repr(float(row[n])) for n in names) + "\n")
+
+
+def _readme(model: str, scenario: Scenario, h: float, stop: float, has_inputs: bool) -> str:
+    lines = [
+        f"# {model}",
+        "",
+        f"Exported by dsc-fmu {__version__} (pythonfmu 0.7.0): a Python FMU; the importing machine needs a",
+        "Python of the version it was built with (it imports only the standard library).",
+        "",
+        f"Reference: `{model}_ref.csv`, its outputs at every communication point of a closed-loop",
+        f"co-simulation of the scenario `{scenario.name}` (the DSC controller, the mobile robot and the",
+        f"reference robot, Jacobi coupling at a communication step of {h:g} s) from 0 to {stop:g} s.",
+    ]
+    if has_inputs:
+        lines += [
+            "",
+            f"Inputs: `{model}_in.csv`, the inputs the FMU held over each step of that run, written",
+            "sample-and-hold (a time stamp repeated where the value jumps). Set the inputs at each",
+            "communication point to the value after the jump and step with StepSize to reproduce the reference.",
+        ]
+    lines += ["", "Every parameter keeps its start value (the paper's).", ""]
+    return "\n".join(lines)
+
+
+def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario | None = None,
+                     step_size: float | None = None, stop_time: float = DEFAULT_STOP_TIME,
+                     platform: str = "linux64") -> dict[str, Path]:
+    """Write the cross-check folders of the three FMUs under ``out_dir``; return them by FMU name.
+
+    The scenario must keep every parameter at its start value (the FMUs are replayed with their
+    defaults): the paper's scenario by default."""
+    scenario = scenario or load_scenario("paper")
+    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
+    h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
+    run = cosimulate_exchange(scenario, fmu_paths, "jacobi")
+    folders = {}
+    for name in ORDER:
+        folder = model_dir(Path(out_dir), name, platform)
+        folder.mkdir(parents=True, exist_ok=True)
+        shutil.copyfile(fmu_paths[name], folder / f"{name}.fmu")
+        columns = ["time", *signals.RECORDED[name]]
+        reference = np.zeros(len(run.result), dtype=[(c, np.float64) for c in columns])
+        source = run.controller_before_inputs if name == CONTROLLER else run.result
+        for c in columns:
+            reference[c] = source[c]
+        _write_csv(folder / f"{name}_ref.csv", reference)
+        has_inputs = name in run.inputs
+        if has_inputs:
+            _write_csv(folder / f"{name}_in.csv", held_inputs(run.inputs[name], stop))
+        (folder / f"{name}_ref.opt").write_text(
+            f"StartTime, 0.0\nStopTime, {stop!r}\nStepSize, {h!r}\nRelTol, 1e-6\n")
+        (folder / "ReadMe.md").write_text(_readme(name, scenario, h, stop, has_inputs))
+        folders[name] = folder
+    return folders
+

@@ -1,0 +1,120 @@
+"""The ``documentation/index.html`` of each FMU, written at build time from its model description."""
+
+from __future__ import annotations
+
+from html import escape
+from xml.etree import ElementTree as ET
+
+__all__ = ["PAPER", "EQUATIONS", "documentation_html"]
+
+PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering actuator dynamics", '
+         "a dynamic surface control (DSC) design; equation numbers below are the paper's.")
+
+# The equations each FMU implements (the project's SPEC, sections 1-3), as preformatted text.
+EQUATIONS = {
+    "MobileRobot": """\
+States: pose q = [x, y, theta], wheel speeds z = [omega1, omega2], currents ia = [i1, i2].
+Input: motor voltages u = [u1, u2]. Index 1 = right wheel, 2 = left wheel.
+
+Kinematics (1):
+  x_dot     = 0.5 r cos(theta) (omega1 + omega2)
+  y_dot     = 0.5 r sin(theta) (omega1 + omega2)
+  theta_dot = 0.5 r / R (omega1 - omega2)
+Dynamics (2): M z_dot + C(q_dot) z + D z = tau
+  m   = mc + 2 mw,   I = mc d^2 + 2 mw R^2 + Ic + 2 Im
+  m11 = 0.25 r^2 / R^2 (m R^2 + I) + Iw,   m12 = 0.25 r^2 / R^2 (m R^2 - I)
+  M   = [[m11, m12], [m12, m11]],  C = c [[0, theta_dot], [-theta_dot, 0]],  c = 0.5 r^2 mc d / R
+  D   = diag(d11, d22)
+DC motors through gears (5):
+  tau = N KT ia,   La ia_dot = u - Ra ia - N KE z
+Integrated with classical RK4 in equal sub-steps of at most max_step per communication step.""",
+    "ReferenceRobot": """\
+Reference robot (9):
+  x_r_dot = v_r cos(theta_r),  y_r_dot = v_r sin(theta_r),  theta_r_dot = omega_r
+Profiles:
+  profile = 0 (constant):     v_r = vr0, omega_r = wr0, v_r_dot = 0
+  profile = 1 (figure eight): speed, turn rate and acceleration along
+                              x = A sin(W t), y = B sin(2 W t), W = 2 pi / T
+v_r must stay > 0 (Assumption 2).
+Integrated with classical RK4 in equal sub-steps of at most max_step per communication step.""",
+    "DSCController": """\
+Step 1 (kinematics), error surfaces (10), (12):
+  S11 =  cos(theta)(x_r - x) + sin(theta)(y_r - y)
+  S12 = -sin(theta)(x_r - x) + cos(theta)(y_r - y)
+  a   = arctan(k1 S12 v_r),  S13 = wrap(theta_r - theta) + a,  den = 1 + (k1 S12 v_r)^2
+  alpha1 = (k1 v_r^2 sin(S13 - a) + k1 S12 v_r_dot) / den
+  alpha2 = (sin(S13 - a) + sin(a)) / S13          (cos(a) as S13 -> 0)
+  beta   = 1 + k1 v_r S11 / den                   (divides by beta_min where beta < beta_min)
+Virtual control (14):
+  h1 = a1_hat v_r cos(S13 - a) + k2 S11 + 0.5 (k1 v_r)^4 S11^3
+  h2 = (a1_hat alpha2 v_r S12 + a2_hat (omega_r + alpha1) + k3 S13 + 0.5 S13^3) / beta
+  x2bar = [h1 + h2, h1 - h2]
+Adaptation (15), (16):
+  a1_hat_dot = gamma1 v_r (S11 cos(S13 - a) + alpha2 S12 S13) - sigma1 gamma1 a1_hat
+  a2_hat_dot = gamma2 (omega_r + alpha1) S13 - sigma2 gamma2 a2_hat
+Filter (17): tau2 x2f_dot + x2f = x2bar
+Step 2 (robot dynamics), (18)-(22):
+  S2 = z - x2f
+  Phi1 = [[-theta_dot omega2, 0, -omega1, 0, -x2f_dot1, -x2f_dot2, 0, 0],
+          [0, theta_dot omega1, 0, -omega2, 0, 0, -x2f_dot2, -x2f_dot1]]
+  x3bar = -k4 S2 - Phi1 W1_hat,   W1_hat_dot = Gamma1 Phi1^T S2 - sigma3 Gamma1 W1_hat
+Filter (23): tau3 x3f_dot + x3f = x3bar
+Step 3 (actuators), (24)-(27):
+  S3 = ia - x3f
+  Phi2 = [[-i1, 0, -omega1, 0, -x3f_dot1, 0], [0, -i2, 0, -omega2, 0, -x3f_dot2]]
+  u = -k5 S3 - Phi2 W2_hat,   W2_hat_dot = Gamma2 Phi2^T S3 - sigma4 Gamma2 W2_hat
+Filters start at x2f = x2bar, x3f = x3bar of the first inputs; the 20 states are integrated with
+RK4 in sub-steps of at most max_step (discretization = 0) or one Euler step (discretization = 1).""",
+}
+
+_STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:collapse}td,th{border:1px solid #999;padding:2px 6px}"
+
+
+def documentation_html(model_description: ET.Element, name: str, units: dict[str, str]) -> str:
+    """The HTML page of the FMU ``name`` whose completed model description is ``model_description``.
+
+    ``units`` maps a variable name to its unit where the model description has none (Integer and
+    Boolean variables). Every variable of the model description is listed, in its order.
+    """
+    root = model_description
+    version = root.get("fmiVersion")
+    rows = []
+    for variable in _variables(root):
+        typed = variable[0] if version.startswith("2") else variable
+        start = typed.get("start", "")
+        unit = typed.get("unit") or units.get(variable.get("name"), "")
+        cells = (variable.get("name"), variable.get("causality", "local"), variable.get("variability", "continuous"),
+                 start, unit, variable.get("description", ""))
+        rows.append("<tr>" + "".join(f"<td>{escape(str(c))}</td>" for c in cells) + "</tr>")
+    experiment = root.find("DefaultExperiment")
+    experiment_text = ", ".join(f"{key} = {value}" for key, value in experiment.attrib.items()) if experiment is not None else "none"
+    return "\n".join([
+        "<!DOCTYPE html>",
+        '<html lang="en">',
+        f"<head><meta charset=\"utf-8\"/><title>{escape(name)}</title><style>{_STYLE}</style></head>",
+        "<body>",
+        f"<h1>{escape(name)}</h1>",
+        f"<p>{escape(root.get('description', ''))}.</p>",
+        f"<p>FMI {escape(version)} co-simulation FMU built by dsc-fmu ({escape(root.get('generationTool', ''))}). "
+        f"It implements part of {escape(PAPER)}</p>",
+        "<h2>Equations</h2>",
+        f"<pre>{escape(EQUATIONS[name])}</pre>",
+        "<h2>Variables</h2>",
+        "<table>",
+        "<tr><th>name</th><th>causality</th><th>variability</th><th>start</th><th>unit</th><th>description</th></tr>",
+        *rows,
+        "</table>",
+        "<h2>Default experiment</h2>",
+        f"<p>{escape(experiment_text)} (times in s)</p>",
+        "<h2>Requirements</h2>",
+        "<p>The FMU runs Python code it carries (standard library only) and needs a CPython of the same minor "
+        "version as the one that built it on the importing machine.</p>",
+        "</body>",
+        "</html>",
+        "",
+    ])
+
+
+def _variables(root: ET.Element) -> list[ET.Element]:
+    variables = root.find("ModelVariables")
+    return list(variables) if variables is not None else []

@@ -1,0 +1,173 @@
+"""The FMI-version-independent part of the slaves: variables from tables, checks, steps, state.
+
+Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
+``fmi_slave.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3_slave.DscSlave`` (FMI 3.0, pythonfmu3)
+put it on their slave base classes and supply the three hooks ``_register``, ``log_error`` and
+``log_warning``.
+"""
+
+import math
+
+from .models.rk4 import rk4_integrate
+
+__all__ = ["SlaveCore"]
+
+
+class SlaveCore:
+    """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
+
+    Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
+    ``initial_state``, ``derivatives`` and ``outputs``. Until initialisation ends, the state is
+    ``initial_state()`` of the current parameters and inputs; it is fixed at the first output read
+    or step after ``exit_initialization_mode`` and then integrated with RK4 in sub-steps no longer
+    than the parameter ``max_step``.
+
+    A value outside its allowed range is refused without raising: pythonfmu (0.7.0) and pythonfmu3
+    (0.3.4) turn a Python exception into fmiFatal and a later fmiFreeInstance then crashes the
+    importer. The refusal is logged as an error naming the variable and its range, the variable
+    keeps its last valid value, and every ``do_step`` returns False (fmiDiscard) until a valid value
+    is set.
+    """
+
+    PARAMETERS: tuple = ()
+    INPUTS: tuple = ()
+    OUTPUTS: tuple = ()
+
+    def _init_core(self) -> None:
+        """Set up the values and register every variable of the tables (call from ``__init__``)."""
+        self.p = {v.name: v.start for v in self.PARAMETERS}
+        self._constants = None
+        self.u = [v.start for v in self.INPUTS]
+        self.state = None
+        self.initializing = True
+        self.rejected = {}
+        self.time = 0.0
+        self._cache = None
+        for v in self.PARAMETERS:
+            self._register(v, "parameter", getter=lambda n=v.name: self.p[n],
+                           setter=lambda value, v=v: self._set_parameter(v, value))
+        for index, v in enumerate(self.INPUTS):
+            self._register(v, "input", getter=lambda i=index: self.u[i],
+                           setter=lambda value, i=index, v=v: self._set_input(i, v, value))
+        for index, v in enumerate(self.OUTPUTS):
+            self._register(v, "output", getter=lambda i=index: self.output_values()[i])
+
+    def _register(self, v, causality: str, getter, setter=None) -> None:
+        """Hook: register the table variable ``v`` with the FMI library."""
+        raise NotImplementedError
+
+    def log_error(self, message: str) -> None:
+        """Hook: log ``message`` with the status error."""
+        raise NotImplementedError
+
+    def log_warning(self, message: str) -> None:
+        """Hook: log ``message`` with the status warning."""
+        raise NotImplementedError
+
+    def _accept(self, kind: str, v, value) -> bool:
+        """Whether ``value`` is allowed for ``v``; if not, log why and hold the FMU until it is."""
+        reason = v.check(value)
+        if reason is None:
+            if self.rejected:
+                self.rejected.pop(v.name, None)
+            return True
+        self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
+        self.log_error(f"{self.instance_name}: {self.rejected[v.name]}")
+        return False
+
+    def _set_parameter(self, v, value):
+        if self._accept("parameter", v, value):
+            self.p[v.name] = int(value) if v.integer else float(value)
+            self._constants = None
+            self._cache = None
+
+    def _set_input(self, index, v, value):
+        if self._accept("input", v, value):
+            self.u[index] = float(value)
+            self._cache = None
+
+    @property
+    def constants(self):
+        """``derive(p)`` of the current parameters, computed once per change of a parameter."""
+        if self._constants is None:
+            self._constants = self.derive(self.p)
+        return self._constants
+
+    def current_state(self) -> list:
+        """The state: the initial state while initialising, fixed at the first use after it."""
+        if self.state is None:
+            if self.initializing:
+                return self.initial_state()
+            self.state = self.initial_state()
+        return self.state
+
+    def integrate(self, t: float, x: list, step_size: float) -> list:
+        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
+        return rk4_integrate(self.derivatives, t, x, step_size, self.p["max_step"])
+
+    def output_values(self) -> list:
+        """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
+        if self._cache is None:
+            self._cache = self.outputs(self.current_state())
+        return self._cache
+
+    def exit_initialization_mode(self):
+        self.initializing = False
+        self._cache = None
+
+    def do_step(self, current_time, step_size):
+        if self.rejected:
+            self.log_error(
+                f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}"
+            )
+            return False
+        self.initializing = False
+        new = self.integrate(current_time, self.current_state(), step_size)
+        if not all(math.isfinite(value) for value in new):
+            self.log_error(
+                f"{self.instance_name}: state not finite after the step from t = {current_time} s "
+                f"of {step_size} s; the step is discarded"
+            )
+            return False
+        self.state = new
+        self.time = current_time + step_size
+        self._cache = None
+        return True
+
+    def _get_fmu_state(self):
+        return {
+            "p": dict(self.p), "u": list(self.u), "time": self.time, "initializing": self.initializing,
+            "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
+            "extra": self.extra_state(),
+        }
+
+    def _set_fmu_state(self, saved):
+        self.p = dict(saved["p"])
+        self.u = list(saved["u"])
+        self.time = saved["time"]
+        self.initializing = saved["initializing"]
+        self.rejected = dict(saved["rejected"])
+        self.state = None if saved["state"] is None else list(saved["state"])
+        self.set_extra_state(saved["extra"])
+        self._constants = None
+        self._cache = None
+
+    def extra_state(self) -> dict:
+        """Hook: what else a subclass must save with the FMU state."""
+        return {}
+
+    def set_extra_state(self, extra: dict):
+        """Hook: restore what ``extra_state`` saved."""
+
+    def derive(self, p: dict):
+        """What the model needs from the parameters ``p``, precomputed (``constants``)."""
+        return p
+
+    def initial_state(self) -> list:
+        raise NotImplementedError
+
+    def derivatives(self, t: float, x: list) -> list:
+        raise NotImplementedError
+
+    def outputs(self, x: list) -> list:
+        raise NotImplementedError

@@ -1,0 +1,288 @@
+"""The closed loop as an SSP 1.0 archive, and runs of it with libcosim (OSP) and fmpy.ssp.
+
+``export_ssp`` writes ``SystemStructure.ssd`` (three components, every connection, the scenario's
+parameters as one ``.ssv`` parameter set per component, the DefaultExperiment with libcosim's
+``osp:FixedStepAlgorithm`` annotation) and the three FMUs under ``resources/``. The SSD and the
+parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/schemas/ssp``, from the
+Modelica Association, BSD licence) before anything is written.
+
+``run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
+``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
+each does differently from ``dsc_fmu.master`` is in ``dsc_fmu.exchange``.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import zipfile
+from ctypes import POINTER, c_double, c_int, c_int64, c_size_t, c_uint32
+from pathlib import Path
+
+import numpy as np
+from lxml import etree
+
+from . import signals
+from .master import CONTROLLER, PLANT, REFERENCE
+from .scenario import Scenario, ScenarioError
+
+__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_libcosim",
+           "run_simulate_ssp", "SSPError"]
+
+ORDER = (REFERENCE, PLANT, CONTROLLER)
+SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
+                 ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
+OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
+SSD_NAMESPACES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP}
+SCHEMA_DIR = Path(__file__).parent / "schemas" / "ssp"
+SYSTEM_NAME = "DSCClosedLoop"
+
+
+class SSPError(RuntimeError):
+    """An SSP archive that does not validate or that a tool cannot run."""
+
+
+def _schema(name: str) -> etree.XMLSchema:
+    folder = SCHEMA_DIR
+    if not (folder / name).is_file():  # an install without the package data: fmpy ships the same files
+        import fmpy.ssp
+
+        folder = Path(fmpy.ssp.__file__).parent / "schema"
+    return etree.XMLSchema(etree.parse(str(folder / name)))
+
+
+def _variables(path: Path) -> dict:
+    from fmpy import read_model_description
+
+    return {v.name: v for v in read_model_description(str(path)).modelVariables}
+
+
+def _number(value: float) -> str:
+    return repr(float(value))
+
+
+def _parameter_set(name: str, parameters: dict, variables: dict) -> etree._Element:
+    root = etree.Element(f"{{{SSV}}}ParameterSet", nsmap={"ssv": SSV}, version="1.0", name=name)
+    holder = etree.SubElement(root, f"{{{SSV}}}Parameters")
+    for key, value in parameters.items():
+        parameter = etree.SubElement(holder, f"{{{SSV}}}Parameter", name=key)
+        if variables[key].type == "Integer":
+            etree.SubElement(parameter, f"{{{SSV}}}Integer", value=str(int(value)))
+        else:
+            etree.SubElement(parameter, f"{{{SSV}}}Real", value=_number(value))
+    return root
+
+
+def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
+    """(connector name, kind, SSP type) of a component: its inputs and the outputs we record."""
+    names = [v for v in variables.values() if v.causality == "input"]
+    names += [variables[o] for o in signals.RECORDED[name]]
+    return [(v.name, v.causality, v.type) for v in names]
+
+
+def connections(variables: dict[str, dict]) -> list[tuple[str, str, str, str]]:
+    """Every connection (start element, start connector, end element, end connector): each input
+    of each component fed by the output of the same name of another component. Measurements
+    first, then the controller's voltages (fmpy's container transfers them in this order)."""
+    found = []
+    for end in (CONTROLLER, PLANT):
+        for v in variables[end].values():
+            if v.causality != "input":
+                continue
+            start = next(s for s in ORDER if s != end and variables[s].get(v.name) is not None
+                         and variables[s][v.name].causality == "output")
+            found.append((start, v.name, end, v.name))
+    return found
+
+
+def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, stop_time: float) -> tuple[bytes, dict]:
+    """``SystemStructure.ssd`` and the parameter sets (archive path -> bytes) of ``scenario``."""
+    root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP},
+                         version="1.0", name=f"dsc-fmu {scenario.name}")
+    system = etree.SubElement(root, f"{{{SSD}}}System", name=SYSTEM_NAME,
+                              description=f"DSC closed loop, scenario {scenario.name}")
+    elements = etree.SubElement(system, f"{{{SSD}}}Elements")
+    sets = {}
+    for name in ORDER:
+        component = etree.SubElement(elements, f"{{{SSD}}}Component", name=name,
+                                     source=f"resources/{name}.fmu", type="application/x-fmu-sharedlibrary")
+        holder = etree.SubElement(component, f"{{{SSD}}}Connectors")
+        for connector, kind, kind_type in _connectors(name, variables[name]):
+            element = etree.SubElement(holder, f"{{{SSD}}}Connector", name=connector, kind=kind)
+            etree.SubElement(element, f"{{{SSC}}}{kind_type}")
+        source = f"resources/{name}.ssv"
+        sets[source] = etree.tostring(_parameter_set(f"{scenario.name}_{name}", scenario.parameters(name),
+                                                     variables[name]),
+                                      xml_declaration=True, encoding="UTF-8", pretty_print=True)
+        bindings = etree.SubElement(component, f"{{{SSD}}}ParameterBindings")
+        etree.SubElement(bindings, f"{{{SSD}}}ParameterBinding", source=source,
+                         type="application/x-ssp-parameter-set")
+    holder = etree.SubElement(system, f"{{{SSD}}}Connections")
+    for start, start_connector, end, end_connector in connections(variables):
+        etree.SubElement(holder, f"{{{SSD}}}Connection", startElement=start, startConnector=start_connector,
+                         endElement=end, endConnector=end_connector)
+    experiment = etree.SubElement(root, f"{{{SSD}}}DefaultExperiment", startTime="0.0", stopTime=_number(stop_time))
+    annotations = etree.SubElement(experiment, f"{{{SSD}}}Annotations")
+    annotation = etree.SubElement(annotations, f"{{{SSC}}}Annotation", type="com.opensimulationplatform")
+    # declared on the root: libcosim reads every child of osp:Algorithm, attributes included, as an algorithm
+    algorithm = etree.SubElement(annotation, f"{{{OSP}}}Algorithm")
+    etree.SubElement(algorithm, f"{{{OSP}}}FixedStepAlgorithm", baseStepSize=_number(step_size))
+    return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True), sets
+
+
+def _check(xml: bytes, schema: str, what: str) -> None:
+    validator = _schema(schema)
+    if not validator.validate(etree.fromstring(xml)):
+        problems = "; ".join(f"line {e.line}: {e.message}" for e in validator.error_log)
+        raise SSPError(f"{what} does not validate against {schema}: {problems}")
+
+
+def validate_ssp(ssp_file: Path | str) -> None:
+    """Validate the SSD and every parameter set of an archive against the SSP 1.0 schemas (SSPError)."""
+    with zipfile.ZipFile(ssp_file) as archive:
+        _check(archive.read("SystemStructure.ssd"), "SystemStructureDescription.xsd", f"{ssp_file}: SystemStructure.ssd")
+        for item in archive.namelist():
+            if item.endswith(".ssv"):
+                _check(archive.read(item), "SystemStructureParameterValues.xsd", f"{ssp_file}: {item}")
+
+
+def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
+               stop_time: float | None = None) -> Path:
+    """Write the scenario's closed loop as an SSP 1.0 archive ``out_file`` and return its path.
+
+    Step size and stop time default to the scenario's. A bad setting raises ScenarioError, a
+    missing FMU FileNotFoundError, both before anything is written; only ``out_file`` is written.
+    """
+    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
+    for name, value in (("step_size", scenario.simulation.step_size), ("stop_time", scenario.simulation.stop_time)):
+        if not math.isfinite(value):
+            raise ScenarioError(f"{scenario.source}: [simulation] {name} = {value!r} is not allowed; allowed: > 0")
+    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
+    for name, path in paths.items():
+        if name not in fmu_paths or not path.is_file():
+            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+    variables = {name: _variables(path) for name, path in paths.items()}
+    for name in ORDER:
+        missing = [p for p in scenario.parameters(name) if p not in variables[name]]
+        if missing:
+            raise ScenarioError(f"{paths[name]}: {name} has no parameter {missing[0]!r}: not the FMU expected")
+    ssd, sets = build_ssd(scenario, variables, scenario.simulation.step_size, scenario.simulation.stop_time)
+    _check(ssd, "SystemStructureDescription.xsd", "SystemStructure.ssd")
+    for source, xml in sets.items():
+        _check(xml, "SystemStructureParameterValues.xsd", source)
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        archive.writestr("SystemStructure.ssd", ssd)
+        for source, xml in sets.items():
+            archive.writestr(source, xml)
+        for name, path in paths.items():
+            archive.write(path, f"resources/{name}.fmu")
+    out_file = Path(out_file)
+    out_file.write_bytes(buffer.getvalue())
+    return out_file
+
+
+# --------------------------------------------------------------------------------------------- libcosim
+
+NANO = 1_000_000_000
+
+
+def _nanoseconds(seconds: float) -> int:
+    return int(round(seconds * NANO))
+
+
+def _samples(observer, slave: int, reference: int, count: int, integer: bool):
+    """All samples of one observed variable (the libcosimpy wrapper drops the sample of step 0)."""
+    from libcosimpy._internal import libcosimc, wrap_function
+    from libcosimpy.CosimObserver import CosimObserver
+
+    c_type = c_int if integer else c_double
+    function = wrap_function(
+        lib=libcosimc(), funcname="cosim_observer_slave_get_integer_samples" if integer
+        else "cosim_observer_slave_get_real_samples",
+        argtypes=[POINTER(CosimObserver), c_int, c_uint32, c_int64, c_size_t, c_type * count, c_int64 * count,
+                  c_int64 * count],
+        restype=c_int64,
+    )
+    values, steps, times = (c_type * count)(), (c_int64 * count)(), (c_int64 * count)()
+    got = function(observer.ptr(), slave, reference, 0, count, values, steps, times)
+    if got < 0:
+        raise SSPError(f"libcosim: cannot read the samples of variable {reference} of slave {slave}")
+    return np.array(times[:got], dtype=np.int64), np.array(steps[:got]), np.array(values[:got], dtype=float)
+
+
+def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
+    """Co-simulate an SSP archive with libcosim's fixed-step algorithm at ``step_size`` until
+    ``stop_time`` (s) and return ``time`` and every output of ``signals.RECORDED`` at every
+    communication point (``signals.DTYPE``, tracking errors derived), as its time series observer
+    records them: at t = 0 after initialisation, then after every step."""
+    from libcosimpy.CosimEnums import CosimVariableType
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+
+    h = _nanoseconds(step_size)
+    steps = -(-_nanoseconds(stop_time) // h)
+    execution = CosimExecution.from_ssp_file(str(Path(ssp_file).resolve()), step_size=h)
+    slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
+    if set(slaves) != set(ORDER):
+        raise SSPError(f"{ssp_file}: libcosim found the components {sorted(slaves)}; expected {sorted(ORDER)}")
+    observer = CosimObserver.create_time_series(buffer_size=steps + 16)
+    execution.add_observer(observer)
+    watched = []
+    for name in ORDER:
+        index = slaves[name]
+        described = {v.name.decode(): v for v in execution.slave_variables(index)}
+        for signal in signals.RECORDED[name]:
+            v = described[signal]
+            integer = v.type == CosimVariableType.INTEGER.value
+            kind = CosimVariableType.INTEGER if integer else CosimVariableType.REAL
+            if not observer.start_time_series(index, v.reference, kind):
+                raise SSPError(f"libcosim: cannot observe {name}.{signal}")
+            watched.append((signal, index, v.reference, integer))
+    if not execution.simulate_until(steps * h):
+        from libcosimpy._internal import get_last_error_message
+
+        raise SSPError(f"libcosim failed: {get_last_error_message()}")
+    columns, times = {}, None
+    for signal, index, reference, integer in watched:
+        t, _, values = _samples(observer, index, reference, steps + 16, integer)
+        if times is None:
+            times = t
+        elif not np.array_equal(times, t):
+            raise SSPError(f"libcosim: the samples of {signal} are not at the same times as the others")
+        columns[signal] = values
+    result = np.zeros(len(times), dtype=signals.DTYPE)
+    result["time"] = times / NANO
+    for signal, values in columns.items():
+        result[signal] = values
+    signals.add_tracking_errors(result)
+    return result
+
+
+# --------------------------------------------------------------------------------------------- fmpy.ssp
+
+
+def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
+    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp`` and return its rows as
+    ``signals.DTYPE`` (tracking errors derived), **stamped as simulate_ssp stamps them**: each row
+    holds the values after the step that *starts* at its ``time``. ``simulate_ssp`` ignores the
+    archive's parameter bindings, so they are read from it and passed as its ``parameter_set``."""
+    from fmpy.ssp.simulation import simulate_ssp
+    from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
+
+    ssd = read_ssd(str(ssp_file))
+    parameters = ParameterSet(name="bindings")
+    for component in ssd.system.elements:
+        for binding in component.parameterBindings:
+            for parameter_set in binding.parameterValues:
+                for p in parameter_set.parameters:
+                    parameters.parameters.append(Parameter(name=f"{component.name}.{p.name}", type=p.type,
+                                                           value=p.value))
+    raw = simulate_ssp(str(ssp_file), stop_time=stop_time, step_size=step_size, parameter_set=parameters)
+    result = np.zeros(len(raw), dtype=signals.DTYPE)
+    result["time"] = raw["time"]
+    for name in ORDER:
+        for signal in signals.RECORDED[name]:
+            result[signal] = raw[f"{name}.{signal}"]
+    signals.add_tracking_errors(result)
+    return result

@@ -1,0 +1,56 @@
+"""The closed loop as one container FMU: fmpy simulates it as our master's Jacobi at its internal step."""
+
+import numpy as np
+import pytest
+from fmpy import read_model_description, simulate_fmu
+from fmpy.validation import validate_fmu
+
+from dsc_fmu.container import export_fmu
+from dsc_fmu.master import cosimulate
+from dsc_fmu.scenario import ScenarioError, load_scenario
+
+H, T = 1e-3, 0.2
+SHOWN = ["x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2", "a1_hat", "W1_hat_norm"]
+
+
+@pytest.fixture(scope="module")
+def container(fmu_paths, tmp_path_factory):
+    scenario = load_scenario("paper")
+    return scenario, export_fmu(scenario, tmp_path_factory.mktemp("container") / "loop.fmu", fmu_paths,
+                                step_size=H, stop_time=T)
+
+
+def test_valid_with_parameters_and_outputs(container):
+    scenario, fmu = container
+    assert validate_fmu(str(fmu)) == []
+    variables = {v.name: v for v in read_model_description(str(fmu)).modelVariables}
+    for name in SHOWN:
+        assert variables[name].causality == "output"
+    assert float(variables["MobileRobot.x0"].start) == scenario.parameters("MobileRobot")["x0"]
+    assert variables["DSCController.discretization"].type == "Integer"
+
+
+@pytest.mark.parametrize("interval", [H, 10 * H])
+def test_fmpy_run_is_our_jacobi(container, fmu_paths, interval):
+    """Communication step `interval`, internal step H: the container runs our Jacobi at H exactly
+    (same FMU calls in the same order), so the tolerance is 0 up to the last bits of t."""
+    scenario, fmu = container
+    theirs = simulate_fmu(str(fmu), stop_time=T, step_size=interval, output_interval=interval, output=SHOWN)
+    ours = cosimulate(scenario, fmu_paths, step_size=H, stop_time=T, order="jacobi", output_interval=interval).result
+    assert len(theirs) == len(ours)
+    np.testing.assert_allclose(theirs["time"], ours["time"], rtol=0, atol=1e-12)
+    for name in SHOWN:
+        np.testing.assert_allclose(theirs[name], ours[name], rtol=1e-12, atol=1e-12)
+
+
+def test_start_values_reach_the_components(container, fmu_paths):
+    scenario, fmu = container
+    theirs = simulate_fmu(str(fmu), stop_time=10 * H, step_size=H, output=["x", "y"],
+                          start_values={"MobileRobot.x0": 3.0})
+    assert theirs["x"][0] == 3.0 and theirs["y"][0] == scenario.parameters("MobileRobot")["y0"]
+
+
+def test_bad_scenario_writes_nothing(fmu_paths, tmp_path):
+    with pytest.raises(ScenarioError):
+        export_fmu(load_scenario("paper"), tmp_path / "bad.fmu", fmu_paths, step_size=-1.0)
+    assert list(tmp_path.iterdir()) == []

@@ -1,0 +1,346 @@
+"""The FMI 3.0 FMUs (pythonfmu3): the same interface, behaviour and results as the FMI 2.0 ones.
+
+Expectations come from the FMI 2.0 FMUs built from the same model code, the variable tables and
+the FMI 3.0 standard; the co-simulation through the FMI 3.0 FMUs must equal the FMI 2.0 one.
+"""
+
+import json
+import math
+import subprocess
+import sys
+import textwrap
+import zipfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.fmi3 import FMU3Slave
+from fmpy.validation import validate_fmu
+
+from dsc_fmu.build import (
+    BUILD_ID_FILE, DEFAULT_FMU_DIR, FMUS, UNITS, build_fmus, default_fmu_dir, ensure_fmus, fmu_build_id, source_hash,
+)
+from dsc_fmu.master import Cosimulator, cosimulate
+from dsc_fmu.models import parameters as P
+from dsc_fmu.scenario import load_scenario
+
+REPO = Path(__file__).resolve().parents[1]
+NAMES = tuple(FMUS)
+TYPES = {"Real": "Float64", "Integer": "Int32", "Boolean": "Boolean"}  # FMI 2.0 type -> FMI 3.0 type
+FMI3_OK, FMI3_WARNING, FMI3_DISCARD, FMI3_ERROR, FMI3_FATAL = range(5)
+
+
+@pytest.fixture(scope="module")
+def fmu3_paths(tmp_path_factory):
+    return build_fmus(tmp_path_factory.mktemp("fmus3"), fmi_version=3)
+
+
+@pytest.fixture(scope="module")
+def md3(fmu3_paths):
+    return {name: read_model_description(str(path)) for name, path in fmu3_paths.items()}
+
+
+@pytest.fixture(scope="module")
+def md2(fmu_paths):
+    return {name: read_model_description(str(path)) for name, path in fmu_paths.items()}
+
+
+class Instance:
+    """An fmpy FMU3Slave with value references by name and its log messages."""
+
+    def __init__(self, path, tmp_path, name):
+        self.md = read_model_description(str(path))
+        self.folder = extract(str(path), unzipdir=tmp_path / name)
+        self.log = []
+        self.fmu = FMU3Slave(guid=self.md.guid, unzipDirectory=self.folder,
+                             modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName=name)
+        self.fmu.instantiate(loggingOn=True, logMessage=lambda env, status, category, message:
+                             self.log.append((status, message.decode())))
+        self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
+
+    def get(self, *names):
+        return self.fmu.getFloat64([self.vr[n] for n in names])
+
+    def set(self, **values):
+        self.fmu.setFloat64([self.vr[n] for n in values], list(values.values()))
+
+
+# --- build and model description ------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_fmu_validates_without_problems(fmu3_paths, md3, name):
+    assert md3[name].fmiVersion == "3.0"
+    assert validate_fmu(str(fmu3_paths[name])) == []
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_interface_equals_fmi2(md2, md3, name):
+    """Same names in the same order, types, causality, variability, initial, start, unit, range,
+    descriptions; FMI 3.0 adds only the independent variable ``time`` (s)."""
+    new = md3[name].modelVariables
+    assert [(v.name, v.causality, v.variability, v.unit) for v in new if v.causality == "independent"] == [
+        ("time", "independent", "continuous", "s")]
+    new = [v for v in new if v.causality != "independent"]
+    old = md2[name].modelVariables
+    assert [v.name for v in new] == [v.name for v in old]
+    for a, b in zip(old, new):
+        assert b.type == TYPES[a.type], a.name
+        assert (b.causality, b.variability, b.initial, b.unit, b.min, b.max, b.description) == (
+            a.causality, a.variability, a.initial, a.unit, a.min, a.max, a.description), a.name
+        if a.start is None:
+            assert b.start is None, a.name
+        else:
+            assert float(b.start) == float(a.start), a.name
+    assert len({v.valueReference for v in md3[name].modelVariables}) == len(md3[name].modelVariables)
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_starts_units_and_experiment_come_from_the_tables(md3, name):
+    md = md3[name]
+    spec = FMUS[name]
+    variables = {v.name: v for v in md.modelVariables}
+    for v in (*spec.parameters, *spec.inputs):
+        assert float(variables[v.name].start) == v.start, v.name  # exact: written with repr
+    for v in (*spec.parameters, *spec.inputs, *spec.outputs):
+        assert variables[v.name].unit == (None if v.integer else v.unit), v.name
+        assert variables[v.name].description == v.description
+    definitions = {u.name: u.baseUnit for u in md.unitDefinitions}
+    for unit in {v.unit for v in md.modelVariables if v.unit}:
+        base = definitions[unit]
+        exponents = {k: getattr(base, k) for k in ("kg", "m", "s", "A", "rad") if getattr(base, k)} if base else {}
+        assert exponents == UNITS[unit], unit
+    assert (md.defaultExperiment.startTime, md.defaultExperiment.stopTime, md.defaultExperiment.stepSize) == (
+        "0.0", "30.0", "0.001")
+    cs = md.coSimulation
+    assert cs.canGetAndSetFMUstate and cs.canSerializeFMUstate and cs.canHandleVariableCommunicationStepSize
+    assert cs.needsExecutionTool and md.description
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", NAMES)
+def test_model_structure_declares_the_real_dependencies(md2, md3, version, name):
+    md = (md2 if version == 2 else md3)[name]
+    outputs = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.outputs}
+    assert list(outputs) == [v.name for v in md.modelVariables if v.causality == "output"]
+    assert [u.variable.name for u in md.initialUnknowns] == list(outputs)
+    if name != "DSCController":
+        assert all(depends == [] for depends in outputs.values())  # the plant and the reference: no feedthrough
+    else:
+        inputs = sorted(v.name for v in P.CONTROLLER_INPUTS)
+        assert outputs["u1"] == outputs["u2"] == inputs
+        assert outputs["S11"] == sorted(("x", "y", "theta", "x_r", "y_r"))
+        assert outputs["a1_hat"] == outputs["W2_hat_6"] == outputs["beta_guard_count"] == []  # states only
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_bundled_modules_carry_a_name_unique_to_the_build(fmu3_paths, name):
+    digest = source_hash(FMUS[name], 3)[:12]
+    assert digest != source_hash(FMUS[name], 2)[:12]
+    with zipfile.ZipFile(fmu3_paths[name]) as archive:
+        module = archive.read("resources/slavemodule.txt").decode()
+        files = archive.namelist()
+        script = archive.read(f"resources/{module}.py").decode()
+        build_id = json.loads(archive.read(BUILD_ID_FILE))
+    assert module.endswith(digest) and "fmi3" in module
+    package = f"resources/dsc_fmu_{name.lower()}_{digest}/"
+    assert {f"{package}fmi3_slave.py", f"{package}slave_core.py", f"{package}models/controller.py"} <= set(files)
+    assert not any(f.startswith("resources/dsc_fmu/") or f.startswith("resources/pythonfmu/") for f in files)
+    assert "from dsc_fmu." not in script
+    assert build_id["fmi_version"] == 3 and fmu_build_id(fmu3_paths[name]) == source_hash(FMUS[name], 3)
+
+
+def test_default_folders_and_versions():
+    assert default_fmu_dir(2) == DEFAULT_FMU_DIR == Path("build") / "fmus"
+    assert default_fmu_dir(3) == Path("build") / "fmus3"
+    with pytest.raises(ValueError, match="fmi_version = 4 is not allowed; allowed: 2 or 3"):
+        build_fmus("unused", fmi_version=4)
+
+
+def test_ensure_fmi3_builds_then_reuses_and_keeps_versions_apart(tmp_path):
+    first = ensure_fmus(tmp_path, fmi_version=3)
+    stamps = {name: path.stat().st_mtime_ns for name, path in first.items()}
+    assert ensure_fmus(tmp_path, fmi_version=3) == first
+    assert {name: path.stat().st_mtime_ns for name, path in first.items()} == stamps
+    second = ensure_fmus(tmp_path, fmi_version=2)  # an FMI 3.0 FMU is stale for FMI 2.0
+    assert all(read_model_description(str(p)).fmiVersion == "2.0" for p in second.values())
+
+
+def test_build_script_builds_fmi3(tmp_path):
+    process = subprocess.run([sys.executable, "build_fmus.py", "--fmi-version", "3", "--out", str(tmp_path)],
+                             cwd=REPO, capture_output=True, text=True)
+    assert process.returncode == 0, process.stderr
+    assert sorted(p.name for p in tmp_path.glob("*.fmu")) == sorted(f"{n}.fmu" for n in NAMES)
+    assert all(read_model_description(str(tmp_path / f"{n}.fmu")).fmiVersion == "3.0" for n in NAMES)
+    bad = subprocess.run([sys.executable, "build_fmus.py", "--fmi-version", "4"], cwd=REPO, capture_output=True, text=True)
+    assert bad.returncode != 0 and "--fmi-version" in bad.stderr
+
+
+# --- behaviour through fmpy's FMU3Slave ---------------------------------------------------------------
+
+
+def test_refused_values_discard_steps_without_fatal(fmu3_paths, tmp_path):
+    robot = Instance(fmu3_paths["MobileRobot"], tmp_path, "refusing")
+    try:
+        robot.fmu.enterInitializationMode(startTime=0.0)
+        robot.set(mc=-1.0)  # refused, not raised: the call returns OK
+        assert robot.get("mc") == [30.0]
+        robot.fmu.exitInitializationMode()
+        with pytest.raises(FMICallException) as error:
+            robot.fmu.doStep(0.0, 0.01)
+        assert error.value.status == FMI3_DISCARD
+        assert any(s == FMI3_ERROR and "mc = -1.0" in m and "> 0" in m for s, m in robot.log)
+        robot.set(mc=30.0, u1=float("nan"))
+        with pytest.raises(FMICallException):
+            robot.fmu.doStep(0.0, 0.01)
+        assert any("u1 = nan is not finite" in m for _, m in robot.log)
+        robot.set(u1=12.0)
+        robot.fmu.doStep(0.0, 0.01)
+        assert all(math.isfinite(v) for v in robot.get("x", "omega1", "i1"))
+        assert not any(s == FMI3_FATAL for s, _ in robot.log)
+        robot.fmu.terminate()
+    finally:
+        robot.fmu.freeInstance()
+
+
+def test_state_get_set_and_serialisation_restore_the_run(fmu3_paths, tmp_path):
+    ctl = Instance(fmu3_paths["DSCController"], tmp_path, "stateful")
+    inputs = [v.name for v in P.CONTROLLER_INPUTS]
+    measured = dict(zip(inputs, [2.5, 1.0, math.pi / 2, 0, 0, 0, 0, 0, 2.0, 2.0, 0.0, 1.0, 0.2, 0.0]))
+    try:
+        ctl.fmu.enterInitializationMode(startTime=0.0)
+        ctl.set(**measured)
+        ctl.fmu.exitInitializationMode()
+        ctl.fmu.doStep(0.0, 0.01)
+        state = ctl.fmu.getFMUState()
+        serialized = ctl.fmu.serializeFMUState(state)
+        ctl.fmu.doStep(0.01, 0.01)
+        after = ctl.get("u1", "u2", "a1_hat", "W2_hat_1")
+        ctl.fmu.setFMUState(state)
+        ctl.fmu.doStep(0.01, 0.01)
+        assert ctl.get("u1", "u2", "a1_hat", "W2_hat_1") == after
+        restored = ctl.fmu.deserializeFMUState(serialized)
+        ctl.fmu.setFMUState(restored)
+        ctl.fmu.doStep(0.01, 0.01)
+        assert ctl.get("u1", "u2", "a1_hat", "W2_hat_1") == after
+        ctl.fmu.freeFMUState(state)
+        ctl.fmu.freeFMUState(restored)
+        ctl.fmu.terminate()
+    finally:
+        ctl.fmu.freeInstance()
+
+
+FATAL_THEN_FREE = textwrap.dedent('''
+    import sys
+    from fmpy import extract, read_model_description
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi3 import FMU3Slave
+    path, folder = sys.argv[1], sys.argv[2]
+    md = read_model_description(path)
+    extract(path, unzipdir=folder)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    statuses = []
+    for i in range(5):
+        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="MobileRobot", instanceName=f"m{i}")
+        fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
+        fmu.enterInitializationMode(startTime=0.0)
+        fmu.exitInitializationMode()
+        try:
+            fmu.getInt32([vr["x"]])  # a Float64 read as Int32: a Python TypeError inside the FMU
+        except FMICallException as error:
+            statuses.append(error.status)
+        fmu.freeInstance()
+    print(statuses)
+''')
+
+
+def test_python_exception_is_fatal_and_freeing_after_it_survives(fmu3_paths, tmp_path):
+    """pythonfmu3 0.3.4 maps a Python exception to fmi3Fatal (hence our refusal without raising);
+    unlike pythonfmu 0.7.0 (FMI 2.0), freeing the instance afterwards does not crash the importer."""
+    process = subprocess.run([sys.executable, "-c", FATAL_THEN_FREE, str(fmu3_paths["MobileRobot"]),
+                              str(tmp_path / "unzipped")], capture_output=True, text=True, timeout=120)
+    assert process.returncode == 0, process.stderr
+    assert process.stdout.strip() == str([FMI3_FATAL] * 5)
+
+
+# --- co-simulation: FMI 3.0 equals FMI 2.0 ------------------------------------------------------------
+
+
+def _assert_same_run(a, b):
+    assert a.result.dtype == b.result.dtype and len(a.result) == len(b.result)
+    for column in a.result.dtype.names:
+        np.testing.assert_allclose(b.result[column], a.result[column], rtol=1e-12, atol=1e-12, err_msg=column)
+
+
+@pytest.mark.parametrize("order", ("gauss-seidel", "jacobi"))
+def test_paper_scenario_through_fmi3_equals_fmi2(fmu_paths, fmu3_paths, order):
+    scenario = load_scenario("paper")
+    fmi2 = cosimulate(scenario, fmu_paths, stop_time=3.0, order=order)
+    fmi3 = cosimulate(scenario, fmu3_paths, stop_time=3.0, order=order)
+    _assert_same_run(fmi2, fmi3)
+    assert fmi3.steps == 3000 and fmi3.result["time"][-1] == 3.0
+    assert fmi3.result["position_error"][-1] < fmi3.result["position_error"][0]
+
+
+def test_guard_and_reset_through_fmi3_equal_fmi2(fmu_paths, fmu3_paths):
+    """The beta guard (Integer and Boolean outputs, warnings) and repeated runs after fmi3Reset."""
+    scenario = load_scenario("ahead_start")
+    fmi2 = cosimulate(scenario, fmu_paths, stop_time=0.5, step_size=1e-3)
+    with Cosimulator(fmu3_paths) as simulator:
+        first = simulator.run(scenario, stop_time=0.5, step_size=1e-3)
+        second = simulator.run(scenario, stop_time=0.5, step_size=1e-3)
+    _assert_same_run(fmi2, first)
+    _assert_same_run(first, second)
+    assert first.result["beta_guard_count"][-1] > 0
+    assert any(m.fmu == "DSCController" and m.status == "WARNING" and "beta" in m.message for m in first.log)
+
+
+def test_fmi2_and_fmi3_fmus_mix_in_one_run(fmu_paths, fmu3_paths):
+    scenario = load_scenario("paper")
+    mixed = {**fmu_paths, "DSCController": fmu3_paths["DSCController"]}
+    _assert_same_run(cosimulate(scenario, fmu_paths, stop_time=0.5), cosimulate(scenario, mixed, stop_time=0.5))
+
+
+ISOLATED = textwrap.dedent('''
+    import json, os, sys
+    class Blocker:
+        def find_spec(self, name, path=None, target=None):
+            if name.partition(".")[0] in ("dsc_fmu", "scipy"):
+                raise ImportError(f"{name} is blocked: an FMU must not need it")
+    sys.meta_path.insert(0, Blocker())
+    sys.path = [p for p in sys.path if os.path.realpath(p) != os.path.realpath(sys.argv[3])]
+    from fmpy import extract, read_model_description
+    from fmpy.fmi3 import FMU3Slave
+    path, folder = sys.argv[1], sys.argv[2]
+    md = read_model_description(path)
+    extract(path, unzipdir=folder)
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="i")
+    fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.1)
+    values = fmu.getFloat64([v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Float64"])
+    modules = {n: getattr(m, "__file__", None) or "" for n, m in list(sys.modules.items())}
+    fmu.terminate()
+    fmu.freeInstance()
+    print(json.dumps({"values": values, "modules": modules}))
+''')
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_fmu_runs_on_its_own_bundled_code(fmu3_paths, tmp_path, name):
+    """dsc_fmu cannot be imported, yet the FMU runs: pythonfmu3 and our package come from inside it."""
+    folder = tmp_path / "unzipped"
+    process = subprocess.run([sys.executable, "-c", ISOLATED, str(fmu3_paths[name]), str(folder), str(REPO)],
+                             cwd=tmp_path, capture_output=True, text=True, timeout=120)
+    assert process.returncode == 0, process.stderr
+    result = json.loads(process.stdout)
+    assert result["values"] and all(math.isfinite(v) for v in result["values"])
+    resources = str(folder / "resources") + "/"
+    assert result["modules"]["pythonfmu3"].startswith(resources)
+    bundled = [n for n in result["modules"] if n.startswith(f"dsc_fmu_{name.lower()}_")]
+    assert bundled and all(result["modules"][n].startswith(resources) for n in bundled)
+    assert "dsc_fmu" not in result["modules"]
