@@ -40,7 +40,7 @@ DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
 FMI_VERSIONS = (2, 3)
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 DOCUMENTATION_FILE = "documentation/index.html"
-# The FMI glue bundled beside ``models`` and ``slave_core`` for each FMI version.
+# The FMI glue bundled beside ``models``, ``slave_core`` and ``slave_models`` for each FMI version.
 _GLUE = {2: "fmi_slave.py", 3: "fmi3_slave.py"}
 
 # Exponents of the SI base units (kg, m, s, A, rad) of every unit the FMUs use.
@@ -139,7 +139,8 @@ def _library_version(fmi_version: int) -> str:
 def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
     models = sorted((PACKAGE_DIR / "models").glob("*.py"))
     return [_sources_dir() / spec.script_for(fmi_version), PACKAGE_DIR / _GLUE[fmi_version],
-            PACKAGE_DIR / "slave_core.py", *models, Path(__file__), PACKAGE_DIR / "fmu_docs.py"]
+            PACKAGE_DIR / "slave_core.py", PACKAGE_DIR / "slave_models.py", *models, Path(__file__),
+            PACKAGE_DIR / "fmu_docs.py"]
 
 
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
@@ -169,7 +170,8 @@ def _stage(spec: FmuSpec, stage: Path, digest: str, fmi_version: int = 2) -> tup
     (package_dir / "models").mkdir(parents=True)
     (package_dir / "__init__.py").write_text('"""dsc-fmu code bundled into this FMU."""\n')
     shutil.copy2(PACKAGE_DIR / _GLUE[fmi_version], package_dir)
-    shutil.copy2(PACKAGE_DIR / "slave_core.py", package_dir)
+    for module in ("slave_core.py", "slave_models.py"):
+        shutil.copy2(PACKAGE_DIR / module, package_dir)
     for module in (PACKAGE_DIR / "models").glob("*.py"):
         shutil.copy2(module, package_dir / "models")
     script_name = spec.script_for(fmi_version)

@@ -1,11 +1,11 @@
 """The FMI 3.0 plumbing shared by the three slaves: ``SlaveCore`` on pythonfmu3's ``Fmi3Slave``.
 
-Bundled into every FMI 3.0 FMU beside ``slave_core`` and ``models``; imports only pythonfmu3
+Bundled into every FMI 3.0 FMU beside ``slave_core``, ``slave_models`` and ``models``; imports only pythonfmu3
 (which the FMU carries) and the standard library.
 """
 
 from pythonfmu3 import DefaultExperiment, Fmi3Causality, Fmi3Initial, Fmi3Slave, Fmi3Status, Fmi3Variability
-from pythonfmu3 import Float64, Int32
+from pythonfmu3 import Boolean, Float64, Int32
 
 from .slave_core import SlaveCore
 
@@ -53,6 +53,13 @@ class DscSlave(SlaveCore, Fmi3Slave):
                 initial=Fmi3Initial.calculated, description=v.description, getter=getter,
                 setter=lambda value: None,
             ))
+
+    def register_discrete_output(self, name, description, getter, boolean):
+        """Register a discrete Int32 (or Boolean) output that ``getter`` computes."""
+        self.register_variable((Boolean if boolean else Int32)(
+            name, causality=Fmi3Causality.output, variability=Fmi3Variability.discrete,
+            initial=Fmi3Initial.calculated, description=description, getter=getter, setter=lambda value: None,
+        ))
 
     def log_error(self, message):
         self.log(message, Fmi3Status.error)

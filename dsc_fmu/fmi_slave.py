@@ -1,10 +1,10 @@
 """The FMI 2.0 plumbing shared by the three slaves: ``SlaveCore`` on pythonfmu's ``Fmi2Slave``.
 
-Bundled into every FMI 2.0 FMU beside ``slave_core`` and ``models``; imports only pythonfmu
+Bundled into every FMI 2.0 FMU beside ``slave_core``, ``slave_models`` and ``models``; imports only pythonfmu
 (which the FMU carries) and the standard library.
 """
 
-from pythonfmu import DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
+from pythonfmu import Boolean, DefaultExperiment, Fmi2Causality, Fmi2Initial, Fmi2Slave, Fmi2Variability, Integer, Real
 from pythonfmu.enums import Fmi2Status
 
 from .slave_core import SlaveCore
@@ -46,6 +46,13 @@ class DscSlave(SlaveCore, Fmi2Slave):
                 v.name, causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
                 initial=Fmi2Initial.calculated, description=v.description, getter=getter,
             ))
+
+    def register_discrete_output(self, name, description, getter, boolean):
+        """Register a discrete Integer (or Boolean) output that ``getter`` computes."""
+        self.register_variable((Boolean if boolean else Integer)(
+            name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete,
+            initial=Fmi2Initial.calculated, description=description, getter=getter,
+        ))
 
     def log_error(self, message):
         self.log(message, Fmi2Status.error)

@@ -1,27 +1,13 @@
-"""MobileRobot.fmu: the electrically driven differential-drive robot of SPEC 1 (equations 1-8)."""
+"""MobileRobot.fmu (FMI 2.0): the electrically driven differential-drive robot of SPEC 1 (equations 1-8)."""
 
 from dsc_fmu.fmi_slave import DscSlave
-from dsc_fmu.models.parameters import PLANT_INPUTS, PLANT_OUTPUTS, PLANT_PARAMETERS
-from dsc_fmu.models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from dsc_fmu.slave_models import MobileRobotModel
 
 
-class MobileRobot(DscSlave):
-    """Inputs: motor voltages u1, u2. Outputs: pose, heading rate, wheel speeds, currents."""
+class MobileRobot(MobileRobotModel, DscSlave):
+    """The FMI 2.0 slave: ``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""
 
-    description = "Differential-drive mobile robot with rigid-body and DC-motor dynamics (Section II)"
-    PARAMETERS = PLANT_PARAMETERS
-    INPUTS = PLANT_INPUTS
-    OUTPUTS = PLANT_OUTPUTS
-
-    def derive(self, p):
-        return plant_coefficients(p)
-
-    def initial_state(self):
-        return initial_plant_state(self.p)
-
-    def derivatives(self, t, x):
-        return plant_derivatives(self.constants, x, self.u[0], self.u[1])
-
-    def outputs(self, x):
-        x_, y, theta, v1, v2, i1, i2 = x
-        return [x_, y, theta, theta_dot(self.constants, v1, v2), v1, v2, i1, i2]
+    def __init__(self, **kwargs):
+        # pythonfmu 0.7.0 drops a reference to this module that it does not own when an instance is
+        # freed; a function defined here keeps the module's namespace alive for the next instance.
+        super().__init__(**kwargs)

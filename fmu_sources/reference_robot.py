@@ -1,22 +1,13 @@
-"""ReferenceRobot.fmu: the reference robot of SPEC 2 (equation 9) with its velocity profile."""
+"""ReferenceRobot.fmu (FMI 2.0): the reference robot of SPEC 2 (equation 9) with its velocity profile."""
 
 from dsc_fmu.fmi_slave import DscSlave
-from dsc_fmu.models.parameters import REFERENCE_OUTPUTS, REFERENCE_PARAMETERS
-from dsc_fmu.models.reference import initial_reference_state, reference_derivatives, velocity
+from dsc_fmu.slave_models import ReferenceRobotModel
 
 
-class ReferenceRobot(DscSlave):
-    """No inputs. Outputs: reference pose, vr, wr and vr_dot at the current time."""
+class ReferenceRobot(ReferenceRobotModel, DscSlave):
+    """The FMI 2.0 slave: ``ReferenceRobotModel`` on the FMI 2.0 glue (pythonfmu)."""
 
-    description = "Reference robot of the tracking problem (equation 9): constant or figure-eight profile"
-    PARAMETERS = REFERENCE_PARAMETERS
-    OUTPUTS = REFERENCE_OUTPUTS
-
-    def initial_state(self):
-        return initial_reference_state(self.p)
-
-    def derivatives(self, t, x):
-        return reference_derivatives(self.p, t, x)
-
-    def outputs(self, x):
-        return [*x, *velocity(self.p, self.time)]
+    def __init__(self, **kwargs):
+        # pythonfmu 0.7.0 drops a reference to this module that it does not own when an instance is
+        # freed; a function defined here keeps the module's namespace alive for the next instance.
+        super().__init__(**kwargs)

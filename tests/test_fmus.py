@@ -940,9 +940,10 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
     shutil.copytree(build_module._sources_dir(), sources)
     script = sources / FMUS["MobileRobot"].script
     text = script.read_text()
-    marker = "return [x_, y, theta,"
+    marker = "        super().__init__(**kwargs)\n"
     assert marker in text, "the test's source patch no longer applies to mobile_robot.py"
-    script.write_text(text.replace(marker, "return [x_ + 1000.0, y, theta,"))
+    shifted = "\n    def outputs(self, x):\n        x_, *rest = super().outputs(x)\n        return [x_ + 1000.0, *rest]\n"
+    script.write_text(text.replace(marker, marker + shifted))
     monkeypatch.setattr(build_module, "_sources_dir", lambda: sources)
     variant = build_fmu(FMUS["MobileRobot"], tmp_path / "variant")
     monkeypatch.undo()
@@ -976,4 +977,15 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
     for module in modules:
         assert module in sys.modules
     for inst in (a, b, c):
+        inst.close()
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_an_fmu_instantiates_again_after_its_instances_are_freed(md, fmu_unzipped, name):
+    """pythonfmu 0.7.0 drops a reference to the slave module when an instance is freed; the slave
+    scripts keep its namespace alive (see fmu_sources), so each new instance still finds its class."""
+    for cycle in range(3):
+        inst = Instance(md[name], fmu_unzipped[name], f"again{cycle}").initialize()
+        inst.step(0.0, 1e-3)
+        assert all(math.isfinite(float(v)) for v in inst.outputs().values())
         inst.close()

@@ -1,0 +1,141 @@
+"""What each FMU computes, independent of the FMI version: the robot, the reference robot, the controller.
+
+Bundled into every FMU beside ``slave_core`` and ``models``. Each class is a mixin put before an
+FMI glue class (``fmi_slave.DscSlave`` or ``fmi3_slave.DscSlave``) in a slave script of
+``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
+"""
+
+from .models.controller import W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters
+from .models.parameters import (
+    CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS, PLANT_INPUTS, PLANT_OUTPUTS,
+    PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS,
+)
+from .models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from .models.reference import initial_reference_state, reference_derivatives, velocity
+from .models.rk4 import euler_step
+
+__all__ = ["MobileRobotModel", "ReferenceRobotModel", "DSCControllerModel"]
+
+EULER = DISCRETIZATIONS.index("euler")
+
+
+def _norm(values):
+    return sum(v * v for v in values) ** 0.5
+
+
+class MobileRobotModel:
+    """Inputs: motor voltages u1, u2. Outputs: pose, heading rate, wheel speeds, currents (SPEC 1)."""
+
+    description = "Differential-drive mobile robot with rigid-body and DC-motor dynamics (Section II)"
+    PARAMETERS = PLANT_PARAMETERS
+    INPUTS = PLANT_INPUTS
+    OUTPUTS = PLANT_OUTPUTS
+
+    def derive(self, p):
+        return plant_coefficients(p)
+
+    def initial_state(self):
+        return initial_plant_state(self.p)
+
+    def derivatives(self, t, x):
+        return plant_derivatives(self.constants, x, self.u[0], self.u[1])
+
+    def outputs(self, x):
+        x_, y, theta, v1, v2, i1, i2 = x
+        return [x_, y, theta, theta_dot(self.constants, v1, v2), v1, v2, i1, i2]
+
+
+class ReferenceRobotModel:
+    """No inputs. Outputs: reference pose, vr, wr and vr_dot at the current time (SPEC 2)."""
+
+    description = "Reference robot of the tracking problem (equation 9): constant or figure-eight profile"
+    PARAMETERS = REFERENCE_PARAMETERS
+    OUTPUTS = REFERENCE_OUTPUTS
+
+    def initial_state(self):
+        return initial_reference_state(self.p)
+
+    def derivatives(self, t, x):
+        return reference_derivatives(self.p, t, x)
+
+    def outputs(self, x):
+        return [*x, *velocity(self.p, self.time)]
+
+
+class DSCControllerModel:
+    """Inputs: measurements and reference. Outputs: voltages u1, u2 (direct feedthrough) and internals.
+
+    The measured inputs are held over a step; the 20 controller states are integrated with RK4
+    (``discretization`` = 0) or one explicit Euler step per communication step (1). The filter
+    states start at x2f = x2bar, x3f = x3bar of the inputs present at the first output read or step
+    after initialisation (SPEC 5: the first measurements the controller sees). The beta guard
+    (SPEC 5) is counted (``beta_guard_count``), shown (``beta_guard_active``) and logged.
+    """
+
+    description = "Adaptive dynamic surface controller for the electrically driven mobile robot (Section III)"
+    PARAMETERS = CONTROLLER_PARAMETERS
+    INPUTS = CONTROLLER_INPUTS
+    OUTPUTS = CONTROLLER_OUTPUTS
+
+    def _init_core(self):
+        self.beta_guard_count = 0
+        self._guarded_last_step = False
+        self._guard_seen = None
+        super()._init_core()
+        self.register_discrete_output(
+            "beta_guard_count", "Number of steps in which beta fell below beta_min and the guard acted (SPEC 5)",
+            lambda: self.beta_guard_count, boolean=False,
+        )
+        self.register_discrete_output(
+            "beta_guard_active", "True while beta < beta_min at the current inputs and state",
+            lambda: self.law().guarded, boolean=True,
+        )
+
+    def derive(self, p):
+        return gains(p)
+
+    def law(self):
+        return control_law(self.constants, self.current_state(), self.u)
+
+    def initial_state(self):
+        return start_filters(self.constants, initial_controller_state(self.p), self.u)
+
+    def derivatives(self, t, x):
+        law = control_law(self.constants, x, self.u)
+        if law.guarded and self._guard_seen is None:
+            self._guard_seen = (t, law.beta)
+        return law.derivative
+
+    def integrate(self, t, x, step_size):
+        if self.p["discretization"] == EULER:
+            return euler_step(self.derivatives, t, x, step_size)
+        return super().integrate(t, x, step_size)
+
+    def do_step(self, current_time, step_size):
+        self._guard_seen = None
+        ok = super().do_step(current_time, step_size)
+        if self._guard_seen is not None:
+            self.beta_guard_count += 1
+            if not self._guarded_last_step:
+                t, beta = self._guard_seen
+                self.log_warning(
+                    f"{self.instance_name}: beta = {beta:.6g} < beta_min = {self.p['beta_min']:g} at t = {t:.6g} s: "
+                    "h2 divides by beta_min (outside the region of Remark 3)"
+                )
+        self._guarded_last_step = self._guard_seen is not None
+        return ok
+
+    def outputs(self, x):
+        law = control_law(self.constants, x, self.u)
+        W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
+        return [
+            law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, x[0], x[1],
+            _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat,
+        ]
+
+    def extra_state(self):
+        return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step}
+
+    def set_extra_state(self, extra):
+        self.beta_guard_count = extra["beta_guard_count"]
+        self._guarded_last_step = extra["guarded_last_step"]
