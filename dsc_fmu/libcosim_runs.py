@@ -1,0 +1,192 @@
+"""One FMU alone in libcosim (libcosimpy 0.0.6): the closed-loop container FMU, or a cross-check
+FMU replayed with its input file.
+
+``run_libcosim_fmu`` builds an execution of one FMU (``CosimExecution.from_step_size`` and a
+``CosimLocalSlave``), observes the chosen outputs with a buffered time series observer, and steps
+it ``execution.step()`` by ``execution.step()``, feeding its inputs (if any) from a table with
+libcosim's override manipulator. ``python -m dsc_fmu.libcosim_runs`` runs it in a process of its
+own and saves the result (``.npy``): libcosim and fmpy's container FMU loaded in one process
+sometimes abort at the process's exit (a double free while unloading), see the README; so did,
+2 times in about 15, a process that ran the three pythonfmu FMUs one after another in libcosim
+("corrupted double-linked list" after the last run), while one FMU per process never did (30 runs).
+
+When libcosim samples and when an override takes effect (libcosim's ``execution::step``: the
+manipulators' ``step_commencing(t_k)``, then the algorithm's step from ``t_k``, then the
+observers' ``step_complete`` at ``t_k+1``; checked by the replays of ``tests/test_crosscheck.py``:
+read this way, each cross-check FMU reproduces its reference to 4e-13 relative, while inputs fed
+one step late put the plant's speeds and currents 1e-2 off):
+
+- the time series observer takes one sample after initialisation, step number 0 at ``t_0``, then
+  one after every step, step number k + 1 at ``t_k+1 = (k + 1) h`` (integer nanoseconds): the
+  outputs read right after ``doStep(t_k, h)``, before anything is set for the next step, which is
+  the convention of ``fmpy.simulate_fmu`` and of the cross-check references;
+- an override set (``CosimManipulator.slave_real_values``) between two calls of ``step()`` at
+  current time ``t_k`` is applied by ``step_commencing(t_k)`` and so reaches the FMU *before* the
+  step from ``t_k`` (the value the FMU holds over ``[t_k, t_k+1)``); it stays until replaced or
+  reset. It is not applied during initialisation: the inputs at ``t_0`` are set as initial values
+  (``CosimExecution.real_initial_value``), so the sample at ``t_0`` already sees them, as in
+  ``fmpy.simulate_fmu`` (which sets the inputs before it leaves initialisation mode). Fed by an
+  override before the first step instead, the controller's sample at ``t_0`` has ``u = 0`` and,
+  its filters started from the inputs' start values, its whole run is off (tried).
+
+Time: libcosim counts in integer nanoseconds and hands the FMU ``t_k = k h`` converted to
+seconds, so ``t_k`` can differ in its last bits from a master's ``k * h`` in floating point (a few
+1e-17 s at h = 1 ms): FMUs that use ``t`` (the reference trajectory) then differ in the last bits
+too. ``stop_time`` is rounded up to a whole number of steps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .ssp import NANO, SSPError, _nanoseconds, _samples
+
+__all__ = ["run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "held_value_index", "main"]
+
+
+def held_value_index(times: np.ndarray, t: float, h: float) -> int:
+    """Row of a sample-and-hold table (times non-decreasing, a time repeated where the value jumps)
+    that holds over the step from ``t``: the last row stamped ``<= t`` (the value after the jump),
+    with a tolerance of ``h * 1e-6`` on the stamps."""
+    row = int(np.searchsorted(times, t + h * 1e-6, side="right")) - 1
+    if row < 0:
+        raise SSPError(f"the input table starts at {times[0]!r} s, after {t!r} s")
+    return row
+
+
+def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
+                     inputs: np.ndarray | None = None, instance_name: str = "fmu") -> np.ndarray:
+    """Run one co-simulation FMU alone in libcosim at the fixed step ``step_size`` until
+    ``stop_time`` (s) and return ``time`` and the ``outputs`` (names) at every communication point
+    (structured array, float64), sampled as libcosim's time series observer samples them (see the
+    module docstring: row 0 at t = 0 after initialisation, then after each step, time stamped with
+    the step's end).
+
+    ``inputs``: a table (structured array with ``time`` and one column per input of the FMU, e.g.
+    ``fmpy.util.read_csv`` of a cross-check ``<Model>_in.csv``) read as sample-and-hold: over the
+    step from ``t_k`` the FMU holds the value of the last row stamped ``<= t_k`` (the value after
+    a jump where a time is repeated). The values at ``t_0`` are set as initial values, those of
+    every later step with libcosim's override manipulator before the step. No parameter is set:
+    the FMU runs with its start values."""
+    from libcosimpy.CosimEnums import CosimVariableCausality, CosimVariableType
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimManipulator import CosimManipulator
+    from libcosimpy.CosimObserver import CosimObserver
+    from libcosimpy.CosimSlave import CosimLocalSlave
+
+    h = _nanoseconds(step_size)
+    steps = -(-_nanoseconds(stop_time) // h)
+    execution = CosimExecution.from_step_size(step_size=h)
+    slave = CosimLocalSlave(fmu_path=str(Path(fmu_path).resolve()), instance_name=instance_name)
+    index = execution.add_local_slave(local_slave=slave)
+    if index < 0:
+        from libcosimpy._internal import get_last_error_message
+
+        raise SSPError(f"libcosim cannot load {fmu_path}: {get_last_error_message()}")
+    described = {v.name.decode(): v for v in execution.slave_variables(index)}
+    observer = CosimObserver.create_time_series(buffer_size=steps + 16)
+    execution.add_observer(observer=observer)
+    watched = []
+    for name in outputs:
+        v = described.get(name)
+        if v is None:
+            raise SSPError(f"{fmu_path} has no variable {name!r}")
+        integer = v.type == CosimVariableType.INTEGER.value
+        kind = CosimVariableType.INTEGER if integer else CosimVariableType.REAL
+        if not observer.start_time_series(index, v.reference, kind):
+            raise SSPError(f"libcosim: cannot observe {name}")
+        watched.append((name, v.reference, integer))
+
+    fed, manipulator = [], None
+    if inputs is not None:
+        names = [n for n in inputs.dtype.names if n != "time"]
+        for name in names:
+            v = described.get(name)
+            if v is None or v.causality != CosimVariableCausality.INPUT.value:
+                raise SSPError(f"{fmu_path}: {name!r} is not an input of the FMU")
+            if v.type != CosimVariableType.REAL.value:
+                raise SSPError(f"{fmu_path}: input {name!r} is not a Real (only Real inputs are fed)")
+        fed = [(name, described[name].reference) for name in names]
+        times = np.asarray(inputs["time"], dtype=float)
+        row = inputs[held_value_index(times, 0.0, step_size)]
+        for name, reference in fed:
+            if not execution.real_initial_value(index, reference, float(row[name])):
+                raise SSPError(f"libcosim: cannot set the initial value of {name}")
+        manipulator = CosimManipulator.create_override()
+        execution.add_manipulator(manipulator=manipulator)
+
+    references = [reference for _, reference in fed]
+    for k in range(steps):
+        if k > 0 and fed:
+            row = inputs[held_value_index(times, k * h / NANO, step_size)]
+            if not manipulator.slave_real_values(index, references, [float(row[n]) for n, _ in fed]):
+                raise SSPError(f"libcosim: cannot override the inputs at step {k}")
+        if not execution.step():
+            from libcosimpy._internal import get_last_error_message
+
+            raise SSPError(f"libcosim failed at step {k} (t = {k * h / NANO!r} s): {get_last_error_message()}")
+
+    columns, stamps = {}, None
+    for name, reference, integer in watched:
+        t, step_numbers, values = _samples(observer, index, reference, steps + 16, integer)
+        if not np.array_equal(step_numbers, np.arange(steps + 1)):
+            raise SSPError(f"libcosim: {name} has samples of the steps {step_numbers[:3]}...; expected 0..{steps}")
+        if stamps is None:
+            stamps = t
+        columns[name] = values
+    result = np.zeros(steps + 1, dtype=[("time", np.float64)] + [(n, np.float64) for n in outputs])
+    result["time"] = (stamps if stamps is not None else np.arange(steps + 1) * h) / NANO
+    for name, values in columns.items():
+        result[name] = values
+    return result
+
+
+def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
+                                    inputs_csv: Path | str | None = None, timeout: float = 600) -> np.ndarray:
+    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.libcosim_runs``), its inputs
+    (if any) read from the CSV file ``inputs_csv`` with ``fmpy.util.read_csv``. A failure of the
+    child raises SSPError with the end of its error output."""
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_libcosim_") as tmp:
+        out = Path(tmp) / "result.npy"
+        command = [sys.executable, "-m", "dsc_fmu.libcosim_runs", str(fmu_path), repr(float(step_size)),
+                   repr(float(stop_time)), str(out), "--outputs", ",".join(outputs)]
+        if inputs_csv is not None:
+            command += ["--inputs", str(inputs_csv)]
+        child = subprocess.run(command, capture_output=True, text=True, timeout=timeout)
+        if child.returncode != 0 or not out.is_file():
+            raise SSPError(f"libcosim run of {fmu_path} failed (exit code {child.returncode}): "
+                           f"{child.stderr[-2000:]}{child.stdout[-2000:]}")
+        return np.load(out)
+
+
+def main(argv=None) -> int:
+    """``python -m dsc_fmu.libcosim_runs FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``."""
+    parser = argparse.ArgumentParser(prog="python -m dsc_fmu.libcosim_runs", description=__doc__.splitlines()[0])
+    parser.add_argument("fmu")
+    parser.add_argument("step_size", type=float)
+    parser.add_argument("stop_time", type=float)
+    parser.add_argument("out", help="result file (.npy)")
+    parser.add_argument("--outputs", required=True, help="comma-separated output names")
+    parser.add_argument("--inputs", help="input table (CSV, the cross-check format)")
+    args = parser.parse_args(argv)
+    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+
+    log_output_level(CosimLogLevel.WARNING)
+    inputs = None
+    if args.inputs:
+        from fmpy.util import read_csv
+
+        inputs = read_csv(args.inputs)
+    result = run_libcosim_fmu(args.fmu, args.step_size, args.stop_time, args.outputs.split(","), inputs=inputs)
+    np.save(args.out, result)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
