@@ -8,6 +8,7 @@ import os
 import shutil
 import tempfile
 import zipfile
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from xml.etree import ElementTree as ET
@@ -30,7 +31,7 @@ from .models.parameters import (
 )
 
 __all__ = [
-    "FmuSpec", "FMUS", "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmus", "ensure_fmus",
+    "FmuSpec", "FMUS", "DEFAULT_FMU_DIR", "current_fmus", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmus", "ensure_fmus",
     "source_hash", "fmu_build_id", "default_fmu_dir",
 ]
 
@@ -340,3 +341,16 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict
             path = build_fmu(spec, out_dir, fmi_version)
         paths[name] = path
     return paths
+
+
+@contextmanager
+def current_fmus(out_dir: Path | str | None = None, fmi_version: int = 2):
+    """The three FMUs of ``out_dir`` if they are all current, else ones built into a temporary folder
+    that is removed on exit: for exports, which write nothing but their output file."""
+    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
+    paths = {name: out_dir / f"{name}.fmu" for name in FMUS}
+    if all(fmu_build_id(path) == source_hash(FMUS[name], fmi_version) for name, path in paths.items()):
+        yield paths
+        return
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_fmus_") as tmp:
+        yield build_fmus(tmp, fmi_version=fmi_version)

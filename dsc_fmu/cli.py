@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from .build import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, build_fmus, ensure_fmus
+from .build import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, build_fmus, current_fmus
 from .container import export_fmu
 from .master import CosimulationError
 from .models.parameters import DISCRETIZATIONS
@@ -39,7 +39,7 @@ def _parser() -> argparse.ArgumentParser:
         export.add_argument("--step-size", type=float, help="communication step in s (default: the scenario's)")
         export.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
         export.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR,
-                            help="where the FMUs are built (default: %(default)s)")
+                            help="FMUs to pack if current (default: %(default)s); else they are built in a temporary folder")
 
     run = commands.add_parser("run", help="co-simulate a scenario and write results, metrics and figures")
     run.add_argument(
@@ -98,7 +98,8 @@ def main(argv: list[str] | None = None) -> int:
                 print(path)
         elif args.command in EXPORTS:
             scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
-            print(EXPORTS[args.command](scenario, args.out, ensure_fmus(args.fmu_dir)))
+            with current_fmus(args.fmu_dir) as fmus:
+                print(EXPORTS[args.command](scenario, args.out, fmus))
         elif args.command == "sweep":
             scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
             if args.jobs is not None and args.jobs < 1:

@@ -157,3 +157,12 @@ def test_build_fmi_3(tmp_path, capsys):
     from fmpy import read_model_description
     for path in capsys.readouterr().out.split():
         assert read_model_description(path).fmiVersion == "3.0"
+
+
+def test_export_writes_only_its_file_when_no_fmus_are_built(tmp_path, capsys):
+    out = tmp_path / "out" / "loop.ssp"
+    out.parent.mkdir()
+    empty = tmp_path / "fmus"
+    assert main(["export-ssp", "-o", str(out), "--stop-time", "1", "--fmu-dir", str(empty)]) == 0
+    assert not empty.exists()
+    assert [p.name for p in out.parent.iterdir()] == ["loop.ssp"]
