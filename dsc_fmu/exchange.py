@@ -22,7 +22,7 @@ point (direct feedthrough honoured). Other masters do not:
 Rows: ``time`` and every output of ``signals.RECORDED`` at every communication point, as each
 master observes it: our Jacobi after the exchange at ``t_k``; libcosim and simulate_ssp after the
 step that ends at ``t_k`` (libcosim's time series observer; ``simulate_ssp`` stamps that row with
-``t_{k-1}``, which ``shift_simulate_ssp`` undoes). The inputs each FMU held over each step are
+``t_{k-1}``). The inputs each FMU held over each step are
 recorded too (``inputs``: name -> structured array, ``time`` = the step's start).
 """
 
@@ -41,7 +41,7 @@ from . import signals
 from .master import CONTROLLER, PLANT, REFERENCE, step_count
 from .scenario import Scenario
 
-__all__ = ["MODES", "ExchangeRun", "cosimulate_exchange", "shift_simulate_ssp"]
+__all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
 
 MODES = ("jacobi", "libcosim", "simulate_ssp")
 ORDER = (REFERENCE, PLANT, CONTROLLER)  # the order of the components in the SSD and the container
@@ -233,10 +233,3 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
             controller_before[c] = [values[c] for _, values in table]
     return ExchangeRun(result=result, inputs=inputs, controller_before_inputs=controller_before)
 
-
-def shift_simulate_ssp(result: np.ndarray, step_size: float) -> np.ndarray:
-    """A ``fmpy.ssp.simulate_ssp`` result with each row stamped at the end of its step (the time
-    its values belong to) instead of the start."""
-    shifted = result.copy()
-    shifted["time"] = result["time"] + step_size
-    return shifted
