@@ -8,6 +8,7 @@ from pathlib import Path
 
 from .build import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, build_fmus, current_fmus
 from .container import export_fmu
+from .crosscheck import write_crosscheck
 from .master import CosimulationError
 from .models.parameters import DISCRETIZATIONS
 from .run import run_scenario
@@ -74,6 +75,13 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--out", type=Path, help="output folder (default: results/sweep-<scenario name>)")
     sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
 
+    crosscheck = commands.add_parser("crosscheck", help="write the FMI cross-check artefacts of the three FMUs")
+    crosscheck.add_argument("-o", "--out", type=Path, required=True, help="the folder to write them under")
+    crosscheck.add_argument("--step-size", type=float, help="communication step in s (default: 1e-3)")
+    crosscheck.add_argument("--stop-time", type=float, default=2.0, help="stop time in s (default: %(default)s)")
+    crosscheck.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR,
+                            help="FMUs to use if current (default: %(default)s); else built in a temporary folder")
+
     commands.add_parser("scenarios", help="list the scenarios shipped with dsc-fmu")
     return parser
 
@@ -111,6 +119,11 @@ def main(argv: list[str] | None = None) -> int:
                 samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler,
                 refine=not args.no_refine,
             ))
+        elif args.command == "crosscheck":
+            with current_fmus(args.fmu_dir) as fmus:
+                folders = write_crosscheck(args.out, fmus, step_size=args.step_size, stop_time=args.stop_time)
+            for folder in folders.values():
+                print(folder)
         elif args.command == "scenarios":
             for name in scenario_names():
                 print(f"{name}: {load_scenario(name).description}")

@@ -166,3 +166,14 @@ def test_export_writes_only_its_file_when_no_fmus_are_built(tmp_path, capsys):
     assert main(["export-ssp", "-o", str(out), "--stop-time", "1", "--fmu-dir", str(empty)]) == 0
     assert not empty.exists()
     assert [p.name for p in out.parent.iterdir()] == ["loop.ssp"]
+
+
+def test_crosscheck_command_writes_the_layout(tmp_path, fmu_dir, capsys):
+    assert main(["crosscheck", "-o", str(tmp_path), "--stop-time", "0.5", "--fmu-dir", str(fmu_dir)]) == 0
+    folders = [Path(line) for line in capsys.readouterr().out.split()]
+    assert sorted(f.name for f in folders) == ["DSCController", "MobileRobot", "ReferenceRobot"]
+    for folder in folders:
+        assert folder.is_relative_to(tmp_path / "fmus" / "2.0" / "cs")
+        assert (folder / f"{folder.name}.fmu").is_file() and (folder / f"{folder.name}_ref.csv").is_file()
+        assert (folder / f"{folder.name}_ref.opt").is_file()
+    assert (folders[0].parent / "MobileRobot" / "MobileRobot_in.csv").is_file()
