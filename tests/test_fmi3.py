@@ -232,7 +232,7 @@ def test_state_get_set_and_serialisation_restore_the_run(fmu3_paths, tmp_path):
         ctl.fmu.freeInstance()
 
 
-FATAL_THEN_FREE = textwrap.dedent('''
+FATAL = textwrap.dedent('''
     import sys
     from fmpy import extract, read_model_description
     from fmpy.fmi1 import FMICallException
@@ -241,28 +241,25 @@ FATAL_THEN_FREE = textwrap.dedent('''
     md = read_model_description(path)
     extract(path, unzipdir=folder)
     vr = {v.name: v.valueReference for v in md.modelVariables}
-    statuses = []
-    for i in range(5):
-        fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="MobileRobot", instanceName=f"m{i}")
-        fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
-        fmu.enterInitializationMode(startTime=0.0)
-        fmu.exitInitializationMode()
-        try:
-            fmu.getInt32([vr["x"]])  # a Float64 read as Int32: a Python TypeError inside the FMU
-        except FMICallException as error:
-            statuses.append(error.status)
-        fmu.freeInstance()
-    print(statuses)
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="MobileRobot", instanceName="m")
+    fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
+    fmu.enterInitializationMode(startTime=0.0)
+    fmu.exitInitializationMode()
+    try:
+        fmu.getInt32([vr["x"]])  # a Float64 read as Int32: a Python TypeError inside the FMU
+    except FMICallException as error:
+        print(error.status, flush=True)
 ''')
 
 
-def test_python_exception_is_fatal_and_freeing_after_it_survives(fmu3_paths, tmp_path):
-    """pythonfmu3 0.3.4 maps a Python exception to fmi3Fatal (hence our refusal without raising);
-    unlike pythonfmu 0.7.0 (FMI 2.0), freeing the instance afterwards does not crash the importer."""
-    process = subprocess.run([sys.executable, "-c", FATAL_THEN_FREE, str(fmu3_paths["MobileRobot"]),
+def test_a_python_exception_is_fatal_in_pythonfmu3(fmu3_paths, tmp_path):
+    """pythonfmu3 0.3.4 maps a Python exception to fmi3Fatal and then releases the slave's Python
+    objects twice, so whatever the importer does next (even freeing the instance) is undefined
+    behaviour that sometimes segfaults: hence the FMUs refuse bad values without raising. Run in a
+    process of its own, which is not freed and may crash at exit."""
+    process = subprocess.run([sys.executable, "-c", FATAL, str(fmu3_paths["MobileRobot"]),
                               str(tmp_path / "unzipped")], capture_output=True, text=True, timeout=120)
-    assert process.returncode == 0, process.stderr
-    assert process.stdout.strip() == str([FMI3_FATAL] * 5)
+    assert process.stdout.split()[:1] == [str(FMI3_FATAL)], process.stderr
 
 
 # --- co-simulation: FMI 3.0 equals FMI 2.0 ------------------------------------------------------------
