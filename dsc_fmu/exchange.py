@@ -38,7 +38,7 @@ from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
 from . import signals
-from .master import CONTROLLER, PLANT, REFERENCE, step_count
+from .master import CONTROLLER, PLANT, REFERENCE, _callbacks, step_count
 from .scenario import Scenario
 
 __all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
@@ -62,7 +62,7 @@ class ExchangeRun:
 
 
 class _Slave:
-    def __init__(self, name: str, path: Path, root: Path):
+    def __init__(self, name: str, path: Path, root: Path, callbacks):
         md = read_model_description(str(path))
         self.name = name
         self.variables = {v.name: v for v in md.modelVariables}
@@ -71,7 +71,7 @@ class _Slave:
         folder = extract(str(path), unzipdir=str(root / name))
         self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder,
                              modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate()
+        self.fmu.instantiate(callbacks=callbacks)  # the master's logger, not fmpy's process-wide proxy
 
     def vr(self, names):
         return [self.variables[n].valueReference for n in names]
@@ -131,9 +131,10 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
         ends = [(k + 1) * h for k in range(n - 1)] + [stop]  # the master's time points
     root = Path(tempfile.mkdtemp(prefix="dsc_fmu_exchange_"))
     slaves = {}
+    callbacks = _callbacks([])
     try:
         for name in ORDER:
-            slaves[name] = _Slave(name, Path(fmu_paths[name]), root)
+            slaves[name] = _Slave(name, Path(fmu_paths[name]), root, callbacks)
         sources = _connections(slaves)
         held = {key: 0.0 for key in sources}  # the value each input connector holds (SSP: 0.0 at start)
         outputs = {name: {} for name in ORDER}
