@@ -104,6 +104,7 @@ FMUS = {
                 "S13": (*_POSE, "theta_r", "v_r"),
                 "beta": (*_POSE, "v_r"),
                 "beta_guard_active": (*_POSE, "v_r"),
+                "started": _ALL_CONTROLLER_INPUTS,
             },
         ),
     )

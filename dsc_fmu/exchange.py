@@ -34,11 +34,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import FMU2Slave
 
 from . import signals
-from .master import CONTROLLER, PLANT, REFERENCE, _callbacks, step_count
+from .master import CONTROLLER, PLANT, REFERENCE, _callbacks, _Fmu, step_count
 from .scenario import Scenario
 
 __all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
@@ -59,46 +57,6 @@ class ExchangeRun:
     its step, before its inputs are updated (row 0: after the first exchange), which is what an
     importer that replays it alone with its input file records (fmpy.simulate_fmu samples the
     outputs after each doStep and sets the next inputs afterwards)."""
-
-
-class _Slave:
-    def __init__(self, name: str, path: Path, root: Path, callbacks):
-        md = read_model_description(str(path))
-        self.name = name
-        self.variables = {v.name: v for v in md.modelVariables}
-        self.inputs = [v.name for v in md.modelVariables if v.causality == "input"]
-        self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
-        folder = extract(str(path), unzipdir=str(root / name))
-        self.fmu = FMU2Slave(guid=md.guid, unzipDirectory=folder,
-                             modelIdentifier=md.coSimulation.modelIdentifier, instanceName=name)
-        self.fmu.instantiate(callbacks=callbacks)  # the master's logger, not fmpy's process-wide proxy
-
-    def vr(self, names):
-        return [self.variables[n].valueReference for n in names]
-
-    def set_parameters(self, parameters: dict) -> None:
-        ints = [n for n in parameters if self.variables[n].type == "Integer"]
-        reals = [n for n in parameters if n not in ints]
-        self.fmu.setInteger(self.vr(ints), [int(parameters[n]) for n in ints])
-        self.fmu.setReal(self.vr(reals), [float(parameters[n]) for n in reals])
-
-    def set_inputs(self, values: dict) -> None:
-        if self.inputs:
-            self.fmu.setReal(self.vr(self.inputs), [values[n] for n in self.inputs])
-
-    def read(self, names) -> dict:
-        out = {}
-        for kind, getter in (("Real", self.fmu.getReal), ("Integer", self.fmu.getInteger)):
-            chosen = [n for n in names if self.variables[n].type == kind]
-            if chosen:
-                out.update(zip(chosen, getter(self.vr(chosen))))
-        return out
-
-    def close(self) -> None:
-        try:
-            self.fmu.terminate()
-        finally:
-            self.fmu.freeInstance()
 
 
 def _connections(slaves: dict) -> dict:
@@ -131,10 +89,11 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
         ends = [(k + 1) * h for k in range(n - 1)] + [stop]  # the master's time points
     root = Path(tempfile.mkdtemp(prefix="dsc_fmu_exchange_"))
     slaves = {}
-    callbacks = _callbacks([])
+    callbacks = _callbacks([])  # the master's logger, not fmpy's process-wide proxy
     try:
         for name in ORDER:
-            slaves[name] = _Slave(name, Path(fmu_paths[name]), root, callbacks)
+            slaves[name] = _Fmu(name, root)
+            slaves[name].load(Path(fmu_paths[name]), callbacks)
         sources = _connections(slaves)
         held = {key: 0.0 for key in sources}  # the value each input connector holds (SSP: 0.0 at start)
         outputs = {name: {} for name in ORDER}
@@ -142,7 +101,7 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
         def read_all():
             for name in ORDER:
                 slave = slaves[name]
-                outputs[name] = slave.read([o for o in slave.outputs if slave.variables[o].type != "Boolean"])
+                outputs[name] = slave.get_values([o for o in slave.outputs if slave.variables[o].type != "Boolean"])
 
         def transfer():
             for (name, signal), source in sources.items():
@@ -150,16 +109,11 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
 
         def push():
             for name in ORDER:
-                slaves[name].set_inputs({s: held[(name, s)] for s in slaves[name].inputs})
+                slaves[name].set_values({s: held[(name, s)] for s in slaves[name].inputs})
 
         for name in ORDER:
-            slave = slaves[name]
-            slave.fmu.setupExperiment(startTime=0.0, stopTime=None if mode == "simulate_ssp" else stop)
-            if mode != "jacobi":
-                slave.set_parameters(scenario.parameters(name))
-            slave.fmu.enterInitializationMode()
-            if mode == "jacobi":
-                slave.set_parameters(scenario.parameters(name))
+            slaves[name].enter_initialization(None if mode == "simulate_ssp" else stop, scenario.parameters(name),
+                                              set_first=mode != "jacobi")
         if mode == "libcosim":
             read_all()
             for _ in ORDER:  # N iterations, N = number of simulators
@@ -168,7 +122,7 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
                 transfer()
             push()
         for name in ORDER:
-            slaves[name].fmu.exitInitializationMode()
+            slaves[name].slave.exitInitializationMode()
 
         rows, seen, before = [], {name: [] for name in ORDER if slaves[name].inputs}, []
 
@@ -177,15 +131,15 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
 
         def exchange_jacobi():
             plant, ref, ctl = slaves[PLANT], slaves[REFERENCE], slaves[CONTROLLER]
-            outputs[PLANT] = plant.read(signals.RECORDED[PLANT])
-            outputs[REFERENCE] = ref.read(signals.RECORDED[REFERENCE])
+            outputs[PLANT] = plant.get_values(signals.RECORDED[PLANT])
+            outputs[REFERENCE] = ref.get_values(signals.RECORDED[REFERENCE])
             for s in ctl.inputs:
                 held[(CONTROLLER, s)] = outputs[sources[(CONTROLLER, s)]][s]
-            ctl.set_inputs({s: held[(CONTROLLER, s)] for s in ctl.inputs})
-            outputs[CONTROLLER] = ctl.read(signals.RECORDED[CONTROLLER])
+            ctl.set_values({s: held[(CONTROLLER, s)] for s in ctl.inputs})
+            outputs[CONTROLLER] = ctl.get_values(signals.RECORDED[CONTROLLER])
             for s in plant.inputs:
                 held[(PLANT, s)] = outputs[CONTROLLER][s]
-            plant.set_inputs({s: held[(PLANT, s)] for s in plant.inputs})
+            plant.set_values({s: held[(PLANT, s)] for s in plant.inputs})
 
         if mode == "libcosim":
             read_all()
@@ -200,9 +154,9 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
             for name in seen:
                 seen[name].append((t, *(held[(name, s)] for s in slaves[name].inputs)))
             for name in ORDER:
-                slaves[name].fmu.doStep(currentCommunicationPoint=t, communicationStepSize=step)
+                slaves[name].slave.doStep(currentCommunicationPoint=t, communicationStepSize=step)
             if mode == "jacobi":
-                before.append((end, slaves[CONTROLLER].read(signals.RECORDED[CONTROLLER])))
+                before.append((end, slaves[CONTROLLER].get_values(signals.RECORDED[CONTROLLER])))
                 exchange_jacobi()
             else:
                 read_all()

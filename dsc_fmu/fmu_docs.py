@@ -64,7 +64,9 @@ Step 3 (actuators), (24)-(27):
   Phi2 = [[-i1, 0, -omega1, 0, -x3f_dot1, 0], [0, -i2, 0, -omega2, 0, -x3f_dot2]]
   u = -k5 S3 - Phi2 W2_hat,   W2_hat_dot = Gamma2 Phi2^T S3 - sigma4 Gamma2 W2_hat
 Filters start at x2f = x2bar, x3f = x3bar of the first inputs; the 20 states are integrated with
-RK4 in sub-steps of at most max_step (discretization = 0) or one Euler step (discretization = 1).""",
+RK4 in sub-steps of at most max_step (discretization = 0) or one Euler step (discretization = 1).
+With start_on = 1 (valid_inputs) the controller waits with u = 0 until every input is valid (for
+masters without an initial exchange) and starts from the first valid inputs; output started.""",
 }
 
 _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:collapse}td,th{border:1px solid #999;padding:2px 6px}"

@@ -198,16 +198,38 @@ class _Fmu:
         return [self.variable(name).valueReference for name in names]
 
     def initialise(self, stop_time: float, parameters: dict) -> None:
-        """Set up the experiment on [0, stop_time] and set every parameter (Real or Integer)."""
+        """Set up the experiment on [0, stop_time], set every parameter (Real or Integer) in
+        initialisation mode and leave it."""
+        self.enter_initialization(stop_time, parameters)
+        self.slave.exitInitializationMode()
+
+    def enter_initialization(self, stop_time: float | None, parameters: dict, *, set_first: bool = False) -> None:
+        """Set up the experiment on [0, stop_time] (None: no stop time), enter initialisation mode and
+        set ``parameters``: in it, or before it with ``set_first`` (as some masters do)."""
         self.used = True
         self.slave.setupExperiment(startTime=0.0, stopTime=stop_time)
+        if set_first:
+            self.set_values(parameters)
         self.slave.enterInitializationMode()
         self.initialised = True
-        integers = [name for name in parameters if _kind(self.variable(name)) == "Integer"]
-        reals = [name for name in parameters if name not in integers]
-        self.slave.setInteger(self.refs(integers), [int(parameters[name]) for name in integers])
-        self.slave.setReal(self.refs(reals), [float(parameters[name]) for name in reals])
-        self.slave.exitInitializationMode()
+        if not set_first:
+            self.set_values(parameters)
+
+    def set_values(self, values: dict) -> None:
+        """Set Real and Integer variables by name."""
+        integers = [name for name in values if _kind(self.variable(name)) == "Integer"]
+        reals = [name for name in values if name not in integers]
+        self.slave.setInteger(self.refs(integers), [int(values[name]) for name in integers])
+        self.slave.setReal(self.refs(reals), [float(values[name]) for name in reals])
+
+    def get_values(self, names) -> dict:
+        """Real and Integer variables by name."""
+        values = {}
+        for kind, getter in (("Real", self.slave.getReal), ("Integer", self.slave.getInteger)):
+            chosen = [name for name in names if _kind(self.variable(name)) == kind]
+            if chosen:
+                values.update(zip(chosen, getter(self.refs(chosen))))
+        return values
 
     def terminate(self) -> None:
         """fmiTerminate if initialised; an FMU in an error state may refuse, which is ignored."""

@@ -72,8 +72,12 @@ class SlaveCore:
                 self.rejected.pop(v.name, None)
             return True
         self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
-        self.log_error(f"{self.instance_name}: {self.rejected[v.name]}")
+        self.report_refusal(kind, self.rejected[v.name])
         return False
+
+    def report_refusal(self, kind: str, message: str) -> None:
+        """Log the refusal of a ``kind`` ("parameter" or "input") value as an error."""
+        self.log_error(f"{self.instance_name}: {message}")
 
     def _set_parameter(self, v, value):
         if self._accept("parameter", v, value):

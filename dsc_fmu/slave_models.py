@@ -8,7 +8,7 @@ FMI glue class (``fmi_slave.DscSlave`` or ``fmi3_slave.DscSlave``) in a slave sc
 from .models.controller import W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters
 from .models.parameters import (
     CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS, PLANT_INPUTS, PLANT_OUTPUTS,
-    PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS,
+    PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS, START_ON,
 )
 from .models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
 from .models.reference import initial_reference_state, reference_derivatives, velocity
@@ -17,6 +17,9 @@ from .models.rk4 import euler_step
 __all__ = ["MobileRobotModel", "ReferenceRobotModel", "DSCControllerModel"]
 
 EULER = DISCRETIZATIONS.index("euler")
+VALID_INPUTS = START_ON.index("valid_inputs")
+_INPUT_NAMES = frozenset(v.name for v in CONTROLLER_INPUTS)
+_WAITING_LAW_OUTPUTS = [v.start for v in CONTROLLER_OUTPUTS[:6]]  # u1, u2, S11, S12, S13, beta
 
 
 def _norm(values):
@@ -70,6 +73,12 @@ class DSCControllerModel:
     states start at x2f = x2bar, x3f = x3bar of the inputs present at the first output read or step
     after initialisation (SPEC 5: the first measurements the controller sees). The beta guard
     (SPEC 5) is counted (``beta_guard_count``), shown (``beta_guard_active``) and logged.
+
+    With ``start_on`` = valid_inputs, a controller that has not started and whose only refused
+    values are inputs waits instead of discarding its steps: u = 0, S11 = S12 = S13 = 0, beta = 1,
+    estimates at their initial values, ``started`` False. It starts (filters from the inputs then
+    present) at the first output read or step at which every input is valid. Both ends of the wait
+    are logged as warnings; once started, a refused input discards steps as always.
     """
 
     description = "Adaptive dynamic surface controller for the electrically driven mobile robot (Section III)"
@@ -79,6 +88,7 @@ class DSCControllerModel:
 
     def _init_core(self):
         self.beta_guard_count = 0
+        self.waited_steps = 0
         self._guarded_last_step = False
         self._guard_seen = None
         super()._init_core()
@@ -88,7 +98,12 @@ class DSCControllerModel:
         )
         self.register_discrete_output(
             "beta_guard_active", "True while beta < beta_min at the current inputs and state",
-            lambda: self.law().guarded, boolean=True,
+            lambda: not self.waiting() and self.law().guarded, boolean=True,
+        )
+        self.register_discrete_output(
+            "started", "True once the filter states have started (SPEC 5); False while initialising and while "
+            "the controller waits for valid inputs (start_on = valid_inputs)",
+            self.started, boolean=True,
         )
 
     def derive(self, p):
@@ -96,6 +111,31 @@ class DSCControllerModel:
 
     def law(self):
         return control_law(self.constants, self.current_state(), self.u)
+
+    def started(self):
+        """Whether the filter states have started; like any output read, this starts them if they can."""
+        self.current_state()
+        return self.state is not None
+
+    def waiting(self):
+        """Whether the controller waits for valid inputs (see the class docstring)."""
+        return (self.state is None and self.p["start_on"] == VALID_INPUTS and bool(self.rejected)
+                and _INPUT_NAMES.issuperset(self.rejected))
+
+    def report_refusal(self, kind, message):
+        if kind == "input" and self.state is None and self.p["start_on"] == VALID_INPUTS:
+            return  # reported by the step that waits
+        super().report_refusal(kind, message)
+
+    def current_state(self):
+        if self.waiting():
+            return initial_controller_state(self.p)
+        if self.state is None and self.waited_steps and not self.initializing:
+            self.log_warning(
+                f"{self.instance_name}: every input valid at t = {self.time:.6g} s: the controller starts "
+                f"after waiting {self.waited_steps} step(s) with u = 0 (start_on = valid_inputs)"
+            )
+        return super().current_state()
 
     def initial_state(self):
         return start_filters(self.constants, initial_controller_state(self.p), self.u)
@@ -112,6 +152,17 @@ class DSCControllerModel:
         return super().integrate(t, x, step_size)
 
     def do_step(self, current_time, step_size):
+        if self.waiting():
+            if not self.waited_steps:
+                self.log_warning(
+                    f"{self.instance_name}: waits for valid inputs from t = {current_time:.6g} s with u = 0 "
+                    f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}"
+                )
+            self.waited_steps += 1
+            self.initializing = False
+            self.time = current_time + step_size
+            self._cache = None
+            return True
         self._guard_seen = None
         ok = super().do_step(current_time, step_size)
         if self._guard_seen is not None:
@@ -126,16 +177,18 @@ class DSCControllerModel:
         return ok
 
     def outputs(self, x):
-        law = control_law(self.constants, x, self.u)
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
-        return [
-            law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, x[0], x[1],
-            _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat,
-        ]
+        estimates = [x[0], x[1], _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat]
+        if self.waiting():
+            return [*_WAITING_LAW_OUTPUTS, *estimates]
+        law = control_law(self.constants, x, self.u)
+        return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
     def extra_state(self):
-        return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step}
+        return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step,
+                "waited_steps": self.waited_steps}
 
     def set_extra_state(self, extra):
         self.beta_guard_count = extra["beta_guard_count"]
         self._guarded_last_step = extra["guarded_last_step"]
+        self.waited_steps = extra["waited_steps"]

@@ -24,6 +24,7 @@ from lxml import etree
 
 from . import signals
 from .master import CONTROLLER, PLANT, REFERENCE
+from .models.parameters import START_ON
 from .scenario import Scenario, ScenarioError
 
 __all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_libcosim",
@@ -262,11 +263,19 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
 # --------------------------------------------------------------------------------------------- fmpy.ssp
 
 
-def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
+def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *,
+                     start_on: str | None = "valid_inputs") -> np.ndarray:
     """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp`` and return its rows as
     ``signals.DTYPE`` (tracking errors derived), **stamped as simulate_ssp stamps them**: each row
     holds the values after the step that *starts* at its ``time``. ``simulate_ssp`` ignores the
-    archive's parameter bindings, so they are read from it and passed as its ``parameter_set``."""
+    archive's parameter bindings, so they are read from it and passed as its ``parameter_set``.
+
+    ``simulate_ssp`` starts every connection at 0 without an initial exchange, so the controller's
+    first step sees v_r = 0, which it refuses (Assumption 2) unless its ``start_on`` is valid_inputs:
+    ``start_on`` (a name of ``START_ON``) overrides the archive's value; None keeps it.
+    """
+    if start_on is not None and start_on not in START_ON:
+        raise ValueError(f"start_on = {start_on!r} is not allowed; allowed: {', '.join(START_ON)} or None")
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
 
@@ -276,8 +285,12 @@ def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float) -
         for binding in component.parameterBindings:
             for parameter_set in binding.parameterValues:
                 for p in parameter_set.parameters:
-                    parameters.parameters.append(Parameter(name=f"{component.name}.{p.name}", type=p.type,
-                                                           value=p.value))
+                    if not (start_on is not None and component.name == CONTROLLER and p.name == "start_on"):
+                        parameters.parameters.append(Parameter(name=f"{component.name}.{p.name}", type=p.type,
+                                                               value=p.value))
+    if start_on is not None:
+        parameters.parameters.append(Parameter(name=f"{CONTROLLER}.start_on", type="Integer",
+                                               value=START_ON.index(start_on)))
     raw = simulate_ssp(str(ssp_file), stop_time=stop_time, step_size=step_size, parameter_set=parameters)
     result = np.zeros(len(raw), dtype=signals.DTYPE)
     result["time"] = raw["time"]

@@ -58,7 +58,7 @@ EXPECTED = {
             "k1", "k2", "k3", "k4", "k5", "gamma1", "gamma2", "sigma1", "sigma2", "sigma3", "sigma4",
             "tau2", "tau3", *(f"Gamma1_{i}" for i in range(1, 9)), *(f"Gamma2_{i}" for i in range(1, 7)),
             "a1_hat0", "a2_hat0", *(f"W1_hat0_{i}" for i in range(1, 9)), *(f"W2_hat0_{i}" for i in range(1, 7)),
-            "discretization", "beta_min", "max_step",
+            "discretization", "start_on", "beta_min", "max_step",
         ),
         "input": (
             "x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2",
@@ -67,7 +67,7 @@ EXPECTED = {
         "output": (
             "u1", "u2", "S11", "S12", "S13", "a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm",
             *(f"W1_hat_{i}" for i in range(1, 9)), *(f"W2_hat_{i}" for i in range(1, 7)),
-            "beta", "beta_guard_count", "beta_guard_active",
+            "beta", "beta_guard_count", "beta_guard_active", "started",
         ),
     },
 }
@@ -80,7 +80,7 @@ TABLES = {
     },
 }
 # Outputs registered outside the tables (SPEC 5: the beta guard made visible), with their FMI type.
-EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean"}}
+EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"}}
 
 PLANT = P.defaults(P.PLANT_PARAMETERS)
 REFERENCE = P.defaults(P.REFERENCE_PARAMETERS)
@@ -253,6 +253,7 @@ def test_types_and_variability_follow_the_tables(md, name):
 
 @pytest.mark.parametrize("name, variable, choices", [
     ("ReferenceRobot", "profile", P.PROFILES), ("DSCController", "discretization", P.DISCRETIZATIONS),
+    ("DSCController", "start_on", P.START_ON),
 ])
 def test_choices_are_fixed_integer_parameters_with_their_range(md, name, variable, choices):
     scalar_ = scalar(md[name], variable)
@@ -881,6 +882,49 @@ def test_beta_guard_is_counted_shown_and_logged(new):
     assert warnings
     ctrl.set(CONTROLLER_IN, M_PAPER)
     assert ctrl.outputs()["beta_guard_active"] is False
+
+
+def test_start_on_valid_inputs_waits_then_starts_from_the_first_valid_inputs(new):
+    """start_on = valid_inputs: all-zero inputs (v_r = 0), as a master without an initial exchange
+    gives them, make the controller wait (u = 0, steps accepted, one warning); the first valid
+    inputs start it exactly as a controller that saw them first; after that v_r = 0 is refused."""
+    h = 1e-3
+    ctrl = new("DSCController", integer={"start_on": P.START_ON.index("valid_inputs")})
+    ctrl.set(CONTROLLER_IN, [0.0] * len(CONTROLLER_IN))
+    out = ctrl.outputs()
+    assert (out["u1"], out["u2"], out["S11"], out["beta"], out["a1_hat"], out["started"]) == (0, 0, 0, 1, 0, False)
+    ctrl.step(0.0, h)
+    ctrl.step(h, h)
+    assert ctrl.outputs()["started"] is False and ctrl.get(("u1", "u2")) == [0.0, 0.0]
+    waits = [m for s, m in ctrl.messages() if s == FMI2_WARNING and "waits for valid inputs" in m]
+    assert len(waits) == 1 and "v_r = 0.0" in waits[0] and "t = 0 s" in waits[0]
+    assert not [m for s, m in ctrl.messages() if s >= FMI2_ERROR]
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    g = gains(CONTROLLER)
+    law = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), M_PAPER), M_PAPER)
+    assert ctrl.get(("u1", "u2")) == [law.u1, law.u2]
+    assert ctrl.outputs()["started"] is True
+    assert any("starts after waiting 2 step(s)" in m and "t = 0.002 s" in m for _, m in ctrl.messages())
+    first = new("DSCController")
+    first.set(CONTROLLER_IN, M_PAPER)
+    for inst in (ctrl, first):
+        inst.step(2 * h, h)
+    assert ctrl.outputs() == first.outputs()
+    ctrl.set(("v_r",), (0.0,))
+    with pytest.raises(FMICallException) as failure:
+        ctrl.step(3 * h, h)
+    assert failure.value.status == FMI2_DISCARD
+    assert any(s == FMI2_ERROR and "v_r = 0.0" in m for s, m in ctrl.messages())
+
+
+def test_start_on_valid_inputs_does_not_wait_for_a_refused_parameter(new):
+    ctrl = new("DSCController", integer={"start_on": P.START_ON.index("valid_inputs")})
+    ctrl.set(("tau2",), (0.0,))
+    ctrl.set(CONTROLLER_IN, [0.0] * len(CONTROLLER_IN))
+    with pytest.raises(FMICallException) as failure:
+        ctrl.step(0.0, 1e-3)
+    assert failure.value.status == FMI2_DISCARD
+    assert any(s == FMI2_ERROR and "tau2 = 0.0" in m for s, m in ctrl.messages())
 
 
 # --- the three FMUs together --------------------------------------------------------------------

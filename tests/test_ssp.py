@@ -1,5 +1,6 @@
 """SSP export, libcosim and fmpy.ssp runs of it, compared with our master and the matching exchange modes."""
 
+import dataclasses
 import subprocess
 import sys
 import zipfile
@@ -10,6 +11,7 @@ from lxml import etree
 
 from dsc_fmu.exchange import cosimulate_exchange
 from dsc_fmu.master import cosimulate
+from dsc_fmu.models.parameters import START_ON
 from dsc_fmu.scenario import ScenarioError, load_scenario
 from dsc_fmu.ssp import SSD_NAMESPACES as NS
 from dsc_fmu.ssp import export_ssp, run_simulate_ssp, validate_ssp
@@ -104,14 +106,44 @@ def test_libcosim_matches_the_libcosim_mode(ssp_file, paper, fmu_paths, tmp_path
     assert relative(libcosim, ours, ("u1",)) > 1e-3
 
 
-def test_simulate_ssp_fails_as_its_matching_mode(ssp_file, paper, fmu_paths):
-    """simulate_ssp starts every connector at 0.0 and has no initial exchange: the controller's first
-    step gets v_r = 0, which it refuses (Assumption 2), in fmpy's loop and in the matching mode alike."""
+def test_simulate_ssp_refuses_the_first_step_as_its_matching_mode(ssp_file, paper, fmu_paths):
+    """simulate_ssp starts every connector at 0.0 and has no initial exchange: with the paper's
+    controller (start_on = first_use) the first step gets v_r = 0, which it refuses (Assumption 2),
+    in fmpy's loop and in the matching mode alike."""
     from fmpy.fmi1 import FMICallException
 
     with pytest.raises(FMICallException) as theirs:
-        run_simulate_ssp(ssp_file, H, T)
+        run_simulate_ssp(ssp_file, H, T, start_on=None)
     with pytest.raises(FMICallException) as mine:
         cosimulate_exchange(paper, fmu_paths, "simulate_ssp", step_size=H, stop_time=T)
     assert theirs.value.status == mine.value.status == 2  # fmi2Discard
     assert "fmi2DoStep" in str(theirs.value) and "fmi2DoStep" in str(mine.value)
+
+
+@pytest.fixture(scope="module")
+def waiting(paper):
+    return dataclasses.replace(paper, controller={**paper.controller, "start_on": START_ON.index("valid_inputs")})
+
+
+def test_start_on_changes_nothing_where_the_first_inputs_are_valid(paper, waiting, fmu_paths):
+    for order in ("gauss-seidel", "jacobi"):
+        first = cosimulate(paper, fmu_paths, step_size=H, stop_time=T, order=order, output_interval=H).result
+        valid = cosimulate(waiting, fmu_paths, step_size=H, stop_time=T, order=order, output_interval=H).result
+        assert np.array_equal(first, valid)
+
+
+def test_simulate_ssp_runs_the_loop_and_matches_its_mode(ssp_file, waiting, fmu_paths):
+    """With start_on = valid_inputs (run_simulate_ssp's default) simulate_ssp runs the loop: the
+    controller waits out the first step, and the result equals the matching mode to 1e-9 relative.
+    Its time stamps: row k holds the values after the step that starts at its time k h."""
+    theirs = run_simulate_ssp(ssp_file, H, T)
+    mode = cosimulate_exchange(waiting, fmu_paths, "simulate_ssp", step_size=H, stop_time=T).result
+    assert len(theirs) == len(mode) == round(T / H)
+    np.testing.assert_allclose(theirs["time"], np.arange(len(theirs)) * H, rtol=0, atol=1e-12)
+    assert relative(theirs, mode) < 1e-9
+    p = waiting.reference
+    end = theirs["time"] + H
+    np.testing.assert_allclose(theirs["theta_r"], p["theta0"] + p["wr0"] * end, rtol=1e-12)
+    np.testing.assert_allclose(theirs["x_r"], p["x0"] + p["vr0"] / p["wr0"] * np.sin(p["wr0"] * end), rtol=1e-12)
+    assert theirs["u1"][0] == 0.0 and theirs["u1"][1] != 0.0  # waited one step, then started
+    assert theirs["x"][1] == waiting.plant["x0"] and theirs["x"][2] != waiting.plant["x0"]  # u = 0 for two steps

@@ -15,6 +15,7 @@ __all__ = [
     "CONTROLLER_OUTPUTS",
     "PROFILES",
     "DISCRETIZATIONS",
+    "START_ON",
     "defaults",
 ]
 
@@ -122,6 +123,7 @@ PLANT_OUTPUTS = (
 
 PROFILES = ("constant", "figure_eight")
 DISCRETIZATIONS = ("rk4", "euler")
+START_ON = ("first_use", "valid_inputs")
 
 REFERENCE_PARAMETERS = (
     Variable("x0", 2.0, "m", "Initial x position of the reference robot"),
@@ -183,6 +185,15 @@ CONTROLLER_PARAMETERS = (
         "at most max_step: the continuous law), 1 = euler (one explicit Euler step per communication "
         "step: an embedded controller sampled at the communication step)",
         NONNEGATIVE, integer=True, maximum=len(DISCRETIZATIONS) - 1, choices=DISCRETIZATIONS,
+    ),
+    Variable(
+        "start_on", 0, "1",
+        "When the controller starts its filter states (SPEC 5): 0 = first_use (at the first output read or "
+        "step after initialisation; an input out of range is refused and every step discarded), "
+        "1 = valid_inputs (while only inputs are refused and it has not started, it waits: u = 0, states "
+        "unchanged, steps accepted; it starts at the first output read or step with every input valid; for masters "
+        "that start their connections at 0 without an initial exchange, such as fmpy.ssp.simulate_ssp)",
+        NONNEGATIVE, integer=True, maximum=len(START_ON) - 1, choices=START_ON,
     ),
     Variable(
         "beta_min", 0.05, "1",
