@@ -15,9 +15,10 @@ point (direct feedthrough honoured). Other masters do not:
   the initialisation rounds give ``u_0 = law(c_0, m_0)``, as ours.
 - ``"simulate_ssp"``: ``fmpy.ssp.simulate_ssp``: parameters set before initialisation, no
   initial exchange (every connector starts at 0.0, so the controller's first step sees all-zero
-  measurements and starts its filter states from them, and the plant's first step gets u = 0),
-  then the same step/transfer order as libcosim, the FMUs stepped in the order of the SSD,
-  the time advanced by repeated addition of h while ``time < stop_time``.
+  measurements, v_r = 0 among them: it refuses the step, or with ``start_on`` = valid_inputs waits
+  it out with u = 0; the plant's first step gets u = 0), then the same step/transfer order as
+  libcosim, the FMUs stepped in the order of the SSD, the time advanced by repeated addition of h
+  while ``time < stop_time``.
 
 Rows: ``time`` and every output of ``signals.RECORDED`` at every communication point, as each
 master observes it: our Jacobi after the exchange at ``t_k``; libcosim and simulate_ssp after the
