@@ -25,6 +25,7 @@ from dsc_fmu.build import (
 from dsc_fmu.master import Cosimulator, cosimulate
 from dsc_fmu.models import parameters as P
 from dsc_fmu.scenario import load_scenario
+from isolation import bits, run_isolated, violations
 
 REPO = Path(__file__).resolve().parents[1]
 NAMES = tuple(FMUS)
@@ -301,43 +302,68 @@ def test_fmi2_and_fmi3_fmus_mix_in_one_run(fmu_paths, fmu3_paths):
 
 
 ISOLATED = textwrap.dedent('''
-    import json, os, sys
-    class Blocker:
-        def find_spec(self, name, path=None, target=None):
-            if name.partition(".")[0] in ("dsc_fmu", "scipy"):
-                raise ImportError(f"{name} is blocked: an FMU must not need it")
-    sys.meta_path.insert(0, Blocker())
-    sys.path = [p for p in sys.path if os.path.realpath(p) != os.path.realpath(sys.argv[3])]
-    from fmpy import extract, read_model_description
-    from fmpy.fmi3 import FMU3Slave
-    path, folder = sys.argv[1], sys.argv[2]
-    md = read_model_description(path)
-    extract(path, unzipdir=folder)
-    vr = {v.name: v.valueReference for v in md.modelVariables}
-    fmu = FMU3Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.coSimulation.modelIdentifier, instanceName="i")
-    fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
-    fmu.enterInitializationMode(startTime=0.0)
-    fmu.exitInitializationMode()
-    fmu.doStep(0.0, 0.1)
-    values = fmu.getFloat64([v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Float64"])
-    modules = {n: getattr(m, "__file__", None) or "" for n, m in list(sys.modules.items())}
+    unzipped = driver.extract(config["fmu"], config["workdir"])
+    fmu = driver.Fmi3Slave(unzipped, config["instance"])
+    fmu.instantiate(logging_on=True)
+    fmu.enter_initialization_mode(0.0)
+    if config["inputs"]:
+        fmu.set_float64(list(config["inputs"]), list(config["inputs"].values()))
+    fmu.exit_initialization_mode()
+    rows, steps = [fmu.outputs()], []
+    h = config["step_size"]
+    for k in range(config["steps"]):
+        steps.append(fmu.do_step(k * h, h))
+        rows.append(fmu.outputs())
     fmu.terminate()
-    fmu.freeInstance()
-    print(json.dumps({"values": values, "modules": modules}))
+    fmu.free_instance()
+    report({"rows": rows, "steps": steps, "messages": fmu.messages, "unzipped": os.path.realpath(str(unzipped))})
 ''')
 
 
 @pytest.mark.parametrize("name", NAMES)
 def test_fmi3_fmu_runs_on_its_own_bundled_code(fmu3_paths, tmp_path, name):
-    """dsc_fmu cannot be imported, yet the FMU runs: pythonfmu3 and our package come from inside it."""
-    folder = tmp_path / "unzipped"
-    process = subprocess.run([sys.executable, "-c", ISOLATED, str(fmu3_paths[name]), str(folder), str(REPO)],
-                             cwd=tmp_path, capture_output=True, text=True, timeout=120)
-    assert process.returncode == 0, process.stderr
-    result = json.loads(process.stdout)
-    assert result["values"] and all(math.isfinite(v) for v in result["values"])
-    resources = str(folder / "resources") + "/"
-    assert result["modules"]["pythonfmu3"].startswith(resources)
-    bundled = [n for n in result["modules"] if n.startswith(f"dsc_fmu_{name.lower()}_")]
-    assert bundled and all(result["modules"][n].startswith(resources) for n in bundled)
-    assert "dsc_fmu" not in result["modules"]
+    """In ``python -I -S`` with numpy, dsc_fmu, fmpy and scipy blocked (and recorded), the ctypes driver
+    ``fmi_ctypes.py`` runs the FMU on the pythonfmu3 and dsc_fmu copies inside it, with the same
+    outputs, to the last bit, as fmpy's FMU3Slave here (see ``isolation.py``)."""
+    inputs = {"MobileRobot": [12.0, 8.0],
+              "DSCController": [2.5, 1.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0, 0.0, 1.0, 0.2, 0.0]}
+    inputs = dict(zip([v.name for v in FMUS[name].inputs], inputs.get(name, [])))
+    h, n = 0.01, 10
+    config = dict(fmu=str(fmu3_paths[name]), workdir=str(tmp_path / "unzipped"), instance=f"{name}_isolated",
+                  inputs=inputs, step_size=h, steps=n)
+    result = run_isolated(ISOLATED, config, tmp_path)
+
+    assert violations(result, "pythonfmu3", f"dsc_fmu_{name.lower()}_") == {}
+    assert [m for m in result["messages"] if m[0] > FMI3_WARNING] == []
+
+    md = read_model_description(str(fmu3_paths[name]))
+    vr = {v.name: v.valueReference for v in md.modelVariables}
+    outputs = {kind: [v.name for v in md.modelVariables if v.causality == "output" and v.type == kind]
+               for kind in ("Float64", "Int32", "Boolean")}
+    fmu = FMU3Slave(guid=md.guid, unzipDirectory=extract(str(fmu3_paths[name]), unzipdir=tmp_path / "fmpy"),
+                    modelIdentifier=md.coSimulation.modelIdentifier, instanceName="fmpy_reference")
+    getters = {"Float64": fmu.getFloat64, "Int32": fmu.getInt32, "Boolean": fmu.getBoolean}
+
+    def read():
+        return {m: v for kind, names in outputs.items() if names
+                for m, v in zip(names, getters[kind]([vr[m] for m in names]))}
+
+    fmu.instantiate(loggingOn=True, logMessage=lambda *args: None)
+    try:
+        fmu.enterInitializationMode(startTime=0.0)
+        if inputs:
+            fmu.setFloat64([vr[m] for m in inputs], list(inputs.values()))
+        fmu.exitInitializationMode()
+        rows, steps = [read()], []
+        for k in range(n):
+            steps.append(list(fmu.doStep(k * h, h)))
+            rows.append(read())
+        fmu.terminate()
+    finally:
+        fmu.freeInstance()
+
+    assert list(result["rows"][0]) == list(rows[0])  # the driver finds fmpy's outputs, in fmpy's order
+    assert all(math.isfinite(v) for row in result["rows"] for v in row.values())
+    assert bits(result["rows"]) == bits(rows)
+    assert result["steps"] == steps == [[False, False, False, k * h + h] for k in range(n)]
+    assert result["rows"][0] != result["rows"][-1]
