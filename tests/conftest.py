@@ -1,4 +1,4 @@
-"""Shared fixtures: the three FMUs, built once per test session into a temporary folder."""
+"""Shared fixtures: the three FMUs (FMI 2.0 and 3.0), built once per test session into temporary folders."""
 
 import pytest
 
@@ -9,6 +9,12 @@ from dsc_fmu.build import build_fmus
 def fmu_paths(tmp_path_factory):
     """Paths of freshly built ReferenceRobot, MobileRobot and DSCController FMUs by name."""
     return build_fmus(tmp_path_factory.mktemp("fmus"))
+
+
+@pytest.fixture(scope="session")
+def fmu3_paths(tmp_path_factory):
+    """The same three FMUs as FMI 3.0 co-simulation FMUs (pythonfmu3), by name."""
+    return build_fmus(tmp_path_factory.mktemp("fmus3"), fmi_version=3)
 
 
 @pytest.fixture(scope="session")

@@ -34,11 +34,6 @@ FMI3_OK, FMI3_WARNING, FMI3_DISCARD, FMI3_ERROR, FMI3_FATAL = range(5)
 
 
 @pytest.fixture(scope="module")
-def fmu3_paths(tmp_path_factory):
-    return build_fmus(tmp_path_factory.mktemp("fmus3"), fmi_version=3)
-
-
-@pytest.fixture(scope="module")
 def md3(fmu3_paths):
     return {name: read_model_description(str(path)) for name, path in fmu3_paths.items()}
 

@@ -7,7 +7,7 @@ from xml.etree import ElementTree as ET
 import pytest
 from fmpy import read_model_description
 
-from dsc_fmu.build import DOCUMENTATION_FILE, FMUS, build_fmus
+from dsc_fmu.build import DOCUMENTATION_FILE, FMUS
 from dsc_fmu.fmu_docs import EQUATIONS
 
 VOID = {"meta", "br", "hr", "img", "link", "input"}
@@ -16,8 +16,8 @@ TABLE_UNITS = {v.name: v.unit for spec in FMUS.values() for v in (*spec.paramete
 
 
 @pytest.fixture(scope="module")
-def fmus(fmu_paths, tmp_path_factory):
-    return {2: fmu_paths, 3: build_fmus(tmp_path_factory.mktemp("fmus3"), fmi_version=3)}
+def fmus(fmu_paths, fmu3_paths):
+    return {2: fmu_paths, 3: fmu3_paths}
 
 
 class Page(HTMLParser):
