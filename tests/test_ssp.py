@@ -156,3 +156,8 @@ def test_simulate_ssp_runs_the_loop_and_matches_its_mode(ssp_file, waiting, fmu_
     np.testing.assert_allclose(theirs["x_r"], p["x0"] + p["vr0"] / p["wr0"] * np.sin(p["wr0"] * end), rtol=1e-12)
     assert theirs["u1"][0] == 0.0 and theirs["u1"][1] != 0.0  # waited one step, then started
     assert theirs["x"][1] == waiting.plant["x0"] and theirs["x"][2] != waiting.plant["x0"]  # u = 0 for two steps
+
+
+def test_simulate_ssp_refuses_an_unknown_start_on(ssp_file):
+    with pytest.raises(ValueError, match="start_on = 'later' is not allowed; allowed: first_use, valid_inputs or None"):
+        run_simulate_ssp(ssp_file, H, T, start_on="later")
