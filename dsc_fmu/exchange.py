@@ -101,8 +101,7 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
 
         def read_all():
             for name in ORDER:
-                slave = slaves[name]
-                outputs[name] = slave.get_values([o for o in slave.outputs if slave.variables[o].type != "Boolean"])
+                outputs[name] = slaves[name].get_values(slaves[name].outputs)  # Real and Integer ones
 
         def transfer():
             for (name, signal), source in sources.items():

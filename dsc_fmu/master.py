@@ -219,11 +219,13 @@ class _Fmu:
         """Set Real and Integer variables by name."""
         integers = [name for name in values if _kind(self.variable(name)) == "Integer"]
         reals = [name for name in values if name not in integers]
-        self.slave.setInteger(self.refs(integers), [int(values[name]) for name in integers])
-        self.slave.setReal(self.refs(reals), [float(values[name]) for name in reals])
+        if integers:
+            self.slave.setInteger(self.refs(integers), [int(values[name]) for name in integers])
+        if reals:
+            self.slave.setReal(self.refs(reals), [float(values[name]) for name in reals])
 
     def get_values(self, names) -> dict:
-        """Real and Integer variables by name."""
+        """Real and Integer variables by name (others among ``names`` are left out)."""
         values = {}
         for kind, getter in (("Real", self.slave.getReal), ("Integer", self.slave.getInteger)):
             chosen = [name for name in names if _kind(self.variable(name)) == kind]

@@ -117,13 +117,16 @@ class DSCControllerModel:
         self.current_state()
         return self.state is not None
 
+    def may_wait(self):
+        """Whether refused inputs would make the controller wait: start_on = valid_inputs, not started."""
+        return self.state is None and self.p["start_on"] == VALID_INPUTS
+
     def waiting(self):
         """Whether the controller waits for valid inputs (see the class docstring)."""
-        return (self.state is None and self.p["start_on"] == VALID_INPUTS and bool(self.rejected)
-                and _INPUT_NAMES.issuperset(self.rejected))
+        return self.may_wait() and bool(self.rejected) and _INPUT_NAMES.issuperset(self.rejected)
 
     def report_refusal(self, kind, message):
-        if kind == "input" and self.state is None and self.p["start_on"] == VALID_INPUTS:
+        if kind == "input" and self.may_wait():
             return  # reported by the step that waits
         super().report_refusal(kind, message)
 

@@ -280,17 +280,13 @@ def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
 
     ssd = read_ssd(str(ssp_file))
-    parameters = ParameterSet(name="bindings")
-    for component in ssd.system.elements:
-        for binding in component.parameterBindings:
-            for parameter_set in binding.parameterValues:
-                for p in parameter_set.parameters:
-                    if not (start_on is not None and component.name == CONTROLLER and p.name == "start_on"):
-                        parameters.parameters.append(Parameter(name=f"{component.name}.{p.name}", type=p.type,
-                                                               value=p.value))
+    bound = {f"{component.name}.{p.name}": (p.type, p.value)
+             for component in ssd.system.elements for binding in component.parameterBindings
+             for parameter_set in binding.parameterValues for p in parameter_set.parameters}
     if start_on is not None:
-        parameters.parameters.append(Parameter(name=f"{CONTROLLER}.start_on", type="Integer",
-                                               value=START_ON.index(start_on)))
+        bound[f"{CONTROLLER}.start_on"] = ("Integer", START_ON.index(start_on))
+    parameters = ParameterSet(name="bindings")
+    parameters.parameters = [Parameter(name=name, type=kind, value=value) for name, (kind, value) in bound.items()]
     raw = simulate_ssp(str(ssp_file), stop_time=stop_time, step_size=step_size, parameter_set=parameters)
     result = np.zeros(len(raw), dtype=signals.DTYPE)
     result["time"] = raw["time"]

@@ -1,8 +1,11 @@
 """Shared fixtures: the three FMUs (FMI 2.0 and 3.0), built once per test session into temporary folders."""
 
+import shutil
+
 import pytest
 
-from dsc_fmu.build import build_fmus
+import dsc_fmu.build as build_module
+from dsc_fmu.build import FMUS, build_fmu, build_fmus
 
 
 @pytest.fixture(scope="session")
@@ -24,3 +27,22 @@ def fmu_unzipped(fmu_paths, tmp_path_factory):
 
     root = tmp_path_factory.mktemp("unzipped")
     return {name: extract(path, unzipdir=root / name) for name, path in fmu_paths.items()}
+
+
+@pytest.fixture()
+def patched_mobile_robot(tmp_path, monkeypatch):
+    """Build a MobileRobot FMU from a copy of ``fmu_sources`` whose slave script has ``addition``
+    inserted after ``marker``: ``build(marker, addition, folder_name)`` returns its path."""
+
+    def build(marker: str, addition: str, folder_name: str):
+        sources = tmp_path / f"fmu_sources_{folder_name}"
+        shutil.copytree(build_module._sources_dir(), sources)
+        script = sources / FMUS["MobileRobot"].script
+        text = script.read_text()
+        assert marker in text, "the test's source patch no longer applies to mobile_robot.py"
+        script.write_text(text.replace(marker, marker + addition, 1))
+        with monkeypatch.context() as patch:
+            patch.setattr(build_module, "_sources_dir", lambda: sources)
+            return build_fmu(FMUS["MobileRobot"], tmp_path / folder_name)
+
+    return build

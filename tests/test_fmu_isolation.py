@@ -8,15 +8,12 @@ process for the same calls.
 """
 
 import math
-import shutil
 import sysconfig
 
 import pytest
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-import dsc_fmu.build as build_module
-from dsc_fmu.build import FMUS, build_fmu
 from dsc_fmu.models import parameters as P
 from isolation import REPO, bits, run_isolated, violations
 
@@ -173,19 +170,11 @@ def test_blocker_refuses_and_records_what_would_otherwise_import(tmp_path, modul
     assert result["blocked_loaded"] == []
 
 
-def test_isolation_check_catches_an_fmu_that_imports_numpy(tmp_path, monkeypatch, fmu_paths):
+def test_isolation_check_catches_an_fmu_that_imports_numpy(tmp_path, patched_mobile_robot):
     """A MobileRobot whose slave script tries ``import numpy`` (and copes without it) still runs,
     but the isolation run records the attempt, and only that: the check above fails for it."""
-    sources = tmp_path / "fmu_sources"
-    shutil.copytree(build_module._sources_dir(), sources)
-    script = sources / FMUS["MobileRobot"].script
-    text = script.read_text()
-    marker = "from dsc_fmu.fmi_slave import DscSlave"
-    assert marker in text, "the test's source patch no longer applies to mobile_robot.py"
-    script.write_text(text.replace(marker, marker + "\ntry:\n    import numpy\nexcept ImportError:\n    numpy = None\n", 1))
-    monkeypatch.setattr(build_module, "_sources_dir", lambda: sources)
-    leaky = build_fmu(FMUS["MobileRobot"], tmp_path / "leaky")
-    monkeypatch.undo()
+    leaky = patched_mobile_robot("from dsc_fmu.fmi_slave import DscSlave",
+                                 "\ntry:\n    import numpy\nexcept ImportError:\n    numpy = None\n", "leaky")
 
     config = dict(mode="run", fmu=str(leaky), workdir=str(tmp_path / "unzipped"), instance="leaky",
                   **SCENARIOS["MobileRobot"])

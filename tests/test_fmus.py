@@ -9,7 +9,6 @@ import gc
 import itertools
 import math
 import re
-import shutil
 import subprocess
 import sys
 import textwrap
@@ -28,8 +27,7 @@ from fmpy.fmi2 import (
 )
 from fmpy.validation import validate_fmu
 
-import dsc_fmu.build as build_module
-from dsc_fmu.build import FMUS, build_fmu, fmu_build_id
+from dsc_fmu.build import FMUS, fmu_build_id
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 
@@ -978,19 +976,11 @@ def test_bundled_package_names_are_unique_per_fmu_and_build(fmu_paths):
     assert len(set(packages.values())) == 3
 
 
-def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu_unzipped, md, tmp_path, monkeypatch):
+def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu_unzipped, md, tmp_path,
+                                                                 patched_mobile_robot):
     """A second MobileRobot built from changed sources: own names, own code, both run side by side."""
-    sources = tmp_path / "fmu_sources"
-    shutil.copytree(build_module._sources_dir(), sources)
-    script = sources / FMUS["MobileRobot"].script
-    text = script.read_text()
-    marker = "        super().__init__(**kwargs)\n"
-    assert marker in text, "the test's source patch no longer applies to mobile_robot.py"
     shifted = "\n    def outputs(self, x):\n        x_, *rest = super().outputs(x)\n        return [x_ + 1000.0, *rest]\n"
-    script.write_text(text.replace(marker, marker + shifted))
-    monkeypatch.setattr(build_module, "_sources_dir", lambda: sources)
-    variant = build_fmu(FMUS["MobileRobot"], tmp_path / "variant")
-    monkeypatch.undo()
+    variant = patched_mobile_robot("        super().__init__(**kwargs)\n", shifted, "variant")
 
     original = fmu_paths["MobileRobot"]
     ids = fmu_build_id(original), fmu_build_id(variant)
