@@ -17,6 +17,7 @@ import pythonfmu
 from pythonfmu import FmuBuilder
 
 from . import __version__
+from .binary import binary_folder, binary_sources, build_python, compile_binary
 from .fmu_docs import documentation_html
 from .models.parameters import (
     CONTROLLER_INPUTS,
@@ -40,6 +41,8 @@ DEFAULT_FMU_DIR = Path("build") / "fmus"
 DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
 FMI_VERSIONS = (2, 3)
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
+# What the binary layer imports and creates: "<bridge module> <slave module> <slave class> <GUID or token>".
+ENTRY_FILE = "resources/dsc_fmu_entry.txt"
 DOCUMENTATION_FILE = "documentation/index.html"
 # The FMI glue bundled beside ``models``, ``slave_core`` and ``slave_models`` for each FMI version.
 _GLUE = {2: "fmi_slave.py", 3: "fmi3_slave.py"}
@@ -141,15 +144,16 @@ def _library_version(fmi_version: int) -> str:
 def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
     models = sorted((PACKAGE_DIR / "models").glob("*.py"))
     return [_sources_dir() / spec.script_for(fmi_version), PACKAGE_DIR / _GLUE[fmi_version],
-            PACKAGE_DIR / "slave_core.py", PACKAGE_DIR / "slave_models.py", *models, Path(__file__),
-            PACKAGE_DIR / "fmu_docs.py"]
+            PACKAGE_DIR / "slave_core.py", PACKAGE_DIR / "slave_models.py", PACKAGE_DIR / "native_bridge.py", *models,
+            Path(__file__), PACKAGE_DIR / "fmu_docs.py", PACKAGE_DIR / "binary.py", *binary_sources(fmi_version)]
 
 
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
-    """Hash of everything the FMU is built from: its sources, this builder and the FMI library's version."""
+    """Hash of everything the FMU is built from: its sources, this builder, the FMI library's version and
+    the Python its binary looks for."""
     _check_version(fmi_version)
     library = _library_version(fmi_version)
-    digest = hashlib.sha256(f"{__version__} {library} {spec.name}".encode())
+    digest = hashlib.sha256(f"{__version__} {library} {spec.name} {build_python()}".encode())
     for path in _bundled_files(spec, fmi_version):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
@@ -172,7 +176,7 @@ def _stage(spec: FmuSpec, stage: Path, digest: str, fmi_version: int = 2) -> tup
     (package_dir / "models").mkdir(parents=True)
     (package_dir / "__init__.py").write_text('"""dsc-fmu code bundled into this FMU."""\n')
     shutil.copy2(PACKAGE_DIR / _GLUE[fmi_version], package_dir)
-    for module in ("slave_core.py", "slave_models.py"):
+    for module in ("slave_core.py", "slave_models.py", "native_bridge.py"):
         shutil.copy2(PACKAGE_DIR / module, package_dir)
     for module in (PACKAGE_DIR / "models").glob("*.py"):
         shutil.copy2(module, package_dir / "models")
@@ -276,6 +280,12 @@ def _documentation(root: ET.Element, spec: FmuSpec) -> bytes:
     return documentation_html(root, spec.name, units).encode("utf-8")
 
 
+def _entry(root: ET.Element, script: Path, package_dir: Path, spec: FmuSpec) -> str:
+    """The line of ``ENTRY_FILE``: bridge module, slave module, slave class, GUID (FMI 2.0) or token (FMI 3.0)."""
+    token = root.get("guid") or root.get("instantiationToken")
+    return f"{package_dir.name}.native_bridge {script.stem} {spec.name} {token}\n"
+
+
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> Path:
     """The FMU as the FMI library builds it from the staged script and package."""
     if fmi_version == 3:
@@ -305,6 +315,8 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
         raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", fmi_version)
         staged = tmp / f"{spec.name}.fmu"
+        folder = binary_folder(fmi_version)
+        own_binary = f"binaries/{folder}/{spec.name}.so" if folder else None
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
             for item in src.infolist():
                 data = src.read(item)
@@ -313,6 +325,9 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                     ET.indent(root)
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
                     dst.writestr(DOCUMENTATION_FILE, _documentation(root, spec))
+                    dst.writestr(ENTRY_FILE, _entry(root, script, package_dir, spec))
+                if item.filename == own_binary:
+                    data = compile_binary(fmi_version)
                 if item.filename != DOCUMENTATION_FILE:
                     dst.writestr(item.filename, data)
             dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,

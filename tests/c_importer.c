@@ -36,7 +36,12 @@ typedef void (*FreeInstance)(fmi2Component);
 static void logger(void *env, const char *instance, fmi2Status status, const char *category, const char *message, ...) {
     (void)env;
     (void)category;
-    fprintf(stderr, "[%s %d] %s\n", instance, status, message);
+    va_list args;
+    va_start(args, message);
+    fprintf(stderr, "[%s %d] ", instance, status);
+    vfprintf(stderr, message, args);
+    fprintf(stderr, "\n");
+    va_end(args);
 }
 
 static void *symbol(void *library, const char *name) {

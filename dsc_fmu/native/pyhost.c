@@ -1,0 +1,228 @@
+/* The Python runtime that runs the model code: found, loaded and started at run time, never linked.
+
+   Order (README, "Use in other tools"):
+     0. a Python of the right minor version already in the process (fmpy, libcosimpy, PyFMI): used as it is;
+     1. DSC_FMU_PYTHON, the path of a libpython shared library: if set, the only candidate;
+     2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME);
+     3. the system's DSC_PYTHON_SONAME (libpython3.X.so.1.0) by the dynamic loader's search.
+   A Python this binary starts gets its home set explicitly, ignores PYTHON* environment variables,
+   imports no site packages, writes no bytecode and installs no signal handlers. */
+
+#define _GNU_SOURCE
+#include "pyhost.h"
+
+#include <ctype.h>
+#include <dlfcn.h>
+#include <limits.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+#ifndef DSC_PYTHON_VERSION
+#error DSC_PYTHON_VERSION (for example "3.11") must be defined
+#endif
+#ifndef DSC_BUILD_LIBPYTHON
+#define DSC_BUILD_LIBPYTHON ""
+#endif
+#ifndef DSC_BUILD_PYTHON_HOME
+#define DSC_BUILD_PYTHON_HOME ""
+#endif
+#ifndef DSC_PYTHON_SONAME
+#define DSC_PYTHON_SONAME "libpython" DSC_PYTHON_VERSION ".so.1.0"
+#endif
+
+#define OVERRIDE_VARIABLE "DSC_FMU_PYTHON"
+
+PyApi py;
+
+static pthread_once_t once = PTHREAD_ONCE_INIT;
+static int start_result = -1;
+static char start_error[2048];
+static wchar_t *home_wide;
+
+typedef struct {
+    const char *name;
+    size_t offset;
+} Symbol;
+
+#define SYMBOL(name) {#name, offsetof(PyApi, name)}
+static const Symbol SYMBOLS[] = {
+    SYMBOL(Py_IsInitialized), SYMBOL(Py_InitializeEx), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale),
+    SYMBOL(Py_GetVersion), SYMBOL(PyEval_SaveThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
+    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString),
+    SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str), SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8),
+    SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong), SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble),
+    SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong), SYMBOL(PyTuple_New), SYMBOL(PyTuple_SetItem),
+    SYMBOL(PyList_New), SYMBOL(PyList_SetItem), SYMBOL(PyList_Size), SYMBOL(PyBytes_FromStringAndSize), SYMBOL(PyBytes_AsStringAndSize),
+    SYMBOL(PyErr_Occurred), SYMBOL(PyErr_Fetch), SYMBOL(PyErr_Clear), SYMBOL(Py_DecRef), SYMBOL(Py_IncRef), SYMBOL(PySequence_Size),
+    SYMBOL(PySequence_GetItem), SYMBOL(PySys_GetObject),
+    SYMBOL(PyList_Insert), SYMBOL(PySequence_Contains), {"_Py_NoneStruct", offsetof(PyApi, None)},
+    SYMBOL(Py_IgnoreEnvironmentFlag), SYMBOL(Py_NoSiteFlag), SYMBOL(Py_NoUserSiteDirectory),
+    SYMBOL(Py_DontWriteBytecodeFlag),
+};
+
+static void append(char *text, size_t size, const char *format, ...) {
+    size_t used = strlen(text);
+    if (used + 1 >= size) return;
+    va_list args;
+    va_start(args, format);
+    vsnprintf(text + used, size - used, format, args);
+    va_end(args);
+}
+
+/* Fill `py` from `library` (a dlopen handle or RTLD_DEFAULT); the name of a missing symbol, or NULL. */
+static const char *resolve(void *library) {
+    for (size_t i = 0; i < sizeof SYMBOLS / sizeof SYMBOLS[0]; i++) {
+        void *address = dlsym(library, SYMBOLS[i].name);
+        if (!address) return SYMBOLS[i].name;
+        memcpy((char *)&py + SYMBOLS[i].offset, &address, sizeof address);
+    }
+    return NULL;
+}
+
+static int right_version(const char *version) {
+    size_t n = strlen(DSC_PYTHON_VERSION);
+    return strncmp(version, DSC_PYTHON_VERSION, n) == 0 && !isdigit((unsigned char)version[n]);
+}
+
+static int is_file(const char *path) {
+    struct stat info;
+    return stat(path, &info) == 0 && S_ISREG(info.st_mode);
+}
+
+static int has_stdlib(const char *home) {
+    char path[PATH_MAX + 64];
+    snprintf(path, sizeof path, "%s/lib/python%s/os.py", home, DSC_PYTHON_VERSION);
+    if (!is_file(path)) return 0;
+    snprintf(path, sizeof path, "%s/lib/python%s/encodings/__init__.py", home, DSC_PYTHON_VERSION);
+    return is_file(path);
+}
+
+/* The prefix whose lib/python3.X holds the standard library, searched upward from the library's folder. */
+static int home_of_library(char *home, size_t size) {
+    Dl_info info;
+    if (!dladdr((void *)py.Py_IsInitialized, &info) || !info.dli_fname) return -1;
+    char path[PATH_MAX];
+    if (!realpath(info.dli_fname, path)) snprintf(path, sizeof path, "%s", info.dli_fname);
+    char *slash;
+    while ((slash = strrchr(path, '/')) != NULL && slash != path) {
+        *slash = '\0';
+        if (has_stdlib(path)) {
+            snprintf(home, size, "%s", path);
+            return 0;
+        }
+    }
+    return -1;
+}
+
+static int initialize(const char *home, const char *what) {
+    home_wide = py.Py_DecodeLocale(home, NULL);
+    if (!home_wide) {
+        append(start_error, sizeof start_error, "%s: cannot decode its home %s", what, home);
+        return -1;
+    }
+    py.Py_SetPythonHome(home_wide);
+    *py.Py_IgnoreEnvironmentFlag = 1;
+    *py.Py_NoSiteFlag = 1;
+    *py.Py_NoUserSiteDirectory = 1;
+    *py.Py_DontWriteBytecodeFlag = 1;
+    py.Py_InitializeEx(0);
+    if (!py.Py_IsInitialized()) {
+        append(start_error, sizeof start_error, "%s (home %s): Python did not start", what, home);
+        return -1;
+    }
+    py.PyEval_SaveThread();
+    return 0;
+}
+
+/* Use the Python that `library` holds (initialised already, or started here with `home`). */
+static int adopt(void *library, const char *home, const char *what) {
+    const char *missing = resolve(library);
+    if (missing) {
+        append(start_error, sizeof start_error, "%s: no symbol %s; ", what, missing);
+        return -1;
+    }
+    const char *version = py.Py_GetVersion();
+    if (!right_version(version)) {
+        append(start_error, sizeof start_error, "%s: Python %.20s, not %s; ", what, version, DSC_PYTHON_VERSION);
+        return -1;
+    }
+    if (py.Py_IsInitialized()) return 0;
+    char found[PATH_MAX];
+    if (!home || !*home) {
+        if (home_of_library(found, sizeof found) != 0) {
+            append(start_error, sizeof start_error, "%s: no lib/python%s standard library above the library; ",
+                   what, DSC_PYTHON_VERSION);
+            return -1;
+        }
+        home = found;
+    } else if (!has_stdlib(home)) {
+        append(start_error, sizeof start_error, "%s: no standard library in %s/lib/python%s; ", what, home,
+               DSC_PYTHON_VERSION);
+        return -1;
+    }
+    return initialize(home, what);
+}
+
+/* Open `path` privately, check it, then make its symbols global (extension modules such as math
+   resolve the C API from the global scope). */
+static int try_library(const char *path, const char *home, const char *what) {
+    void *library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!library) {
+        append(start_error, sizeof start_error, "%s %s: %s; ", what, path, dlerror());
+        return -1;
+    }
+    char label[PATH_MAX + 64];
+    snprintf(label, sizeof label, "%s %s", what, path);
+    if (adopt(library, home, label) != 0 || !dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) {
+        dlclose(library);
+        return -1;
+    }
+    return 0;
+}
+
+static void start_once(void) {
+    start_error[0] = '\0';
+    if (dlsym(RTLD_DEFAULT, "Py_IsInitialized")) {
+        start_result = adopt(RTLD_DEFAULT, NULL, "the Python in this process");
+        return;
+    }
+    const char *override = getenv(OVERRIDE_VARIABLE);
+    if (override && *override) {
+        start_result = try_library(override, NULL, OVERRIDE_VARIABLE " =");
+        return;
+    }
+    append(start_error, sizeof start_error, OVERRIDE_VARIABLE " not set; ");
+    if (*DSC_BUILD_LIBPYTHON && try_library(DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,") == 0) {
+        start_result = 0;
+        return;
+    }
+    if (!*DSC_BUILD_LIBPYTHON) append(start_error, sizeof start_error, "the Python that built the FMU has no shared library; ");
+    start_result = try_library(DSC_PYTHON_SONAME, NULL, "the system's");
+}
+
+int pyhost_start(char *error, size_t size) {
+    pthread_once(&once, start_once);
+    if (start_result != 0) {
+        snprintf(error, size, "no usable Python %s: %sset " OVERRIDE_VARIABLE " to the path of a libpython%s shared library",
+                 DSC_PYTHON_VERSION, start_error, DSC_PYTHON_VERSION);
+    }
+    return start_result;
+}
+
+PyGILState_STATE pyhost_enter(void) {
+    if (!py.PyGILState_GetThisThreadState()) {
+        /* A thread Python does not know: give it a thread state that lives as long as the thread,
+           instead of one created and destroyed on every call. */
+        py.PyGILState_Ensure();
+        py.PyEval_SaveThread();
+    }
+    return py.PyGILState_Ensure();
+}
+
+void pyhost_leave(PyGILState_STATE state) {
+    py.PyGILState_Release(state);
+}

@@ -1,0 +1,485 @@
+/* One Python slave behind an FMU instance, for both FMI versions (see slave.h).
+
+   Every function that touches Python takes the GIL itself, forwards what the slave queued in its
+   log, and turns a Python exception into a logged message: nothing here raises, aborts or frees
+   what the slave still uses. */
+
+#include "slave.h"
+
+#include <stdarg.h>
+#include <stdbool.h>
+#include <stdint.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define ENTRY_FILE "dsc_fmu_entry.txt"
+#define MAX_VALUE_REFERENCE 100000
+
+
+static void say(Slave *s, int status, const char *format, ...) {
+    char message[2048];
+    va_list args;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    s->log(s->context, status, status >= STATUS_ERROR ? "logStatusError" : "logStatusWarning", message);
+}
+
+static void clear(PyObject **object) {
+    if (*object) py.Py_DecRef(*object);
+    *object = NULL;
+}
+
+/* The pending exception as "Type: message" in `text`; clears it. */
+static void exception_text(char *text, size_t size) {
+    PyObject *type = NULL, *value = NULL, *traceback = NULL;
+    py.PyErr_Fetch(&type, &value, &traceback);
+    PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
+    const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
+    PyObject *str = value ? py.PyObject_Str(value) : NULL;
+    const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
+    snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
+    py.PyErr_Clear();
+    clear(&str);
+    clear(&type_name);
+    clear(&type);
+    clear(&value);
+    clear(&traceback);
+}
+
+static void log_exception(Slave *s, int status, const char *doing) {
+    char text[1536];
+    exception_text(text, sizeof text);
+    say(s, status, "%s: %s failed: %s", s->instance_name, doing, text);
+}
+
+/* A tuple of `n` new references, which it steals; NULL items become None. NULL on failure. */
+static PyObject *pack(int n, PyObject **items) {
+    PyObject *tuple = py.PyTuple_New(n);
+    for (int i = 0; i < n; i++) {
+        PyObject *item = items[i];
+        if (!item) {
+            py.Py_IncRef(py.None);
+            item = py.None;
+        }
+        if (tuple) py.PyTuple_SetItem(tuple, i, item);
+        else py.Py_DecRef(item);
+    }
+    return tuple;
+}
+
+static PyObject *borrowed(PyObject *object) {
+    py.Py_IncRef(object);
+    return object;
+}
+
+/* Call `function` (a new reference, which it steals) with `args` (stolen; NULL for none). */
+static PyObject *call(PyObject *function, PyObject *args) {
+    PyObject *result = function ? py.PyObject_CallObject(function, args) : NULL;
+    if (function) py.Py_DecRef(function);
+    if (args) py.Py_DecRef(args);
+    return result;
+}
+
+static PyObject *bridge_call(Slave *s, const char *name, PyObject *args) {
+    return call(py.PyObject_GetAttrString(s->bridge, name), args);
+}
+
+/* Forward the messages the slave queued (cheap when there are none). */
+static void drain_log(Slave *s) {
+    if (!s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
+        py.PyErr_Clear();
+        return;
+    }
+    PyObject *items[] = {borrowed(s->slave)};
+    PyObject *messages = bridge_call(s, "drain_log", pack(1, items));
+    Py_ssize_t n = messages ? py.PySequence_Size(messages) : 0;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *message = py.PySequence_GetItem(messages, i);
+        PyObject *status = message ? py.PySequence_GetItem(message, 0) : NULL;
+        PyObject *category = message ? py.PySequence_GetItem(message, 1) : NULL;
+        PyObject *text = message ? py.PySequence_GetItem(message, 2) : NULL;
+        const char *category_text = category ? py.PyUnicode_AsUTF8(category) : NULL;
+        const char *message_text = text ? py.PyUnicode_AsUTF8(text) : NULL;
+        if (status && category_text && message_text) {
+            s->log(s->context, (int)py.PyLong_AsLong(status), category_text, message_text);
+        }
+        clear(&text);
+        clear(&category);
+        clear(&status);
+        clear(&message);
+    }
+    clear(&messages);
+    py.PyErr_Clear();
+}
+
+static int read_entry(Slave *s) {
+    char path[sizeof s->resources + 32];
+    snprintf(path, sizeof path, "%s/%s", s->resources, ENTRY_FILE);
+    FILE *file = fopen(path, "r");
+    if (!file) {
+        say(s, STATUS_ERROR, "%s: cannot read %s: the FMU's resources are incomplete", s->instance_name, path);
+        return -1;
+    }
+    char bridge[256] = "";
+    int found = fscanf(file, "%255s %255s %127s %127s", bridge, s->module, s->class_name, s->token);
+    fclose(file);
+    if (found != 4) {
+        say(s, STATUS_ERROR, "%s: %s does not name the bridge, module, class and token", s->instance_name, path);
+        return -1;
+    }
+    PyObject *sys_path = py.PySys_GetObject("path");
+    PyObject *folder = py.PyUnicode_FromString(s->resources);
+    if (sys_path && folder && py.PySequence_Contains(sys_path, folder) == 0) py.PyList_Insert(sys_path, 0, folder);
+    clear(&folder);
+    s->bridge = py.PyImport_ImportModule(bridge);
+    if (!s->bridge) {
+        log_exception(s, STATUS_ERROR, "importing the FMU's bridge module");
+        return -1;
+    }
+    return 0;
+}
+
+static PyObject *new_slave(Slave *s) {
+    PyObject *items[] = {
+        py.PyUnicode_FromString(s->module), py.PyUnicode_FromString(s->class_name),
+        py.PyUnicode_FromString(s->instance_name), py.PyUnicode_FromString(s->resources),
+        py.PyBool_FromLong(s->visible),
+    };
+    return bridge_call(s, "instantiate", pack(5, items));
+}
+
+static int adopt_slave(Slave *s, PyObject *slave) {
+    PyObject *queue = py.PyObject_GetAttrString(slave, "log_queue");
+    if (!queue) {
+        py.Py_DecRef(slave);
+        log_exception(s, STATUS_ERROR, "reading the slave's log queue");
+        return -1;
+    }
+    clear(&s->log_queue);
+    clear(&s->slave);
+    s->slave = slave;
+    s->log_queue = queue;
+    return 0;
+}
+
+static int read_variables(Slave *s) {
+    PyObject *items[] = {borrowed(s->slave)};
+    PyObject *table = bridge_call(s, "variables", pack(1, items));
+    Py_ssize_t n = table ? py.PySequence_Size(table) : -1;
+    long rows[4 * 1024];
+    if (n < 0 || n > 1024) {
+        clear(&table);
+        log_exception(s, STATUS_ERROR, "reading the variable table");
+        return -1;
+    }
+    long largest = -1;
+    for (Py_ssize_t i = 0; i < n; i++) {
+        PyObject *row = py.PySequence_GetItem(table, i);
+        for (int k = 0; k < 4; k++) {
+            PyObject *cell = row ? py.PySequence_GetItem(row, k) : NULL;
+            rows[4 * i + k] = cell ? py.PyLong_AsLong(cell) : -1;
+            clear(&cell);
+        }
+        clear(&row);
+        if (rows[4 * i] > largest) largest = rows[4 * i];
+    }
+    clear(&table);
+    if (py.PyErr_Occurred() || largest >= MAX_VALUE_REFERENCE) {
+        py.PyErr_Clear();
+        say(s, STATUS_ERROR, "%s: the variable table of the slave is not valid", s->instance_name);
+        return -1;
+    }
+    s->size = (unsigned int)(largest + 1);
+    s->type = malloc(s->size ? s->size : 1);
+    s->causality = malloc(s->size ? s->size : 1);
+    s->variability = malloc(s->size ? s->size : 1);
+    if (!s->type || !s->causality || !s->variability) return -1;
+    memset(s->type, NO_VARIABLE, s->size);
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (rows[4 * i] < 0) continue;
+        s->type[rows[4 * i]] = (signed char)rows[4 * i + 1];
+        s->causality[rows[4 * i]] = (signed char)rows[4 * i + 2];
+        s->variability[rows[4 * i]] = (signed char)rows[4 * i + 3];
+    }
+    return 0;
+}
+
+int slave_create(Slave *s, const char *resources, const char *instance_name, int visible,
+                 const MethodNames *names, SlaveLog log, void *context) {
+    memset(s, 0, sizeof *s);
+    s->log = log;
+    s->context = context;
+    s->names = names;
+    s->visible = visible;
+    snprintf(s->instance_name, sizeof s->instance_name, "%s", instance_name);
+    snprintf(s->resources, sizeof s->resources, "%s", resources);
+    size_t length = strlen(s->resources);
+    while (length > 1 && s->resources[length - 1] == '/') s->resources[--length] = '\0';
+    char error[3072];
+    if (pyhost_start(error, sizeof error) != 0) {
+        say(s, STATUS_ERROR, "%s: %s", s->instance_name, error);
+        return -1;
+    }
+    PyGILState_STATE gil = pyhost_enter();
+    int result = -1;
+    if (read_entry(s) == 0) {
+        PyObject *slave = new_slave(s);
+        if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
+        else if (adopt_slave(s, slave) == 0) result = read_variables(s);
+    }
+    drain_log(s);
+    pyhost_leave(gil);
+    if (result != 0) slave_free(s);
+    return result;
+}
+
+void slave_free(Slave *s) {
+    if (s->bridge || s->slave || s->log_queue) {
+        PyGILState_STATE gil = pyhost_enter();
+        clear(&s->log_queue);
+        clear(&s->slave);
+        clear(&s->bridge);
+        pyhost_leave(gil);
+    }
+    free(s->type);
+    free(s->causality);
+    free(s->variability);
+    s->type = NULL;
+    s->causality = NULL;
+    s->variability = NULL;
+}
+
+int slave_reset(Slave *s) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *slave = new_slave(s);
+    int status = STATUS_OK;
+    if (!slave) {
+        log_exception(s, STATUS_ERROR, "creating the slave anew");
+        status = STATUS_ERROR;
+    } else if (adopt_slave(s, slave) != 0) {
+        status = STATUS_ERROR;
+    }
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+const char *slave_check_type(const Slave *s, unsigned int vr, int type) {
+    static const char *messages[] = {
+        "is not a variable of this FMU", "is a Real variable", "is an Integer variable",
+        "is a Boolean variable", "is a String variable",
+    };
+    if (vr >= s->size || s->type[vr] == NO_VARIABLE) return messages[0];
+    if (s->type[vr] != type) return s->type[vr] >= 0 && s->type[vr] <= TYPES ? messages[1 + s->type[vr]] : messages[0];
+    return NULL;
+}
+
+static PyObject *references(const unsigned int *vr, size_t n) {
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyLong_FromLong((long)vr[i]));
+    return list;
+}
+
+static PyObject *to_python(const void *values, size_t i, CType ctype) {
+    switch (ctype) {
+    case C_DOUBLE: return py.PyFloat_FromDouble(((const double *)values)[i]);
+    case C_INT: return py.PyLong_FromLong(((const int *)values)[i]);
+    case C_INT32: return py.PyLong_FromLong(((const int32_t *)values)[i]);
+    case C_BOOL_INT: return py.PyBool_FromLong(((const int *)values)[i] != 0);
+    case C_BOOL_BYTE: return py.PyBool_FromLong(((const bool *)values)[i]);
+    }
+    return NULL;
+}
+
+static void from_python(PyObject *item, void *values, size_t i, CType ctype) {
+    switch (ctype) {
+    case C_DOUBLE: ((double *)values)[i] = py.PyFloat_AsDouble(item); break;
+    case C_INT: ((int *)values)[i] = (int)py.PyLong_AsLong(item); break;
+    case C_INT32: ((int32_t *)values)[i] = (int32_t)py.PyLong_AsLong(item); break;
+    case C_BOOL_INT: ((int *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
+    case C_BOOL_BYTE: ((bool *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
+    }
+}
+
+int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *items[] = {references(vr, n)};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, s->names->get[type]), pack(1, items));
+    int status = STATUS_OK;
+    if (!result || py.PySequence_Size(result) != (Py_ssize_t)n) {
+        if (result) say(s, STATUS_ERROR, "%s: %s returned a wrong number of values", s->instance_name, s->names->get[type]);
+        else log_exception(s, STATUS_ERROR, s->names->get[type]);
+        status = STATUS_ERROR;
+    } else {
+        for (size_t i = 0; i < n; i++) {
+            PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
+            if (item) from_python(item, values, i, ctype);
+            clear(&item);
+        }
+        if (py.PyErr_Occurred()) {
+            log_exception(s, STATUS_ERROR, s->names->get[type]);
+            status = STATUS_ERROR;
+        }
+    }
+    clear(&result);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
+    PyObject *items[] = {references(vr, n), list};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, s->names->set[type]), pack(2, items));
+    int status = STATUS_OK;
+    if (!result) {
+        log_exception(s, STATUS_ERROR, s->names->set[type]);
+        status = STATUS_ERROR;
+    }
+    clear(&result);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+/* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
+static PyObject *doubles(int n, const double *values, const int *defined) {
+    PyObject *items[8] = {NULL};
+    for (int i = 0; i < n && i < 8; i++) {
+        if (!defined || defined[i]) items[i] = py.PyFloat_FromDouble(values[i]);
+    }
+    return pack(n < 8 ? n : 8, items);
+}
+
+int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined, int failure, int *truth) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *args = n ? doubles(n, values, defined) : NULL;
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, method), args);
+    int status = STATUS_OK;
+    if (!result) {
+        log_exception(s, failure, method);
+        status = failure;
+    } else if (truth) {
+        *truth = py.PyObject_IsTrue(result) == 1;
+    }
+    clear(&result);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+int slave_get_double(Slave *s, const char *attribute, double *value) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *object = py.PyObject_GetAttrString(s->slave, attribute);
+    int status = STATUS_OK;
+    if (object) *value = py.PyFloat_AsDouble(object);
+    if (!object || py.PyErr_Occurred()) {
+        log_exception(s, STATUS_ERROR, attribute);
+        status = STATUS_ERROR;
+    }
+    clear(&object);
+    pyhost_leave(gil);
+    return status;
+}
+
+int slave_get_state(Slave *s, PyObject **state) {
+    PyGILState_STATE gil = pyhost_enter();
+    *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
+    int status = STATUS_OK;
+    if (!*state) {
+        log_exception(s, STATUS_ERROR, "getting the FMU state");
+        status = STATUS_ERROR;
+    }
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+int slave_set_state(Slave *s, PyObject *state) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *items[] = {borrowed(state)};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
+    int status = STATUS_OK;
+    if (!result) {
+        log_exception(s, STATUS_ERROR, "setting the FMU state");
+        status = STATUS_ERROR;
+    }
+    clear(&result);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+void slave_release(PyObject *object) {
+    if (!object) return;
+    PyGILState_STATE gil = pyhost_enter();
+    py.Py_DecRef(object);
+    pyhost_leave(gil);
+}
+
+int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *items[] = {borrowed(s->slave), borrowed(state)};
+    PyObject *data = bridge_call(s, "state_to_bytes", pack(2, items));
+    char *buffer = NULL;
+    Py_ssize_t length = 0;
+    int status = STATUS_ERROR;
+    if (!data || py.PyBytes_AsStringAndSize(data, &buffer, &length) != 0) {
+        log_exception(s, STATUS_ERROR, "serializing the FMU state");
+    } else if ((*bytes = malloc((size_t)length)) != NULL) {
+        memcpy(*bytes, buffer, (size_t)length);
+        *size = (size_t)length;
+        status = STATUS_OK;
+    }
+    clear(&data);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
+    *state = bridge_call(s, "state_from_bytes", pack(2, items));
+    int status = STATUS_OK;
+    if (!*state) {
+        log_exception(s, STATUS_ERROR, "deserializing the FMU state");
+        status = STATUS_ERROR;
+    }
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
+static int hex(char c) {
+    if (c >= '0' && c <= '9') return c - '0';
+    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
+    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
+    return -1;
+}
+
+int slave_uri_to_path(const char *uri, char *path, size_t size) {
+    if (!uri || !*uri) return -1;
+    const char *p = uri;
+    int encoded = 1;
+    if (strncmp(p, "file://localhost/", 17) == 0) p += 16;
+    else if (strncmp(p, "file:///", 8) == 0) p += 7;
+    else if (strncmp(p, "file:/", 6) == 0) p += 5;
+    else if (strncmp(p, "file:", 5) == 0 || *p != '/') return -1;
+    else encoded = 0;
+    size_t k = 0;
+    for (; *p && k + 1 < size; p++) {
+        if (encoded && *p == '%' && hex(p[1]) >= 0 && hex(p[2]) >= 0) {
+            path[k++] = (char)(hex(p[1]) * 16 + hex(p[2]));
+            p += 2;
+        } else {
+            path[k++] = *p;
+        }
+    }
+    path[k] = '\0';
+    return *p ? -1 : 0;
+}

@@ -1,0 +1,84 @@
+/* One Python slave behind an FMU instance, for both FMI versions: creation, guarded typed get and
+   set, calls whose exceptions become logged messages, FMU states, the slave's log queue. */
+
+#ifndef DSC_SLAVE_H
+#define DSC_SLAVE_H
+
+#include <stddef.h>
+
+#include "pyhost.h"
+
+/* Statuses, the same numbers in FMI 2.0 and 3.0. */
+enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, STATUS_FATAL = 4 };
+
+/* Codes of native_bridge.py. */
+enum { TYPE_REAL = 0, TYPE_INTEGER = 1, TYPE_BOOLEAN = 2, TYPE_STRING = 3, TYPES = 3, NO_VARIABLE = -1 };
+enum { CAUSALITY_PARAMETER = 0, CAUSALITY_INPUT = 1, CAUSALITY_OUTPUT = 2, CAUSALITY_INDEPENDENT = 3 };
+enum { VARIABILITY_CONSTANT = 0, VARIABILITY_FIXED = 1, VARIABILITY_TUNABLE = 2 };
+
+/* How values sit in the caller's array. */
+typedef enum { C_DOUBLE, C_INT, C_INT32, C_BOOL_INT, C_BOOL_BYTE } CType;
+
+typedef void (*SlaveLog)(void *context, int status, const char *category, const char *message);
+
+typedef struct {
+    const char *get[TYPES];
+    const char *set[TYPES];
+} MethodNames;
+
+typedef struct {
+    PyObject *bridge;
+    PyObject *slave;
+    PyObject *log_queue;
+    PyObject *get[TYPES];
+    PyObject *set[TYPES];
+    char module[256];
+    char class_name[128];
+    char token[128];            /* the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
+    char resources[4096];
+    char instance_name[256];
+    int visible;
+    const MethodNames *names;
+    unsigned int size;          /* largest value reference + 1 */
+    signed char *type;          /* by value reference; NO_VARIABLE where there is none */
+    signed char *causality;
+    signed char *variability;
+    SlaveLog log;
+    void *context;
+} Slave;
+
+/* Start Python if needed and create the slave of the FMU whose resources folder is `resources`
+   (a path). 0, or -1 after logging why (the Slave is then empty). */
+int slave_create(Slave *s, const char *resources, const char *instance_name, int visible,
+                 const MethodNames *names, SlaveLog log, void *context);
+void slave_free(Slave *s);
+
+/* A new Python slave in place of the current one (fmiReset). */
+int slave_reset(Slave *s);
+
+/* Whether `vr` names a variable of `type`: NULL, or why not (for a message). */
+const char *slave_check_type(const Slave *s, unsigned int vr, int type);
+
+/* Typed get and set of `n` values; STATUS_OK or STATUS_ERROR (logged). */
+int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype);
+int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype);
+
+/* Call a method of the slave with `n` float arguments (None where `defined`, if not NULL, is 0).
+   STATUS_OK, or `failure` after logging the exception; `truth` (if not NULL) receives whether the
+   result is true. */
+int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined, int failure, int *truth);
+
+/* A float attribute of the slave (such as its time). */
+int slave_get_double(Slave *s, const char *attribute, double *value);
+
+/* FMU states: opaque Python objects owned by the caller. */
+int slave_get_state(Slave *s, PyObject **state);
+int slave_set_state(Slave *s, PyObject *state);
+void slave_release(PyObject *object);
+int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size);
+int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state);
+
+/* The path of a file:// URI (or a plain path) in `path`; 0, or -1 if it is not one. */
+int slave_uri_to_path(const char *uri, char *path, size_t size);
+
+#endif

@@ -1,0 +1,72 @@
+"""What the project's FMU binary (``dsc_fmu/native``) calls besides the slave's own FMI methods.
+
+Bundled into every FMU beside the slave code; imports only the standard library. The binary
+creates the slave through ``instantiate``, reads the variable table once (``variables``) to guard
+every get and set by value reference, type, causality and variability, forwards the slave's log
+queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
+``state_from_bytes``) with a checksum and the identity of the build that made them.
+"""
+
+import hashlib
+import importlib
+import json
+
+__all__ = ["instantiate", "variables", "drain_log", "state_to_bytes", "state_from_bytes", "TYPES"]
+
+# Codes shared with native/slave.h.
+TYPES = {"Real": 0, "Float64": 0, "Integer": 1, "Int32": 1, "Boolean": 2, "String": 3}
+CAUSALITIES = {"parameter": 0, "input": 1, "output": 2, "independent": 3}
+VARIABILITIES = {"constant": 0, "fixed": 1, "tunable": 2, "discrete": 3, "continuous": 4}
+OTHER = 9
+MAGIC = b"dsc-fmu FMU state 1\n"
+DIGEST = 32
+
+
+def instantiate(slave_module: str, class_name: str, instance_name: str, resources: str, visible: bool):
+    """A new slave of ``class_name`` in ``slave_module`` (a module of the FMU's resources)."""
+    cls = getattr(importlib.import_module(slave_module), class_name)
+    return cls(instance_name=instance_name, resources=resources, visible=visible)
+
+
+def _code(table: dict, value) -> int:
+    name = getattr(value, "name", None)
+    return table.get(name, OTHER)
+
+
+def variables(slave) -> list:
+    """``(value reference, type, causality, variability)`` of every variable, as the codes above."""
+    return [
+        (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability))
+        for vr, v in slave.vars.items()
+    ]
+
+
+def drain_log(slave) -> list:
+    """``(status, category, message)`` of every message the slave queued since the last call; empties the queue."""
+    queue = slave.log_queue
+    messages = [(int(getattr(m.status, "value", m.status)), str(m.category), str(m.msg)) for m in queue]
+    del queue[:]
+    return messages
+
+
+def _identity(slave) -> str:
+    return f"{type(slave).__module__}.{type(slave).__qualname__}"
+
+
+def state_to_bytes(slave, state) -> bytes:
+    """``state`` (from ``_get_fmu_state``) as bytes: a header, a SHA-256 of the body, the body in JSON."""
+    body = json.dumps([_identity(slave), state], allow_nan=True).encode("utf-8")
+    return MAGIC + hashlib.sha256(body).digest() + body
+
+
+def state_from_bytes(slave, data: bytes):
+    """The state that ``state_to_bytes`` wrote for this build of this model; ValueError for anything else."""
+    if not data.startswith(MAGIC) or len(data) < len(MAGIC) + DIGEST:
+        raise ValueError(f"not a serialized FMU state of dsc-fmu ({len(data)} bytes without its header)")
+    digest, body = data[len(MAGIC):len(MAGIC) + DIGEST], data[len(MAGIC) + DIGEST:]
+    if hashlib.sha256(body).digest() != digest:
+        raise ValueError("the serialized FMU state is damaged (its checksum does not match)")
+    identity, state = json.loads(body.decode("utf-8"))
+    if identity != _identity(slave):
+        raise ValueError(f"the serialized FMU state belongs to {identity}, not to {_identity(slave)}")
+    return state
