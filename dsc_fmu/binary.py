@@ -30,7 +30,7 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 GLIBC = "2.17"
 # FMI platform folders of the binary this module builds (x86_64 Linux).
 FOLDERS = {2: "linux64", 3: "x86_64-linux"}
-_SOURCES = {2: ("fmi2Functions.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "slave.c", "pyhost.c")}
+_SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
 
 
 class BinaryBuildError(RuntimeError):
@@ -65,7 +65,7 @@ def binary_folder(fmi_version: int) -> str | None:
 
 def binary_sources(fmi_version: int) -> list[Path]:
     """Every file the binary of ``fmi_version`` is compiled from."""
-    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], "pyhost.h", "slave.h")]
+    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], "instance.h", "pyhost.h", "slave.h")]
 
 
 def _fmi_headers() -> Path:

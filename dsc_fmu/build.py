@@ -6,6 +6,7 @@ import hashlib
 import json
 import os
 import shutil
+import sys
 import tempfile
 import zipfile
 from contextlib import contextmanager
@@ -303,6 +304,13 @@ def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> P
     )
 
 
+def _forget_staged_modules(package: str, script: str) -> None:
+    """Drop what the FMI library imported from the stage (removed after the build), so that an FMU of
+    this build loaded into this process imports its modules from its own resources."""
+    for name in [name for name in sys.modules if name in (package, script) or name.startswith(f"{package}.")]:
+        del sys.modules[name]
+
+
 def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
     """Build one FMU (FMI ``fmi_version``: 2 or 3) into ``out_dir`` atomically and return its path."""
     _check_version(fmi_version)
@@ -314,6 +322,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
         tmp = Path(tmp)
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
         raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", fmi_version)
+        _forget_staged_modules(package_dir.name, script.stem)
         staged = tmp / f"{spec.name}.fmu"
         folder = binary_folder(fmi_version)
         own_binary = f"binaries/{folder}/{spec.name}.so" if folder else None

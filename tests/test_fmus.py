@@ -813,7 +813,18 @@ def test_bad_value_is_refused_named_and_holds_the_fmu_until_corrected(
     with pytest.raises(FMICallException) as failure:
         fmu.doStep(1e-3, 1e-3)
     assert (failure.value.function, failure.value.status) == ("fmi2DoStep", FMI2_DISCARD)
-    put([ref], before)
+    if inst.variables[variable].variability == "fixed":
+        # A fixed parameter cannot be set once initialisation has ended: a reset starts over.
+        with pytest.raises(FMICallException) as refused:
+            put([ref], before)
+        assert refused.value.status == FMI2_ERROR
+        assert "fixed parameter" in inst.messages()[-1][1]
+        fmu.reset()
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
+        fmu.exitInitializationMode()
+    else:
+        put([ref], before)
     fmu.doStep(1e-3, 1e-3)
     inst.close()
     gc.collect()
@@ -850,6 +861,41 @@ def test_freeing_an_instance_after_a_rejected_value_does_not_crash(fmu_paths, fm
     )
     assert (run.returncode, run.stdout.strip().splitlines()[-1:]) == (0, ["survived"]), (
         run.stdout[-500:] + run.stderr[-2000:])
+
+
+RAISING = """
+    def do_step(self, current_time, step_size):
+        if self.u[0] == 123.0:
+            raise RuntimeError("injected failure")
+        return super().do_step(current_time, step_size)
+"""
+
+
+def test_an_exception_in_the_model_discards_the_step_and_the_state_api_rolls_back(patched_mobile_robot, tmp_path):
+    """A Python exception inside a step is fmi2Discard with the exception in the log, never
+    fmi2Fatal; the instance answers afterwards and fmi2SetFMUstate brings it back exactly."""
+    path = patched_mobile_robot("        super().__init__(**kwargs)\n", RAISING, "raising")
+    plant = Instance(read_model_description(str(path)), extract(str(path), unzipdir=tmp_path / "u"), "raising")
+    plant.initialize()
+    plant.set(("u1", "u2"), (6.0, 5.0))
+    plant.step(0.0, 0.01)
+    saved = plant.fmu.getFMUState()
+    expected = Instance(plant.md, plant.fmu.unzipDirectory, "twin").initialize()
+    expected.set(("u1", "u2"), (6.0, 5.0))
+    expected.step(0.0, 0.01)
+    expected.step(0.01, 0.01)
+    plant.set(("u1",), (123.0,))
+    with pytest.raises(FMICallException) as failure:
+        plant.step(0.01, 0.01)
+    assert failure.value.status == FMI2_DISCARD
+    assert any(s == FMI2_DISCARD and "RuntimeError: injected failure" in m for s, m in plant.messages())
+    assert not any(s == FMI2_FATAL for s, _ in plant.messages())
+    plant.fmu.setFMUstate(saved)
+    plant.step(0.01, 0.01)
+    assert plant.get(PLANT_OUT) == expected.get(PLANT_OUT)
+    plant.fmu.freeFMUstate(saved)
+    plant.close()
+    expected.close()
 
 
 def test_non_finite_state_discards_the_step_and_keeps_the_instance_usable(new):

@@ -266,14 +266,8 @@ int slave_reset(Slave *s) {
     return status;
 }
 
-const char *slave_check_type(const Slave *s, unsigned int vr, int type) {
-    static const char *messages[] = {
-        "is not a variable of this FMU", "is a Real variable", "is an Integer variable",
-        "is a Boolean variable", "is a String variable",
-    };
-    if (vr >= s->size || s->type[vr] == NO_VARIABLE) return messages[0];
-    if (s->type[vr] != type) return s->type[vr] >= 0 && s->type[vr] <= TYPES ? messages[1 + s->type[vr]] : messages[0];
-    return NULL;
+int slave_type_of(const Slave *s, unsigned int vr) {
+    return vr < s->size ? s->type[vr] : NO_VARIABLE;
 }
 
 static PyObject *references(const unsigned int *vr, size_t n) {

@@ -24,14 +24,13 @@ typedef void (*SlaveLog)(void *context, int status, const char *category, const 
 typedef struct {
     const char *get[TYPES];
     const char *set[TYPES];
+    const char *type[TYPES + 1]; /* the FMI version's names of the types */
 } MethodNames;
 
 typedef struct {
     PyObject *bridge;
     PyObject *slave;
     PyObject *log_queue;
-    PyObject *get[TYPES];
-    PyObject *set[TYPES];
     char module[256];
     char class_name[128];
     char token[128];            /* the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
@@ -56,8 +55,8 @@ void slave_free(Slave *s);
 /* A new Python slave in place of the current one (fmiReset). */
 int slave_reset(Slave *s);
 
-/* Whether `vr` names a variable of `type`: NULL, or why not (for a message). */
-const char *slave_check_type(const Slave *s, unsigned int vr, int type);
+/* The type of the variable `vr`, or NO_VARIABLE. */
+int slave_type_of(const Slave *s, unsigned int vr);
 
 /* Typed get and set of `n` values; STATUS_OK or STATUS_ERROR (logged). */
 int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype);

@@ -1,0 +1,306 @@
+/* The FMI 3.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states the standard
+   allows it in, then handed to instance.c. No event mode, no model exchange, no scheduled
+   execution, no clocks: those functions refuse with a message. Nothing returns fmi3Fatal. */
+
+#include <stdio.h>
+
+#include "fmi3Functions.h"
+#include "instance.h"
+
+#define MASK_Get (InitializationMode | StepMode | Terminated | Error)
+#define MASK_Set (Instantiated | InitializationMode | StepMode)
+
+typedef struct {
+    Instance base;
+    fmi3InstanceEnvironment environment;
+    fmi3LogMessageCallback logMessage;
+} Fmi3Instance;
+
+static const MethodNames METHODS = {
+    {"get_float64", "get_int32", "get_boolean"},
+    {"set_float64", "set_int32", "set_boolean"},
+    {"Float64", "Int32", "Boolean", "String"},
+};
+
+#define BEGIN(function, mask)                                                                                        \
+    Instance *instance = (Instance *)c;                                                                              \
+    if (instance_refused(instance, function, mask)) return fmi3Error
+
+static void host_log(Instance *instance, int status, const char *category, const char *message) {
+    Fmi3Instance *host = (Fmi3Instance *)instance;
+    if (host->logMessage) host->logMessage(host->environment, (fmi3Status)status, category, message);
+}
+
+/* --- inquiry, logging, creation ------------------------------------------------------------------------ */
+
+const char *fmi3GetVersion(void) { return fmi3Version; }
+
+fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean loggingOn, size_t nCategories, const fmi3String categories[]) {
+    BEGIN("fmi3SetDebugLogging", ANY_STATE);
+    return (fmi3Status)instance_set_logging(instance, "fmi3SetDebugLogging", loggingOn, nCategories, categories);
+}
+
+static fmi3Instance refuse_instantiation(fmi3InstanceEnvironment environment, fmi3LogMessageCallback logMessage,
+                                         const char *why) {
+    if (logMessage) logMessage(environment, fmi3Error, "logStatusError", why);
+    return NULL;
+}
+
+fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
+                                         fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                         fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
+                                         const fmi3ValueReference requiredIntermediateVariables[],
+                                         size_t nRequiredIntermediateVariables,
+                                         fmi3InstanceEnvironment instanceEnvironment,
+                                         fmi3LogMessageCallback logMessage,
+                                         fmi3IntermediateUpdateCallback intermediateUpdate) {
+    if (!instanceName || !*instanceName) {
+        return refuse_instantiation(instanceEnvironment, logMessage,
+                                    "fmi3InstantiateCoSimulation: the instance name is missing or empty");
+    }
+    if (eventModeUsed) {
+        return refuse_instantiation(instanceEnvironment, logMessage,
+                                    "fmi3InstantiateCoSimulation: eventModeUsed is not supported (hasEventMode is false)");
+    }
+    if (nRequiredIntermediateVariables > 0) {
+        return refuse_instantiation(instanceEnvironment, logMessage,
+                                    "fmi3InstantiateCoSimulation: these FMUs provide no intermediate variables");
+    }
+    Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, host_log);
+    if (!instance) return refuse_instantiation(instanceEnvironment, logMessage, "fmi3InstantiateCoSimulation: out of memory");
+    instance->environment = instanceEnvironment;
+    instance->logMessage = logMessage;
+    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken, visible,
+                       &METHODS) != 0) {
+        instance_free(&instance->base);
+        return NULL;
+    }
+    return instance;
+}
+
+fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
+                                          fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                          fmi3InstanceEnvironment instanceEnvironment,
+                                          fmi3LogMessageCallback logMessage) {
+    return refuse_instantiation(instanceEnvironment, logMessage,
+                                "fmi3InstantiateModelExchange: these FMUs are co-simulation FMUs only");
+}
+
+fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
+                                               fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
+                                               fmi3InstanceEnvironment instanceEnvironment,
+                                               fmi3LogMessageCallback logMessage, fmi3ClockUpdateCallback clockUpdate,
+                                               fmi3LockPreemptionCallback lockPreemption,
+                                               fmi3UnlockPreemptionCallback unlockPreemption) {
+    return refuse_instantiation(instanceEnvironment, logMessage,
+                                "fmi3InstantiateScheduledExecution: these FMUs are co-simulation FMUs only");
+}
+
+void fmi3FreeInstance(fmi3Instance c) { instance_free((Instance *)c); }
+
+/* --- initialisation, stepping, termination --------------------------------------------------------------- */
+
+fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
+                                       fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
+    BEGIN("fmi3EnterInitializationMode", Instantiated);
+    double start[] = {startTime};
+    int status = instance_call(instance, "setup_experiment", 1, start, NULL, Instantiated);
+    if (status != fmi3OK) return (fmi3Status)status;
+    return (fmi3Status)instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+}
+
+fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
+    BEGIN("fmi3ExitInitializationMode", InitializationMode);
+    return (fmi3Status)instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode);
+}
+
+fmi3Status fmi3Terminate(fmi3Instance c) {
+    BEGIN("fmi3Terminate", StepMode);
+    return (fmi3Status)instance_call(instance, "terminate", 0, NULL, NULL, Terminated);
+}
+
+fmi3Status fmi3Reset(fmi3Instance c) {
+    BEGIN("fmi3Reset", ANY_STATE);
+    return (fmi3Status)instance_reset(instance);
+}
+
+fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi3Float64 communicationStepSize,
+                      fmi3Boolean noSetFMUStatePriorToCurrentPoint, fmi3Boolean *eventHandlingNeeded,
+                      fmi3Boolean *terminateSimulation, fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime) {
+    BEGIN("fmi3DoStep", StepMode);
+    if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime) {
+        instance_log(instance, STATUS_ERROR, "%s: fmi3DoStep: an output argument is NULL", instance->name);
+        return fmi3Error;
+    }
+    int status = instance_do_step(instance, "fmi3DoStep", currentCommunicationPoint, communicationStepSize);
+    *eventHandlingNeeded = fmi3False;
+    *terminateSimulation = fmi3False;
+    *earlyReturn = fmi3False;
+    *lastSuccessfulTime = currentCommunicationPoint + (status == fmi3OK ? communicationStepSize : 0.0);
+    return (fmi3Status)status;
+}
+
+/* --- values ------------------------------------------------------------------------------------------- */
+
+#define GETTER(function, type, ctype, cvalue)                                                                          \
+    fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, cvalue values[], size_t nValues) { \
+        BEGIN(#function, MASK_Get);                                                                                  \
+        return (fmi3Status)instance_get(instance, #function, type, vr, nvr, values, nValues, ctype);                 \
+    }
+
+#define SETTER(function, type, ctype, cvalue)                                                                          \
+    fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const cvalue values[],            \
+                        size_t nValues) {                                                                            \
+        BEGIN(#function, MASK_Set);                                                                                  \
+        return (fmi3Status)instance_set(instance, #function, type, vr, nvr, values, nValues, ctype);                 \
+    }
+
+/* A type these FMUs have no variables of: only an empty call succeeds. */
+#define ABSENT(function, mask, type_name, ...)                                                                         \
+    fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, __VA_ARGS__) {                    \
+        BEGIN(#function, mask);                                                                                      \
+        return (fmi3Status)instance_no_variables_of(instance, #function, type_name, vr, nvr);                        \
+    }
+
+GETTER(fmi3GetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
+GETTER(fmi3GetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
+GETTER(fmi3GetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
+SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
+SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
+SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
+
+ABSENT(fmi3GetFloat32, MASK_Get, "Float32", fmi3Float32 values[], size_t nValues)
+ABSENT(fmi3GetInt8, MASK_Get, "Int8", fmi3Int8 values[], size_t nValues)
+ABSENT(fmi3GetUInt8, MASK_Get, "UInt8", fmi3UInt8 values[], size_t nValues)
+ABSENT(fmi3GetInt16, MASK_Get, "Int16", fmi3Int16 values[], size_t nValues)
+ABSENT(fmi3GetUInt16, MASK_Get, "UInt16", fmi3UInt16 values[], size_t nValues)
+ABSENT(fmi3GetUInt32, MASK_Get, "UInt32", fmi3UInt32 values[], size_t nValues)
+ABSENT(fmi3GetInt64, MASK_Get, "Int64", fmi3Int64 values[], size_t nValues)
+ABSENT(fmi3GetUInt64, MASK_Get, "UInt64", fmi3UInt64 values[], size_t nValues)
+ABSENT(fmi3GetString, MASK_Get, "String", fmi3String values[], size_t nValues)
+ABSENT(fmi3GetBinary, MASK_Get, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
+ABSENT(fmi3GetClock, MASK_Get, "Clock", fmi3Clock values[])
+ABSENT(fmi3SetFloat32, MASK_Set, "Float32", const fmi3Float32 values[], size_t nValues)
+ABSENT(fmi3SetInt8, MASK_Set, "Int8", const fmi3Int8 values[], size_t nValues)
+ABSENT(fmi3SetUInt8, MASK_Set, "UInt8", const fmi3UInt8 values[], size_t nValues)
+ABSENT(fmi3SetInt16, MASK_Set, "Int16", const fmi3Int16 values[], size_t nValues)
+ABSENT(fmi3SetUInt16, MASK_Set, "UInt16", const fmi3UInt16 values[], size_t nValues)
+ABSENT(fmi3SetUInt32, MASK_Set, "UInt32", const fmi3UInt32 values[], size_t nValues)
+ABSENT(fmi3SetInt64, MASK_Set, "Int64", const fmi3Int64 values[], size_t nValues)
+ABSENT(fmi3SetUInt64, MASK_Set, "UInt64", const fmi3UInt64 values[], size_t nValues)
+ABSENT(fmi3SetString, MASK_Set, "String", const fmi3String values[], size_t nValues)
+ABSENT(fmi3SetBinary, MASK_Set, "Binary", const size_t valueSizes[], const fmi3Binary values[], size_t nValues)
+ABSENT(fmi3SetClock, MASK_Set, "Clock", const fmi3Clock values[])
+
+/* --- FMU states ------------------------------------------------------------------------------------------- */
+
+fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
+    BEGIN("fmi3GetFMUState", ANY_STATE);
+    return (fmi3Status)instance_get_state(instance, "fmi3GetFMUState", FMUState);
+}
+
+fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState) {
+    BEGIN("fmi3SetFMUState", ANY_STATE);
+    return (fmi3Status)instance_set_state(instance, "fmi3SetFMUState", FMUState);
+}
+
+fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
+    BEGIN("fmi3FreeFMUState", ANY_STATE);
+    return (fmi3Status)instance_free_state(instance, "fmi3FreeFMUState", FMUState);
+}
+
+fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size) {
+    BEGIN("fmi3SerializedFMUStateSize", ANY_STATE);
+    return (fmi3Status)instance_serialized_size(instance, "fmi3SerializedFMUStateSize", FMUState, size);
+}
+
+fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size) {
+    BEGIN("fmi3SerializeFMUState", ANY_STATE);
+    return (fmi3Status)instance_serialize(instance, "fmi3SerializeFMUState", FMUState, (char *)serializedState, size);
+}
+
+fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size, fmi3FMUState *FMUState) {
+    BEGIN("fmi3DeserializeFMUState", ANY_STATE);
+    return (fmi3Status)instance_deserialize(instance, "fmi3DeserializeFMUState", (const char *)serializedState, size,
+                                            FMUState);
+}
+
+/* --- what these FMUs do not offer ------------------------------------------------------------------------- */
+
+#define UNSUPPORTED(function, why, ...)                                                                               \
+    fmi3Status function(fmi3Instance c, __VA_ARGS__) {                                                               \
+        return (fmi3Status)instance_unsupported((Instance *)c, #function, why);                                     \
+    }
+
+#define NO_EVENT_MODE "hasEventMode is false"
+#define NO_CLOCKS "these FMUs have no clocks"
+#define ME_ONLY "a function of model exchange; these FMUs are co-simulation FMUs"
+
+fmi3Status fmi3EnterEventMode(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterEventMode", NO_EVENT_MODE);
+}
+
+fmi3Status fmi3EnterStepMode(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterStepMode", NO_EVENT_MODE);
+}
+
+fmi3Status fmi3EnterConfigurationMode(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterConfigurationMode", "these FMUs have no structural parameters");
+}
+
+fmi3Status fmi3ExitConfigurationMode(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3ExitConfigurationMode", "these FMUs have no structural parameters");
+}
+
+fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EvaluateDiscreteStates", NO_EVENT_MODE);
+}
+
+fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
+    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterContinuousTimeMode", ME_ONLY);
+}
+
+UNSUPPORTED(fmi3GetNumberOfVariableDependencies, "providesPerElementDependencies is false; see ModelStructure",
+            fmi3ValueReference valueReference, size_t *nDependencies)
+UNSUPPORTED(fmi3GetVariableDependencies, "providesPerElementDependencies is false; see ModelStructure",
+            fmi3ValueReference dependent, size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
+            size_t elementIndicesOfIndependents[], fmi3DependencyKind dependencyKinds[], size_t nDependencies)
+UNSUPPORTED(fmi3GetDirectionalDerivative, "providesDirectionalDerivatives is false", const fmi3ValueReference unknowns[],
+            size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[], size_t nSeed,
+            fmi3Float64 sensitivity[], size_t nSensitivity)
+UNSUPPORTED(fmi3GetAdjointDerivative, "providesAdjointDerivatives is false", const fmi3ValueReference unknowns[],
+            size_t nUnknowns, const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[], size_t nSeed,
+            fmi3Float64 sensitivity[], size_t nSensitivity)
+UNSUPPORTED(fmi3GetOutputDerivatives, "maxOutputDerivativeOrder is 0", const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, const fmi3Int32 orders[], fmi3Float64 values[], size_t nValues)
+UNSUPPORTED(fmi3GetIntervalDecimal, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[])
+UNSUPPORTED(fmi3GetIntervalFraction, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3UInt64 counters[], fmi3UInt64 resolutions[], fmi3IntervalQualifier qualifiers[])
+UNSUPPORTED(fmi3GetShiftDecimal, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3Float64 shifts[])
+UNSUPPORTED(fmi3GetShiftFraction, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3UInt64 counters[], fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3SetIntervalDecimal, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3Float64 intervals[])
+UNSUPPORTED(fmi3SetIntervalFraction, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3SetShiftDecimal, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3Float64 shifts[])
+UNSUPPORTED(fmi3SetShiftFraction, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3UpdateDiscreteStates, NO_EVENT_MODE, fmi3Boolean *discreteStatesNeedUpdate,
+            fmi3Boolean *terminateSimulation, fmi3Boolean *nominalsOfContinuousStatesChanged,
+            fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined, fmi3Float64 *nextEventTime)
+UNSUPPORTED(fmi3CompletedIntegratorStep, ME_ONLY, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
+            fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation)
+UNSUPPORTED(fmi3SetTime, ME_ONLY, fmi3Float64 time)
+UNSUPPORTED(fmi3SetContinuousStates, ME_ONLY, const fmi3Float64 continuousStates[], size_t nContinuousStates)
+UNSUPPORTED(fmi3GetContinuousStateDerivatives, ME_ONLY, fmi3Float64 derivatives[], size_t nContinuousStates)
+UNSUPPORTED(fmi3GetEventIndicators, ME_ONLY, fmi3Float64 eventIndicators[], size_t nEventIndicators)
+UNSUPPORTED(fmi3GetContinuousStates, ME_ONLY, fmi3Float64 continuousStates[], size_t nContinuousStates)
+UNSUPPORTED(fmi3GetNominalsOfContinuousStates, ME_ONLY, fmi3Float64 nominals[], size_t nContinuousStates)
+UNSUPPORTED(fmi3GetNumberOfEventIndicators, ME_ONLY, size_t *nEventIndicators)
+UNSUPPORTED(fmi3GetNumberOfContinuousStates, ME_ONLY, size_t *nContinuousStates)
+UNSUPPORTED(fmi3ActivateModelPartition, "a function of scheduled execution; these FMUs are co-simulation FMUs",
+            fmi3ValueReference clockReference, fmi3Float64 activationTime)

@@ -1,0 +1,341 @@
+/* An FMU instance, for both FMI versions (see instance.h).
+
+   Every function checks its arguments (value references, types, causality, variability, step
+   sizes, FMU states) before Python sees them and logs every failure as text. A Python exception
+   is STATUS_ERROR (STATUS_DISCARD in a step) and leaves the instance usable; a step the slave
+   declines or fails leaves the instance at the start of that step, in step mode; nothing here
+   returns STATUS_FATAL. */
+
+#include "instance.h"
+
+#include <math.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+
+#define INSTANCE_MAGIC 0x44534349u
+#define STATE_MAGIC 0x44535354u
+
+typedef struct {
+    unsigned int magic;
+    PyObject *object;
+    ModelState state;
+} State;
+
+static const char *CATEGORIES[] = {"logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal", "logAll"};
+
+static const char *state_name(ModelState state) {
+    switch (state) {
+    case Instantiated: return "instantiated";
+    case InitializationMode: return "initialization mode";
+    case StepMode: return "step mode";
+    case Terminated: return "terminated";
+    case Error: return "error";
+    }
+    return "unknown";
+}
+
+static void forward(void *context, int status, const char *category, const char *message) {
+    Instance *instance = context;
+    if (status < STATUS_WARNING && !instance->logging_on) return;
+    instance->host_log(instance, status, category, message);
+}
+
+void instance_log(Instance *instance, int status, const char *format, ...) {
+    char message[2048];
+    va_list args;
+    va_start(args, format);
+    vsnprintf(message, sizeof message, format, args);
+    va_end(args);
+    forward(instance, status, status >= STATUS_ERROR ? "logStatusError" : "logStatusWarning", message);
+}
+
+Instance *instance_alloc(size_t size, const char *name, int logging_on, HostLog host_log) {
+    Instance *instance = calloc(1, size);
+    if (!instance) return NULL;
+    instance->magic = INSTANCE_MAGIC;
+    instance->state = Instantiated;
+    instance->logging_on = logging_on;
+    instance->host_log = host_log;
+    snprintf(instance->name, sizeof instance->name, "%s", name);
+    return instance;
+}
+
+int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible,
+                   const MethodNames *names) {
+    char folder[4096];
+    if (slave_uri_to_path(resources, folder, sizeof folder) != 0) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: the resource location %s is not a file URI or an absolute path",
+                     instance->name, function, resources ? resources : "(null)");
+        return -1;
+    }
+    if (slave_create(&instance->slave, folder, instance->name, visible, names, forward, instance) != 0) return -1;
+    if (!token || strcmp(token, instance->slave.token) != 0) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: the token %s does not match this FMU's %s", instance->name,
+                     function, token ? token : "(null)", instance->slave.token);
+        slave_free(&instance->slave);
+        return -1;
+    }
+    return 0;
+}
+
+void instance_free(Instance *instance) {
+    if (!instance || instance->magic != INSTANCE_MAGIC) return;
+    slave_free(&instance->slave);
+    instance->magic = 0;
+    free(instance);
+}
+
+int instance_refused(Instance *instance, const char *function, int mask) {
+    if (!instance || instance->magic != INSTANCE_MAGIC) return 1;
+    if (instance->state & mask) return 0;
+    instance_log(instance, STATUS_ERROR, "%s: %s is not allowed in state %s", instance->name, function,
+                 state_name(instance->state));
+    return 1;
+}
+
+static int settle(Instance *instance, int status, int next) {
+    if (status == STATUS_OK) instance->state = (ModelState)next;
+    else if (status >= STATUS_ERROR) instance->state = Error;
+    return status;
+}
+
+int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next) {
+    return settle(instance, slave_call(&instance->slave, method, n, values, defined, STATUS_ERROR, NULL), next);
+}
+
+int instance_reset(Instance *instance) {
+    return settle(instance, slave_reset(&instance->slave), Instantiated);
+}
+
+int instance_do_step(Instance *instance, const char *function, double time, double step) {
+    if (!isfinite(time) || !isfinite(step) || !(step > 0)) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: current time %g, step size %g; allowed: a finite time and a finite "
+                     "step size > 0", instance->name, function, time, step);
+        return STATUS_ERROR;
+    }
+    int accepted = 0;
+    double values[] = {time, step};
+    int status = slave_call(&instance->slave, "do_step", 2, values, NULL, STATUS_DISCARD, &accepted);
+    return status == STATUS_OK && !accepted ? STATUS_DISCARD : status;
+}
+
+int instance_set_logging(Instance *instance, const char *function, int logging_on, size_t n, const char *const categories[]) {
+    if (n > 0 && !categories) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu categories but no array", instance->name, function, n);
+        return STATUS_ERROR;
+    }
+    for (size_t i = 0; i < n; i++) {
+        int known = 0;
+        for (size_t k = 0; categories[i] && k < sizeof CATEGORIES / sizeof CATEGORIES[0]; k++) {
+            known |= strcmp(categories[i], CATEGORIES[k]) == 0;
+        }
+        if (!known) {
+            instance_log(instance, STATUS_ERROR, "%s: %s: unknown log category %s; allowed: logStatusWarning, "
+                         "logStatusDiscard, logStatusError, logStatusFatal, logAll", instance->name, function,
+                         categories[i] ? categories[i] : "(null)");
+            return STATUS_ERROR;
+        }
+    }
+    instance->logging_on = logging_on;
+    return STATUS_OK;
+}
+
+/* --- values ------------------------------------------------------------------------------------------- */
+
+static int arrays_given(Instance *instance, const char *function, size_t nvr, const void *vr, const void *values,
+                        size_t nvalues) {
+    if (nvr == 0) return 1;
+    if (!vr || !values) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no %s array", instance->name, function,
+                     nvr, vr ? "value" : "value reference");
+        return 0;
+    }
+    if (nvalues != nvr) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but %zu values (every variable is a scalar)",
+                     instance->name, function, nvr, nvalues);
+        return 0;
+    }
+    return 1;
+}
+
+/* Why the variable `vr` may not be set now, or NULL. */
+static const char *not_settable(const Instance *instance, unsigned int vr) {
+    const Slave *s = &instance->slave;
+    if (s->causality[vr] == CAUSALITY_OUTPUT) return "is an output: it cannot be set";
+    if (s->causality[vr] != CAUSALITY_PARAMETER && s->causality[vr] != CAUSALITY_INPUT) return "cannot be set";
+    if (s->variability[vr] == VARIABILITY_CONSTANT) return "is a constant: it cannot be set";
+    if (instance->state == StepMode && s->causality[vr] == CAUSALITY_PARAMETER &&
+        s->variability[vr] != VARIABILITY_TUNABLE) {
+        return "is a fixed parameter: it can be set only before initialization mode ends";
+    }
+    return NULL;
+}
+
+/* Whether every `vr` is a variable of `type` (named `type_name`) that may be set now if `setting`; logs the first that is not. */
+static int check(Instance *instance, const char *function, int type, const char *type_name, const unsigned int vr[],
+                 size_t nvr, int setting) {
+    for (size_t i = 0; i < nvr; i++) {
+        int actual = slave_type_of(&instance->slave, vr[i]);
+        const char *wrong = NULL;
+        if (actual == NO_VARIABLE || actual > TYPES) wrong = "is not a variable of this FMU";
+        else if (actual != type) {
+            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is a %s variable, not %s", instance->name,
+                         function, vr[i], instance->slave.names->type[actual], type_name);
+            return -1;
+        } else if (setting) wrong = not_settable(instance, vr[i]);
+        if (wrong) {
+            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u %s", instance->name, function, vr[i], wrong);
+            return -1;
+        }
+    }
+    if (nvr && type == TYPE_STRING) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: String variables are not supported", instance->name, function);
+        return -1;
+    }
+    return 0;
+}
+
+int instance_get(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr, void *values,
+                 size_t nvalues, CType ctype) {
+    if (!arrays_given(instance, function, nvr, vr, values, nvalues) ||
+        check(instance, function, type, instance->slave.names->type[type], vr, nvr, 0)) {
+        return STATUS_ERROR;
+    }
+    return nvr ? slave_get(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
+}
+
+int instance_set(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr,
+                 const void *values, size_t nvalues, CType ctype) {
+    if (!arrays_given(instance, function, nvr, vr, values, nvalues) ||
+        check(instance, function, type, instance->slave.names->type[type], vr, nvr, 1)) {
+        return STATUS_ERROR;
+    }
+    return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
+}
+
+int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],
+                              size_t nvr) {
+    if (nvr && !vr) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no array", instance->name, function, nvr);
+        return STATUS_ERROR;
+    }
+    return check(instance, function, TYPES + 1, type_name, vr, nvr, 0) ? STATUS_ERROR : STATUS_OK;
+}
+
+int instance_unsupported(Instance *instance, const char *function, const char *why) {
+    if (instance_refused(instance, function, ANY_STATE)) return STATUS_ERROR;
+    instance_log(instance, STATUS_ERROR, "%s: %s is not supported: %s", instance->name, function, why);
+    return STATUS_ERROR;
+}
+
+/* --- FMU states ------------------------------------------------------------------------------------------- */
+
+static State *valid_state(Instance *instance, const char *function, void *pointer) {
+    State *state = pointer;
+    if (state && state->magic == STATE_MAGIC) return state;
+    instance_log(instance, STATUS_ERROR, "%s: %s: not an FMU state that this FMU returned (or one already freed)",
+                 instance->name, function);
+    return NULL;
+}
+
+int instance_get_state(Instance *instance, const char *function, void **pointer) {
+    if (!pointer) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: no place for the FMU state (NULL)", instance->name, function);
+        return STATUS_ERROR;
+    }
+    State *state = *pointer ? valid_state(instance, function, *pointer) : calloc(1, sizeof(State));
+    if (!state) return STATUS_ERROR;
+    PyObject *object = NULL;
+    if (slave_get_state(&instance->slave, &object) != STATUS_OK) {
+        if (!*pointer) free(state);
+        return STATUS_ERROR;
+    }
+    slave_release(state->object);
+    state->magic = STATE_MAGIC;
+    state->object = object;
+    state->state = instance->state;
+    *pointer = state;
+    return STATUS_OK;
+}
+
+int instance_set_state(Instance *instance, const char *function, void *pointer) {
+    State *state = valid_state(instance, function, pointer);
+    if (!state) return STATUS_ERROR;
+    int status = slave_set_state(&instance->slave, state->object);
+    if (status == STATUS_OK) instance->state = state->state;
+    return status;
+}
+
+int instance_free_state(Instance *instance, const char *function, void **pointer) {
+    if (!pointer || !*pointer) return STATUS_OK;
+    State *state = valid_state(instance, function, *pointer);
+    if (!state) return STATUS_ERROR;
+    slave_release(state->object);
+    state->magic = 0;
+    free(state);
+    *pointer = NULL;
+    return STATUS_OK;
+}
+
+/* Serialized: one byte with the instance's state, then native_bridge.state_to_bytes. */
+static int serialize(Instance *instance, State *state, char **bytes, size_t *size) {
+    char *body = NULL;
+    size_t length = 0;
+    if (slave_serialize(&instance->slave, state->object, &body, &length) != STATUS_OK) return -1;
+    *bytes = malloc(length + 1);
+    if (*bytes) {
+        (*bytes)[0] = (char)state->state;
+        memcpy(*bytes + 1, body, length);
+        *size = length + 1;
+    }
+    free(body);
+    return *bytes ? 0 : -1;
+}
+
+int instance_serialized_size(Instance *instance, const char *function, void *pointer, size_t *size) {
+    State *state = valid_state(instance, function, pointer);
+    char *bytes = NULL;
+    if (!state || !size || serialize(instance, state, &bytes, size) != 0) return STATUS_ERROR;
+    free(bytes);
+    return STATUS_OK;
+}
+
+int instance_serialize(Instance *instance, const char *function, void *pointer, char *buffer, size_t size) {
+    State *state = valid_state(instance, function, pointer);
+    char *bytes = NULL;
+    size_t needed = 0;
+    if (!state || !buffer || serialize(instance, state, &bytes, &needed) != 0) return STATUS_ERROR;
+    int status = STATUS_OK;
+    if (size < needed) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: the buffer holds %zu bytes, the state needs %zu", instance->name,
+                     function, size, needed);
+        status = STATUS_ERROR;
+    } else {
+        memcpy(buffer, bytes, needed);
+    }
+    free(bytes);
+    return status;
+}
+
+int instance_deserialize(Instance *instance, const char *function, const char *buffer, size_t size, void **pointer) {
+    int saved = buffer && size > 0 ? (unsigned char)buffer[0] : 0;
+    if (!pointer || saved == 0 || (saved & ~ANY_STATE) || (saved & (saved - 1))) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: not a serialized FMU state of dsc-fmu (or no place for it)",
+                     instance->name, function);
+        return STATUS_ERROR;
+    }
+    PyObject *object = NULL;
+    if (slave_deserialize(&instance->slave, buffer + 1, size - 1, &object) != STATUS_OK) return STATUS_ERROR;
+    State *state = calloc(1, sizeof *state);
+    if (!state) {
+        slave_release(object);
+        return STATUS_ERROR;
+    }
+    state->magic = STATE_MAGIC;
+    state->object = object;
+    state->state = (ModelState)saved;
+    *pointer = state;
+    return STATUS_OK;
+}

@@ -1,0 +1,77 @@
+/* An FMU instance, for both FMI versions: its state machine, guarded calls, values and FMU states.
+
+   fmi2Functions.c and fmi3Functions.c embed an Instance first in their own struct (with the
+   importer's callbacks) and map each FMI call onto the functions here. */
+
+#ifndef DSC_INSTANCE_H
+#define DSC_INSTANCE_H
+
+#include <stddef.h>
+
+#include "slave.h"
+
+typedef enum {
+    Instantiated = 1 << 0,
+    InitializationMode = 1 << 1,
+    StepMode = 1 << 2, /* FMI 2.0: step complete */
+    Terminated = 1 << 3,
+    Error = 1 << 4,
+} ModelState;
+
+#define ANY_STATE (Instantiated | InitializationMode | StepMode | Terminated | Error)
+
+typedef struct Instance Instance;
+
+/* Hand `message` to the importer's logger as text. */
+typedef void (*HostLog)(Instance *instance, int status, const char *category, const char *message);
+
+struct Instance {
+    unsigned int magic;
+    Slave slave;
+    ModelState state;
+    char name[256];
+    int logging_on;
+    HostLog host_log;
+};
+
+/* A zeroed instance of `size` bytes (at least sizeof(Instance)) named `name`, or NULL. */
+Instance *instance_alloc(size_t size, const char *name, int logging_on, HostLog host_log);
+
+/* Create the slave (resources: a path or file URI; token: the GUID or instantiation token the
+   importer passed). 0, or -1 after logging why; the caller then frees the instance. */
+int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible,
+                   const MethodNames *names);
+void instance_free(Instance *instance);
+
+void instance_log(Instance *instance, int status, const char *format, ...);
+
+/* Whether the call `function` is refused: a foreign pointer (silently) or a state outside `mask` (logged). */
+int instance_refused(Instance *instance, const char *function, int mask);
+
+/* setup, enter, exit, terminate: call `method` with `n` floats; on success the state becomes `next`. */
+int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next);
+int instance_reset(Instance *instance);
+int instance_do_step(Instance *instance, const char *function, double time, double step);
+int instance_set_logging(Instance *instance, const char *function, int logging_on, size_t n, const char *const categories[]);
+
+int instance_get(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr, void *values,
+                 size_t nvalues, CType ctype);
+int instance_set(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr,
+                 const void *values, size_t nvalues, CType ctype);
+
+/* For the types these FMUs have no variables of: STATUS_OK for no value references, else STATUS_ERROR
+   naming the type of the first. */
+int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],
+                              size_t nvr);
+
+/* For a function these FMUs do not support: always STATUS_ERROR, logged with `why`. */
+int instance_unsupported(Instance *instance, const char *function, const char *why);
+
+int instance_get_state(Instance *instance, const char *function, void **state);
+int instance_set_state(Instance *instance, const char *function, void *state);
+int instance_free_state(Instance *instance, const char *function, void **state);
+int instance_serialized_size(Instance *instance, const char *function, void *state, size_t *size);
+int instance_serialize(Instance *instance, const char *function, void *state, char *buffer, size_t size);
+int instance_deserialize(Instance *instance, const char *function, const char *buffer, size_t size, void **state);
+
+#endif
