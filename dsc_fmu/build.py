@@ -207,6 +207,8 @@ def _complete_variable(typed: ET.Element, v, real: bool) -> None:
             typed.set("start", repr(float(v.start)))
     if v.bound == NONNEGATIVE:
         typed.set("min", "0")
+    if v.minimum is not None:
+        typed.set("min", f"{v.minimum:g}")
     if v.maximum is not None:
         typed.set("max", f"{v.maximum:g}")
 

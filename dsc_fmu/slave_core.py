@@ -8,7 +8,7 @@ put it on their slave base classes and supply the three hooks ``_register``, ``l
 
 import math
 
-from .models.rk4 import rk4_integrate
+from .models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
 
 __all__ = ["SlaveCore"]
 
@@ -17,16 +17,15 @@ class SlaveCore:
     """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
 
     Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
-    ``initial_state``, ``derivatives`` and ``outputs``. Until initialisation ends, the state is
-    ``initial_state()`` of the current parameters and inputs; it is fixed at the first output read
-    or step after ``exit_initialization_mode`` and then integrated with RK4 in sub-steps no longer
-    than the parameter ``max_step``.
+    ``initial_state``, ``derivatives`` and ``outputs``. Until the first step, the state is
+    ``initial_state()`` of the current parameters and inputs; the first ``do_step`` starts from it
+    and integrates with RK4 in sub-steps no longer than the parameter ``max_step`` (at most
+    ``MAX_SUBSTEPS`` per step).
 
-    A value outside its allowed range is refused without raising: pythonfmu (0.7.0) and pythonfmu3
-    (0.3.4) turn a Python exception into fmiFatal and a later fmiFreeInstance then crashes the
-    importer. The refusal is logged as an error naming the variable and its range, the variable
-    keeps its last valid value, and every ``do_step`` returns False (fmiDiscard) until a valid value
-    is set.
+    A value outside its allowed range is refused without raising, so that the set call succeeds and
+    the importer can correct it: the refusal is logged as an error naming the variable and its
+    range, the variable keeps its last valid value, and every ``do_step`` returns False
+    (fmiDiscard) until a valid value is set.
     """
 
     PARAMETERS: tuple = ()
@@ -39,7 +38,6 @@ class SlaveCore:
         self._constants = None
         self.u = [v.start for v in self.INPUTS]
         self.state = None
-        self.initializing = True
         self.rejected = {}
         self.time = 0.0
         self._cache = None
@@ -98,12 +96,20 @@ class SlaveCore:
         return self._constants
 
     def current_state(self) -> list:
-        """The state: the initial state while initialising, fixed at the first use after it."""
-        if self.state is None:
-            if self.initializing:
-                return self.initial_state()
-            self.state = self.initial_state()
-        return self.state
+        """The state: until the first step, ``initial_state()`` of the current parameters and inputs
+        (so the order in which an importer initialises, sets and reads does not matter)."""
+        return self.initial_state() if self.state is None else self.state
+
+    def too_many_substeps(self, current_time: float, step_size: float) -> bool:
+        """Whether the step needs more than ``MAX_SUBSTEPS`` RK4 sub-steps (logged): no step may demand unbounded work."""
+        n = substeps(step_size, self.p["max_step"])
+        if n <= MAX_SUBSTEPS:
+            return False
+        self.log_error(
+            f"{self.instance_name}: the step of {step_size} s from t = {current_time} s needs {n} sub-steps of at most "
+            f"max_step = {self.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step; the step is discarded"
+        )
+        return True
 
     def integrate(self, t: float, x: list, step_size: float) -> list:
         """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
@@ -116,7 +122,6 @@ class SlaveCore:
         return self._cache
 
     def exit_initialization_mode(self):
-        self.initializing = False
         self._cache = None
 
     def do_step(self, current_time, step_size):
@@ -125,7 +130,8 @@ class SlaveCore:
                 f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}"
             )
             return False
-        self.initializing = False
+        if self.too_many_substeps(current_time, step_size):
+            return False
         new = self.integrate(current_time, self.current_state(), step_size)
         if not all(math.isfinite(value) for value in new):
             self.log_error(
@@ -140,7 +146,7 @@ class SlaveCore:
 
     def _get_fmu_state(self):
         return {
-            "p": dict(self.p), "u": list(self.u), "time": self.time, "initializing": self.initializing,
+            "p": dict(self.p), "u": list(self.u), "time": self.time,
             "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
             "extra": self.extra_state(),
         }
@@ -149,7 +155,6 @@ class SlaveCore:
         self.p = dict(saved["p"])
         self.u = list(saved["u"])
         self.time = saved["time"]
-        self.initializing = saved["initializing"]
         self.rejected = dict(saved["rejected"])
         self.state = None if saved["state"] is None else list(saved["state"])
         self.set_extra_state(saved["extra"])

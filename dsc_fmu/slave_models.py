@@ -69,15 +69,16 @@ class DSCControllerModel:
     """Inputs: measurements and reference. Outputs: voltages u1, u2 (direct feedthrough) and internals.
 
     The measured inputs are held over a step; the 20 controller states are integrated with RK4
-    (``discretization`` = 0) or one explicit Euler step per communication step (1). The filter
-    states start at x2f = x2bar, x3f = x3bar of the inputs present at the first output read or step
-    after initialisation (SPEC 5: the first measurements the controller sees). The beta guard
+    (``discretization`` = 0) or one explicit Euler step per communication step (1). Until the first
+    step the filter states are x2f = x2bar, x3f = x3bar of the current inputs, whatever the order of
+    sets and reads; the first step starts from those of the inputs it holds (SPEC 5: the first
+    measurements the controller sees). The beta guard
     (SPEC 5) is counted (``beta_guard_count``), shown (``beta_guard_active``) and logged.
 
     With ``start_on`` = valid_inputs, a controller that has not started and whose only refused
     values are inputs waits instead of discarding its steps: u = 0, S11 = S12 = S13 = 0, beta = 1,
     estimates at their initial values, ``started`` False. It starts (filters from the inputs then
-    present) at the first output read or step at which every input is valid. Both ends of the wait
+    present) at the first step at which every input is valid. Both ends of the wait
     are logged as warnings; once started, a refused input discards steps as always.
     """
 
@@ -113,8 +114,7 @@ class DSCControllerModel:
         return control_law(self.constants, self.current_state(), self.u)
 
     def started(self):
-        """Whether the filter states have started; like any output read, this starts them if they can."""
-        self.current_state()
+        """Whether the filter states have started (at the first step with every input valid)."""
         return self.state is not None
 
     def may_wait(self):
@@ -133,11 +133,6 @@ class DSCControllerModel:
     def current_state(self):
         if self.waiting():
             return initial_controller_state(self.p)
-        if self.state is None and self.waited_steps and not self.initializing:
-            self.log_warning(
-                f"{self.instance_name}: every input valid at t = {self.time:.6g} s: the controller starts "
-                f"after waiting {self.waited_steps} step(s) with u = 0 (start_on = valid_inputs)"
-            )
         return super().current_state()
 
     def initial_state(self):
@@ -162,10 +157,14 @@ class DSCControllerModel:
                     f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}"
                 )
             self.waited_steps += 1
-            self.initializing = False
             self.time = current_time + step_size
             self._cache = None
             return True
+        if self.state is None and self.waited_steps and not self.rejected:
+            self.log_warning(
+                f"{self.instance_name}: every input valid at t = {current_time:.6g} s: the controller starts "
+                f"after waiting {self.waited_steps} step(s) with u = 0 (start_on = valid_inputs)"
+            )
         self._guard_seen = None
         ok = super().do_step(current_time, step_size)
         if self._guard_seen is not None:

@@ -426,40 +426,58 @@ def test_controller_outputs_move_only_with_their_declared_inputs(md, new):
 
 
 def test_controller_direct_feedthrough(new):
-    """After initialisation the filter states are fixed by the first read (SPEC 5: the first
-    measurements seen); from then on u follows every new input vector at that state."""
+    """Once stepped, the filter states are fixed by the first step (SPEC 5: the first measurements
+    seen); from then on u follows every new input vector at the current state."""
     ctrl = new("DSCController")
     g = gains(CONTROLLER)
-    state = start_filters(g, initial_controller_state(CONTROLLER), M_PAPER)
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    ctrl.step(0.0, 1e-3)
+    state = [ctrl.get1(name) for name in ("a1_hat", "a2_hat")]
     results = []
     for m in (M_PAPER, M_OTHER):
         ctrl.set(CONTROLLER_IN, m)
         u = ctrl.get(("u1", "u2"))
-        law = control_law(g, state, m)
-        assert u == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
+        assert [ctrl.get1(name) for name in ("a1_hat", "a2_hat")] == state
         assert all(math.isfinite(x) for x in u)
         results.append(u)
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    assert ctrl.get(("u1", "u2")) == results[0]
+    fresh = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), M_OTHER), M_OTHER)
+    assert results[1] != pytest.approx([fresh.u1, fresh.u2], rel=1e-9)
     assert results[0][0] != results[1][0] and results[0][1] != results[1][1]
 
 
-def test_controller_state_follows_inputs_until_initialisation_ends(md, fmu_unzipped):
-    """While initialising, x2f = x2bar and x3f = x3bar of the current inputs; the first read after
-    exitInitializationMode fixes them (so a Gauss-Seidel master's u(0) and first step agree)."""
+def test_controller_state_follows_inputs_until_the_first_step(md, fmu_unzipped):
+    """Until the first fmi2DoStep, x2f = x2bar and x3f = x3bar of the current inputs, in
+    initialisation mode and after it, whatever was read before; the first step starts from the
+    inputs it holds (so no order of sets and reads can latch stale start values)."""
     inst = Instance(md["DSCController"], fmu_unzipped["DSCController"], "init")
     g = gains(CONTROLLER)
     inst.fmu.setupExperiment(startTime=0.0)
     inst.fmu.enterInitializationMode()
+
+    def expect(m, state=None):
+        x = state or start_filters(g, initial_controller_state(CONTROLLER), m)
+        law = control_law(g, x, m)
+        assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
+
     for m in (M_PAPER, M_OTHER):
         inst.set(CONTROLLER_IN, m)
-        law = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), m), m)
-        assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
+        expect(m)
     inst.fmu.exitInitializationMode()
-    fixed = start_filters(g, initial_controller_state(CONTROLLER), M_OTHER)
-    inst.get(("u1",))
-    inst.set(CONTROLLER_IN, M_PAPER)
-    law = control_law(g, fixed, M_PAPER)
-    assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
+    for m in (M_PAPER, M_OTHER):
+        inst.set(CONTROLLER_IN, m)
+        expect(m)
+    assert inst.outputs()["started"] is False
+    inst.step(0.0, 1e-3)
+    assert inst.outputs()["started"] is True
     inst.close()
+
+
+def test_controller_input_start_values_are_the_default_scenarios_initial_state(md):
+    """The inputs' start values describe the paper's start: u before any set is the paper's u(0)."""
+    starts = {v.name: v.start for v in md["DSCController"].modelVariables if v.causality == "input"}
+    assert [float(starts[name]) for name in CONTROLLER_IN] == list(M_PAPER)
 
 
 def test_euler_discretization_takes_one_explicit_euler_step(new):
@@ -947,12 +965,13 @@ def test_start_on_valid_inputs_waits_then_starts_from_the_first_valid_inputs(new
     g = gains(CONTROLLER)
     law = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), M_PAPER), M_PAPER)
     assert ctrl.get(("u1", "u2")) == [law.u1, law.u2]
-    assert ctrl.outputs()["started"] is True
-    assert any("starts after waiting 2 step(s)" in m and "t = 0.002 s" in m for _, m in ctrl.messages())
+    assert ctrl.outputs()["started"] is False
     first = new("DSCController")
     first.set(CONTROLLER_IN, M_PAPER)
     for inst in (ctrl, first):
         inst.step(2 * h, h)
+    assert ctrl.outputs()["started"] is True
+    assert any("starts after waiting 2 step(s)" in m and "t = 0.002 s" in m for _, m in ctrl.messages())
     assert ctrl.outputs() == first.outputs()
     ctrl.set(("v_r",), (0.0,))
     with pytest.raises(FMICallException) as failure:

@@ -30,7 +30,7 @@ class Variable:
 
     ``bound`` is ``"positive"`` (> 0), ``"nonnegative"`` (>= 0) or ``"any"`` (finite).
     ``tunable`` parameters may change between communication points; the others are fixed.
-    ``integer`` marks an Integer variable, with ``maximum`` its largest allowed value; ``choices``
+    ``minimum`` and ``maximum`` bound it further (inclusive). ``integer`` marks an Integer variable; ``choices``
     names its values 0, 1, ... (a scenario gives the name, the FMU takes the number).
     """
 
@@ -41,6 +41,7 @@ class Variable:
     bound: str = ANY
     tunable: bool = False
     integer: bool = False
+    minimum: float | None = None
     maximum: float | None = None
     choices: tuple = ()
 
@@ -54,6 +55,8 @@ class Variable:
             return f"{self.name} = {value} is not allowed: it must be >= 0"
         if self.integer and value != int(value):
             return f"{self.name} = {value} is not allowed: it must be a whole number"
+        if self.minimum is not None and value < self.minimum:
+            return f"{self.name} = {value} is not allowed: it must be >= {self.minimum:g}"
         if self.maximum is not None and value > self.maximum:
             return f"{self.name} = {value} is not allowed: it must be <= {self.maximum:g}"
         return None
@@ -62,9 +65,16 @@ class Variable:
     def allowed(self) -> str:
         """The allowed range in words, for error messages."""
         text = {POSITIVE: "> 0", NONNEGATIVE: ">= 0", ANY: "finite"}[self.bound]
+        if self.minimum is not None:
+            text += f" and >= {self.minimum:g}"
         if self.maximum is not None:
             text += f" and <= {self.maximum:g}"
         return text + (", whole number" if self.integer else "")
+
+
+def defaults(variables) -> dict:
+    """Map each variable's name to its start value."""
+    return {v.name: v.start for v in variables}
 
 
 def _per_wheel(name, value, unit, what, bound=POSITIVE):
@@ -76,7 +86,8 @@ def _per_wheel(name, value, unit, what, bound=POSITIVE):
 
 MAX_STEP = Variable(
     "max_step", 1e-3, "s",
-    "Longest internal RK4 sub-step between communication points", POSITIVE, tunable=True,
+    "Longest internal RK4 sub-step between communication points (1 us to 1 s: it bounds the work of a step)",
+    POSITIVE, tunable=True, minimum=1e-6, maximum=1.0,
 )
 
 PLANT_PARAMETERS = (
@@ -188,10 +199,10 @@ CONTROLLER_PARAMETERS = (
     ),
     Variable(
         "start_on", 0, "1",
-        "When the controller starts its filter states (SPEC 5): 0 = first_use (at the first output read or "
-        "step after initialisation; an input out of range is refused and every step discarded), "
+        "When the controller starts its filter states (SPEC 5): 0 = first_use (at the first step, from the "
+        "inputs it holds; an input out of range is refused and every step discarded), "
         "1 = valid_inputs (while only inputs are refused and it has not started, it waits: u = 0, states "
-        "unchanged, steps accepted; it starts at the first output read or step with every input valid; for masters "
+        "unchanged, steps accepted; it starts at the first step with every input valid; for masters "
         "that start their connections at 0 without an initial exchange, such as fmpy.ssp.simulate_ssp)",
         NONNEGATIVE, integer=True, maximum=len(START_ON) - 1, choices=START_ON,
     ),
@@ -202,10 +213,23 @@ CONTROLLER_PARAMETERS = (
     MAX_STEP,
 )
 
+# The controller's input start values: the default scenario's initial state (the robot at rest at
+# its initial pose, the reference at its initial pose with its constant velocities).
+_PLANT_START = defaults(PLANT_PARAMETERS)
+_REFERENCE_START = defaults(REFERENCE_PARAMETERS)
+_INITIAL_MEASUREMENTS = {
+    "x": _PLANT_START["x0"], "y": _PLANT_START["y0"], "theta": _PLANT_START["theta0"],
+    "omega1": _PLANT_START["omega1_0"], "omega2": _PLANT_START["omega2_0"],
+    "i1": _PLANT_START["i1_0"], "i2": _PLANT_START["i2_0"],
+    "x_r": _REFERENCE_START["x0"], "y_r": _REFERENCE_START["y0"], "theta_r": _REFERENCE_START["theta0"],
+    "v_r": _REFERENCE_START["vr0"], "omega_r": _REFERENCE_START["wr0"],
+}
+
 CONTROLLER_INPUTS = (
-    *(replace(v, description=f"Measured: {v.description[0].lower()}{v.description[1:]}") for v in PLANT_OUTPUTS),
-    *(replace(v, start=1.0, bound=POSITIVE, description=f"{v.description} (Assumption 2: > 0)") if v.name == "v_r"
-      else v for v in REFERENCE_OUTPUTS),
+    *(replace(v, start=_INITIAL_MEASUREMENTS.get(v.name, 0.0),
+              description=f"Measured: {v.description[0].lower()}{v.description[1:]}") for v in PLANT_OUTPUTS),
+    *(replace(v, start=_INITIAL_MEASUREMENTS[v.name], bound=POSITIVE, description=f"{v.description} (Assumption 2: > 0)")
+      if v.name == "v_r" else replace(v, start=_INITIAL_MEASUREMENTS.get(v.name, 0.0)) for v in REFERENCE_OUTPUTS),
 )
 
 CONTROLLER_OUTPUTS = (
@@ -223,7 +247,3 @@ CONTROLLER_OUTPUTS = (
     *(Variable(f"W2_hat_{i}", 0.0, "1", f"Estimate of W2 entry {i} (eq. 27)") for i in range(1, 7)),
 )
 
-
-def defaults(variables) -> dict:
-    """Map each variable's name to its start value."""
-    return {v.name: v.start for v in variables}

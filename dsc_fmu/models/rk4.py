@@ -2,7 +2,10 @@
 
 import math
 
-__all__ = ["substeps", "rk4_integrate", "euler_step"]
+__all__ = ["MAX_SUBSTEPS", "substeps", "rk4_integrate", "euler_step"]
+
+# The most sub-steps one communication step may take: bounds the work of any single step.
+MAX_SUBSTEPS = 1_000_000
 
 
 def substeps(step_size: float, max_step: float) -> int:
