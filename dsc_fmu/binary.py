@@ -39,11 +39,17 @@ class BinaryBuildError(RuntimeError):
 
 @dataclass(frozen=True)
 class PythonRuntime:
-    """The Python the binary looks for: its minor version, shared library (or "") and home."""
+    """The Python the binary looks for: its minor version, the shared library (or "") and home of the
+    Python that built it, and the file name of the system's shared library of that version."""
 
     version: str
     library: str
     home: str
+    soname: str = ""
+
+    @property
+    def system_library(self) -> str:
+        return self.soname or f"libpython{self.version}.so.1.0"
 
 
 def build_python() -> PythonRuntime:
@@ -87,6 +93,7 @@ def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
         f"-DDSC_BUILD_LIBPYTHON={_c_string(runtime.library)}",
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
+        f"-DDSC_PYTHON_SONAME={_c_string(runtime.system_library)}",
         *(str(NATIVE_DIR / name) for name in _SOURCES[fmi_version]),
         "-o", str(output), "-ldl", "-lpthread", "-lm",
     ]

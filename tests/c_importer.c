@@ -1,9 +1,10 @@
-/* A minimal FMI 2.0 co-simulation importer in C, as a non-Python tool loads an FMU.
+/* A minimal FMI 2.0 / 3.0 co-simulation importer in C, as a non-Python tool loads one FMU.
 
-   usage: c_importer UNZIPPED_DIR MODEL_IDENTIFIER GUID STEPS STEP_SIZE VR [VR ...]
-   Loads binaries/linux64/<MODEL_IDENTIFIER>.so, instantiates, initialises, does STEPS steps of
-   STEP_SIZE and prints "time,value,..." of the given Real value references at t = 0 and after every
-   step; exits 1 with a message on the first failing call. */
+   usage: c_importer FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN STEPS STEP_SIZE VR [VR ...]
+   Loads binaries/linux64/<MODEL_IDENTIFIER>.so (FMI 2.0) or binaries/x86_64-linux/... (FMI 3.0),
+   instantiates, initialises, does STEPS steps of STEP_SIZE and prints "time,value,..." of the given
+   Real (Float64) value references at t = 0 and after every step; exits 1 with a message on the first
+   failing call, 2 if instantiation returns NULL. */
 
 #include <dlfcn.h>
 #include <stdarg.h>
@@ -11,37 +12,21 @@
 #include <stdlib.h>
 #include <string.h>
 
-typedef void *fmi2Component;
-typedef unsigned int fmi2ValueReference;
-typedef double fmi2Real;
-typedef int fmi2Boolean;
-typedef int fmi2Status;
+#include "fmi2Functions.h"
+#include "fmi3Functions.h"
 
-typedef struct {
-    void (*logger)(void *, const char *, fmi2Status, const char *, const char *, ...);
-    void *(*allocateMemory)(size_t, size_t);
-    void (*freeMemory)(void *);
-    void (*stepFinished)(void *, fmi2Status);
-    void *componentEnvironment;
-} fmi2CallbackFunctions;
-
-typedef fmi2Component (*Instantiate)(const char *, int, const char *, const char *,
-                                     const fmi2CallbackFunctions *, fmi2Boolean, fmi2Boolean);
-typedef fmi2Status (*SetupExperiment)(fmi2Component, fmi2Boolean, fmi2Real, fmi2Real, fmi2Boolean, fmi2Real);
-typedef fmi2Status (*Simple)(fmi2Component);
-typedef fmi2Status (*GetReal)(fmi2Component, const fmi2ValueReference *, size_t, fmi2Real *);
-typedef fmi2Status (*DoStep)(fmi2Component, fmi2Real, fmi2Real, fmi2Boolean);
-typedef void (*FreeInstance)(fmi2Component);
-
-static void logger(void *env, const char *instance, fmi2Status status, const char *category, const char *message, ...) {
-    (void)env;
-    (void)category;
+static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                    fmi2String message, ...) {
     va_list args;
     va_start(args, message);
     fprintf(stderr, "[%s %d] ", instance, status);
     vfprintf(stderr, message, args);
     fprintf(stderr, "\n");
     va_end(args);
+}
+
+static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
+    fprintf(stderr, "[%d] %s\n", status, message);
 }
 
 static void *symbol(void *library, const char *name) {
@@ -53,55 +38,97 @@ static void *symbol(void *library, const char *name) {
     return address;
 }
 
-static void check(fmi2Status status, const char *call) {
+static void check(int status, const char *call) {
     if (status > 1) {
         fprintf(stderr, "%s failed with status %d\n", call, status);
         exit(1);
     }
 }
 
-int main(int argc, char **argv) {
-    if (argc < 7) {
-        fprintf(stderr, "usage: %s UNZIPPED_DIR MODEL_IDENTIFIER GUID STEPS STEP_SIZE VR [VR ...]\n", argv[0]);
+static void print_row(double t, const double *values, size_t n) {
+    printf("%.17g", t);
+    for (size_t i = 0; i < n; i++) printf(",%.17g", values[i]);
+    printf("\n");
+}
+
+static int run2(void *library, const char *dir, const char *model, const char *guid, int steps, double h,
+                const unsigned int *vr, double *values, size_t n) {
+    char resources[4096];
+    snprintf(resources, sizeof resources, "file://%s/resources", dir);
+    static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
+    fmi2Component c = ((fmi2InstantiateTYPE *)symbol(library, "fmi2Instantiate"))(
+        model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
+    if (!c) {
+        fprintf(stderr, "fmi2Instantiate returned NULL\n");
         return 2;
     }
-    const char *dir = argv[1], *model = argv[2], *guid = argv[3];
-    int steps = atoi(argv[4]);
-    double h = atof(argv[5]);
-    size_t n = (size_t)(argc - 6);
-    fmi2ValueReference *vr = calloc(n, sizeof *vr);
-    fmi2Real *values = calloc(n, sizeof *values);
-    for (size_t i = 0; i < n; i++) vr[i] = (fmi2ValueReference)atoi(argv[6 + i]);
+    fmi2GetRealTYPE *get = symbol(library, "fmi2GetReal");
+    fmi2DoStepTYPE *step = symbol(library, "fmi2DoStep");
+    check(((fmi2SetupExperimentTYPE *)symbol(library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0), "fmi2SetupExperiment");
+    check(((fmi2EnterInitializationModeTYPE *)symbol(library, "fmi2EnterInitializationMode"))(c), "fmi2EnterInitializationMode");
+    check(((fmi2ExitInitializationModeTYPE *)symbol(library, "fmi2ExitInitializationMode"))(c), "fmi2ExitInitializationMode");
+    for (int k = 0; k <= steps; k++) {
+        check(get(c, vr, n, values), "fmi2GetReal");
+        print_row(k * h, values, n);
+        if (k < steps) check(step(c, k * h, h, fmi2True), "fmi2DoStep");
+    }
+    check(((fmi2TerminateTYPE *)symbol(library, "fmi2Terminate"))(c), "fmi2Terminate");
+    ((fmi2FreeInstanceTYPE *)symbol(library, "fmi2FreeInstance"))(c);
+    return 0;
+}
 
-    char path[4096], resources[4096];
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, model);
-    snprintf(resources, sizeof resources, "file://%s/resources", dir);
+static int run3(void *library, const char *dir, const char *model, const char *token, int steps, double h,
+                const unsigned int *vr, double *values, size_t n) {
+    char resources[4096];
+    snprintf(resources, sizeof resources, "%s/resources/", dir);
+    fmi3Instance c = ((fmi3InstantiateCoSimulationTYPE *)symbol(library, "fmi3InstantiateCoSimulation"))(
+        model, token, resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
+    if (!c) {
+        fprintf(stderr, "fmi3InstantiateCoSimulation returned NULL\n");
+        return 2;
+    }
+    fmi3GetFloat64TYPE *get = symbol(library, "fmi3GetFloat64");
+    fmi3DoStepTYPE *step = symbol(library, "fmi3DoStep");
+    check(((fmi3EnterInitializationModeTYPE *)symbol(library, "fmi3EnterInitializationMode"))(c, fmi3False, 0.0, 0.0,
+                                                                                                fmi3False, 0.0),
+          "fmi3EnterInitializationMode");
+    check(((fmi3ExitInitializationModeTYPE *)symbol(library, "fmi3ExitInitializationMode"))(c), "fmi3ExitInitializationMode");
+    for (int k = 0; k <= steps; k++) {
+        check(get(c, vr, n, values, n), "fmi3GetFloat64");
+        print_row(k * h, values, n);
+        fmi3Boolean event, terminate, early;
+        fmi3Float64 last;
+        if (k < steps) check(step(c, k * h, h, fmi3True, &event, &terminate, &early, &last), "fmi3DoStep");
+    }
+    check(((fmi3TerminateTYPE *)symbol(library, "fmi3Terminate"))(c), "fmi3Terminate");
+    ((fmi3FreeInstanceTYPE *)symbol(library, "fmi3FreeInstance"))(c);
+    return 0;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 8) {
+        fprintf(stderr, "usage: %s FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID STEPS STEP_SIZE VR [VR ...]\n", argv[0]);
+        return 2;
+    }
+    int version = atoi(argv[1]);
+    const char *dir = argv[2], *model = argv[3], *guid = argv[4];
+    int steps = atoi(argv[5]);
+    double h = atof(argv[6]);
+    size_t n = (size_t)(argc - 7);
+    unsigned int *vr = calloc(n, sizeof *vr);
+    double *values = calloc(n, sizeof *values);
+    for (size_t i = 0; i < n; i++) vr[i] = (unsigned int)strtoul(argv[7 + i], NULL, 10);
+
+    char path[4096];
+    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, version == 3 ? "x86_64-linux" : "linux64", model);
     void *library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
     if (!library) {
         fprintf(stderr, "cannot load %s\n", dlerror());
         return 1;
     }
-    fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
-    fmi2Component c = ((Instantiate)symbol(library, "fmi2Instantiate"))(model, 1, guid, resources, &callbacks, 0, 1);
-    if (!c) {
-        fprintf(stderr, "fmi2Instantiate failed\n");
-        return 1;
-    }
-    GetReal get = (GetReal)symbol(library, "fmi2GetReal");
-    DoStep step = (DoStep)symbol(library, "fmi2DoStep");
-    check(((SetupExperiment)symbol(library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0), "fmi2SetupExperiment");
-    check(((Simple)symbol(library, "fmi2EnterInitializationMode"))(c), "fmi2EnterInitializationMode");
-    check(((Simple)symbol(library, "fmi2ExitInitializationMode"))(c), "fmi2ExitInitializationMode");
-    for (int k = 0; k <= steps; k++) {
-        check(get(c, vr, n, values), "fmi2GetReal");
-        printf("%.17g", k * h);
-        for (size_t i = 0; i < n; i++) printf(",%.17g", values[i]);
-        printf("\n");
-        if (k < steps) check(step(c, k * h, h, 1), "fmi2DoStep");
-    }
-    check(((Simple)symbol(library, "fmi2Terminate"))(c), "fmi2Terminate");
-    ((FreeInstance)symbol(library, "fmi2FreeInstance"))(c);
+    int result = version == 3 ? run3(library, dir, model, guid, steps, h, vr, values, n)
+                              : run2(library, dir, model, guid, steps, h, vr, values, n);
     free(vr);
     free(values);
-    return 0;
+    return result;
 }

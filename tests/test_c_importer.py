@@ -1,64 +1,63 @@
-"""The FMUs in a non-Python importer: a C program that loads them as OMSimulator or libcosim would.
+"""The FMUs in C importers without Python: each FMU (FMI 2.0 and 3.0) in ``c_importer.c`` and the paper's
+loop in ``c_master.c``, started with an empty environment from another working directory, against fmpy and
+our master to the last bit; where the binary looks for its Python, and what it says when there is none."""
 
-pythonfmu 0.7.0's Linux binary leaves the Python C API undefined (it expects a process that has
-libpython loaded): a C importer needs LD_PRELOAD of libpython (and PYTHONHOME), as the README says.
-"""
-
-import os
-import shutil
-import subprocess
-import sys
 import sysconfig
-import zipfile
 from pathlib import Path
 
 import pytest
-from fmpy import read_model_description
+from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
+from fmpy.fmi3 import FMU3Slave
 
-SOURCE = Path(__file__).with_name("c_importer.c")
-LIBPYTHON = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("LDLIBRARY") or "")
+from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
+from dsc_fmu.binary import OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
+from dsc_fmu.master import cosimulate
+from dsc_fmu.scenario import load_scenario
+
+NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
 STEPS, STEP = 50, 0.02
-
-pytestmark = pytest.mark.skipif(
-    shutil.which("gcc") is None or not sysconfig.get_config_var("Py_ENABLE_SHARED") or not LIBPYTHON.is_file(),
-    reason="needs gcc and a shared libpython",
-)
+SYSTEM_LIBPYTHON = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "") / build_python().system_library
 
 
 @pytest.fixture(scope="module")
 def importer(tmp_path_factory):
-    binary = tmp_path_factory.mktemp("c") / "c_importer"
-    subprocess.run(["gcc", "-O1", "-o", str(binary), str(SOURCE), "-ldl"], check=True)
-    return binary
+    return compile_c("c_importer.c", tmp_path_factory.mktemp("c") / "c_importer")
 
 
-def unzipped(fmu: Path, folder: Path) -> Path:
-    with zipfile.ZipFile(fmu) as archive:
-        archive.extractall(folder)
-    return folder
+@pytest.fixture(scope="module")
+def master(tmp_path_factory):
+    return compile_c("c_master.c", tmp_path_factory.mktemp("c") / "c_master")
 
 
-def c_run(importer, folder, md, refs, preload=True):
-    env = {key: value for key, value in os.environ.items() if not key.startswith("PYTHON")}
-    if preload:
-        env.update(LD_PRELOAD=str(LIBPYTHON), PYTHONHOME=sys.base_prefix)
-    return subprocess.run(
-        [str(importer), str(folder), md.coSimulation.modelIdentifier, md.guid, str(STEPS), str(STEP), *map(str, refs)],
-        capture_output=True, text=True, env=env, timeout=120,
-    )
+def unzipped_fmus(paths, folder: Path) -> dict:
+    return {name: Path(extract(str(path), unzipdir=folder / name)) for name, path in paths.items()}
 
 
-def fmpy_run(folder, md, refs):
-    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
-                    instanceName="fmpy")
+def outputs(md):
+    return [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type in ("Real", "Float64")]
+
+
+def c_run(importer, version, folder, md, refs, cwd, env=None):
+    token = md.guid if version == 2 else md.instantiationToken
+    return run_c([importer, version, folder, md.coSimulation.modelIdentifier, token, STEPS, STEP, *refs], cwd, env)
+
+
+def fmpy_run(version, folder, md, refs):
+    cls = FMU3Slave if version == 3 else FMU2Slave
+    fmu = cls(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
+              instanceName="fmpy")
     fmu.instantiate()
-    fmu.setupExperiment(startTime=0.0)
-    fmu.enterInitializationMode()
+    if version == 3:
+        fmu.enterInitializationMode(startTime=0.0)
+    else:
+        fmu.setupExperiment(startTime=0.0)
+        fmu.enterInitializationMode()
     fmu.exitInitializationMode()
+    get = fmu.getFloat64 if version == 3 else fmu.getReal
     rows = []
     for k in range(STEPS + 1):
-        rows.append([k * STEP, *fmu.getReal(refs)])
+        rows.append([k * STEP, *get(refs)])
         if k < STEPS:
             fmu.doStep(k * STEP, STEP)
     fmu.terminate()
@@ -66,20 +65,72 @@ def fmpy_run(folder, md, refs):
     return rows
 
 
-@pytest.mark.parametrize("name", ["ReferenceRobot", "MobileRobot", "DSCController"])
-def test_a_c_importer_runs_each_fmu_like_fmpy(importer, fmu_paths, tmp_path, name):
-    md = read_model_description(str(fmu_paths[name]))
-    refs = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
-    folder = unzipped(fmu_paths[name], tmp_path / name)
-    run = c_run(importer, folder, md, refs)
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", NAMES)
+def test_each_fmu_runs_in_a_c_process_without_python_like_in_fmpy(importer, fmu_paths, fmu3_paths, tmp_path, name,
+                                                                  version):
+    path = (fmu3_paths if version == 3 else fmu_paths)[name]
+    md = read_model_description(str(path))
+    folder = Path(extract(str(path), unzipdir=tmp_path / name))
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    run = c_run(importer, version, folder, md, outputs(md), cwd)
     assert run.returncode == 0, run.stderr
-    rows = [[float(value) for value in line.split(",")] for line in run.stdout.splitlines()]
-    assert rows == fmpy_run(folder, md, refs)
-    assert len(rows) == STEPS + 1
+    assert parse_rows(run.stdout) == fmpy_run(version, folder, md, outputs(md))
 
 
-def test_without_libpython_the_c_importer_cannot_load_the_binary(importer, fmu_paths, tmp_path):
+def test_the_override_variable_is_the_only_candidate_when_set(importer, fmu_paths, tmp_path):
     md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    run = c_run(importer, unzipped(fmu_paths["ReferenceRobot"], tmp_path / "r"), md, [0], preload=False)
-    assert run.returncode == 1
-    assert "undefined symbol: _Py" in run.stderr
+    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
+    env = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: "/nonexistent/libpython.so"}
+    run = c_run(importer, 2, folder, md, [10], tmp_path, env)
+    assert run.returncode == 2
+    errors = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert len(errors) == 1 and f"{OVERRIDE_VARIABLE} = /nonexistent/libpython.so" in errors[0], run.stderr
+
+
+def _with_binary(fmu: Path, folder: Path, runtime: PythonRuntime) -> Path:
+    folder = Path(extract(str(fmu), unzipdir=folder))
+    (folder / "binaries" / "linux64" / f"{fmu.stem}.so").write_bytes(compile_binary(2, runtime))
+    return folder
+
+
+@pytest.mark.skipif(not SYSTEM_LIBPYTHON.is_file(), reason=f"no system {SYSTEM_LIBPYTHON.name}")
+def test_without_the_building_python_the_systems_libpython_serves(importer, fmu_paths, tmp_path):
+    built = build_python()
+    runtime = PythonRuntime(built.version, "/nonexistent/lib/libpython.so", "/nonexistent")
+    folder = _with_binary(fmu_paths["ReferenceRobot"], tmp_path / "r", runtime)
+    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
+    run = c_run(importer, 2, folder, md, outputs(md), tmp_path)
+    assert run.returncode == 0, run.stderr
+    flat = lambda rows: [value for row in rows for value in row]  # noqa: E731
+    assert flat(parse_rows(run.stdout)) == pytest.approx(flat(fmpy_run(2, folder, md, outputs(md))), rel=1e-12, abs=1e-12)
+
+
+def test_no_python_found_is_one_message_and_no_instance(importer, fmu_paths, tmp_path):
+    built = build_python()
+    runtime = PythonRuntime(built.version, "/nonexistent/lib/libpython.so", "/nonexistent", "libpython-absent.so")
+    folder = _with_binary(fmu_paths["ReferenceRobot"], tmp_path / "r", runtime)
+    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
+    run = c_run(importer, 2, folder, md, [10], tmp_path)
+    assert run.returncode == 2, run.stderr
+    errors = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert len(errors) == 1, run.stderr
+    for looked_at in (f"{OVERRIDE_VARIABLE} not set", "/nonexistent/lib/libpython.so", "libpython-absent.so"):
+        assert looked_at in errors[0]
+
+
+@pytest.mark.parametrize("threads", (False, True), ids=("one thread", "worker threads"))
+@pytest.mark.parametrize("order", ("gauss-seidel", "jacobi"))
+def test_the_paper_loop_in_a_c_master_equals_ours(master, fmu_paths, tmp_path, order, threads):
+    h, steps, every = 1e-3, 2000, 100
+    scenario = load_scenario("paper").with_simulation(stop_time=steps * h, output_interval=every * h)
+    ours = cosimulate(scenario, fmu_paths, step_size=h, order=order).result
+    record = {"MobileRobot": ["x", "y", "theta"], "DSCController": ["u1", "u2", "a1_hat"]}
+    plan = write_plan(tmp_path / "plan.txt", unzipped_fmus(fmu_paths, tmp_path), steps, h, order, threads, every,
+                      record)
+    run = run_c([master, plan], tmp_path)
+    assert run.returncode == 0, run.stderr[-2000:]
+    rows = parse_rows(run.stdout)
+    columns = ["time", *record["MobileRobot"], *record["DSCController"]]
+    assert rows == [[float(ours[c][i]) for c in columns] for i in range(len(ours))]
