@@ -1,13 +1,17 @@
-"""Benchmark: the paper scenario through the FMUs beside the reference solution and beside a floor.
+"""Benchmark: the paper scenario through the FMUs under fmpy and under a C master, beside the reference
+solution and beside a floor.
 
-The floor is the same master driving three trivial pythonfmu FMUs with the same interfaces (same
-variable names, no model math): what FMI and pythonfmu cost per communication step by themselves.
+The C master (``tests/c_master.c``, compiled with Zig's C compiler) drives the same three FMUs from
+a process without Python, with the same calls in the same order as the fmpy master, as a C importer
+does. The floor is the fmpy master driving three trivial pythonfmu FMUs (pythonfmu's own binary)
+with the same interfaces and no model math: what FMI and pythonfmu cost per step by themselves.
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -18,6 +22,9 @@ from dsc_fmu.build import FMUS, ensure_fmus
 from dsc_fmu.master import cosimulate
 from dsc_fmu.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario
+
+sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
+from c_hosts import compile_c, run_c, write_plan  # noqa: E402
 
 TRIVIAL_SLAVE = '''
 from pythonfmu import Fmi2Slave, Real, Integer, Fmi2Causality, Fmi2Variability, Fmi2Initial
@@ -66,6 +73,21 @@ def build_trivial_fmus(out_dir: Path) -> dict[str, Path]:
     return paths
 
 
+def _c_master_run(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float) -> None:
+    """One paper run of the C master over freshly extracted FMUs, as ``cosimulate`` extracts its own."""
+    from fmpy import extract
+
+    master = tmp / "c_master"
+    if not master.exists():
+        compile_c("c_master.c", master)
+    run_dir = Path(tempfile.mkdtemp(dir=tmp))
+    unzipped = {name: Path(extract(str(path), unzipdir=run_dir / name)) for name, path in fmus.items()}
+    plan = write_plan(run_dir / "plan.txt", unzipped, steps, step_size, "gauss-seidel", False, steps, {})
+    run = run_c([master, plan], run_dir)
+    if run.returncode != 0:
+        raise RuntimeError(f"the C master failed: {run.stderr[-500:]}")
+
+
 def _best(function, repeat: int) -> float:
     times = []
     for _ in range(repeat):
@@ -84,21 +106,25 @@ def main() -> None:
     scenario = load_scenario("paper").with_simulation(stop_time=args.stop_time, step_size=args.step_size)
     steps = round(args.stop_time / args.step_size)
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_bench_") as tmp:
-        ours = ensure_fmus(Path(tmp) / "fmus")
-        trivial = build_trivial_fmus(Path(tmp))
+        tmp = Path(tmp)
+        ours = ensure_fmus(tmp / "fmus")
+        trivial = build_trivial_fmus(tmp)
         fmus = _best(lambda: cosimulate(scenario, ours), args.repeat)
+        c_master = _best(lambda: _c_master_run(tmp, ours, steps, args.step_size), args.repeat)
         floor = _best(lambda: cosimulate(scenario, trivial), args.repeat)
     monolithic = _best(lambda: reference_solution(scenario), args.repeat)
     print(f"paper scenario, {args.stop_time:g} s at a {args.step_size:g} s step ({steps} steps), best of {args.repeat}")
     print(f"{'route':<42}{'wall time (s)':>15}{'per step (us)':>15}{'ratio':>8}")
     rows = (
         ("three FMUs under the fmpy master", fmus),
+        ("three FMUs under a C master (no Python)", c_master),
         ("reference solution (one ODE, scipy)", monolithic),
         ("floor: same master, three trivial FMUs", floor),
     )
     for label, seconds in rows:
         print(f"{label:<42}{seconds:>15.3f}{seconds / steps * 1e6:>15.1f}{seconds / fmus:>8.2f}")
-    print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f}")
+    print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f}   "
+          f"C master / fmpy master: {c_master / fmus:.2f} (target <= 1.3)")
 
 
 if __name__ == "__main__":
