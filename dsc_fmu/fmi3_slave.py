@@ -16,10 +16,9 @@ class DscSlave(SlaveCore, Fmi3Slave):
     """``SlaveCore`` as an FMI 3.0 co-simulation slave (pythonfmu3).
 
     The same variables as the FMI 2.0 slave (Float64 for Real, Int32 for Integer), after the
-    independent variable ``time`` that FMI 3.0 requires. pythonfmu3 resets by constructing the
-    slave anew, ignores the start time of fmi3EnterInitializationMode (the slave's time is the
-    end of its last step, 0 before the first) and turns a Python exception into fmi3Fatal: values
-    are refused without raising, as in ``SlaveCore``.
+    independent variable ``time`` that FMI 3.0 requires. The project's binary resets by
+    constructing the slave anew and passes the start time of fmi3EnterInitializationMode to
+    ``setup_experiment``; values are refused without raising, as in ``SlaveCore``.
     """
 
     def __init__(self, **kwargs):

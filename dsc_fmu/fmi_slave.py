@@ -16,9 +16,9 @@ class DscSlave(SlaveCore, Fmi2Slave):
     """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
 
     Everything but the FMI 2.0 registration and logging is in ``SlaveCore``: a value outside its
-    allowed range is refused without raising (pythonfmu 0.7.0 turns a Python exception into
-    fmi2Fatal and a later fmi2FreeInstance then crashes the importer), logged as an error, and
-    every ``do_step`` returns fmi2Discard until a valid value is set.
+    allowed range is refused without raising, logged as an error, and every ``do_step`` returns
+    fmi2Discard until a valid value is set. (The project's binary turns an exception into fmi2Error
+    or fmi2Discard; pythonfmu's own binary, shipped for Windows, into fmi2Fatal.)
     """
 
     author = "dsc-fmu"
