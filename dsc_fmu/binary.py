@@ -12,6 +12,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import os
 import platform
 import subprocess
 import sys
@@ -99,6 +100,14 @@ def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str
     ]
 
 
+def _compiler_environment() -> dict:
+    """The environment for Zig: it keeps its cache under HOME or XDG_CACHE_HOME; without either, in the temp folder."""
+    env = dict(os.environ)
+    if not any(env.get(key) for key in ("ZIG_GLOBAL_CACHE_DIR", "XDG_CACHE_HOME", "HOME")):
+        env["ZIG_GLOBAL_CACHE_DIR"] = str(Path(tempfile.gettempdir()) / "dsc-fmu-zig-cache")
+    return env
+
+
 def compile_binary(fmi_version: int, runtime: PythonRuntime | None = None) -> bytes:
     """The shared library of the FMI ``fmi_version`` layer for ``runtime`` (default: ``build_python()``)."""
     runtime = runtime or build_python()
@@ -114,7 +123,7 @@ def _compile(fmi_version: int, runtime: PythonRuntime, digest: str) -> bytes:
         output = Path(tmp) / "fmu.so"
         command = _command(fmi_version, runtime, output)
         try:
-            run = subprocess.run(command, capture_output=True, text=True, timeout=600)
+            run = subprocess.run(command, capture_output=True, text=True, timeout=600, env=_compiler_environment())
         except (OSError, subprocess.TimeoutExpired) as error:
             raise BinaryBuildError(f"compiling the FMU binary failed: {error}") from None
         if run.returncode != 0:
