@@ -100,9 +100,13 @@ class SlaveCore:
         (so the order in which an importer initialises, sets and reads does not matter)."""
         return self.initial_state() if self.state is None else self.state
 
+    def substep_count(self, step_size: float) -> int:
+        """How many sub-steps ``integrate`` takes over ``step_size``."""
+        return substeps(step_size, self.p["max_step"])
+
     def too_many_substeps(self, current_time: float, step_size: float) -> bool:
-        """Whether the step needs more than ``MAX_SUBSTEPS`` RK4 sub-steps (logged): no step may demand unbounded work."""
-        n = substeps(step_size, self.p["max_step"])
+        """Whether the step needs more than ``MAX_SUBSTEPS`` sub-steps (logged): no step may demand unbounded work."""
+        n = self.substep_count(step_size)
         if n <= MAX_SUBSTEPS:
             return False
         self.log_error(

@@ -144,6 +144,9 @@ class DSCControllerModel:
             self._guard_seen = (t, law.beta)
         return law.derivative
 
+    def substep_count(self, step_size):
+        return 1 if self.p["discretization"] == EULER else super().substep_count(step_size)
+
     def integrate(self, t, x, step_size):
         if self.p["discretization"] == EULER:
             return euler_step(self.derivatives, t, x, step_size)

@@ -102,7 +102,7 @@ static int settle(Instance *instance, int status, int next) {
 }
 
 int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next) {
-    return settle(instance, slave_call(&instance->slave, method, n, values, defined, STATUS_ERROR, NULL), next);
+    return settle(instance, slave_call(&instance->slave, method, n, values, defined), next);
 }
 
 int instance_reset(Instance *instance) {
@@ -116,8 +116,7 @@ int instance_do_step(Instance *instance, const char *function, double time, doub
         return STATUS_ERROR;
     }
     int accepted = 0;
-    double values[] = {time, step};
-    int status = slave_call(&instance->slave, "do_step", 2, values, NULL, STATUS_DISCARD, &accepted);
+    int status = slave_step(&instance->slave, time, step, &accepted);
     return status == STATUS_OK && !accepted ? STATUS_DISCARD : status;
 }
 

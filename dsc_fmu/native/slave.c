@@ -150,17 +150,33 @@ static PyObject *new_slave(Slave *s) {
     return bridge_call(s, "instantiate", pack(5, items));
 }
 
-static int adopt_slave(Slave *s, PyObject *slave) {
-    PyObject *queue = py.PyObject_GetAttrString(slave, "log_queue");
-    if (!queue) {
-        py.Py_DecRef(slave);
-        log_exception(s, STATUS_ERROR, "reading the slave's log queue");
-        return -1;
-    }
+static void clear_slave(Slave *s) {
+    for (int i = 0; i < BOUND_METHODS; i++) clear(&s->bound[i]);
     clear(&s->log_queue);
     clear(&s->slave);
+}
+
+/* Take `slave` (a new reference) with its log queue and the bound methods of every step. */
+static int adopt_slave(Slave *s, PyObject *slave) {
+    PyObject *queue = py.PyObject_GetAttrString(slave, "log_queue");
+    PyObject *bound[BOUND_METHODS] = {NULL};
+    int complete = queue != NULL;
+    for (int i = 0; complete && i < BOUND_METHODS; i++) {
+        const char *name = i < TYPES ? s->names->get[i] : i < 2 * TYPES ? s->names->set[i - TYPES] : "do_step";
+        bound[i] = py.PyObject_GetAttrString(slave, name);
+        complete = bound[i] != NULL;
+    }
+    if (!complete) {
+        log_exception(s, STATUS_ERROR, "reading the slave's log queue and methods");
+        for (int i = 0; i < BOUND_METHODS; i++) clear(&bound[i]);
+        clear(&queue);
+        py.Py_DecRef(slave);
+        return -1;
+    }
+    clear_slave(s);
     s->slave = slave;
     s->log_queue = queue;
+    memcpy(s->bound, bound, sizeof bound);
     return 0;
 }
 
@@ -238,8 +254,7 @@ int slave_create(Slave *s, const char *resources, const char *instance_name, int
 void slave_free(Slave *s) {
     if (s->bridge || s->slave || s->log_queue) {
         PyGILState_STATE gil = pyhost_enter();
-        clear(&s->log_queue);
-        clear(&s->slave);
+        clear_slave(s);
         clear(&s->bridge);
         pyhost_leave(gil);
     }
@@ -300,7 +315,7 @@ static void from_python(PyObject *item, void *values, size_t i, CType ctype) {
 int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
     PyGILState_STATE gil = pyhost_enter();
     PyObject *items[] = {references(vr, n)};
-    PyObject *result = call(py.PyObject_GetAttrString(s->slave, s->names->get[type]), pack(1, items));
+    PyObject *result = call(borrowed(s->bound[type]), pack(1, items));
     int status = STATUS_OK;
     if (!result || py.PySequence_Size(result) != (Py_ssize_t)n) {
         if (result) say(s, STATUS_ERROR, "%s: %s returned a wrong number of values", s->instance_name, s->names->get[type]);
@@ -328,7 +343,7 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
     PyObject *list = py.PyList_New((Py_ssize_t)n);
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
     PyObject *items[] = {references(vr, n), list};
-    PyObject *result = call(py.PyObject_GetAttrString(s->slave, s->names->set[type]), pack(2, items));
+    PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
     int status = STATUS_OK;
     if (!result) {
         log_exception(s, STATUS_ERROR, s->names->set[type]);
@@ -349,10 +364,15 @@ static PyObject *doubles(int n, const double *values, const int *defined) {
     return pack(n < 8 ? n : 8, items);
 }
 
-int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined, int failure, int *truth) {
+/* Call the method `method` of the slave (`cached`, its bound method, if not NULL) with `n` floats;
+   STATUS_OK, or `failure` after logging the exception. `truth` (if not NULL) receives whether the
+   result is true. */
+static int call_logged(Slave *s, const char *method, PyObject *cached, int n, const double *values,
+                       const int *defined, int failure, int *truth) {
     PyGILState_STATE gil = pyhost_enter();
+    PyObject *function = cached ? borrowed(cached) : py.PyObject_GetAttrString(s->slave, method);
     PyObject *args = n ? doubles(n, values, defined) : NULL;
-    PyObject *result = call(py.PyObject_GetAttrString(s->slave, method), args);
+    PyObject *result = call(function, args);
     int status = STATUS_OK;
     if (!result) {
         log_exception(s, failure, method);
@@ -364,6 +384,15 @@ int slave_call(Slave *s, const char *method, int n, const double *values, const 
     drain_log(s);
     pyhost_leave(gil);
     return status;
+}
+
+int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined) {
+    return call_logged(s, method, NULL, n, values, defined, STATUS_ERROR, NULL);
+}
+
+int slave_step(Slave *s, double time, double step, int *accepted) {
+    double values[] = {time, step};
+    return call_logged(s, "do_step", s->bound[2 * TYPES], 2, values, NULL, STATUS_DISCARD, accepted);
 }
 
 int slave_get_double(Slave *s, const char *attribute, double *value) {

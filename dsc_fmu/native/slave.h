@@ -13,6 +13,9 @@ enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, 
 
 /* Codes of native_bridge.py. */
 enum { TYPE_REAL = 0, TYPE_INTEGER = 1, TYPE_BOOLEAN = 2, TYPE_STRING = 3, TYPES = 3, NO_VARIABLE = -1 };
+
+/* Bound methods kept for every step: get by type, set by type, do_step. */
+enum { BOUND_METHODS = 2 * TYPES + 1 };
 enum { CAUSALITY_PARAMETER = 0, CAUSALITY_INPUT = 1, CAUSALITY_OUTPUT = 2, CAUSALITY_INDEPENDENT = 3 };
 enum { VARIABILITY_CONSTANT = 0, VARIABILITY_FIXED = 1, VARIABILITY_TUNABLE = 2 };
 
@@ -31,6 +34,7 @@ typedef struct {
     PyObject *bridge;
     PyObject *slave;
     PyObject *log_queue;
+    PyObject *bound[BOUND_METHODS];
     char module[256];
     char class_name[128];
     char token[128];            /* the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
@@ -63,9 +67,12 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
 int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype);
 
 /* Call a method of the slave with `n` float arguments (None where `defined`, if not NULL, is 0).
-   STATUS_OK, or `failure` after logging the exception; `truth` (if not NULL) receives whether the
-   result is true. */
-int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined, int failure, int *truth);
+   STATUS_OK, or STATUS_ERROR after logging the exception. */
+int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined);
+
+/* do_step(time, step): STATUS_OK with `accepted` the slave's answer, or STATUS_DISCARD after logging
+   the exception. */
+int slave_step(Slave *s, double time, double step, int *accepted);
 
 /* A float attribute of the slave (such as its time). */
 int slave_get_double(Slave *s, const char *attribute, double *value);
