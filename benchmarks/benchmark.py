@@ -18,9 +18,10 @@ from pathlib import Path
 
 from pythonfmu import FmuBuilder
 
-from dsc_fmu.build import FMUS, ensure_fmus
-from dsc_fmu.master import cosimulate
-from dsc_fmu.reference_solution import reference_solution
+from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.registry import FMUS
+from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))

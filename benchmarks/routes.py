@@ -15,13 +15,13 @@ from pathlib import Path
 import numpy as np
 from fmpy import simulate_fmu
 
-from dsc_fmu.build import ensure_fmus
-from dsc_fmu.container import export_fmu
-from dsc_fmu.libcosim_runs import run_libcosim_fmu_in_own_process
-from dsc_fmu.master import cosimulate
-from dsc_fmu.reference_solution import reference_solution
+from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.interop.container import export_fmu
+from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
+from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario
-from dsc_fmu.ssp import export_ssp, run_libcosim, run_simulate_ssp
+from dsc_fmu.interop.ssp import export_ssp, run_libcosim, run_simulate_ssp
 
 
 def deviation(result, reference) -> float:

@@ -20,11 +20,11 @@ from pathlib import Path
 
 import psutil
 
-from dsc_fmu.build import ensure_fmus
-from dsc_fmu.master import Cosimulator
+from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import ORDERS, load_scenario
-from dsc_fmu.sweep import Case, apply, build_cases
-from dsc_fmu.sweep_exec import execute, simulate
+from dsc_fmu.study.cases import Case, apply, build_cases
+from dsc_fmu.study.execute import execute, simulate
 
 MB = 1024.0**2
 STEPS = (1e-4, 2.4e-4, 5.6e-4, 1.3e-3, 3.2e-3, 7.5e-3, 1.8e-2, 5e-2)  # 8 steps x 2 orders = 16 runs

@@ -1,29 +1,24 @@
-"""The ``dsc-fmu`` command line: a thin shell over ``build_fmus`` and ``run_scenario``."""
+"""The ``dsc-fmu`` command line: a thin shell over one public function per command."""
 
 from __future__ import annotations
 
 import argparse
 import sys
+import warnings
 from pathlib import Path
 
-from .build import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, build_fmus, current_fmus
-from .container import export_fmu
-from .crosscheck import write_crosscheck
-from .master import CosimulationError
+from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
+from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .run import run_scenario
-from .scenario import ORDERS, ScenarioError, load_scenario, scenario_names
-from .step_study import run_sweep
-from .ssp import SSPError, export_ssp
-from .sweep import SweepError, parse_perturb, parse_set
+from .scenario import ORDERS, load_scenario, scenario_names
 
 __all__ = ["main"]
 
-EXPORTS = {"export-ssp": export_ssp, "export-fmu": export_fmu}
-
 
 def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="dsc-fmu", description=__doc__)
+    parser = argparse.ArgumentParser(
+        prog="dsc-fmu", description="The adaptive DSC of a mobile robot as FMI co-simulation FMUs: build them, "
+        "co-simulate a scenario, study the communication step, export the closed loop.")
     commands = parser.add_subparsers(dest="command", required=True)
 
     build = commands.add_parser("build", help="build the three FMUs")
@@ -97,52 +92,89 @@ def _names(text: str) -> list[str]:
     return [item.strip() for item in text.split(",") if item.strip()]
 
 
+def _build(args) -> None:
+    from .build.fmus import build_fmus
+
+    for path in build_fmus(args.out, fmi_version=args.fmi_version).values():
+        print(path)
+
+
+def _export(args) -> None:
+    from .build.fmus import current_fmus
+    from .interop.container import export_fmu
+    from .interop.ssp import export_ssp
+
+    export = {"export-ssp": export_ssp, "export-fmu": export_fmu}[args.command]
+    scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
+    with current_fmus(args.fmu_dir) as fmus:
+        print(export(scenario, args.out, fmus))
+
+
+def _sweep(args) -> None:
+    from .study.cases import parse_perturb, parse_set
+    from .study.sweep import run_sweep
+
+    scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
+    if args.jobs is not None and args.jobs < 1:
+        raise DscFmuError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
+    print(run_sweep(
+        scenario, args.out or Path("results") / f"sweep-{scenario.name}", fmu_dir=args.fmu_dir,
+        step_sizes=args.step_sizes, orders=args.orders, discretizations=args.discretizations,
+        sets=[parse_set(text) for text in args.set], perturbations=[parse_perturb(text) for text in args.perturb],
+        samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler, refine=not args.no_refine,
+    ))
+
+
+def _crosscheck(args) -> None:
+    from .build.fmus import current_fmus
+    from .interop.crosscheck import write_crosscheck
+
+    with current_fmus(args.fmu_dir) as fmus:
+        folders = write_crosscheck(args.out, fmus, step_size=args.step_size, stop_time=args.stop_time)
+    for folder in folders.values():
+        print(folder)
+
+
+def _scenarios(args) -> None:
+    for name in scenario_names():
+        print(f"{name}: {load_scenario(name).description}")
+
+
+def _run(args) -> None:
+    from .cosim.run import run_scenario
+
+    scenario = load_scenario(args.scenario).with_simulation(
+        step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
+    )
+    print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
+                       plots=not args.no_plots))
+
+
+COMMANDS = {"build": _build, "export-ssp": _export, "export-fmu": _export, "sweep": _sweep, "crosscheck": _crosscheck,
+            "scenarios": _scenarios, "run": _run}
+
+
+def _warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings as one line on stderr, like the errors."""
+    print(f"dsc-fmu: warning: {message}", file=sys.stderr if file is None else file)
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; return the exit status (0 on success, 1 on a user error)."""
+    """Run the command line; return the exit status (0 on success, 1 on an error the user can fix,
+    130 when interrupted). Each command imports what it needs when it runs."""
     args = _parser().parse_args(argv)
+    shown = warnings.showwarning
+    warnings.showwarning = _warning
     try:
-        if args.command == "build":
-            for path in build_fmus(args.out, fmi_version=args.fmi_version).values():
-                print(path)
-        elif args.command in EXPORTS:
-            scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
-            with current_fmus(args.fmu_dir) as fmus:
-                print(EXPORTS[args.command](scenario, args.out, fmus))
-        elif args.command == "sweep":
-            scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
-            if args.jobs is not None and args.jobs < 1:
-                raise ScenarioError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
-            print(run_sweep(
-                scenario, args.out or Path("results") / f"sweep-{scenario.name}", fmu_dir=args.fmu_dir,
-                step_sizes=args.step_sizes, orders=args.orders, discretizations=args.discretizations,
-                sets=[parse_set(text) for text in args.set], perturbations=[parse_perturb(text) for text in args.perturb],
-                samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler,
-                refine=not args.no_refine,
-            ))
-        elif args.command == "crosscheck":
-            with current_fmus(args.fmu_dir) as fmus:
-                folders = write_crosscheck(args.out, fmus, step_size=args.step_size, stop_time=args.stop_time)
-            for folder in folders.values():
-                print(folder)
-        elif args.command == "scenarios":
-            for name in scenario_names():
-                print(f"{name}: {load_scenario(name).description}")
-        else:
-            scenario = load_scenario(args.scenario).with_simulation(
-                step_size=args.step_size, stop_time=args.stop_time, order=args.order,
-                output_interval=args.output_interval,
-            )
-            report = run_scenario(
-                scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
-                plots=not args.no_plots,
-            )
-            print(report)
-    except (ScenarioError, CosimulationError, SweepError, SSPError, OSError) as error:
+        COMMANDS[args.command](args)
+    except (DscFmuError, OSError) as error:  # OSError: a file or folder the system refuses
         print(f"dsc-fmu: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("dsc-fmu: interrupted; finished runs are kept in the cache", file=sys.stderr)
         return 130
+    finally:
+        warnings.showwarning = shown
     return 0
 
 

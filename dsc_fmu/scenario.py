@@ -8,6 +8,7 @@ import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 
+from .errors import DscFmuError
 from .models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, REFERENCE_PARAMETERS
 from .models.reference import min_speed
 
@@ -21,7 +22,7 @@ TABLES = {"plant": PLANT_PARAMETERS, "controller": CONTROLLER_PARAMETERS, "refer
 FMU_OF_TABLE = {"plant": "MobileRobot", "controller": "DSCController", "reference": "ReferenceRobot"}
 
 
-class ScenarioError(ValueError):
+class ScenarioError(DscFmuError, ValueError):
     """A scenario (file, key or value) that cannot be run; the message names what and what is allowed."""
 
 

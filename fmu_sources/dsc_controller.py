@@ -1,7 +1,7 @@
 """DSCController.fmu (FMI 2.0): the adaptive dynamic surface controller of SPEC 3 (equations 10-27)."""
 
-from dsc_fmu.fmi_slave import DscSlave
-from dsc_fmu.slave_models import DSCControllerModel
+from dsc_fmu.fmu.fmi2 import DscSlave
+from dsc_fmu.fmu.slave_models import DSCControllerModel
 
 
 class DSCController(DSCControllerModel, DscSlave):

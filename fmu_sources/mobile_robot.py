@@ -1,7 +1,7 @@
 """MobileRobot.fmu (FMI 2.0): the electrically driven differential-drive robot of SPEC 1 (equations 1-8)."""
 
-from dsc_fmu.fmi_slave import DscSlave
-from dsc_fmu.slave_models import MobileRobotModel
+from dsc_fmu.fmu.fmi2 import DscSlave
+from dsc_fmu.fmu.slave_models import MobileRobotModel
 
 
 class MobileRobot(MobileRobotModel, DscSlave):

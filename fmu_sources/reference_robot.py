@@ -1,7 +1,7 @@
 """ReferenceRobot.fmu (FMI 2.0): the reference robot of SPEC 2 (equation 9) with its velocity profile."""
 
-from dsc_fmu.fmi_slave import DscSlave
-from dsc_fmu.slave_models import ReferenceRobotModel
+from dsc_fmu.fmu.fmi2 import DscSlave
+from dsc_fmu.fmu.slave_models import ReferenceRobotModel
 
 
 class ReferenceRobot(ReferenceRobotModel, DscSlave):

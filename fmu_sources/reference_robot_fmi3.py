@@ -2,8 +2,8 @@
 
 from pythonfmu3 import Fmi3Slave
 
-from dsc_fmu.fmi3_slave import DscSlave
-from dsc_fmu.slave_models import ReferenceRobotModel
+from dsc_fmu.fmu.fmi3 import DscSlave
+from dsc_fmu.fmu.slave_models import ReferenceRobotModel
 
 
 class ReferenceRobot(ReferenceRobotModel, DscSlave, Fmi3Slave):

@@ -6,7 +6,7 @@
      fmu INDEX UNZIPPED_DIR MODEL_IDENTIFIER GUID     (0 = ReferenceRobot, 1 = MobileRobot, 2 = DSCController)
      plant_out VR...  ref_out VR...  ctl_in VR...  ctl_u VR VR  plant_u VR VR  record FMU VR...
      run STEPS STEP_SIZE ORDER THREADS EVERY         (ORDER gauss-seidel or jacobi; THREADS 0 or 1)
-   It runs the exchange of dsc_fmu.master (same calls, same order, the last step ending at STEPS * STEP_SIZE) and prints "time,recorded values"
+   It runs the exchange of dsc_fmu.cosim.master (same calls, same order, the last step ending at STEPS * STEP_SIZE) and prints "time,recorded values"
    every EVERY steps and at the end. With THREADS = 1 every doStep runs on a worker thread of its FMU
    (threads Python does not know), the FMUs of one phase at the same time. Exits 1 on any failure. */
 

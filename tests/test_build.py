@@ -5,8 +5,9 @@ import zipfile
 
 import pytest
 
-from dsc_fmu import build
-from dsc_fmu.build import BUILD_ID_FILE, FMUS, ensure_fmus, fmu_build_id, source_hash
+from dsc_fmu.build import fmus as build
+from dsc_fmu.build.fmus import BUILD_ID_FILE, ensure_fmus, fmu_build_id, source_hash
+from dsc_fmu.registry import FMUS
 
 
 def test_ensure_builds_missing_fmus_then_reuses_them(tmp_path):

@@ -11,8 +11,8 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
-from dsc_fmu.binary import OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
-from dsc_fmu.master import cosimulate
+from dsc_fmu.build.binary import OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
+from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import load_scenario
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")

@@ -9,7 +9,7 @@ import pytest
 from fmpy import read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-from dsc_fmu.master import cosimulate
+from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.models import parameters as P
 from dsc_fmu.scenario import load_scenario
 

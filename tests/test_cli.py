@@ -12,7 +12,7 @@ import pytest
 
 from dsc_fmu.cli import main
 from dsc_fmu.scenario import load_scenario
-from dsc_fmu.signals import COLUMNS
+from dsc_fmu.cosim.signals import COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 REQUIRED = (
@@ -134,7 +134,7 @@ def test_exports_write_one_file(tmp_path, fmu_dir, capsys, command, suffix):
     assert capsys.readouterr().out.strip() == str(out)
     assert sorted(p.name for p in tmp_path.iterdir()) == [out.name]
     if suffix == ".ssp":
-        from dsc_fmu.ssp import validate_ssp
+        from dsc_fmu.interop.ssp import validate_ssp
         validate_ssp(out)
     else:
         from fmpy.validation import validate_fmu

@@ -5,9 +5,9 @@ import pytest
 from fmpy import read_model_description, simulate_fmu
 from fmpy.validation import validate_fmu
 
-from dsc_fmu.container import EXPOSED_OUTPUTS, export_fmu
-from dsc_fmu.libcosim_runs import run_libcosim_fmu_in_own_process
-from dsc_fmu.master import cosimulate
+from dsc_fmu.interop.container import EXPOSED_OUTPUTS, export_fmu
+from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
+from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import ScenarioError, load_scenario
 
 H, T = 1e-3, 0.2
@@ -47,7 +47,7 @@ def test_fmpy_run_is_our_jacobi(container, fmu_paths, interval):
 @pytest.mark.parametrize("interval", [H, 10 * H])
 def test_libcosim_run_is_fmpys_run(container, interval):
     """libcosim runs the container FMU alone (CosimExecution.from_step_size, CosimLocalSlave, a time
-    series observer; in a process of its own, see dsc_fmu.libcosim_runs) at the communication step
+    series observer; in a process of its own, see dsc_fmu.interop.libcosim) at the communication step
     `interval`. One FMU, no connections: both importers make the same calls (doStep(t_k, interval),
     then read the outputs), so the values are expected equal to the bit: tolerance 0, measured 0
     (the importers' t_k differ in the last bits but leave no trace: the container evidently steps

@@ -4,9 +4,9 @@ reference solution at first order in the communication step (the zero-order hold
 import numpy as np
 import pytest
 
-from dsc_fmu.master import cosimulate
-from dsc_fmu.metrics import tracking_metrics
-from dsc_fmu.reference_solution import reference_solution
+from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.metrics import tracking_metrics
+from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario, scenario_names
 
 pytestmark = pytest.mark.slow

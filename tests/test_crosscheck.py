@@ -6,9 +6,9 @@ from fmpy import simulate_fmu
 from fmpy.cross_check.validate_vendor_repo import validate_test_fmu
 from fmpy.util import read_csv, read_ref_opt_file, validate_result
 
-from dsc_fmu import signals
-from dsc_fmu.crosscheck import write_crosscheck
-from dsc_fmu.libcosim_runs import run_libcosim_fmu_in_own_process
+from dsc_fmu.cosim import signals
+from dsc_fmu.interop.crosscheck import write_crosscheck
+from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
 
 H, T = 1e-3, 0.2
 
@@ -46,7 +46,7 @@ def test_inputs_are_held_with_repeated_stamps(folders):
 @pytest.mark.parametrize("model", ["ReferenceRobot", "MobileRobot", "DSCController"])
 def test_libcosim_replay(folders, model):
     """Each FMU alone in libcosim (in a process of its own), its inputs fed from `<Model>_in.csv`
-    with the override manipulator before each step (see dsc_fmu.libcosim_runs for when libcosim
+    with the override manipulator before each step (see dsc_fmu.interop.libcosim for when libcosim
     applies them and when it samples): validate_result passes against `<Model>_ref.csv`. The values
     are not the reference's to the bit: the FMUs get libcosim's t_k (integer nanoseconds) instead of
     the reference run's k * h, which moves the last bits (measured at most 4e-13 relative, on the

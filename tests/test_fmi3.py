@@ -19,10 +19,12 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
-from dsc_fmu.build import (
-    BUILD_ID_FILE, DEFAULT_FMU_DIR, FMUS, UNITS, build_fmus, default_fmu_dir, ensure_fmus, fmu_build_id, source_hash,
+from dsc_fmu.build.fmus import (
+    BUILD_ID_FILE, DEFAULT_FMU_DIR, build_fmus, default_fmu_dir, ensure_fmus, fmu_build_id, source_hash,
 )
-from dsc_fmu.master import Cosimulator, cosimulate
+from dsc_fmu.build.model_description import UNITS
+from dsc_fmu.registry import FMUS
+from dsc_fmu.cosim.master import Cosimulator, cosimulate
 from dsc_fmu.models import parameters as P
 from dsc_fmu.scenario import load_scenario
 from isolation import bits, run_isolated, violations
@@ -142,7 +144,7 @@ def test_fmi3_bundled_modules_carry_a_name_unique_to_the_build(fmu3_paths, name)
         build_id = json.loads(archive.read(BUILD_ID_FILE))
     assert module.endswith(digest) and "fmi3" in module
     package = f"resources/dsc_fmu_{name.lower()}_{digest}/"
-    assert {f"{package}fmi3_slave.py", f"{package}slave_core.py", f"{package}models/controller.py"} <= set(files)
+    assert {f"{package}fmu/fmi3.py", f"{package}fmu/slave_core.py", f"{package}models/controller.py"} <= set(files)
     assert not any(f.startswith("resources/dsc_fmu/") or f.startswith("resources/pythonfmu/") for f in files)
     assert "from dsc_fmu." not in script
     assert build_id["fmi_version"] == 3 and fmu_build_id(fmu3_paths[name]) == source_hash(FMUS[name], 3)

@@ -27,7 +27,8 @@ from fmpy.fmi2 import (
 )
 from fmpy.validation import validate_fmu
 
-from dsc_fmu.build import FMUS, fmu_build_id
+from dsc_fmu.build.fmus import fmu_build_id
+from dsc_fmu.registry import FMUS
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 
@@ -1033,7 +1034,7 @@ def test_bundled_package_names_are_unique_per_fmu_and_build(fmu_paths):
             script = archive.read(f"resources/{module}.py").decode()
         assert module == f"{Path(FMUS[name].script).stem}_{digest[:12]}"
         package = f"dsc_fmu_{name.lower()}_{digest[:12]}"
-        assert f"resources/{package}/fmi_slave.py" in files
+        assert f"resources/{package}/fmu/fmi2.py" in files
         assert f"resources/{package}/models/plant.py" in files
         assert "from dsc_fmu." not in script and f"from {package}." in script
         assert not any(f.startswith("resources/dsc_fmu/") for f in files)

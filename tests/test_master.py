@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv, write_csv
 
-from dsc_fmu import master, signals
-from dsc_fmu.master import CosimulationError, cosimulate, step_count
+from dsc_fmu.cosim import master, signals
+from dsc_fmu.cosim.master import CosimulationError, cosimulate, step_count
 from dsc_fmu.scenario import ScenarioError, load_scenario
 
 ORDERS = ("gauss-seidel", "jacobi")

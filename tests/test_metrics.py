@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv
 
-from dsc_fmu import signals
-from dsc_fmu.master import CosimulationResult
-from dsc_fmu.metrics import settling_time, tracking_metrics
-from dsc_fmu.results import format_summary, write_results
+from dsc_fmu.cosim import signals
+from dsc_fmu.cosim.master import CosimulationResult
+from dsc_fmu.cosim.metrics import settling_time, tracking_metrics
+from dsc_fmu.cosim.results import format_summary, write_results
 from dsc_fmu.scenario import load_scenario
 
 E0, T = 1.0, 4.0  # m, s: position error E0 exp(-t / T)

@@ -5,9 +5,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from dsc_fmu import signals
-from dsc_fmu.master import cosimulate
-from dsc_fmu.plots import plot_signals, plot_trajectory
+from dsc_fmu.cosim import signals
+from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.plots import plot_signals, plot_trajectory
 from dsc_fmu.scenario import load_scenario
 
 PNG = b"\x89PNG\r\n\x1a\n"

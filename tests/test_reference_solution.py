@@ -5,12 +5,12 @@ import math
 import numpy as np
 import pytest
 
-from dsc_fmu import reference_solution as rs
+from dsc_fmu.cosim import reference_solution as rs
 from dsc_fmu.models.controller import control_law, gains, wrap
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
 from dsc_fmu.models.reference import reference_derivatives, velocity
 from dsc_fmu.scenario import load_scenario
-from dsc_fmu.signals import COLUMNS, DTYPE
+from dsc_fmu.cosim.signals import COLUMNS, DTYPE
 
 POSITION = ("x", "y", "theta")
 

@@ -9,9 +9,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from dsc_fmu.report import write_report
-from dsc_fmu.study import fit_orders, summarise
-from dsc_fmu.sweep_plots import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
+from dsc_fmu.study.report import write_report
+from dsc_fmu.study.analysis import fit_orders, summarise
+from dsc_fmu.study.figures import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
 from test_study import BOUNDARIES, STEPS, summary_of, synthetic_rows
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -142,7 +142,7 @@ def test_report_without_disagreement_or_reason(rows, tmp_path):
 
 
 def test_paths_take_structured_arrays_and_npz_files(tmp_path):
-    from dsc_fmu import signals
+    from dsc_fmu.cosim import signals
 
     t = np.linspace(0, 30, 301)
     reference = np.zeros(len(t), dtype=signals.DTYPE)

@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from lxml import etree
 
-from dsc_fmu.exchange import cosimulate_exchange
-from dsc_fmu.master import cosimulate
+from dsc_fmu.cosim.exchange import cosimulate_exchange
+from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.models.parameters import START_ON
 from dsc_fmu.scenario import ScenarioError, load_scenario
-from dsc_fmu.ssp import SSD_NAMESPACES as NS
-from dsc_fmu.ssp import export_ssp, run_simulate_ssp, validate_ssp
+from dsc_fmu.interop.ssp import SSD_NAMESPACES as NS
+from dsc_fmu.interop.ssp import export_ssp, run_simulate_ssp, validate_ssp
 
 H, T = 1e-3, 0.2
 COMPARED = ("x", "y", "theta", "omega1", "i1", "x_r", "theta_r", "u1", "u2", "a1_hat", "a2_hat", "W1_hat_norm",
@@ -88,7 +88,7 @@ def test_exchange_modes_give_the_same_through_fmi3(paper, fmu_paths, fmu3_paths)
 
 
 CHILD = (
-    "import sys, numpy; from dsc_fmu.ssp import run_libcosim; "
+    "import sys, numpy; from dsc_fmu.interop.ssp import run_libcosim; "
     "numpy.save(sys.argv[4], run_libcosim(sys.argv[1], float(sys.argv[2]), float(sys.argv[3])))"
 )
 

@@ -1,4 +1,4 @@
-"""Tests of the predicted stability boundary (dsc_fmu/stability.py): hand-checkable cases first."""
+"""Tests of the predicted stability boundary (dsc_fmu/study/stability.py): hand-checkable cases first."""
 
 import dataclasses
 import math
@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 from scipy.optimize import brentq
 
-from dsc_fmu import stability as st
+from dsc_fmu.study import stability as st
 from dsc_fmu.models.controller import control_law, gains
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives, theta_dot
 from dsc_fmu.models.reference import reference_derivatives

@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from dsc_fmu.study import (Boundary, OrderFit, fit_order, fit_orders, grid_bracket, grid_brackets, group_label,
+from dsc_fmu.study.analysis import (Boundary, OrderFit, fit_order, fit_orders, grid_bracket, grid_brackets, group_label,
                            refine_boundary, summarise, to_json, write_summary_json)
 
 STEPS = np.geomspace(1e-4, 5e-2, 19)

@@ -9,15 +9,19 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from dsc_fmu import sweep_cache, sweep_dask, sweep_exec
-from dsc_fmu.master import CosimulationError, Cosimulator, cosimulate
+from dsc_fmu.study import cache as sweep_cache
+from dsc_fmu.study import cluster as sweep_dask
+from dsc_fmu.study import execute as sweep_exec
+from dsc_fmu.study import rows as sweep_rows
+from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
 from dsc_fmu.scenario import ScenarioError, load_scenario
-from dsc_fmu.sweep import (
-    Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, execute, load_reference, load_trajectory,
-    parse_perturb, parse_set, run_case,
+from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
+from dsc_fmu.study.cases import (
+    Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
-from dsc_fmu.sweep_exec import ROW_KEYS, STABILITY_DEFINITION, STABLE_POSITION_ERROR, TRAJECTORY
+from dsc_fmu.study.execute import execute
+from dsc_fmu.study.rows import ROW_KEYS, STABILITY_DEFINITION, STABLE_POSITION_ERROR, run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -38,7 +42,7 @@ def without_wall_time(rows):
 def counted(monkeypatch):
     """Counts of the runs and reference solutions computed in this process (jobs = 1)."""
     counts = {"run": 0, "reference": 0}
-    simulate, reference = sweep_exec.simulate, sweep_exec.compute_reference
+    simulate, reference = sweep_rows.simulate, sweep_rows.compute_reference
 
     def counting_simulate(*args):
         counts["run"] += 1
@@ -247,7 +251,7 @@ def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tm
 @pytest.mark.parametrize("order", ORDERS)
 def test_the_deviation_from_the_reference_solution_is_first_order_in_the_step(short, fmu_paths, tmp_path, order):
     scenario = short.with_simulation(stop_time=2.0)
-    reference, why = sweep_exec.compute_reference(apply(scenario, Case(1e-3)))
+    reference, why = sweep_rows.compute_reference(apply(scenario, Case(1e-3)))
     assert why is None and reference["time"][-1] == 2.0 and np.all(np.diff(reference["time"]) > 0)
     with Cosimulator(fmu_paths, tmp_path) as simulator:
         rows = [run_case(scenario, Case(h, order), simulator, reference) for h in (1e-3, 2e-3)]
@@ -342,7 +346,7 @@ def test_diverging_cases_are_rows_in_a_sweep(short, fmu_paths, tmp_path):
 
 def test_an_interrupted_sweep_cleans_up_and_resumes(short, fmu_paths, tmp_path, monkeypatch):
     calls = []
-    simulate = sweep_exec.simulate
+    simulate = sweep_rows.simulate
 
     def interrupted(*args):
         calls.append(args)
@@ -486,6 +490,6 @@ def _trajectory_with_error(error):
     (lambda t: 0.001 * (t > 28.0), False),                          # a step within the 1 mm slack
 ])
 def test_error_growth_criterion(shape, grows):
-    from dsc_fmu.sweep_exec import error_grows
+    from dsc_fmu.study.rows import error_grows
     t = np.linspace(0.0, 30.0, 3001)
     assert error_grows(_trajectory_with_error(shape(t))) is grows

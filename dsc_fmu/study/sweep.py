@@ -9,14 +9,16 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import DEFAULT_FMU_DIR, ensure_fmus
+from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
-from .scenario import ORDERS, Scenario
+from ..scenario import ORDERS, Scenario
 from .stability import OperatingPointError, linearise, predicted_boundary, spectral_radius_curve
-from .study import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
-from .sweep import apply, build_cases
-from .sweep_exec import STABILITY_DEFINITION, execute, load_trajectory
-from .sweep_plots import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
+from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
+from .cases import apply, build_cases
+from .cache import load_trajectory
+from .execute import execute
+from .rows import STABILITY_DEFINITION
+from .figures import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
 
 __all__ = ["run_sweep", "write_rows_csv", "TRANSIENT_NOTE"]
 

@@ -5,14 +5,14 @@ FMI glue class (``fmi_slave.DscSlave`` or ``fmi3_slave.DscSlave``) in a slave sc
 ``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
 """
 
-from .models.controller import W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters
-from .models.parameters import (
+from ..models.controller import W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters
+from ..models.parameters import (
     CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS, PLANT_INPUTS, PLANT_OUTPUTS,
     PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS, START_ON,
 )
-from .models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
-from .models.reference import initial_reference_state, reference_derivatives, velocity
-from .models.rk4 import euler_step
+from ..models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from ..models.reference import initial_reference_state, reference_derivatives, velocity
+from ..models.rk4 import euler_step
 
 __all__ = ["MobileRobotModel", "ReferenceRobotModel", "DSCControllerModel"]
 

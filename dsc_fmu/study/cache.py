@@ -2,9 +2,9 @@
 
 Layout inside a sweep's output folder::
 
-    cache/runs/<key>.json         one row (``sweep_exec.ROW_KEYS``), written last: its presence marks the entry
-    cache/runs/<key>.npz          the run's trajectory (``sweep_exec.TRAJECTORY`` columns, as recorded)
-    cache/references/<key>.npz    a reference solution (``sweep_exec.REFERENCE_COLUMNS`` on a 1 ms grid)
+    cache/runs/<key>.json         one row (``rows.ROW_KEYS``), written last: its presence marks the entry
+    cache/runs/<key>.npz          the run's trajectory (``TRAJECTORY`` columns, as recorded)
+    cache/references/<key>.npz    a reference solution (``REFERENCE_COLUMNS`` on a 1 ms grid)
 
 A run's key is the SHA-256 of everything that determines its row: the scenario's content after the
 case is applied (parameter values and the simulation settings stop time, step, order, output
@@ -28,20 +28,23 @@ from pathlib import Path
 
 import numpy as np
 
-from .build import fmu_build_id
-from .scenario import TABLES, Scenario
-from .sweep import Case, apply
+from ..build.fmus import fmu_build_id
+from ..registry import fmu_files
+from ..scenario import TABLES, Scenario
+from .cases import Case, apply
 
 __all__ = [
     "ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "fmu_identities", "scenario_content", "case_key",
-    "reference_key", "SweepCache", "atomic_write",
+    "reference_key", "SweepCache", "atomic_write", "TRAJECTORY", "REFERENCE_COLUMNS", "load_trajectory", "load_reference",
 ]
 
 ROW_VERSION = 2  # bump when the definition of a row changes
 REFERENCE_GRID = 1e-3  # s: the reference solution's time grid, interpolated at the run's times
 REFERENCE_SETTINGS = {"rtol": 1e-10, "atol": 1e-10, "method": "DOP853"}
-_PACKAGE = Path(__file__).parent
-_CODE = ("reference_solution.py", "signals.py", "metrics.py", "models")
+TRAJECTORY = ("time", "x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2")
+REFERENCE_COLUMNS = ("time", "x", "y", "theta", "u1", "u2")
+_PACKAGE = Path(__file__).parents[1]
+_CODE = ("cosim/reference_solution.py", "cosim/signals.py", "cosim/metrics.py", "models")
 
 
 def _digest(data) -> str:
@@ -64,13 +67,8 @@ def _code_hash() -> str:
 
 def fmu_identities(fmu_paths: dict) -> dict[str, str]:
     """Each FMU's build id (``fmu_build_id``), or the SHA-256 of its file if it has none."""
-    identities = {}
-    for name, path in sorted(fmu_paths.items()):
-        path = Path(path)
-        if not path.is_file():
-            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
-        identities[name] = fmu_build_id(path) or "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
-    return identities
+    return {name: fmu_build_id(path) or "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
+            for name, path in sorted(fmu_files(fmu_paths).items())}
 
 
 def scenario_content(scenario: Scenario) -> dict:
@@ -164,3 +162,17 @@ class SweepCache:
     def store_reference(self, key: str, reference: np.ndarray) -> None:
         """Cache a reference solution."""
         atomic_write(self.references / f"{key}.npz", _npz(reference))
+
+
+def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
+    """The trajectory (``TRAJECTORY`` columns, as recorded; up to the failure for a diverged run)
+    of a run cached in the sweep folder ``out_dir``, given its row or its key."""
+    key = row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key
+    return SweepCache(out_dir).trajectory(key)
+
+
+def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | None:
+    """The reference solution (``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s) of a row cached in
+    the sweep folder ``out_dir``, given the row or its ``reference_key``; None if the solver failed."""
+    key = row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key
+    return SweepCache(out_dir).reference(key)

@@ -1,10 +1,10 @@
 """Co-simulation with the exchange schemes of other masters, to compare their results with ours.
 
-``dsc_fmu.master`` reads the controller's ``u`` *after* setting its inputs at every communication
+``dsc_fmu.cosim.master`` reads the controller's ``u`` *after* setting its inputs at every communication
 point (direct feedthrough honoured). Other masters do not:
 
 - ``"jacobi"``: our master's Jacobi, re-implemented here (same values bit for bit; a check of this
-  module against ``dsc_fmu.master``).
+  module against ``dsc_fmu.cosim.master``).
 - ``"libcosim"``: libcosim's ``fixed_step_algorithm`` (OSP). Initialisation: parameters set, then in
   initialisation mode N = 3 rounds of (set pending inputs, read outputs, transfer), then
   ``fmi2ExitInitializationMode`` on all, one more read and transfer. Step k: every FMU gets the
@@ -37,13 +37,13 @@ from pathlib import Path
 import numpy as np
 
 from . import signals
-from .master import CONTROLLER, PLANT, REFERENCE, _callbacks, _Fmu, step_count
-from .scenario import Scenario
+from .master import _callbacks, _Fmu, step_count
+from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE
+from ..scenario import Scenario
 
 __all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
 
 MODES = ("jacobi", "libcosim", "simulate_ssp")
-ORDER = (REFERENCE, PLANT, CONTROLLER)  # the order of the components in the SSD and the container
 
 
 @dataclass

@@ -8,10 +8,10 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from . import signals
-from .models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
-from .models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
-from .models.reference import initial_reference_state, reference_derivatives, velocity
-from .scenario import Scenario
+from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
+from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from ..models.reference import initial_reference_state, reference_derivatives, velocity
+from ..scenario import Scenario
 
 __all__ = [
     "PLANT",

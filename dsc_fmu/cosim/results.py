@@ -9,7 +9,7 @@ from fmpy.util import write_csv
 
 from . import signals
 from .master import CosimulationResult
-from .scenario import Scenario
+from ..scenario import Scenario
 
 __all__ = ["write_results", "summary", "format_summary"]
 

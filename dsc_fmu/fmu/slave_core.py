@@ -8,7 +8,7 @@ put it on their slave base classes and supply the three hooks ``_register``, ``l
 
 import math
 
-from .models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
+from ..models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
 
 __all__ = ["SlaveCore"]
 

@@ -21,6 +21,8 @@ import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
+from ..errors import DscFmuError
+
 __all__ = [
     "BinaryBuildError", "PythonRuntime", "build_python", "compile_binary", "binary_sources", "binary_folder",
     "OVERRIDE_VARIABLE",
@@ -34,7 +36,7 @@ FOLDERS = {2: "linux64", 3: "x86_64-linux"}
 _SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
 
 
-class BinaryBuildError(RuntimeError):
+class BinaryBuildError(DscFmuError, RuntimeError):
     """The FMU binary could not be compiled (the message names the command and the compiler's output)."""
 
 

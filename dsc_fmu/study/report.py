@@ -7,7 +7,7 @@ import os
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 
-from .study import group_rows, overrides
+from .analysis import group_rows, overrides
 
 __all__ = ["FIGURE_CAPTIONS", "write_report", "format_report"]
 
@@ -29,7 +29,7 @@ EXPLANATION = (
     "Gauss-Seidel some of them) and both discretizations of the controller (Euler is first order itself; "
     "RK4 is fourth order, so the hold dominates). The order is fitted by least squares in log-log over the "
     "smallest steps that lie on a straight line; larger steps, past the knee where higher-order terms or "
-    "instability take over, are left out (`dsc_fmu.study.fit_order`)."
+    "instability take over, are left out (`dsc_fmu.study.analysis.fit_order`)."
 )
 
 

@@ -5,7 +5,7 @@
 (its outputs at every communication point), ``<Model>_in.csv`` (for models with inputs: the
 inputs it held over each step), ``<Model>_ref.opt`` (StartTime, StopTime, StepSize, RelTol) and
 ``ReadMe.md``. The data come from one closed-loop run of the scenario (Jacobi, the same values as
-``dsc_fmu.master``, see ``dsc_fmu.exchange``), recording what each FMU saw: replaying an FMU alone
+``dsc_fmu.cosim.master``, see ``dsc_fmu.cosim.exchange``), recording what each FMU saw: replaying an FMU alone
 at the same step with its input file reproduces its reference outputs.
 
 The input files are sample-and-hold: every step ``[t_k, t_k+1)`` is two rows, ``(t_k, v_k)`` and
@@ -26,10 +26,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import __version__, signals
-from .exchange import ORDER, cosimulate_exchange
-from .master import CONTROLLER
-from .scenario import Scenario, load_scenario
+from .. import __version__
+
+from ..cosim import signals
+from ..cosim.exchange import cosimulate_exchange
+from ..registry import CONTROLLER, ORDER
+from ..scenario import Scenario, load_scenario
 
 __all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "model_dir", "held_inputs"]
 

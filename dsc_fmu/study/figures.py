@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 from matplotlib.transforms import blended_transform_factory
 
-from .plots import _figure
-from .study import OrderFit, fit_orders, group_rows
+from ..cosim.plots import _figure
+from .analysis import OrderFit, fit_orders, group_rows
 
 __all__ = ["plot_deviation", "plot_tracking_and_cost", "plot_paths", "plot_spectral_radius"]
 

@@ -9,11 +9,12 @@ import control
 import numpy as np
 from scipy.integrate import solve_ivp
 
-from .models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
-from .models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
-from .models.parameters import DISCRETIZATIONS, PROFILES
-from .models.reference import initial_reference_state
-from .scenario import ORDERS, Scenario
+from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
+from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from ..models.parameters import DISCRETIZATIONS, PROFILES
+from ..models.reference import initial_reference_state
+from ..errors import DscFmuError
+from ..scenario import ORDERS, Scenario
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
@@ -27,7 +28,7 @@ _FREE = tuple(i for i in range(27) if i not in ESTIMATES)  # S11, S12, S13bar, v
 DEFAULT_STEPS = np.logspace(-5.0, 0.0, 201)
 
 
-class OperatingPointError(RuntimeError):
+class OperatingPointError(DscFmuError, RuntimeError):
     """No operating point of steady tracking was found (Newton's method did not converge)."""
 
 

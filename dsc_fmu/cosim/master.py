@@ -22,12 +22,13 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.model_description import ValidationError
 
 from . import signals
-from .build import fmu_build_id
-from .scenario import Scenario
+from ..build.fmus import fmu_build_id
+from ..errors import DscFmuError
+from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..scenario import Scenario
 
 __all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "cosimulate", "step_count"]
 
-REFERENCE, PLANT, CONTROLLER = "ReferenceRobot", "MobileRobot", "DSCController"
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
 
@@ -55,7 +56,7 @@ class CosimulationResult:
     fmus: dict = field(default_factory=dict)
 
 
-class CosimulationError(RuntimeError):
+class CosimulationError(DscFmuError, RuntimeError):
     """A run that diverged or in which an FMU failed; carries the time (s), the signal, its value,
     the rows recorded before the failure (``result``), the communication steps completed
     (``steps``) and, for a failing FMI call, the FMU's name (``fmu``)."""
@@ -280,10 +281,7 @@ class Cosimulator:
     """
 
     def __init__(self, fmu_paths: dict[str, Path], workdir: Path | None = None):
-        paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in (REFERENCE, PLANT, CONTROLLER)}
-        for name, path in paths.items():
-            if name not in fmu_paths or not path.is_file():
-                raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+        paths = fmu_files(fmu_paths)
         self.paths = paths
         self.fmus = {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()}
         self.runs = 0
@@ -292,7 +290,7 @@ class Cosimulator:
         self._loaded: list[_Fmu] = []
         self._finalizer = weakref.finalize(self, _close_all, self._loaded)
         try:
-            for name in (REFERENCE, PLANT, CONTROLLER):
+            for name in ORDER:
                 self._loaded.append(_Fmu(name, workdir, self.log))
                 self._loaded[-1].load(paths[name], self._callbacks)
             self._wire()

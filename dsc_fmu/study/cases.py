@@ -2,9 +2,7 @@
 
 A sweep runs one co-simulation per ``Case``; ``build_cases`` makes the full grid from the options of
 ``dsc-fmu sweep`` (``parse_set``, ``parse_perturb``), ``apply`` turns a case into the scenario it runs.
-Running them (cached, on a process pool or a Dask cluster) is ``dsc_fmu.sweep_exec.execute``, also
-importable from here, as are ``run_case``, ``load_trajectory``, ``load_reference``, ``STABILITY_DEFINITION``
-and ``ROW_KEYS``.
+Running them (cached, on a process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
 
 >>> parse_set("controller.k4=0.5,1,2")
 ('controller.k4', (0.5, 1.0, 2.0))
@@ -23,29 +21,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .models.parameters import DISCRETIZATIONS, Variable
-from .scenario import ORDERS, TABLES, Scenario, ScenarioError
+from ..models.parameters import DISCRETIZATIONS, Variable
+from ..errors import DscFmuError
+from ..scenario import ORDERS, TABLES, Scenario, ScenarioError
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
-    "execute", "run_case", "load_trajectory", "load_reference", "STABILITY_DEFINITION", "ROW_KEYS",
 ]
 
-_EXECUTION = ("execute", "run_case", "load_trajectory", "load_reference", "STABILITY_DEFINITION", "ROW_KEYS")
 _OWN_OPTION = {"controller.discretization": "the sweep's discretizations option (rk4, euler)"}
 
 
-class SweepError(RuntimeError):
+class SweepError(DscFmuError, RuntimeError):
     """A sweep that cannot run as asked (for example an unreachable Dask scheduler); one-line message."""
-
-
-def __getattr__(name: str):
-    """The execution names, imported from ``sweep_exec`` when first used (it imports this module)."""
-    if name in _EXECUTION:
-        from . import sweep_exec
-
-        return getattr(sweep_exec, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def _number(value):

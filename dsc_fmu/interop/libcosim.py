@@ -4,7 +4,7 @@ FMU replayed with its input file.
 ``run_libcosim_fmu`` builds an execution of one FMU (``CosimExecution.from_step_size`` and a
 ``CosimLocalSlave``), observes the chosen outputs with a buffered time series observer, and steps
 it ``execution.step()`` by ``execution.step()``, feeding its inputs (if any) from a table with
-libcosim's override manipulator. ``python -m dsc_fmu.libcosim_runs`` runs it in a process of its
+libcosim's override manipulator. ``python -m dsc_fmu.interop.libcosim`` runs it in a process of its
 own and saves the result (``.npy``): libcosim and fmpy's container FMU loaded in one process
 sometimes abort at the process's exit (a double free while unloading), see the README; so did,
 2 times in about 15, a process that ran the three pythonfmu FMUs one after another in libcosim
@@ -149,12 +149,12 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
 
 def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                                     inputs_csv: Path | str | None = None, timeout: float = 600) -> np.ndarray:
-    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.libcosim_runs``), its inputs
+    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.interop.libcosim``), its inputs
     (if any) read from the CSV file ``inputs_csv`` with ``fmpy.util.read_csv``. A failure of the
     child raises SSPError with the end of its error output."""
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_libcosim_") as tmp:
         out = Path(tmp) / "result.npy"
-        command = [sys.executable, "-m", "dsc_fmu.libcosim_runs", str(fmu_path), repr(float(step_size)),
+        command = [sys.executable, "-m", "dsc_fmu.interop.libcosim", str(fmu_path), repr(float(step_size)),
                    repr(float(stop_time)), str(out), "--outputs", ",".join(outputs)]
         if inputs_csv is not None:
             command += ["--inputs", str(inputs_csv)]
@@ -166,8 +166,8 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
 
 
 def main(argv=None) -> int:
-    """``python -m dsc_fmu.libcosim_runs FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``."""
-    parser = argparse.ArgumentParser(prog="python -m dsc_fmu.libcosim_runs", description=__doc__.splitlines()[0])
+    """``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``."""
+    parser = argparse.ArgumentParser(prog="python -m dsc_fmu.interop.libcosim", description=__doc__.splitlines()[0])
     parser.add_argument("fmu")
     parser.add_argument("step_size", type=float)
     parser.add_argument("stop_time", type=float)

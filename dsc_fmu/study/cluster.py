@@ -21,9 +21,9 @@ from pathlib import Path
 import distributed
 from distributed.diagnostics.plugin import WorkerPlugin
 
-from .master import Cosimulator
-from .sweep import SweepError
-from .sweep_exec import compute_reference, simulate
+from ..cosim.master import Cosimulator
+from .cases import SweepError
+from .rows import compute_reference, simulate
 
 __all__ = ["connect", "run_on_cluster", "CosimulatorCleanup", "close_worker_simulator", "worker_status"]
 

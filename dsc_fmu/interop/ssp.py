@@ -8,7 +8,7 @@ Modelica Association, BSD licence) before anything is written.
 
 ``run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
 ``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
-each does differently from ``dsc_fmu.master`` is in ``dsc_fmu.exchange``.
+each does differently from ``dsc_fmu.cosim.master`` is in ``dsc_fmu.cosim.exchange``.
 """
 
 from __future__ import annotations
@@ -22,15 +22,15 @@ from pathlib import Path
 import numpy as np
 from lxml import etree
 
-from . import signals
-from .master import CONTROLLER, PLANT, REFERENCE
-from .models.parameters import START_ON
-from .scenario import Scenario, ScenarioError
+from ..cosim import signals
+from ..errors import DscFmuError
+from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..models.parameters import START_ON
+from ..scenario import Scenario, ScenarioError
 
 __all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_libcosim",
            "run_simulate_ssp", "SSPError"]
 
-ORDER = (REFERENCE, PLANT, CONTROLLER)
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
                  ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
@@ -39,7 +39,7 @@ SCHEMA_DIR = Path(__file__).parent / "schemas" / "ssp"
 SYSTEM_NAME = "DSCClosedLoop"
 
 
-class SSPError(RuntimeError):
+class SSPError(DscFmuError, RuntimeError):
     """An SSP archive that does not validate or that a tool cannot run."""
 
 
@@ -81,21 +81,6 @@ def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
     return [(v.name, v.causality, v.type) for v in names]
 
 
-def connections(variables: dict[str, dict]) -> list[tuple[str, str, str, str]]:
-    """Every connection (start element, start connector, end element, end connector): each input
-    of each component fed by the output of the same name of another component. Measurements
-    first, then the controller's voltages (fmpy's container transfers them in this order)."""
-    found = []
-    for end in (CONTROLLER, PLANT):
-        for v in variables[end].values():
-            if v.causality != "input":
-                continue
-            start = next(s for s in ORDER if s != end and variables[s].get(v.name) is not None
-                         and variables[s][v.name].causality == "output")
-            found.append((start, v.name, end, v.name))
-    return found
-
-
 def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, stop_time: float) -> tuple[bytes, dict]:
     """``SystemStructure.ssd`` and the parameter sets (archive path -> bytes) of ``scenario``."""
     root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP},
@@ -119,9 +104,9 @@ def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, 
         etree.SubElement(bindings, f"{{{SSD}}}ParameterBinding", source=source,
                          type="application/x-ssp-parameter-set")
     holder = etree.SubElement(system, f"{{{SSD}}}Connections")
-    for start, start_connector, end, end_connector in connections(variables):
-        etree.SubElement(holder, f"{{{SSD}}}Connection", startElement=start, startConnector=start_connector,
-                         endElement=end, endConnector=end_connector)
+    for c in CONNECTIONS:
+        etree.SubElement(holder, f"{{{SSD}}}Connection", startElement=c.start, startConnector=c.signal,
+                         endElement=c.end, endConnector=c.signal)
     experiment = etree.SubElement(root, f"{{{SSD}}}DefaultExperiment", startTime="0.0", stopTime=_number(stop_time))
     annotations = etree.SubElement(experiment, f"{{{SSD}}}Annotations")
     annotation = etree.SubElement(annotations, f"{{{SSC}}}Annotation", type="com.opensimulationplatform")
@@ -158,10 +143,7 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     for name, value in (("step_size", scenario.simulation.step_size), ("stop_time", scenario.simulation.stop_time)):
         if not math.isfinite(value):
             raise ScenarioError(f"{scenario.source}: [simulation] {name} = {value!r} is not allowed; allowed: > 0")
-    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
-    for name, path in paths.items():
-        if name not in fmu_paths or not path.is_file():
-            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+    paths = fmu_files(fmu_paths)
     variables = {name: _variables(path) for name, path in paths.items()}
     for name in ORDER:
         missing = [p for p in scenario.parameters(name) if p not in variables[name]]

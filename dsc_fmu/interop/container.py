@@ -13,8 +13,8 @@ this (read from its source, ``native/container-fmu/container-fmu/src/lib.rs``):
 
 The connections are listed measurements first, then the controller's ``u1, u2``: the transfer
 sets the controller's new inputs before reading ``u``, so ``u_k = law(c_k, m_k)``, exactly our
-master's Jacobi at step h (``dsc_fmu.master``, ``order="jacobi"``). (With ``u`` first the
-container would behave as libcosim does, see ``dsc_fmu.exchange``.)
+master's Jacobi at step h (``dsc_fmu.cosim.master``, ``order="jacobi"``). (With ``u`` first the
+container would behave as libcosim does, see ``dsc_fmu.cosim.exchange``.)
 """
 
 from __future__ import annotations
@@ -30,14 +30,13 @@ from pathlib import Path
 from fmpy import read_model_description
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
-from . import signals
-from .master import CONTROLLER, PLANT, REFERENCE
-from .scenario import Scenario, ScenarioError
-from .ssp import connections
+from ..cosim import signals
+from ..errors import DscFmuError
+from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..scenario import Scenario, ScenarioError
 
 __all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
 
-ORDER = (REFERENCE, PLANT, CONTROLLER)
 EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
 
 
@@ -85,10 +84,7 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
     if not (math.isfinite(h) and math.isfinite(stop)):
         raise ScenarioError(f"{scenario.source}: [simulation] step_size and stop_time must be finite")
-    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
-    for name, path in paths.items():
-        if name not in fmu_paths or not path.is_file():
-            raise FileNotFoundError(f"{path}: {name} FMU not found; build it with dsc_fmu.build.build_fmus")
+    paths = fmu_files(fmu_paths)
     descriptions = {name: read_model_description(str(path)) for name, path in paths.items()}
     variables = {name: {v.name: v for v in md.modelVariables} for name, md in descriptions.items()}
     components = {name: Component(name=name, filename=paths[name], modelDescription=descriptions[name])
@@ -134,9 +130,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     model_description.initialUnknowns = [Unknown(index=model_variables.index(v) + 1, variable=v) for v in outputs]
     model_description.guid = guid
     connection_list = [
-        Connection(components[start], [variables[start][start_connector]], components[end],
-                   [variables[end][end_connector]])
-        for start, start_connector, end, end_connector in connections(variables)
+        Connection(components[c.start], [variables[c.start][c.signal]], components[c.end], [variables[c.end][c.signal]])
+        for c in CONNECTIONS
     ]
     configuration = Configuration(parallelDoStep=False, modelDescription=model_description,
                                   components=[components[name] for name in ORDER], connections=connection_list,

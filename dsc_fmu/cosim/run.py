@@ -4,12 +4,11 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .build import DEFAULT_FMU_DIR, ensure_fmus
+from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
+from ..scenario import Scenario
 from .master import cosimulate
 from .metrics import tracking_metrics
-from .plots import plot_signals, plot_trajectory
 from .results import format_summary, write_results
-from .scenario import Scenario
 
 __all__ = ["run_scenario"]
 
@@ -26,6 +25,8 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = 
     out_dir = Path(out_dir)
     paths = write_results(out_dir, run, scenario, metrics)
     if plots:
+        from .plots import plot_signals, plot_trajectory  # matplotlib: only when figures are drawn
+
         paths["trajectory"] = plot_trajectory(run.result, out_dir / "trajectory.png")
         paths["signals"] = plot_signals(run.result, out_dir / "signals.png")
     return f"{format_summary(run, metrics)}\n  written: {', '.join(str(p) for p in paths.values())}"

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import numpy as np
 
-from .models.controller import wrap
-from .models.parameters import CONTROLLER_OUTPUTS, PLANT_OUTPUTS, REFERENCE_OUTPUTS
+from ..models.controller import wrap
+from ..registry import CONTROLLER, FMUS, ORDER
 
 __all__ = ["RECORDED", "DERIVED", "COLUMNS", "UNITS", "DTYPE", "add_tracking_errors"]
 
 RECORDED = {
-    "ReferenceRobot": tuple(v.name for v in REFERENCE_OUTPUTS),
-    "MobileRobot": tuple(v.name for v in PLANT_OUTPUTS),
-    "DSCController": (*(v.name for v in CONTROLLER_OUTPUTS), "beta_guard_count"),
+    name: (*(v.name for v in FMUS[name].outputs), *(("beta_guard_count",) if name == CONTROLLER else ()))
+    for name in ORDER
 }
 
 DERIVED = ("xe", "ye", "thetae", "position_error")
@@ -29,7 +28,7 @@ COLUMNS = (
 
 UNITS = {
     "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m", "beta_guard_count": "1",
-    **{v.name: v.unit for v in (*REFERENCE_OUTPUTS, *PLANT_OUTPUTS, *CONTROLLER_OUTPUTS)},
+    **{v.name: v.unit for name in ORDER for v in FMUS[name].outputs},
 }
 
 DTYPE = np.dtype([(name, np.float64) for name in COLUMNS])

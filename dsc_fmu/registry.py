@@ -1,0 +1,117 @@
+"""The three FMUs, their variable tables and how they connect: every other module asks here.
+
+>>> ORDER
+('ReferenceRobot', 'MobileRobot', 'DSCController')
+>>> [c for c in CONNECTIONS if c.end == PLANT]
+[Connection(start='DSCController', signal='u1', end='MobileRobot'), Connection(start='DSCController', signal='u2', end='MobileRobot')]
+>>> sorted({c.start for c in CONNECTIONS if c.end == CONTROLLER})
+['MobileRobot', 'ReferenceRobot']
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from .errors import FmuNotFoundError
+from .models.parameters import (
+    CONTROLLER_INPUTS,
+    CONTROLLER_OUTPUTS,
+    CONTROLLER_PARAMETERS,
+    PLANT_INPUTS,
+    PLANT_OUTPUTS,
+    PLANT_PARAMETERS,
+    REFERENCE_OUTPUTS,
+    REFERENCE_PARAMETERS,
+)
+
+__all__ = ["REFERENCE", "PLANT", "CONTROLLER", "ORDER", "FmuSpec", "FMUS", "Connection", "CONNECTIONS", "inputs_of", "fmu_files"]
+
+REFERENCE, PLANT, CONTROLLER = "ReferenceRobot", "MobileRobot", "DSCController"
+ORDER = (REFERENCE, PLANT, CONTROLLER)
+"""The order of the FMUs everywhere they are listed: loading, stepping, the SSD and the container."""
+
+_POSE = ("x", "y", "theta", "x_r", "y_r")
+_ALL_CONTROLLER_INPUTS = tuple(v.name for v in CONTROLLER_INPUTS)
+
+
+@dataclass(frozen=True)
+class FmuSpec:
+    """One FMU: its slave script in ``fmu_sources`` (FMI 2.0; ``<stem>_fmi3.py`` for FMI 3.0), its
+    variable tables and, for each output, the inputs it depends on (ModelStructure)."""
+
+    name: str
+    script: str
+    parameters: tuple
+    inputs: tuple
+    outputs: tuple
+    depends: dict = field(default_factory=dict)
+
+    def script_for(self, fmi_version: int) -> str:
+        """The slave script of FMI ``fmi_version`` (2 or 3)."""
+        return f"{Path(self.script).stem}_fmi3.py" if fmi_version == 3 else self.script
+
+    @property
+    def variables(self) -> dict:
+        """Every table variable by name: parameters, inputs, outputs."""
+        return {v.name: v for v in (*self.parameters, *self.inputs, *self.outputs)}
+
+
+FMUS = {
+    spec.name: spec
+    for spec in (
+        FmuSpec(REFERENCE, "reference_robot.py", REFERENCE_PARAMETERS, (), REFERENCE_OUTPUTS),
+        FmuSpec(PLANT, "mobile_robot.py", PLANT_PARAMETERS, PLANT_INPUTS, PLANT_OUTPUTS),
+        FmuSpec(
+            CONTROLLER, "dsc_controller.py", CONTROLLER_PARAMETERS, CONTROLLER_INPUTS, CONTROLLER_OUTPUTS,
+            depends={
+                "u1": _ALL_CONTROLLER_INPUTS,
+                "u2": _ALL_CONTROLLER_INPUTS,
+                "S11": _POSE,
+                "S12": _POSE,
+                "S13": (*_POSE, "theta_r", "v_r"),
+                "beta": (*_POSE, "v_r"),
+                "beta_guard_active": (*_POSE, "v_r"),
+                "started": _ALL_CONTROLLER_INPUTS,
+            },
+        ),
+    )
+}
+
+
+@dataclass(frozen=True)
+class Connection:
+    """The output ``signal`` of FMU ``start`` feeds the input of the same name of FMU ``end``."""
+
+    start: str
+    signal: str
+    end: str
+
+
+def _connections() -> tuple[Connection, ...]:
+    """Each input fed by the output of the same name of another FMU: the controller's measurements
+    first (in its input order), then the plant's voltages (fmpy's container transfers in this order)."""
+    found = []
+    for end in (CONTROLLER, PLANT):
+        for variable in FMUS[end].inputs:
+            start = next(s for s in ORDER if s != end and variable.name in {v.name for v in FMUS[s].outputs})
+            found.append(Connection(start, variable.name, end))
+    return tuple(found)
+
+
+CONNECTIONS = _connections()
+
+
+def inputs_of(end: str, start: str) -> tuple[str, ...]:
+    """Names of the inputs of FMU ``end`` fed by FMU ``start``, in ``end``'s input order."""
+    return tuple(c.signal for c in CONNECTIONS if c.end == end and c.start == start)
+
+
+def fmu_files(fmu_paths: dict) -> dict[str, Path]:
+    """The three FMU files of ``fmu_paths`` (name -> path) in ``ORDER``; FmuNotFoundError names the
+    first that is not given or not a file."""
+    paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
+    for name, path in paths.items():
+        if name not in fmu_paths or not path.is_file():
+            raise FmuNotFoundError(f"{path}: {name} FMU not found; build it with `dsc-fmu build` or dsc_fmu.build_fmus")
+    return paths

@@ -1,0 +1,131 @@
+"""One case to one row: run it, compare it with the reference solution, judge its stability."""
+
+from __future__ import annotations
+
+import json
+import math
+import time as clock
+
+import numpy as np
+
+from ..cosim.master import CosimulationError, Cosimulator
+from ..cosim.metrics import tracking_metrics
+from ..scenario import Scenario
+from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key
+from .cases import Case, apply
+
+__all__ = [
+    "STABLE_POSITION_ERROR", "STABILITY_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS", "simulate",
+    "compute_reference", "error_grows", "deviations", "make_row", "run_case",
+]
+
+STABLE_POSITION_ERROR = 0.5  # m
+GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m
+STABILITY_DEFINITION = (
+    "A run is stable if it did not diverge (every exchanged signal stayed finite and within the scenario's "
+    f"bound, and no FMU failed), its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
+    "over the last third of the run, and it did not grow there: its maximum over the last sixth of the run is "
+    f"at most {GROWTH_FACTOR:g} times its maximum over the sixth before, plus {GROWTH_SLACK * 1e3:g} mm (a slowly "
+    "growing oscillation, a spectral radius just above 1, is unstable even if it has not diverged yet). The "
+    "criterion assumes a run long enough for the start-up transient to have decayed by its last third "
+    "(30 s for the paper's scenario)."
+)
+METRIC_KEYS = ("final_position_error_m", "rms_position_error_m", "max_position_error_m", "max_abs_thetae_rad",
+               "settling_time_0p1_s", "max_abs_u_V", "beta_guard_count")
+DEVIATION_KEYS = ("max_position_deviation_m", "rms_position_deviation_m", "max_heading_deviation_rad",
+                  "rms_heading_deviation_rad", "max_u_deviation_V", "rms_u_deviation_V")
+ROW_KEYS = ("scenario", "step_size", "order", "discretization", "sample", "<table.name of each override>", "key",
+            "reference_key", "diverged", "diverged_time", "diverged_signal", "diverged_reason", "stable",
+            *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps")
+
+
+def _columns(result: np.ndarray, names) -> np.ndarray:
+    """The columns ``names`` of a structured array, as a new compact array."""
+    out = np.zeros(len(result), dtype=[(name, np.float64) for name in names])
+    for name in names:
+        out[name] = result[name]
+    return out
+
+
+def simulate(applied: Scenario, cosimulator: Cosimulator) -> dict:
+    """Run ``applied`` (a case applied to its scenario) and return what the row needs: the trajectory,
+    the tracking metrics (None if it diverged), the divergence, the steps and the wall time (s)."""
+    started = clock.perf_counter()
+    try:
+        run = cosimulator.run(applied)
+    except CosimulationError as error:
+        return {"trajectory": _columns(error.result, TRAJECTORY), "metrics": None, "diverged_time": float(error.time),
+                "diverged_signal": error.signal or error.fmu, "diverged_reason": " ".join(str(error).split()),
+                "steps": error.steps, "wall_time_s": clock.perf_counter() - started}
+    metrics = tracking_metrics(run.result, applied.simulation.stop_time)
+    return {"trajectory": _columns(run.result, TRAJECTORY), "metrics": {k: metrics[k] for k in METRIC_KEYS},
+            "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": None, "steps": run.steps,
+            "wall_time_s": clock.perf_counter() - started}
+
+
+def compute_reference(applied: Scenario) -> tuple[np.ndarray | None, str | None]:
+    """The reference solution of ``applied`` on a ``REFERENCE_GRID`` grid up to its stop time
+    (``REFERENCE_COLUMNS``), or None and why the solver failed."""
+    from ..cosim.reference_solution import output_times, reference_solution  # scipy: only where references are computed
+
+    times = output_times(applied.simulation.stop_time, REFERENCE_GRID)
+    try:
+        solution = reference_solution(applied, times=times, **REFERENCE_SETTINGS)
+    except (RuntimeError, ArithmeticError, ValueError) as error:
+        return None, " ".join(str(error).split())
+    return _columns(solution, REFERENCE_COLUMNS), None
+
+
+def error_grows(trajectory: np.ndarray) -> bool:
+    """Whether the position error grows over the last third of the run (``STABILITY_DEFINITION``)."""
+    t = trajectory["time"]
+    error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
+    end = t[-1]
+    earlier = error[(t >= 2.0 * end / 3.0) & (t < 5.0 * end / 6.0)]
+    later = error[t >= 5.0 * end / 6.0]
+    if not len(earlier) or not len(later):
+        return False
+    return bool(later.max() > GROWTH_FACTOR * earlier.max() + GROWTH_SLACK)
+
+
+def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
+    """Largest and RMS deviation of a run from the reference solution (interpolated linearly at the
+    run's times) over all its rows: position (m), wrapped heading (rad), voltage of both wheels (V)."""
+    t = trajectory["time"]
+    at = {name: np.interp(t, reference["time"], reference[name]) for name in REFERENCE_COLUMNS[1:]}
+    position = np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
+    heading = np.abs(np.remainder(trajectory["theta"] - at["theta"] + np.pi, 2.0 * np.pi) - np.pi)
+    voltage = np.abs(np.concatenate([trajectory["u1"] - at["u1"], trajectory["u2"] - at["u2"]]))
+    values = {}
+    for name, error, unit in (("position", position, "m"), ("heading", heading, "rad"), ("u", voltage, "V")):
+        values[f"max_{name}_deviation_{unit}"] = float(np.max(error))
+        values[f"rms_{name}_deviation_{unit}"] = float(np.sqrt(np.mean(error**2)))
+    return values
+
+
+def make_row(scenario_name: str, case: Case, keys: tuple[str, str], outcome: dict,
+             reference: np.ndarray | None) -> dict:
+    """The row (``ROW_KEYS``; JSON-serialisable, NaN where a value does not apply) of a simulated case;
+    ``keys`` are its cache key and that of its reference solution."""
+    diverged = outcome["metrics"] is None
+    metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
+    row = {"scenario": scenario_name, "step_size": case.step_size, "order": case.order,
+           "discretization": case.discretization, "sample": case.sample, **dict(case.overrides), "key": keys[0],
+           "reference_key": keys[1],
+           "diverged": diverged, "diverged_time": outcome["diverged_time"],
+           "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
+           "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
+           and not error_grows(outcome["trajectory"])}
+    usable = not diverged and reference is not None and len(outcome["trajectory"])
+    row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
+    row.update({name: math.nan if value is None else value for name, value in metrics.items()})
+    row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"])
+    return json.loads(json.dumps(row))  # exactly what the cache gives back
+
+
+def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
+    """Run one case with ``cosimulator`` and return its row; ``reference`` is the reference solution
+    of the case's physical scenario (``reference_solution(apply(scenario, case), times=...)``,
+    at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN."""
+    keys = case_key(scenario, case, fmu_identities(cosimulator.paths)), reference_key(scenario, case)
+    return make_row(scenario.name, case, keys, simulate(apply(scenario, case), cosimulator), reference)
