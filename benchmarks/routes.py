@@ -21,7 +21,8 @@ from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario
-from dsc_fmu.interop.ssp import export_ssp, run_libcosim, run_simulate_ssp
+from dsc_fmu.interop.libcosim import run_libcosim
+from dsc_fmu.interop.ssp import export_ssp, run_simulate_ssp
 
 
 def deviation(result, reference) -> float:

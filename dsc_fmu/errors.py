@@ -1,6 +1,6 @@
 """The base of every error a user can cause: ``dsc-fmu`` catches it and prints its one-line message."""
 
-__all__ = ["DscFmuError", "FmuNotFoundError"]
+__all__ = ["DscFmuError", "FmuNotFoundError", "CosimulationError"]
 
 
 class DscFmuError(Exception):
@@ -10,3 +10,19 @@ class DscFmuError(Exception):
 
 class FmuNotFoundError(DscFmuError, FileNotFoundError):
     """One of the three FMUs is not given or not a file."""
+
+
+class CosimulationError(DscFmuError, RuntimeError):
+    """A run that diverged or in which an FMU failed; carries the time (s), the signal, its value,
+    the rows recorded before the failure (``result``), the communication steps completed
+    (``steps``) and, for a failing FMI call, the FMU's name (``fmu``)."""
+
+    def __init__(self, message: str, time: float, signal: str | None = None, value: float | None = None):
+        super().__init__(message)
+        self.time, self.signal, self.value = time, signal, value
+        self.result = None  # the rows recorded before the failure (numpy structured array)
+        self.steps: int | None = None  # communication steps completed before the failure
+        self.fmu: str | None = None  # the FMU whose FMI call failed, if one did
+
+    def __reduce__(self):  # picklable with its attributes, to cross from a worker process
+        return type(self), (str(self), self.time, self.signal, self.value), self.__dict__

@@ -134,7 +134,7 @@ def _parameters(table_name: str, given: dict, where: str) -> dict:
 
 
 def _check_reference_speed(scenario: Scenario) -> None:
-    """Assumption 2: vr > 0 over the whole run, else a usage error (SPEC 2)."""
+    """Assumption 2: vr > 0 over the whole run, else a usage error (docs/model.md §2)."""
     lowest = min_speed(scenario.reference, scenario.simulation.stop_time)
     if not lowest > 0:
         raise ScenarioError(

@@ -1,4 +1,4 @@
-"""DSCController.fmu (FMI 2.0): the adaptive dynamic surface controller of SPEC 3 (equations 10-27)."""
+"""DSCController.fmu (FMI 2.0): the adaptive dynamic surface controller of docs/model.md §3 (equations 10-27)."""
 
 from dsc_fmu.fmu.fmi2 import DscSlave
 from dsc_fmu.fmu.slave_models import DSCControllerModel

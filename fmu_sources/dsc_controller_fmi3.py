@@ -1,4 +1,4 @@
-"""DSCController.fmu (FMI 3.0): the adaptive dynamic surface controller of SPEC 3 (equations 10-27)."""
+"""DSCController.fmu (FMI 3.0): the adaptive dynamic surface controller of docs/model.md §3 (equations 10-27)."""
 
 from pythonfmu3 import Fmi3Slave
 

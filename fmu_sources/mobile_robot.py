@@ -1,4 +1,4 @@
-"""MobileRobot.fmu (FMI 2.0): the electrically driven differential-drive robot of SPEC 1 (equations 1-8)."""
+"""MobileRobot.fmu (FMI 2.0): the electrically driven differential-drive robot of docs/model.md §1 (equations 1-8)."""
 
 from dsc_fmu.fmu.fmi2 import DscSlave
 from dsc_fmu.fmu.slave_models import MobileRobotModel

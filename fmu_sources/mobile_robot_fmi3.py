@@ -1,4 +1,4 @@
-"""MobileRobot.fmu (FMI 3.0): the electrically driven differential-drive robot of SPEC 1 (equations 1-8)."""
+"""MobileRobot.fmu (FMI 3.0): the electrically driven differential-drive robot of docs/model.md §1 (equations 1-8)."""
 
 from pythonfmu3 import Fmi3Slave
 

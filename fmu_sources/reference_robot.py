@@ -1,4 +1,4 @@
-"""ReferenceRobot.fmu (FMI 2.0): the reference robot of SPEC 2 (equation 9) with its velocity profile."""
+"""ReferenceRobot.fmu (FMI 2.0): the reference robot of docs/model.md §2 (equation 9) with its velocity profile."""
 
 from dsc_fmu.fmu.fmi2 import DscSlave
 from dsc_fmu.fmu.slave_models import ReferenceRobotModel

@@ -1,4 +1,4 @@
-"""ReferenceRobot.fmu (FMI 3.0): the reference robot of SPEC 2 (equation 9) with its velocity profile."""
+"""ReferenceRobot.fmu (FMI 3.0): the reference robot of docs/model.md §2 (equation 9) with its velocity profile."""
 
 from pythonfmu3 import Fmi3Slave
 

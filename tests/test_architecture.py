@@ -18,15 +18,16 @@ PACKAGE = Path(dsc_fmu.__file__).parent
 # What each part of the package may import from the package (besides itself and ``dsc_fmu.__version__``).
 ALLOWED = {
     "errors": set(),
+    "files": set(),
     "models": set(),
     "fmu": {"models"},
     "registry": {"models", "errors"},
     "scenario": {"models", "errors"},
-    "build": {"registry", "models", "errors"},
-    "cosim": {"build", "registry", "scenario", "models", "errors"},
-    "study": {"cosim", "build", "registry", "scenario", "models", "errors"},
-    "interop": {"cosim", "build", "registry", "scenario", "models", "errors"},
-    "cli": {"study", "interop", "cosim", "build", "registry", "scenario", "models", "errors"},
+    "build": {"registry", "models", "errors", "files"},
+    "cosim": {"build", "registry", "scenario", "models", "errors", "files"},
+    "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files"},
+    "interop": {"cosim", "build", "registry", "scenario", "models", "errors", "files"},
+    "cli": {"study", "interop", "cosim", "build", "registry", "scenario", "models", "errors", "files"},
     "__main__": {"cli"},
     "__init__": set(),
 }

@@ -1,6 +1,8 @@
 """The builder: FMUs rebuilt only when missing or built from other sources; unique bundled names."""
 
 import json
+import os
+import stat
 import zipfile
 
 import pytest
@@ -66,3 +68,15 @@ def test_bundled_modules_carry_a_name_unique_to_the_build(fmu_paths, name):
     with zipfile.ZipFile(fmu_paths[name]) as archive:
         script = archive.read(f"resources/{module}.py").decode()
     assert "from dsc_fmu." not in script
+
+
+@pytest.mark.parametrize("umask", [0o022, 0o027])
+def test_fmus_are_written_with_the_users_usual_permissions(tmp_path, umask):
+    """An FMU is readable as any file the user writes: 0o666 less the umask (not mkstemp's 0600)."""
+    old = os.umask(umask)
+    try:
+        path = build.build_fmu(FMUS["ReferenceRobot"], tmp_path)
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
+    assert [p.name for p in tmp_path.iterdir()] == ["ReferenceRobot.fmu"]  # no partial file left

@@ -2,9 +2,10 @@
 
 import csv
 import json
-import shutil
+import os
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import numpy as np
@@ -19,6 +20,16 @@ REQUIRED = (
     "time x y theta x_r y_r theta_r xe ye thetae u1 u2 omega1 omega2 i1 i2 "
     "a1_hat a2_hat W1_hat_norm W2_hat_norm"
 ).split()
+
+
+def console_script() -> str:
+    """The ``dsc-fmu`` script installed with this Python, whether or not its environment is activated."""
+    folders = [sysconfig.get_path("scripts"), sysconfig.get_path("scripts", f"{os.name}_user"), Path(sys.executable).parent]
+    for folder in folders:
+        script = Path(folder) / ("dsc-fmu.exe" if os.name == "nt" else "dsc-fmu")
+        if script.is_file():
+            return str(script)
+    raise AssertionError(f"dsc-fmu is not installed in any of {folders}")
 
 
 @pytest.fixture(scope="module")
@@ -96,10 +107,12 @@ def test_bad_order_is_refused_by_the_parser(capsys):
     assert "invalid choice: 'random'" in capsys.readouterr().err
 
 
-def test_console_script_error_has_no_traceback(tmp_path):
-    process = subprocess.run(
-        [shutil.which("dsc-fmu"), "run", "--step-size", "0"], capture_output=True, text=True, cwd=tmp_path,
-    )
+@pytest.mark.parametrize("command", [[console_script()], [sys.executable, "-m", "dsc_fmu"]], ids=["script", "module"])
+def test_console_script_error_has_no_traceback(tmp_path, command):
+    """``dsc-fmu`` and ``python -m dsc_fmu``, run with an environment that is not activated (PATH without it)."""
+    env = {key: value for key, value in os.environ.items() if key != "VIRTUAL_ENV"}
+    env["PATH"] = "/usr/bin:/bin"
+    process = subprocess.run([*command, "run", "--step-size", "0"], capture_output=True, text=True, cwd=tmp_path, env=env)
     assert process.returncode == 1
     assert "Traceback" not in process.stderr
     assert process.stderr.strip() == (
@@ -177,3 +190,22 @@ def test_crosscheck_command_writes_the_layout(tmp_path, fmu_dir, capsys):
         assert (folder / f"{folder.name}.fmu").is_file() and (folder / f"{folder.name}_ref.csv").is_file()
         assert (folder / f"{folder.name}_ref.opt").is_file()
     assert (folders[0].parent / "MobileRobot" / "MobileRobot_in.csv").is_file()
+
+
+HEAVY = ("control", "distributed", "matplotlib")
+
+
+@pytest.mark.parametrize("arguments,heavy", [
+    (["--help"], ()),
+    (["run", "--no-plots"], ()),
+    (["run"], ("matplotlib",)),
+], ids=["help", "run-no-plots", "run"])
+def test_commands_import_heavy_libraries_only_when_they_need_them(tmp_path, fmu_dir, arguments, heavy):
+    """python-control, Dask and matplotlib are imported by the commands that use them, not by ``--help`` or ``run``."""
+    if arguments[0] == "run":
+        arguments = [*arguments, "--stop-time", "0.05", "--out", str(tmp_path), "--fmu-dir", str(fmu_dir)]
+    code = ("import sys; from dsc_fmu.cli import main\n"
+            "try:\n    status = main(sys.argv[1:])\nexcept SystemExit as exit_:\n    status = exit_.code\n"
+            f"print(status, *[name for name in {HEAVY!r} if name in sys.modules])")
+    process = subprocess.run([sys.executable, "-c", code, *arguments], capture_output=True, text=True, cwd=tmp_path)
+    assert process.stdout.splitlines()[-1].split() == ["0", *heavy], process.stderr

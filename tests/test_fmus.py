@@ -1,7 +1,7 @@
 """The three FMUs through fmpy: model descriptions, behaviour, state, errors, coexistence.
 
 Expectations come from the variable tables (dsc_fmu.models.parameters), the FMI 2.0 standard,
-the interface names of the issue and closed-form solutions of the equations in SPEC.md; never
+the interface names of the issue and closed-form solutions of the equations in docs/model.md; never
 from numbers copied from the FMUs' own output.
 """
 
@@ -78,7 +78,7 @@ TABLES = {
         "parameter": P.CONTROLLER_PARAMETERS, "input": P.CONTROLLER_INPUTS, "output": P.CONTROLLER_OUTPUTS,
     },
 }
-# Outputs registered outside the tables (SPEC 5: the beta guard made visible), with their FMI type.
+# Outputs registered outside the tables (docs/model.md §5: the beta guard made visible), with their FMI type.
 EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"}}
 
 PLANT = P.defaults(P.PLANT_PARAMETERS)
@@ -427,7 +427,7 @@ def test_controller_outputs_move_only_with_their_declared_inputs(md, new):
 
 
 def test_controller_direct_feedthrough(new):
-    """Once stepped, the filter states are fixed by the first step (SPEC 5: the first measurements
+    """Once stepped, the filter states are fixed by the first step (docs/model.md §5: the first measurements
     seen); from then on u follows every new input vector at the current state."""
     ctrl = new("DSCController")
     g = gains(CONTROLLER)
@@ -500,7 +500,7 @@ def test_euler_discretization_takes_one_explicit_euler_step(new):
 
 
 def test_initial_state_parameters_set_the_state_at_t0(new):
-    """omega1_0 ... i2_0 and a1_hat0 ... W2_hat0_6 start the plant and the estimates (SPEC 5 defaults: 0)."""
+    """omega1_0 ... i2_0 and a1_hat0 ... W2_hat0_6 start the plant and the estimates (docs/model.md §5 defaults: 0)."""
     plant = new("MobileRobot", real={"omega1_0": 7.5, "omega2_0": 5.5, "i1_0": 2.0, "i2_0": -1.0})
     assert plant.get(("omega1", "omega2", "i1", "i2")) == [7.5, 5.5, 2.0, -1.0]
     assert plant.get1("theta_dot") == pytest.approx(0.5 * PLANT["r"] / PLANT["R"] * 2.0, rel=1e-15)
@@ -514,7 +514,7 @@ def test_initial_state_parameters_set_the_state_at_t0(new):
 
 
 def _steady_speed(U, wheel):
-    """Steady wheel speed and current under constant voltage U with equal wheels (SPEC 1)."""
+    """Steady wheel speed and current under constant voltage U with equal wheels (docs/model.md §1)."""
     nkt = PLANT[f"N{wheel}"] * PLANT[f"KT{wheel}"]
     nke = PLANT[f"N{wheel}"] * PLANT[f"KE{wheel}"]
     ra, damping = PLANT[f"Ra{wheel}"], PLANT[f"d{wheel}{wheel}"]

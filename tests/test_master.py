@@ -215,7 +215,7 @@ def test_default_extraction_goes_to_the_temp_folder_and_is_removed(paper, fmu_pa
 
 @pytest.mark.slow
 def test_paper_scenario_converges(paper, fmu_paths):
-    """SPEC 6: the error settles to centimetres by the last third of the paper's 30 s run."""
+    """docs/model.md §6: the error settles to centimetres by the last third of the paper's 30 s run."""
     run = cosimulate(paper, fmu_paths)
     r = run.result
     assert run.steps == 30000 and r["time"][-1] == 30.0

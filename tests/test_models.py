@@ -1,4 +1,4 @@
-"""The plain-Python models against the equations of SPEC.md and the paper, checked independently."""
+"""The plain-Python models against the equations of docs/model.md and the paper, checked independently."""
 
 import math
 
@@ -16,7 +16,7 @@ SEEDS = range(6)
 POSE = ("x0", "y0", "theta0", "max_step")
 
 
-# ---------------------------------------------------------------- helpers: random cases, SPEC matrices
+# ---------------------------------------------------------------- helpers: random cases, the matrices of docs/model.md
 
 
 def random_plant_parameters(rng) -> dict:
@@ -30,7 +30,7 @@ def plant_parameters(case: str, seed: int) -> dict:
 
 
 def random_gains(rng):
-    """The paper's gains (SPEC 4), each scaled by its own random factor in [0.2, 5]."""
+    """The paper's gains (docs/model.md §4), each scaled by its own random factor in [0.2, 5]."""
     return gains({name: value * rng.uniform(0.2, 5.0) for name, value in defaults(CONTROLLER_PARAMETERS).items()})
 
 
@@ -46,7 +46,7 @@ def random_controller_state(rng) -> list:
 
 
 def spec_inertia(p: dict) -> tuple:
-    """m11, m12 of SPEC 1, computed here from the physical parameters."""
+    """m11, m12 of docs/model.md §1, computed here from the physical parameters."""
     m = p["mc"] + 2 * p["mw"]
     inertia = p["mc"] * p["d"] ** 2 + 2 * p["mw"] * p["R"] ** 2 + p["Ic"] + 2 * p["Im"]
     k = 0.25 * p["r"] ** 2 / p["R"] ** 2
@@ -54,7 +54,7 @@ def spec_inertia(p: dict) -> tuple:
 
 
 def spec_matrices(p: dict, theta_dot_: float) -> dict:
-    """M, C(theta_dot), D, N KT, N KE, Ra, La of SPEC 1 as numpy matrices."""
+    """M, C(theta_dot), D, N KT, N KE, Ra, La of docs/model.md §1 as numpy matrices."""
     m11, m12 = spec_inertia(p)
     c = 0.5 * p["r"] ** 2 * p["mc"] * p["d"] / p["R"]
     diag = lambda a, b: np.diag([p[a], p[b]])  # noqa: E731
@@ -72,7 +72,7 @@ def spec_matrices(p: dict, theta_dot_: float) -> dict:
     }
 
 
-# ---------------------------------------------------------------- SPEC 1: plant
+# ---------------------------------------------------------------- docs/model.md §1: plant
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -102,7 +102,7 @@ def test_plant_derivatives_match_matrix_form(case, seed):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("case", ["paper", "random"])
 def test_inertia_matrix_is_symmetric_positive_definite(case, seed):
-    """SPEC 1: M = [[m11, m12], [m12, m11]] from the physical parameters is SPD, det_M > 0."""
+    """docs/model.md §1: M = [[m11, m12], [m12, m11]] from the physical parameters is SPD, det_M > 0."""
     p = plant_parameters(case, seed)
     k = plant_coefficients(p)
     m11, m12 = spec_inertia(p)
@@ -114,7 +114,7 @@ def test_inertia_matrix_is_symmetric_positive_definite(case, seed):
     assert k.det_M == pytest.approx(np.linalg.det(M), rel=1e-10)
 
 
-# ---------------------------------------------------------------- SPEC 3: the regressor identities
+# ---------------------------------------------------------------- docs/model.md §3: the regressor identities
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -161,7 +161,7 @@ def test_W2_identity(case, seed):
 @pytest.mark.parametrize("seed", range(8))
 @pytest.mark.parametrize("ahead", [False, True], ids=["behind", "ahead"])
 def test_control_law_is_spec_3_in_matrix_form(ahead, seed):
-    """u and all 20 state derivatives equal (10)-(27) written with numpy matrices (SPEC 3 and 5).
+    """u and all 20 state derivatives equal (10)-(27) written with numpy matrices (docs/model.md §3 and 5).
 
     ``ahead``: the robot is 3 / (k1 vr) ahead of the reference on its heading, so beta = -2 is guarded.
     """
@@ -246,7 +246,7 @@ def test_wrap_exact_cases(angle, expected):
 
 @pytest.mark.parametrize("seed", SEEDS)
 def test_wrap_maps_to_half_open_interval(seed):
-    """wrap(a) is in (-pi, pi] and differs from a by a whole number of turns (SPEC 5)."""
+    """wrap(a) is in (-pi, pi] and differs from a by a whole number of turns (docs/model.md §5)."""
     for angle in np.random.default_rng(seed).uniform(-50.0, 50.0, 1000):
         w = wrap(angle)
         assert -math.pi < w <= math.pi

@@ -50,7 +50,7 @@ def test_output_times(stop_time, interval, expected_last, expected_len):
 
 @pytest.mark.parametrize("name", ["paper", "ahead_start", "figure_eight"])
 def test_initial_state(name):
-    """SPEC 5: plant at rest, estimates zero, x2f = x2bar and x3f = x3bar (both filter derivatives 0)."""
+    """docs/model.md §5: plant at rest, estimates zero, x2f = x2bar and x3f = x3bar (both filter derivatives 0)."""
     scenario = load_scenario(name)
     state = rs.initial_closed_loop_state(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
@@ -147,7 +147,7 @@ def test_error_surfaces_obey_11(paper_dense):
 
 
 def test_tracking_errors(paper):
-    """SPEC 5: xe = xr - x, ye = yr - y, thetae = wrap(thetar - theta) in (-pi, pi], position error."""
+    """docs/model.md §5: xe = xr - x, ye = yr - y, thetae = wrap(thetar - theta) in (-pi, pi], position error."""
     np.testing.assert_array_equal(paper["xe"], paper["x_r"] - paper["x"])
     np.testing.assert_array_equal(paper["ye"], paper["y_r"] - paper["y"])
     np.testing.assert_allclose(paper["position_error"], np.sqrt(paper["xe"] ** 2 + paper["ye"] ** 2), rtol=1e-15)

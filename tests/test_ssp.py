@@ -88,7 +88,7 @@ def test_exchange_modes_give_the_same_through_fmi3(paper, fmu_paths, fmu3_paths)
 
 
 CHILD = (
-    "import sys, numpy; from dsc_fmu.interop.ssp import run_libcosim; "
+    "import sys, numpy; from dsc_fmu.interop.libcosim import run_libcosim; "
     "numpy.save(sys.argv[4], run_libcosim(sys.argv[1], float(sys.argv[2]), float(sys.argv[3])))"
 )
 

@@ -10,7 +10,7 @@ __all__ = ["PAPER", "EQUATIONS", "documentation_html"]
 PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering actuator dynamics", '
          "a dynamic surface control (DSC) design; equation numbers below are the paper's.")
 
-# The equations each FMU implements (the project's SPEC, sections 1-3), as preformatted text.
+# The equations each FMU implements (docs/model.md, sections 1-3), as preformatted text.
 EQUATIONS = {
     "MobileRobot": """\
 States: pose q = [x, y, theta], wheel speeds z = [omega1, omega2], currents ia = [i1, i2].

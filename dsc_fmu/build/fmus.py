@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 import shutil
 import sys
 import tempfile
@@ -17,6 +16,7 @@ import pythonfmu
 from pythonfmu import FmuBuilder
 
 from .. import __version__
+from ..files import atomic_write
 from ..registry import FMUS, FmuSpec
 from .binary import binary_folder, binary_sources, build_python, compile_binary
 from .model_description import complete_model_description, complete_model_description3, documentation
@@ -176,11 +176,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                     dst.writestr(item.filename, data)
             dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,
                                                     "fmi_version": fmi_version}))
-        fd, partial = tempfile.mkstemp(dir=out_dir, suffix=".fmu.partial")
-        os.close(fd)
-        shutil.copyfile(staged, partial)
-        os.replace(partial, target)
-    return target
+        return atomic_write(target, staged.read_bytes())
 
 
 def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int = 2) -> dict[str, Path]:

@@ -36,14 +36,13 @@ from pathlib import Path
 
 import numpy as np
 
-from . import signals
-from .master import _callbacks, _Fmu, step_count
-from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE
+from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE
 from ..scenario import Scenario
+from . import signals
+from .instance import LoadedFmu, logging_callbacks
+from .master import step_count
 
-__all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
-
-MODES = ("jacobi", "libcosim", "simulate_ssp")
+__all__ = ["MODES", "SCHEMES", "ExchangeRun", "Scheme", "cosimulate_exchange"]
 
 
 @dataclass
@@ -60,131 +59,213 @@ class ExchangeRun:
     outputs after each doStep and sets the next inputs afterwards)."""
 
 
-def _connections(slaves: dict) -> dict:
-    """For every input of every FMU, the (source FMU, output) feeding it: same names."""
-    sources = {}
-    for name in ORDER:
-        for signal in slaves[name].inputs:
-            source = next(s for s in ORDER if s != name and signal in slaves[s].outputs)
-            sources[(name, signal)] = source
-    return sources
+class _Loop:
+    """The three loaded FMUs of one run, the value each input connector holds, the outputs read last
+    and the rows recorded: the operations every scheme is made of."""
+
+    def __init__(self, slaves: dict[str, LoadedFmu]):
+        self.slaves = slaves
+        self.sources = {(c.end, c.signal): c.start for c in CONNECTIONS}
+        self.held = dict.fromkeys(self.sources, 0.0)  # SSP: every connector starts at 0.0
+        self.outputs = {name: {} for name in ORDER}
+        self.rows, self.before = [], []
+        self.seen = {name: [] for name in ORDER if slaves[name].inputs}
+
+    def read_all(self) -> None:
+        """Read every output of every FMU (Real and Integer)."""
+        for name in ORDER:
+            self.outputs[name] = self.slaves[name].get_values(self.slaves[name].outputs)
+
+    def transfer(self) -> None:
+        """Every input connector takes the output read last from its source."""
+        for (name, signal), source in self.sources.items():
+            self.held[(name, signal)] = self.outputs[source][signal]
+
+    def push(self) -> None:
+        """Set every FMU's inputs to the values their connectors hold."""
+        for name in ORDER:
+            self._set(name)
+
+    def exchange(self) -> None:
+        """Our master's exchange: measurements to the controller, then its ``u`` to the plant."""
+        for name in (PLANT, REFERENCE):
+            self.outputs[name] = self.slaves[name].get_values(signals.RECORDED[name])
+        self._take(CONTROLLER)
+        self.outputs[CONTROLLER] = self.slaves[CONTROLLER].get_values(signals.RECORDED[CONTROLLER])
+        self._take(PLANT)
+
+    def _take(self, name: str) -> None:
+        for signal in self.slaves[name].inputs:
+            self.held[(name, signal)] = self.outputs[self.sources[(name, signal)]][signal]
+        self._set(name)
+
+    def _set(self, name: str) -> None:
+        slave = self.slaves[name]
+        slave.set_values({s: self.held[(name, s)] for s in slave.inputs})
+
+    def step(self, t: float, step: float) -> None:
+        """Note the inputs each FMU holds, then ``doStep(t, step)`` on all three in ``ORDER``."""
+        for name, table in self.seen.items():
+            table.append((t, *(self.held[(name, s)] for s in self.slaves[name].inputs)))
+        for name in ORDER:
+            self.slaves[name].slave.doStep(currentCommunicationPoint=t, communicationStepSize=step)
+
+    def record(self, at: float) -> None:
+        self.rows.append((at, {n: v for name in ORDER for n, v in self.outputs[name].items()}))
+
+
+class Scheme:
+    """How a master exchanges: its time points, initialisation and what it does around each step.
+    This base is the step-then-transfer loop of libcosim and ``simulate_ssp``: before a step every FMU
+    gets the values transferred last; after it every output is read, transferred and recorded."""
+
+    name = ""
+    parameters_first = True  # parameters set before initialisation mode
+
+    def time_points(self, h: float, stop: float) -> list[tuple[float, float, float]]:
+        """(start, step, recorded time) of every step: ``t_k = k h``, the last one shorter to end at ``stop``."""
+        n = step_count(stop, h)
+        return [(k * h, h if k < n - 1 else stop - k * h, (k + 1) * h if k < n - 1 else stop) for k in range(n)]
+
+    def stop_time(self, stop: float) -> float | None:
+        return stop
+
+    def initialise(self, loop: _Loop) -> None:
+        """In initialisation mode, after the parameters."""
+
+    def start(self, loop: _Loop) -> None:
+        """After initialisation, before the first step."""
+
+    def before_step(self, loop: _Loop) -> None:
+        loop.push()
+
+    def after_step(self, loop: _Loop, end: float) -> None:
+        loop.read_all()
+        loop.transfer()
+        loop.record(end)
+
+
+class _Jacobi(Scheme):
+    """Our master's Jacobi: the exchange (direct feedthrough honoured) at every point, then all step."""
+
+    name = "jacobi"
+    parameters_first = False
+
+    def start(self, loop: _Loop) -> None:
+        loop.exchange()
+        loop.record(0.0)
+
+    def before_step(self, loop: _Loop) -> None:
+        pass
+
+    def after_step(self, loop: _Loop, end: float) -> None:
+        loop.before.append((end, loop.slaves[CONTROLLER].get_values(signals.RECORDED[CONTROLLER])))
+        loop.exchange()
+        loop.record(end)
+
+
+class _Libcosim(Scheme):
+    """libcosim's ``fixed_step_algorithm``: N rounds of (set, read, transfer) in initialisation mode."""
+
+    name = "libcosim"
+
+    def initialise(self, loop: _Loop) -> None:
+        loop.read_all()
+        for _ in ORDER:  # N iterations, N = number of simulators
+            loop.push()
+            loop.read_all()
+            loop.transfer()
+        loop.push()
+
+    def start(self, loop: _Loop) -> None:
+        loop.read_all()
+        loop.transfer()
+        loop.record(0.0)
+
+
+class _SimulateSsp(Scheme):
+    """``fmpy.ssp.simulate_ssp``: no stop time, no initial exchange, time advanced by adding h while
+    below the stop time, each row stamped with the start of its step."""
+
+    name = "simulate_ssp"
+
+    def time_points(self, h: float, stop: float) -> list[tuple[float, float, float]]:
+        points, t = [], 0.0
+        while t < stop:
+            points.append((t, h, t))
+            t += h
+        return points
+
+    def stop_time(self, stop: float) -> None:
+        return None
+
+
+SCHEMES = {scheme.name: scheme for scheme in (_Jacobi(), _Libcosim(), _SimulateSsp())}
+MODES = tuple(SCHEMES)
 
 
 def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_size: float | None = None,
                         stop_time: float | None = None) -> ExchangeRun:
     """Co-simulate ``scenario`` with the exchange scheme ``mode`` (one of ``MODES``, see the module)."""
-    if mode not in MODES:
+    if mode not in SCHEMES:
         raise ValueError(f"mode {mode!r} is not allowed; allowed: {', '.join(MODES)}")
+    scheme = SCHEMES[mode]
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
-    if mode == "simulate_ssp":
-        times, t = [], 0.0
-        while t < stop:
-            times.append(t)
-            t += h
-        steps = [(t0, h) for t0 in times]
-        ends = times  # simulate_ssp stamps each row with the start of its step
-    else:
-        n = step_count(stop, h)
-        steps = [(k * h, h if k < n - 1 else stop - k * h) for k in range(n)]
-        ends = [(k + 1) * h for k in range(n - 1)] + [stop]  # the master's time points
     root = Path(tempfile.mkdtemp(prefix="dsc_fmu_exchange_"))
     slaves = {}
-    callbacks = _callbacks([])  # the master's logger, not fmpy's process-wide proxy
+    callbacks = logging_callbacks([])  # the master's logger, not fmpy's process-wide proxy
     try:
         for name in ORDER:
-            slaves[name] = _Fmu(name, root)
+            slaves[name] = LoadedFmu(name, root)
             slaves[name].load(Path(fmu_paths[name]), callbacks)
-        sources = _connections(slaves)
-        held = {key: 0.0 for key in sources}  # the value each input connector holds (SSP: 0.0 at start)
-        outputs = {name: {} for name in ORDER}
-
-        def read_all():
-            for name in ORDER:
-                outputs[name] = slaves[name].get_values(slaves[name].outputs)  # Real and Integer ones
-
-        def transfer():
-            for (name, signal), source in sources.items():
-                held[(name, signal)] = outputs[source][signal]
-
-        def push():
-            for name in ORDER:
-                slaves[name].set_values({s: held[(name, s)] for s in slaves[name].inputs})
-
+        loop = _Loop(slaves)
         for name in ORDER:
-            slaves[name].enter_initialization(None if mode == "simulate_ssp" else stop, scenario.parameters(name),
-                                              set_first=mode != "jacobi")
-        if mode == "libcosim":
-            read_all()
-            for _ in ORDER:  # N iterations, N = number of simulators
-                push()
-                read_all()
-                transfer()
-            push()
+            slaves[name].enter_initialization(scheme.stop_time(stop), scenario.parameters(name),
+                                              set_first=scheme.parameters_first)
+        scheme.initialise(loop)
         for name in ORDER:
             slaves[name].slave.exitInitializationMode()
-
-        rows, seen, before = [], {name: [] for name in ORDER if slaves[name].inputs}, []
-
-        def record(at):
-            rows.append((at, {n: v for name in ORDER for n, v in outputs[name].items()}))
-
-        def exchange_jacobi():
-            plant, ref, ctl = slaves[PLANT], slaves[REFERENCE], slaves[CONTROLLER]
-            outputs[PLANT] = plant.get_values(signals.RECORDED[PLANT])
-            outputs[REFERENCE] = ref.get_values(signals.RECORDED[REFERENCE])
-            for s in ctl.inputs:
-                held[(CONTROLLER, s)] = outputs[sources[(CONTROLLER, s)]][s]
-            ctl.set_values({s: held[(CONTROLLER, s)] for s in ctl.inputs})
-            outputs[CONTROLLER] = ctl.get_values(signals.RECORDED[CONTROLLER])
-            for s in plant.inputs:
-                held[(PLANT, s)] = outputs[CONTROLLER][s]
-            plant.set_values({s: held[(PLANT, s)] for s in plant.inputs})
-
-        if mode == "libcosim":
-            read_all()
-            transfer()
-            record(0.0)
-        elif mode == "jacobi":
-            exchange_jacobi()
-            record(0.0)
-        for (t, step), end in zip(steps, ends):
-            if mode != "jacobi":
-                push()
-            for name in seen:
-                seen[name].append((t, *(held[(name, s)] for s in slaves[name].inputs)))
-            for name in ORDER:
-                slaves[name].slave.doStep(currentCommunicationPoint=t, communicationStepSize=step)
-            if mode == "jacobi":
-                before.append((end, slaves[CONTROLLER].get_values(signals.RECORDED[CONTROLLER])))
-                exchange_jacobi()
-            else:
-                read_all()
-                transfer()
-            record(end)
+        scheme.start(loop)
+        for t, step, end in scheme.time_points(h, stop):
+            scheme.before_step(loop)
+            loop.step(t, step)
+            scheme.after_step(loop, end)
     finally:
         for slave in reversed(list(slaves.values())):
             slave.close()
         shutil.rmtree(root, ignore_errors=True)
+    return ExchangeRun(result=_table(loop.rows), inputs=_inputs(loop),
+                       controller_before_inputs=_before(loop) if loop.before else None)
 
+
+def _table(rows: list) -> np.ndarray:
+    """The recorded rows as a ``signals.DTYPE`` array with the tracking errors."""
     result = np.zeros(len(rows), dtype=signals.DTYPE)
     result["time"] = [at for at, _ in rows]
     for name in ORDER:
         for signal in signals.RECORDED[name]:
             result[signal] = [values[signal] for _, values in rows]
     signals.add_tracking_errors(result)
-    inputs = {}
-    for name, table in seen.items():
-        dtype = [("time", np.float64), *((s, np.float64) for s in slaves[name].inputs)]
-        inputs[name] = np.array(table, dtype=dtype)
-    controller_before = None
-    if mode == "jacobi":
-        columns = ["time", *signals.RECORDED[CONTROLLER]]
-        controller_before = np.zeros(len(rows), dtype=[(c, np.float64) for c in columns])
-        first = rows[0][1]
-        table = [(0.0, {c: first[c] for c in columns[1:]}), *before]
-        controller_before["time"] = [at for at, _ in table]
-        for c in columns[1:]:
-            controller_before[c] = [values[c] for _, values in table]
-    return ExchangeRun(result=result, inputs=inputs, controller_before_inputs=controller_before)
+    return result
 
+
+def _inputs(loop: _Loop) -> dict:
+    """The inputs each FMU held over each step, by FMU, as structured arrays (``time`` = the step's start)."""
+    inputs = {}
+    for name, table in loop.seen.items():
+        dtype = [("time", np.float64), *((s, np.float64) for s in loop.slaves[name].inputs)]
+        inputs[name] = np.array(table, dtype=dtype)
+    return inputs
+
+
+def _before(loop: _Loop) -> np.ndarray:
+    """``ExchangeRun.controller_before_inputs`` of a Jacobi run."""
+    columns = ["time", *signals.RECORDED[CONTROLLER]]
+    first = loop.rows[0][1]
+    table = [(0.0, {c: first[c] for c in columns[1:]}), *loop.before]
+    before = np.zeros(len(table), dtype=[(c, np.float64) for c in columns])
+    before["time"] = [at for at, _ in table]
+    for c in columns[1:]:
+        before[c] = [values[c] for _, values in table]
+    return before

@@ -65,7 +65,7 @@ def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref
 
 
 def initial_closed_loop_state(scenario: Scenario) -> list:
-    """Plant at rest at its initial pose, estimates zero, filters started from the t = 0 measurements (SPEC 5)."""
+    """Plant at rest at its initial pose, estimates zero, filters started from the t = 0 measurements (docs/model.md §5)."""
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     plant, reference = initial_plant_state(scenario.plant), initial_reference_state(scenario.reference)
     m0 = measurements(k, scenario.reference, 0.0, plant, reference)
@@ -78,7 +78,7 @@ def reference_solution(
     """Solve the closed loop from t = 0 with ``solve_ivp`` and return one ``signals.DTYPE`` row per time.
 
     ``times`` (ascending, >= 0) defaults to the scenario's output grid; ``method`` is any solve_ivp method.
-    ``beta_guard_count`` counts the output rows so far at which the beta guard acts (SPEC 5).
+    ``beta_guard_count`` counts the output rows so far at which the beta guard acts (docs/model.md §5).
     """
     sim = scenario.simulation
     times = output_times(sim.stop_time, sim.output_interval) if times is None else np.asarray(times, float)

@@ -35,7 +35,7 @@ DTYPE = np.dtype([(name, np.float64) for name in COLUMNS])
 
 
 def add_tracking_errors(result: np.ndarray) -> None:
-    """Fill ``xe = x_r - x``, ``ye = y_r - y``, ``thetae = wrap(theta_r - theta)`` and the position error (SPEC 5)."""
+    """Fill ``xe = x_r - x``, ``ye = y_r - y``, ``thetae = wrap(theta_r - theta)`` and the position error (docs/model.md §5)."""
     result["xe"] = result["x_r"] - result["x"]
     result["ye"] = result["y_r"] - result["y"]
     result["thetae"] = [wrap(a) for a in result["theta_r"] - result["theta"]]

@@ -27,7 +27,7 @@ def _norm(values):
 
 
 class MobileRobotModel:
-    """Inputs: motor voltages u1, u2. Outputs: pose, heading rate, wheel speeds, currents (SPEC 1)."""
+    """Inputs: motor voltages u1, u2. Outputs: pose, heading rate, wheel speeds, currents (docs/model.md §1)."""
 
     description = "Differential-drive mobile robot with rigid-body and DC-motor dynamics (Section II)"
     PARAMETERS = PLANT_PARAMETERS
@@ -49,7 +49,7 @@ class MobileRobotModel:
 
 
 class ReferenceRobotModel:
-    """No inputs. Outputs: reference pose, vr, wr and vr_dot at the current time (SPEC 2)."""
+    """No inputs. Outputs: reference pose, vr, wr and vr_dot at the current time (docs/model.md §2)."""
 
     description = "Reference robot of the tracking problem (equation 9): constant or figure-eight profile"
     PARAMETERS = REFERENCE_PARAMETERS
@@ -71,9 +71,9 @@ class DSCControllerModel:
     The measured inputs are held over a step; the 20 controller states are integrated with RK4
     (``discretization`` = 0) or one explicit Euler step per communication step (1). Until the first
     step the filter states are x2f = x2bar, x3f = x3bar of the current inputs, whatever the order of
-    sets and reads; the first step starts from those of the inputs it holds (SPEC 5: the first
+    sets and reads; the first step starts from those of the inputs it holds (docs/model.md §5: the first
     measurements the controller sees). The beta guard
-    (SPEC 5) is counted (``beta_guard_count``), shown (``beta_guard_active``) and logged.
+    (docs/model.md §5) is counted (``beta_guard_count``), shown (``beta_guard_active``) and logged.
 
     With ``start_on`` = valid_inputs, a controller that has not started and whose only refused
     values are inputs waits instead of discarding its steps: u = 0, S11 = S12 = S13 = 0, beta = 1,
@@ -94,7 +94,7 @@ class DSCControllerModel:
         self._guard_seen = None
         super()._init_core()
         self.register_discrete_output(
-            "beta_guard_count", "Number of steps in which beta fell below beta_min and the guard acted (SPEC 5)",
+            "beta_guard_count", "Number of steps in which beta fell below beta_min and the guard acted (docs/model.md §5)",
             lambda: self.beta_guard_count, boolean=False,
         )
         self.register_discrete_output(
@@ -102,7 +102,7 @@ class DSCControllerModel:
             lambda: not self.waiting() and self.law().guarded, boolean=True,
         )
         self.register_discrete_output(
-            "started", "True once the filter states have started (SPEC 5); False while initialising and while "
+            "started", "True once the filter states have started (docs/model.md §5); False while initialising and while "
             "the controller waits for valid inputs (start_on = valid_inputs)",
             self.started, boolean=True,
         )

@@ -31,8 +31,7 @@ from fmpy import read_model_description
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
 from ..cosim import signals
-from ..errors import DscFmuError
-from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..registry import CONNECTIONS, ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 
 __all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
@@ -68,31 +67,11 @@ def _repair(staged: Path, repaired: Path) -> None:
             dst.writestr(item, data)
 
 
-def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
-               stop_time: float | None = None) -> Path:
-    """Write one co-simulation FMU ``out_file`` of the scenario's closed loop and return its path.
-
-    Its internal fixed step is the scenario's step size (or ``step_size``); every parameter of the
-    three FMUs is a parameter of the container named ``<FMU>.<parameter>`` whose start value is the
-    scenario's; its outputs are every output of ``signals.RECORDED`` under its own name. A bad
-    setting raises ScenarioError, a missing FMU FileNotFoundError, before anything is written.
-    """
-    from fmpy.container_fmu.cli import create_container_fmu
-    from fmpy.container_fmu.config import Component, Configuration, Connection
-
-    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
-    h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
-    if not (math.isfinite(h) and math.isfinite(stop)):
-        raise ScenarioError(f"{scenario.source}: [simulation] step_size and stop_time must be finite")
-    paths = fmu_files(fmu_paths)
-    descriptions = {name: read_model_description(str(path)) for name, path in paths.items()}
-    variables = {name: {v.name: v for v in md.modelVariables} for name, md in descriptions.items()}
-    components = {name: Component(name=name, filename=paths[name], modelDescription=descriptions[name])
-                  for name in ORDER}
-
-    guid = "{" + str(uuid.uuid4()) + "}"
+def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict):
+    """The container's variables: time, every parameter of the three FMUs as ``<FMU>.<parameter>``
+    (start: the scenario's value), every recorded output under its own name; and their mappings."""
     model_variables = [ModelVariable(type="Real", variability="continuous", causality="independent", name="time")]
-    mappings = {}
+    mappings, outputs = {}, []
     for name in ORDER:
         for key, value in scenario.parameters(name).items():
             inner = variables[name].get(key)
@@ -105,7 +84,6 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
             outer.unit = getattr(inner, "unit", None) if not integer else None
             model_variables.append(outer)
             mappings[outer] = [(components[name], inner)]
-    outputs = []
     for name in ORDER:
         for key in signals.RECORDED[name]:
             inner = variables[name][key]
@@ -115,10 +93,16 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
             model_variables.append(outer)
             mappings[outer] = [(components[name], inner)]
             outputs.append(outer)
+    return model_variables, mappings, outputs
 
+
+def _model_description(scenario: Scenario, descriptions: dict, model_variables: list, outputs: list) -> ModelDescription:
+    """The container's model description: Jacobi at the scenario's fixed internal step."""
+    h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
+    guid = "{" + str(uuid.uuid4()) + "}"
     model_description = ModelDescription(
         fmiVersion="2.0", modelName=f"DSCClosedLoop_{scenario.name}", instantiationToken=guid,
-        description=f"dsc-fmu closed loop (ReferenceRobot, MobileRobot, DSCController), scenario {scenario.name}, "
+        description=f"dsc-fmu closed loop ({', '.join(ORDER)}), scenario {scenario.name}, "
                     f"fmpy container, Jacobi coupling at a fixed internal step of {h!r} s",
         defaultExperiment=DefaultExperiment(startTime="0.0", stopTime=repr(float(stop)), stepSize=repr(float(h))),
         coSimulation=CoSimulation(modelIdentifier="container_fmu", fixedInternalStepSize=h,
@@ -129,13 +113,38 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     model_description.outputs = [Unknown(index=model_variables.index(v) + 1, variable=v) for v in outputs]
     model_description.initialUnknowns = [Unknown(index=model_variables.index(v) + 1, variable=v) for v in outputs]
     model_description.guid = guid
-    connection_list = [
+    return model_description
+
+
+def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
+               stop_time: float | None = None) -> Path:
+    """Write one co-simulation FMU ``out_file`` of the scenario's closed loop and return its path.
+
+    Its internal fixed step is the scenario's step size (or ``step_size``); every parameter of the
+    three FMUs is a parameter of the container named ``<FMU>.<parameter>`` whose start value is the
+    scenario's; its outputs are every output of ``signals.RECORDED`` under its own name. A bad
+    setting raises ScenarioError, a missing FMU FmuNotFoundError, before anything is written.
+    """
+    from fmpy.container_fmu.cli import create_container_fmu
+    from fmpy.container_fmu.config import Component, Configuration, Connection
+
+    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
+    if not (math.isfinite(scenario.simulation.step_size) and math.isfinite(scenario.simulation.stop_time)):
+        raise ScenarioError(f"{scenario.source}: [simulation] step_size and stop_time must be finite")
+    paths = fmu_files(fmu_paths)
+    descriptions = {name: read_model_description(str(path)) for name, path in paths.items()}
+    variables = {name: {v.name: v for v in md.modelVariables} for name, md in descriptions.items()}
+    components = {name: Component(name=name, filename=paths[name], modelDescription=descriptions[name])
+                  for name in ORDER}
+    model_variables, mappings, outputs = _exposed(scenario, paths, variables, components)
+    connections = [
         Connection(components[c.start], [variables[c.start][c.signal]], components[c.end], [variables[c.end][c.signal]])
         for c in CONNECTIONS
     ]
-    configuration = Configuration(parallelDoStep=False, modelDescription=model_description,
-                                  components=[components[name] for name in ORDER], connections=connection_list,
-                                  variableMappings=mappings)
+    configuration = Configuration(
+        parallelDoStep=False, modelDescription=_model_description(scenario, descriptions, model_variables, outputs),
+        components=[components[name] for name in ORDER], connections=connections, variableMappings=mappings,
+    )
     out_file = Path(out_file)
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_container_") as tmp:
         unzipdir = Path(tmp) / "container"

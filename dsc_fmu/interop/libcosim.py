@@ -1,5 +1,5 @@
-"""One FMU alone in libcosim (libcosimpy 0.0.6): the closed-loop container FMU, or a cross-check
-FMU replayed with its input file.
+"""Runs in libcosim (libcosimpy 0.0.6): an SSP archive of the closed loop (``run_libcosim``), or one FMU
+alone: the closed-loop container FMU, or a cross-check FMU replayed with its input file.
 
 ``run_libcosim_fmu`` builds an execution of one FMU (``CosimExecution.from_step_size`` and a
 ``CosimLocalSlave``), observes the chosen outputs with a buffered time series observer, and steps
@@ -41,13 +41,104 @@ import argparse
 import subprocess
 import sys
 import tempfile
+from ctypes import POINTER, c_double, c_int, c_int64, c_size_t, c_uint32
 from pathlib import Path
 
 import numpy as np
 
-from .ssp import NANO, SSPError, _nanoseconds, _samples
+from ..cosim import signals
+from ..registry import ORDER
+from .ssp import SSPError
 
-__all__ = ["run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "held_value_index", "main"]
+__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "held_value_index", "main"]
+
+NANO = 1_000_000_000
+
+
+def _nanoseconds(seconds: float) -> int:
+    return int(round(seconds * NANO))
+
+
+def _samples(observer, slave: int, reference: int, count: int, integer: bool):
+    """All samples of one observed variable (the libcosimpy wrapper drops the sample of step 0)."""
+    from libcosimpy._internal import libcosimc, wrap_function
+    from libcosimpy.CosimObserver import CosimObserver
+
+    c_type = c_int if integer else c_double
+    function = wrap_function(
+        lib=libcosimc(), funcname="cosim_observer_slave_get_integer_samples" if integer
+        else "cosim_observer_slave_get_real_samples",
+        argtypes=[POINTER(CosimObserver), c_int, c_uint32, c_int64, c_size_t, c_type * count, c_int64 * count,
+                  c_int64 * count],
+        restype=c_int64,
+    )
+    values, steps, times = (c_type * count)(), (c_int64 * count)(), (c_int64 * count)()
+    got = function(observer.ptr(), slave, reference, 0, count, values, steps, times)
+    if got < 0:
+        raise SSPError(f"libcosim: cannot read the samples of variable {reference} of slave {slave}")
+    return np.array(times[:got], dtype=np.int64), np.array(steps[:got]), np.array(values[:got], dtype=float)
+
+
+def _watch(execution, observer, index: int, names, where: str) -> list[tuple[str, int, int, bool]]:
+    """Start a time series of each variable of ``names`` of slave ``index`` (``where``: its name for
+    messages); (name, slave, value reference, integer) of each."""
+    from libcosimpy.CosimEnums import CosimVariableType
+
+    described = {v.name.decode(): v for v in execution.slave_variables(index)}
+    watched = []
+    for name in names:
+        v = described.get(name)
+        if v is None:
+            raise SSPError(f"{where} has no variable {name!r}")
+        integer = v.type == CosimVariableType.INTEGER.value
+        if not observer.start_time_series(index, v.reference, CosimVariableType.INTEGER if integer
+                                          else CosimVariableType.REAL):
+            raise SSPError(f"libcosim: cannot observe {where}.{name}")
+        watched.append((name, index, v.reference, integer))
+    return watched
+
+
+def _observed(observer, watched, steps: int) -> tuple[np.ndarray, dict]:
+    """Times (s) and values of every watched variable: one sample after initialisation and one after
+    each of the ``steps`` steps, else SSPError."""
+    columns, stamps = {}, None
+    for name, index, reference, integer in watched:
+        t, step_numbers, values = _samples(observer, index, reference, steps + 16, integer)
+        if not np.array_equal(step_numbers, np.arange(steps + 1)):
+            raise SSPError(f"libcosim: {name} has samples of the steps {step_numbers[:3]}...; expected 0..{steps}")
+        stamps = t if stamps is None else stamps
+        columns[name] = values
+    return stamps / NANO, columns
+
+
+def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
+    """Co-simulate an SSP archive with libcosim's fixed-step algorithm at ``step_size`` until
+    ``stop_time`` (s) and return ``time`` and every output of ``signals.RECORDED`` at every
+    communication point (``signals.DTYPE``, tracking errors derived), as its time series observer
+    records them: at t = 0 after initialisation, then after every step."""
+    from libcosimpy.CosimExecution import CosimExecution
+    from libcosimpy.CosimObserver import CosimObserver
+
+    h = _nanoseconds(step_size)
+    steps = -(-_nanoseconds(stop_time) // h)
+    execution = CosimExecution.from_ssp_file(str(Path(ssp_file).resolve()), step_size=h)
+    slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
+    if set(slaves) != set(ORDER):
+        raise SSPError(f"{ssp_file}: libcosim found the components {sorted(slaves)}; expected {sorted(ORDER)}")
+    observer = CosimObserver.create_time_series(buffer_size=steps + 16)
+    execution.add_observer(observer)
+    watched = [w for name in ORDER for w in _watch(execution, observer, slaves[name], signals.RECORDED[name], name)]
+    if not execution.simulate_until(steps * h):
+        from libcosimpy._internal import get_last_error_message
+
+        raise SSPError(f"libcosim failed: {get_last_error_message()}")
+    times, columns = _observed(observer, watched, steps)
+    result = np.zeros(len(times), dtype=signals.DTYPE)
+    result["time"] = times
+    for signal, values in columns.items():
+        result[signal] = values
+    signals.add_tracking_errors(result)
+    return result
 
 
 def held_value_index(times: np.ndarray, t: float, h: float) -> int:
@@ -89,19 +180,10 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
         from libcosimpy._internal import get_last_error_message
 
         raise SSPError(f"libcosim cannot load {fmu_path}: {get_last_error_message()}")
-    described = {v.name.decode(): v for v in execution.slave_variables(index)}
     observer = CosimObserver.create_time_series(buffer_size=steps + 16)
     execution.add_observer(observer=observer)
-    watched = []
-    for name in outputs:
-        v = described.get(name)
-        if v is None:
-            raise SSPError(f"{fmu_path} has no variable {name!r}")
-        integer = v.type == CosimVariableType.INTEGER.value
-        kind = CosimVariableType.INTEGER if integer else CosimVariableType.REAL
-        if not observer.start_time_series(index, v.reference, kind):
-            raise SSPError(f"libcosim: cannot observe {name}")
-        watched.append((name, v.reference, integer))
+    watched = _watch(execution, observer, index, outputs, str(fmu_path))
+    described = {v.name.decode(): v for v in execution.slave_variables(index)}
 
     fed, manipulator = [], None
     if inputs is not None:
@@ -132,16 +214,9 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
 
             raise SSPError(f"libcosim failed at step {k} (t = {k * h / NANO!r} s): {get_last_error_message()}")
 
-    columns, stamps = {}, None
-    for name, reference, integer in watched:
-        t, step_numbers, values = _samples(observer, index, reference, steps + 16, integer)
-        if not np.array_equal(step_numbers, np.arange(steps + 1)):
-            raise SSPError(f"libcosim: {name} has samples of the steps {step_numbers[:3]}...; expected 0..{steps}")
-        if stamps is None:
-            stamps = t
-        columns[name] = values
+    times, columns = _observed(observer, watched, steps)
     result = np.zeros(steps + 1, dtype=[("time", np.float64)] + [(n, np.float64) for n in outputs])
-    result["time"] = (stamps if stamps is not None else np.arange(steps + 1) * h) / NANO
+    result["time"] = times
     for name, values in columns.items():
         result[name] = values
     return result

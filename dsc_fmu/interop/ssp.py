@@ -1,12 +1,12 @@
-"""The closed loop as an SSP 1.0 archive, and runs of it with libcosim (OSP) and fmpy.ssp.
+"""The closed loop as an SSP 1.0 archive, and runs of it with fmpy.ssp (libcosim's: ``interop.libcosim``).
 
 ``export_ssp`` writes ``SystemStructure.ssd`` (three components, every connection, the scenario's
 parameters as one ``.ssv`` parameter set per component, the DefaultExperiment with libcosim's
 ``osp:FixedStepAlgorithm`` annotation) and the three FMUs under ``resources/``. The SSD and the
-parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/schemas/ssp``, from the
+parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from the
 Modelica Association, BSD licence) before anything is written.
 
-``run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
+``dsc_fmu.interop.libcosim.run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
 ``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
 each does differently from ``dsc_fmu.cosim.master`` is in ``dsc_fmu.cosim.exchange``.
 """
@@ -16,7 +16,6 @@ from __future__ import annotations
 import io
 import math
 import zipfile
-from ctypes import POINTER, c_double, c_int, c_int64, c_size_t, c_uint32
 from pathlib import Path
 
 import numpy as np
@@ -24,12 +23,12 @@ from lxml import etree
 
 from ..cosim import signals
 from ..errors import DscFmuError
-from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
 from ..models.parameters import START_ON
+from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 
-__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_libcosim",
-           "run_simulate_ssp", "SSPError"]
+__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_simulate_ssp",
+           "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
                  ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
@@ -163,83 +162,6 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     out_file = Path(out_file)
     out_file.write_bytes(buffer.getvalue())
     return out_file
-
-
-# --------------------------------------------------------------------------------------------- libcosim
-
-NANO = 1_000_000_000
-
-
-def _nanoseconds(seconds: float) -> int:
-    return int(round(seconds * NANO))
-
-
-def _samples(observer, slave: int, reference: int, count: int, integer: bool):
-    """All samples of one observed variable (the libcosimpy wrapper drops the sample of step 0)."""
-    from libcosimpy._internal import libcosimc, wrap_function
-    from libcosimpy.CosimObserver import CosimObserver
-
-    c_type = c_int if integer else c_double
-    function = wrap_function(
-        lib=libcosimc(), funcname="cosim_observer_slave_get_integer_samples" if integer
-        else "cosim_observer_slave_get_real_samples",
-        argtypes=[POINTER(CosimObserver), c_int, c_uint32, c_int64, c_size_t, c_type * count, c_int64 * count,
-                  c_int64 * count],
-        restype=c_int64,
-    )
-    values, steps, times = (c_type * count)(), (c_int64 * count)(), (c_int64 * count)()
-    got = function(observer.ptr(), slave, reference, 0, count, values, steps, times)
-    if got < 0:
-        raise SSPError(f"libcosim: cannot read the samples of variable {reference} of slave {slave}")
-    return np.array(times[:got], dtype=np.int64), np.array(steps[:got]), np.array(values[:got], dtype=float)
-
-
-def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
-    """Co-simulate an SSP archive with libcosim's fixed-step algorithm at ``step_size`` until
-    ``stop_time`` (s) and return ``time`` and every output of ``signals.RECORDED`` at every
-    communication point (``signals.DTYPE``, tracking errors derived), as its time series observer
-    records them: at t = 0 after initialisation, then after every step."""
-    from libcosimpy.CosimEnums import CosimVariableType
-    from libcosimpy.CosimExecution import CosimExecution
-    from libcosimpy.CosimObserver import CosimObserver
-
-    h = _nanoseconds(step_size)
-    steps = -(-_nanoseconds(stop_time) // h)
-    execution = CosimExecution.from_ssp_file(str(Path(ssp_file).resolve()), step_size=h)
-    slaves = {info.name.decode(): info.index for info in execution.slave_infos()}
-    if set(slaves) != set(ORDER):
-        raise SSPError(f"{ssp_file}: libcosim found the components {sorted(slaves)}; expected {sorted(ORDER)}")
-    observer = CosimObserver.create_time_series(buffer_size=steps + 16)
-    execution.add_observer(observer)
-    watched = []
-    for name in ORDER:
-        index = slaves[name]
-        described = {v.name.decode(): v for v in execution.slave_variables(index)}
-        for signal in signals.RECORDED[name]:
-            v = described[signal]
-            integer = v.type == CosimVariableType.INTEGER.value
-            kind = CosimVariableType.INTEGER if integer else CosimVariableType.REAL
-            if not observer.start_time_series(index, v.reference, kind):
-                raise SSPError(f"libcosim: cannot observe {name}.{signal}")
-            watched.append((signal, index, v.reference, integer))
-    if not execution.simulate_until(steps * h):
-        from libcosimpy._internal import get_last_error_message
-
-        raise SSPError(f"libcosim failed: {get_last_error_message()}")
-    columns, times = {}, None
-    for signal, index, reference, integer in watched:
-        t, _, values = _samples(observer, index, reference, steps + 16, integer)
-        if times is None:
-            times = t
-        elif not np.array_equal(times, t):
-            raise SSPError(f"libcosim: the samples of {signal} are not at the same times as the others")
-        columns[signal] = values
-    result = np.zeros(len(times), dtype=signals.DTYPE)
-    result["time"] = times / NANO
-    for signal, values in columns.items():
-        result[signal] = values
-    signals.add_tracking_errors(result)
-    return result
 
 
 # --------------------------------------------------------------------------------------------- fmpy.ssp

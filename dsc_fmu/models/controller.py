@@ -1,6 +1,6 @@
 """The adaptive dynamic surface control law, steps 1-3: equations (10)-(27).
 
-Controller state ``xc`` (20 entries, SPEC 3):
+Controller state ``xc`` (20 entries, docs/model.md §3):
 ``[a1_hat, a2_hat, x2f1, x2f2, W1_hat (8), x3f1, x3f2, W2_hat (6)]``.
 Measurements ``m`` (14 entries, the controller FMU's inputs in order):
 ``[x, y, theta, theta_dot, omega1, omega2, i1, i2, x_r, y_r, theta_r, v_r, omega_r, v_r_dot]``.
@@ -74,7 +74,7 @@ class ControlLaw(NamedTuple):
 
 
 def wrap(angle: float) -> float:
-    """``angle`` wrapped to (-pi, pi] (SPEC 5)."""
+    """``angle`` wrapped to (-pi, pi] (docs/model.md §5)."""
     wrapped = math.remainder(angle, 2.0 * math.pi)
     return math.pi if wrapped == -math.pi else wrapped
 
@@ -90,7 +90,7 @@ def alpha2(S13: float, a: float) -> float:
 
 
 def initial_controller_state(p: dict) -> list:
-    """The estimates from the parameters ``a1_hat0, a2_hat0, W1_hat0_i, W2_hat0_i`` (SPEC 5: zero by
+    """The estimates from the parameters ``a1_hat0, a2_hat0, W1_hat0_i, W2_hat0_i`` (docs/model.md §5: zero by
     default); the filter states are zero here and set from the first measurements by ``start_filters``."""
     return [
         p["a1_hat0"], p["a2_hat0"], 0.0, 0.0, *(p[f"W1_hat0_{i}"] for i in range(1, 9)),
@@ -175,7 +175,7 @@ def control_law(g: Gains, xc: list, m: list) -> ControlLaw:
 
 
 def start_filters(g: Gains, xc: list, m: list) -> list:
-    """``xc`` with ``x2f = x2bar`` and then ``x3f = x3bar`` for measurements ``m`` (SPEC 5).
+    """``xc`` with ``x2f = x2bar`` and then ``x3f = x3bar`` for measurements ``m`` (docs/model.md §5).
 
     With ``x2f = x2bar`` the filter derivative ``x2f_dot`` is zero when ``x3bar`` is formed.
     """

@@ -79,7 +79,7 @@ def defaults(variables) -> dict:
 
 def _per_wheel(name, value, unit, what, bound=POSITIVE):
     return tuple(
-        Variable(f"{name}{i}", value, unit, f"{what}, {side} wheel (SPEC 1, eq. 5)", bound)
+        Variable(f"{name}{i}", value, unit, f"{what}, {side} wheel (docs/model.md §1, eq. 5)", bound)
         for i, side in ((1, "right"), (2, "left"))
     )
 
@@ -109,8 +109,8 @@ PLANT_PARAMETERS = (
     Variable("x0", 2.5, "m", "Initial x position of the robot"),
     Variable("y0", 1.0, "m", "Initial y position of the robot"),
     Variable("theta0", 1.5707963267948966, "rad", "Initial heading of the robot"),
-    Variable("omega1_0", 0.0, "rad/s", "Initial angular velocity, right wheel (SPEC 5: at rest)"),
-    Variable("omega2_0", 0.0, "rad/s", "Initial angular velocity, left wheel (SPEC 5: at rest)"),
+    Variable("omega1_0", 0.0, "rad/s", "Initial angular velocity, right wheel (docs/model.md §5: at rest)"),
+    Variable("omega2_0", 0.0, "rad/s", "Initial angular velocity, left wheel (docs/model.md §5: at rest)"),
     Variable("i1_0", 0.0, "A", "Initial motor current, right wheel"),
     Variable("i2_0", 0.0, "A", "Initial motor current, left wheel"),
     MAX_STEP,
@@ -186,8 +186,8 @@ CONTROLLER_PARAMETERS = (
     Variable("tau3", 0.01, "s", "Time constant of the first-order filter of x3bar (eq. 23)", POSITIVE, tunable=True),
     *_gains("Gamma1", (1e-4,) * 8, "Adaptation gain matrix Gamma1 of W1_hat (eq. 21)"),
     *_gains("Gamma2", (0.2, 0.2, 0.2, 0.2, 1e-5, 1e-5), "Adaptation gain matrix Gamma2 of W2_hat (eq. 27)"),
-    Variable("a1_hat0", 0.0, "1/m", "Initial estimate a1_hat(0) (SPEC 5: zero)"),
-    Variable("a2_hat0", 0.0, "1", "Initial estimate a2_hat(0) (SPEC 5: zero)"),
+    Variable("a1_hat0", 0.0, "1/m", "Initial estimate a1_hat(0) (docs/model.md §5: zero)"),
+    Variable("a2_hat0", 0.0, "1", "Initial estimate a2_hat(0) (docs/model.md §5: zero)"),
     *(Variable(f"W1_hat0_{i}", 0.0, "1", f"Initial estimate W1_hat(0), entry {i}") for i in range(1, 9)),
     *(Variable(f"W2_hat0_{i}", 0.0, "1", f"Initial estimate W2_hat(0), entry {i}") for i in range(1, 7)),
     Variable(
@@ -199,7 +199,7 @@ CONTROLLER_PARAMETERS = (
     ),
     Variable(
         "start_on", 0, "1",
-        "When the controller starts its filter states (SPEC 5): 0 = first_use (at the first step, from the "
+        "When the controller starts its filter states (docs/model.md §5): 0 = first_use (at the first step, from the "
         "inputs it holds; an input out of range is refused and every step discarded), "
         "1 = valid_inputs (while only inputs are refused and it has not started, it waits: u = 0, states "
         "unchanged, steps accepted; it starts at the first step with every input valid; for masters "
@@ -208,7 +208,7 @@ CONTROLLER_PARAMETERS = (
     ),
     Variable(
         "beta_min", 0.05, "1",
-        "Guard of beta (SPEC 5): where beta < beta_min, h2 divides by beta_min instead", POSITIVE, tunable=True,
+        "Guard of beta (docs/model.md §5): where beta < beta_min, h2 divides by beta_min instead", POSITIVE, tunable=True,
     ),
     MAX_STEP,
 )

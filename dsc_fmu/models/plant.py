@@ -37,7 +37,7 @@ class PlantCoefficients:
 
 
 def plant_coefficients(p: dict) -> PlantCoefficients:
-    """Coefficients of (2) and (5) from the parameters of SPEC 4 (names as the FMU's)."""
+    """Coefficients of (2) and (5) from the parameters of docs/model.md §4 (names as the FMU's)."""
     r, R, d, mc, mw = p["r"], p["R"], p["d"], p["mc"], p["mw"]
     m = mc + 2.0 * mw
     inertia = mc * d * d + 2.0 * mw * R * R + p["Ic"] + 2.0 * p["Im"]
@@ -67,7 +67,7 @@ def theta_dot(k: PlantCoefficients, v1: float, v2: float) -> float:
 
 
 def initial_plant_state(p: dict) -> list:
-    """``[x, y, theta, v1, v2, i1, i2]`` from the initial-state parameters (SPEC 5: at rest by default)."""
+    """``[x, y, theta, v1, v2, i1, i2]`` from the initial-state parameters (docs/model.md §5: at rest by default)."""
     return [p["x0"], p["y0"], p["theta0"], p["omega1_0"], p["omega2_0"], p["i1_0"], p["i2_0"]]
 
 

@@ -16,7 +16,7 @@ from .cases import Case, apply
 
 __all__ = [
     "STABLE_POSITION_ERROR", "STABILITY_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS", "simulate",
-    "compute_reference", "error_grows", "deviations", "make_row", "run_case",
+    "compute_reference", "lost_outcome", "error_grows", "deviations", "make_row", "run_case",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -74,6 +74,15 @@ def compute_reference(applied: Scenario) -> tuple[np.ndarray | None, str | None]
     except (RuntimeError, ArithmeticError, ValueError) as error:
         return None, " ".join(str(error).split())
     return _columns(solution, REFERENCE_COLUMNS), None
+
+
+def lost_outcome(reason: str) -> dict:
+    """The outcome (as from ``simulate``) of a run that did not finish because its worker process was
+    lost: no trajectory, NaN where a number would be, ``reason`` as its diverged_reason; ``lost``
+    marks it as one not to cache (a later sweep tries it again)."""
+    return {"trajectory": np.zeros(0, dtype=[(name, np.float64) for name in TRAJECTORY]), "metrics": None,
+            "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": reason, "steps": math.nan,
+            "wall_time_s": math.nan, "lost": True}
 
 
 def error_grows(trajectory: np.ndarray) -> bool:

@@ -172,7 +172,7 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
                     state=None) -> tuple[np.ndarray, float]:
     """Operating point ``z`` (27) of steady tracking in error coordinates and the time (s) it was taken at.
 
-    The continuous closed loop is integrated from the scenario's initial state (SPEC 5) to ``at_time``
+    The continuous closed loop is integrated from the scenario's initial state (docs/model.md §5) to ``at_time``
     (default: the scenario's stop time), or ``state`` (27, error coordinates, e.g. from a co-simulation at
     ``at_time``) is taken instead; then it is polished by Newton's method:
 
