@@ -1,3 +1,35 @@
-"""dsc-fmu: the adaptive DSC of an electrically driven mobile robot as FMI co-simulation FMUs."""
+"""dsc-fmu: the adaptive DSC of an electrically driven mobile robot as FMI co-simulation FMUs.
+
+The names a user needs, imported when first used (so that ``import dsc_fmu`` and ``dsc-fmu --help``
+stay fast): ``load_scenario``, ``build_fmus``, ``ensure_fmus``, ``cosimulate``, ``Cosimulator``,
+``reference_solution``, ``run_scenario``, ``run_sweep``, ``DscFmuError`` and ``CosimulationError``.
+"""
+
+import importlib
 
 __version__ = "0.1.0"
+
+_EXPORTS = {
+    "load_scenario": "dsc_fmu.scenario",
+    "build_fmus": "dsc_fmu.build.fmus",
+    "ensure_fmus": "dsc_fmu.build.fmus",
+    "cosimulate": "dsc_fmu.cosim.master",
+    "Cosimulator": "dsc_fmu.cosim.master",
+    "reference_solution": "dsc_fmu.cosim.reference_solution",
+    "run_scenario": "dsc_fmu.cosim.run",
+    "run_sweep": "dsc_fmu.study.sweep",
+    "DscFmuError": "dsc_fmu.errors",
+    "CosimulationError": "dsc_fmu.errors",
+}
+
+__all__ = ["__version__", *_EXPORTS]
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        return getattr(importlib.import_module(_EXPORTS[name]), name)
+    raise AttributeError(f"module 'dsc_fmu' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted([*globals(), *_EXPORTS])

@@ -9,8 +9,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import DscFmuError
-from .models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, REFERENCE_PARAMETERS
 from .models.reference import min_speed
+from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
 
@@ -18,8 +18,8 @@ ORDERS = ("gauss-seidel", "jacobi")
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
 
-TABLES = {"plant": PLANT_PARAMETERS, "controller": CONTROLLER_PARAMETERS, "reference": REFERENCE_PARAMETERS}
-FMU_OF_TABLE = {"plant": "MobileRobot", "controller": "DSCController", "reference": "ReferenceRobot"}
+FMU_OF_TABLE = {"plant": PLANT, "controller": CONTROLLER, "reference": REFERENCE}
+TABLES = {table: FMUS[name].parameters for table, name in FMU_OF_TABLE.items()}
 
 
 class ScenarioError(DscFmuError, ValueError):

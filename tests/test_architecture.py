@@ -22,7 +22,7 @@ ALLOWED = {
     "models": set(),
     "fmu": {"models"},
     "registry": {"models", "errors"},
-    "scenario": {"models", "errors"},
+    "scenario": {"registry", "models", "errors"},
     "build": {"registry", "models", "errors", "files"},
     "cosim": {"build", "registry", "scenario", "models", "errors", "files"},
     "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files"},
@@ -129,3 +129,10 @@ def test_dependencies_go_one_way(module):
 
 def test_every_part_is_placed():
     assert {_part(module) for module in MODULES} <= set(ALLOWED)
+
+
+@pytest.mark.parametrize("name", sorted(set(dsc_fmu.__all__) - {"__version__"}))
+def test_the_package_exports_resolve(name):
+    """``from dsc_fmu import <name>`` gives the object of the module that defines it."""
+    module = __import__(dsc_fmu._EXPORTS[name], fromlist=[name])
+    assert getattr(dsc_fmu, name) is getattr(module, name)

@@ -5,6 +5,8 @@ from __future__ import annotations
 from html import escape
 from xml.etree import ElementTree as ET
 
+from ..registry import CONTROLLER, PLANT, REFERENCE
+
 __all__ = ["PAPER", "EQUATIONS", "documentation_html"]
 
 PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering actuator dynamics", '
@@ -12,7 +14,7 @@ PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering a
 
 # The equations each FMU implements (docs/model.md, sections 1-3), as preformatted text.
 EQUATIONS = {
-    "MobileRobot": """\
+    PLANT: """\
 States: pose q = [x, y, theta], wheel speeds z = [omega1, omega2], currents ia = [i1, i2].
 Input: motor voltages u = [u1, u2]. Index 1 = right wheel, 2 = left wheel.
 
@@ -28,7 +30,7 @@ Dynamics (2): M z_dot + C(q_dot) z + D z = tau
 DC motors through gears (5):
   tau = N KT ia,   La ia_dot = u - Ra ia - N KE z
 Integrated with classical RK4 in equal sub-steps of at most max_step per communication step.""",
-    "ReferenceRobot": """\
+    REFERENCE: """\
 Reference robot (9):
   x_r_dot = v_r cos(theta_r),  y_r_dot = v_r sin(theta_r),  theta_r_dot = omega_r
 Profiles:
@@ -37,7 +39,7 @@ Profiles:
                               x = A sin(W t), y = B sin(2 W t), W = 2 pi / T
 v_r must stay > 0 (Assumption 2).
 Integrated with classical RK4 in equal sub-steps of at most max_step per communication step.""",
-    "DSCController": """\
+    CONTROLLER: """\
 Step 1 (kinematics), error surfaces (10), (12):
   S11 =  cos(theta)(x_r - x) + sin(theta)(y_r - y)
   S12 = -sin(theta)(x_r - x) + cos(theta)(y_r - y)

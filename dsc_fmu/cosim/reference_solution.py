@@ -11,6 +11,7 @@ from . import signals
 from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
 from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
+from .. import registry
 from ..scenario import Scenario
 
 __all__ = [
@@ -107,9 +108,9 @@ def reference_solution(
         ]
         rows.append({
             "time": t,
-            **dict(zip(signals.RECORDED["MobileRobot"], m[:8], strict=True)),
-            **dict(zip(signals.RECORDED["ReferenceRobot"], m[8:], strict=True)),
-            **dict(zip(signals.RECORDED["DSCController"], controller, strict=True)),
+            **dict(zip(signals.RECORDED[registry.PLANT], m[:8], strict=True)),
+            **dict(zip(signals.RECORDED[registry.REFERENCE], m[8:], strict=True)),
+            **dict(zip(signals.RECORDED[registry.CONTROLLER], controller, strict=True)),
         })
     result = np.zeros(len(rows), dtype=signals.DTYPE)
     for name in signals.COLUMNS:
