@@ -8,10 +8,10 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["plot_trajectory", "plot_signals"]
+__all__ = ["new_figure", "plot_trajectory", "plot_signals"]
 
 
-def _figure(width: float, height: float) -> Figure:
+def new_figure(width: float, height: float) -> Figure:
     """A figure on an Agg canvas, outside pyplot: no display, no global state, nothing to close."""
     figure = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(figure)
@@ -21,7 +21,7 @@ def _figure(width: float, height: float) -> Figure:
 def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
     """Fig. 1: the reference path (x_r, y_r) and the robot's path (x, y) in the plane (m), start
     points marked; saved to ``path`` (format from its suffix)."""
-    figure = _figure(6.0, 6.0)
+    figure = new_figure(6.0, 6.0)
     axes = figure.add_subplot()
     axes.plot(result["x_r"], result["y_r"], "--", color="tab:blue", label="reference robot")
     axes.plot(result["x"], result["y"], "-", color="tab:red", label="robot")
@@ -40,7 +40,7 @@ def plot_signals(result: np.ndarray, path: Path | str) -> Path:
     (V); (c) estimates a1_hat (1/m) and a2_hat (1); (d) norms of W1_hat and W2_hat (1); saved to
     ``path`` (format from its suffix)."""
     time = result["time"]
-    figure = _figure(10.0, 7.5)
+    figure = new_figure(10.0, 7.5)
     (errors, voltages), (estimates, norms) = figure.subplots(2, 2, sharex=True)
     panels = (
         (errors, "(a) tracking errors", "error (m, rad)",

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 from matplotlib.transforms import blended_transform_factory
 
-from ..cosim.plots import _figure
+from ..cosim.plots import new_figure
 from .analysis import OrderFit, fit_orders, group_rows
 
 __all__ = ["plot_deviation", "plot_tracking_and_cost", "plot_paths", "plot_spectral_radius"]
@@ -107,7 +107,7 @@ def plot_deviation(rows: Sequence[Mapping], fits: Mapping | None, path: Path | s
     if with_voltage:
         panels.append(("max_u_deviation_V", "max voltage deviation (V)",
                        "(b) voltage deviation from the reference solution"))
-    figure = _figure(7.0 * len(panels), 5.5)
+    figure = new_figure(7.0 * len(panels), 5.5)
     for axes, (quantity, ylabel, title) in zip(np.atleast_1d(figure.subplots(1, len(panels))), panels):
         for label, group in groups.items():
             fit = _fit_of(fits, label, quantity)
@@ -134,7 +134,7 @@ def plot_tracking_and_cost(rows: Sequence[Mapping], path: Path | str) -> Path:
     runs as an x at the top edge of (a) and as x markers at their wall time in (b). Saved to ``path``."""
     groups = group_rows(rows)
     styles = _styles(list(groups), groups)
-    figure = _figure(12.0, 5.0)
+    figure = new_figure(12.0, 5.0)
     tracking, cost = figure.subplots(1, 2, sharex=True)
     for label, group in groups.items():
         style = styles[label]
@@ -176,7 +176,7 @@ def plot_paths(trajectories: Mapping[str, Mapping], reference_traj: Mapping, pat
     ``reference_traj["x"], ["y"]`` and, if given, the reference robot's ``x_r, y_r``; equal axes,
     starts marked. The view is the reference paths plus a margin, so a diverging path leaves it
     rather than shrinking it. Saved to ``path``."""
-    figure = _figure(7.0, 7.0)
+    figure = new_figure(7.0, 7.0)
     axes = figure.add_subplot()
     names = [key for key in ("x", "y", "x_r", "y_r") if _has(reference_traj, key)]
     if "x_r" in names and "y_r" in names:
@@ -212,7 +212,7 @@ def plot_spectral_radius(curves: Mapping[str, tuple[Sequence[float], Sequence[fl
     rho = 1, and the measured boundary h* (s) of each order (``measured``: order -> h or None) as a
     vertical dashed line in the order's colour, and the predicted boundary (``predicted``: order ->
     h or None, optional) as a dotted one. Saved to ``path``."""
-    figure = _figure(7.5, 5.0)
+    figure = new_figure(7.5, 5.0)
     axes = figure.add_subplot()
     predicted = predicted or {}
     colours = {order: f"C{index % 10}" for index, order in enumerate(dict.fromkeys([*curves, *measured, *predicted]))}
