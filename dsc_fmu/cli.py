@@ -10,7 +10,7 @@ from pathlib import Path
 from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .scenario import ORDERS, load_scenario, scenario_names
+from .scenario import COUPLINGS, ORDERS, load_scenario, scenario_names
 
 __all__ = ["main"]
 
@@ -45,6 +45,8 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--step-size", type=float, help="communication step in s (default: the scenario's)")
     run.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
     run.add_argument("--order", choices=ORDERS, help="coupling order (default: the scenario's)")
+    run.add_argument("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); linear: "
+                     "the plant extrapolates u, the controller interpolates or extrapolates its inputs (default: the scenario's)")
     run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
     run.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
@@ -145,6 +147,7 @@ def _run(args) -> None:
 
     scenario = load_scenario(args.scenario).with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
+        coupling=args.coupling,
     )
     print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
                        plots=not args.no_plots))

@@ -9,17 +9,22 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import DscFmuError
+from .models.parameters import COUPLINGS as FMU_COUPLINGS
 from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
-__all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
+__all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
 
 ORDERS = ("gauss-seidel", "jacobi")
+COUPLINGS = ("hold", "linear")
+"""How the exchanged signals vary over a step: held (zero-order hold), or linear (first-order: the plant
+extrapolates u, the controller interpolates its inputs with Gauss-Seidel and extrapolates them with
+Jacobi). It sets the FMUs' ``coupling`` parameters, which a scenario does not set itself."""
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
 
 FMU_OF_TABLE = {"plant": PLANT, "controller": CONTROLLER, "reference": REFERENCE}
-TABLES = {table: FMUS[name].parameters for table, name in FMU_OF_TABLE.items()}
+TABLES = {table: tuple(v for v in FMUS[name].parameters if v.name != "coupling") for table, name in FMU_OF_TABLE.items()}
 
 
 class ScenarioError(DscFmuError, ValueError):
@@ -28,14 +33,16 @@ class ScenarioError(DscFmuError, ValueError):
 
 @dataclass(frozen=True)
 class Simulation:
-    """How the scenario is co-simulated: stop time (s), communication step (s), coupling order,
-    output interval (s) and the bound on |signal| beyond which a run counts as diverged."""
+    """How the scenario is co-simulated: stop time (s), communication step (s), coupling order
+    (``ORDERS``), coupling (``COUPLINGS``), output interval (s) and the bound on |signal| beyond
+    which a run counts as diverged."""
 
     stop_time: float = 30.0
     step_size: float = 1e-3
     order: str = "gauss-seidel"
     output_interval: float = 0.01
     bound: float = 1e6
+    coupling: str = "hold"
 
     def check(self, where: str) -> None:
         """Raise ScenarioError naming ``where`` if a setting is out of its range."""
@@ -45,10 +52,20 @@ class Simulation:
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not a number; allowed: > 0")
             if not (math.isfinite(value) and value > 0):
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
-        if self.order not in ORDERS:
-            raise ScenarioError(
-                f"{where}: [simulation] order = {self.order!r} is not allowed; allowed: {', '.join(ORDERS)}"
-            )
+        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS)):
+            if getattr(self, key) not in allowed:
+                raise ScenarioError(
+                    f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"
+                )
+
+    def fmu_coupling(self, fmu: str) -> int | None:
+        """The ``coupling`` parameter of FMU ``fmu`` for these settings (None: it has none)."""
+        if fmu == REFERENCE:
+            return None
+        if self.coupling == "hold":
+            return FMU_COUPLINGS.index("hold")
+        ends = fmu == CONTROLLER and self.order == "gauss-seidel"  # its inputs set for the step's end
+        return FMU_COUPLINGS.index("interpolate" if ends else "extrapolate")
 
 
 @dataclass(frozen=True)
@@ -64,9 +81,11 @@ class Scenario:
     reference: dict
 
     def parameters(self, fmu: str) -> dict:
-        """Parameter values of the FMU named ``fmu`` (``MobileRobot``, ``DSCController``, ``ReferenceRobot``)."""
+        """Parameter values of the FMU named ``fmu`` (``MobileRobot``, ``DSCController``, ``ReferenceRobot``):
+        its table, and its ``coupling`` from the simulation settings."""
         table = {v: k for k, v in FMU_OF_TABLE.items()}[fmu]
-        return getattr(self, table)
+        coupling = self.simulation.fmu_coupling(fmu)
+        return getattr(self, table) if coupling is None else {**getattr(self, table), "coupling": coupling}
 
     def with_simulation(self, **settings) -> Scenario:
         """This scenario with some simulation settings replaced (None leaves a setting as it is)."""
@@ -113,6 +132,9 @@ def _parameters(table_name: str, given: dict, where: str) -> dict:
     values = {name: v.start for name, v in variables.items()}
     for key, value in given.items():
         v = variables.get(key)
+        if v is None and key == "coupling":
+            raise ScenarioError(f"{where}: [{table_name}] coupling is not set here; allowed: [simulation] coupling = "
+                                f"{' or '.join(repr(c) for c in COUPLINGS)}, which sets it in every FMU")
         if v is None:
             raise ScenarioError(
                 f"{where}: unknown key [{table_name}] {key}; allowed: {', '.join(variables)}"

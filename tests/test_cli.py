@@ -43,7 +43,7 @@ def test_run_writes_results_summary_and_figures(tmp_path, fmu_dir, capsys):
                    "--output-interval", "0.1", "--out", str(out), "--fmu-dir", str(fmu_dir)])
     assert status == 0
     printed = capsys.readouterr().out
-    assert "scenario paper: jacobi, step 0.002 s, stop 1.5 s" in printed
+    assert "scenario paper: jacobi, hold coupling, step 0.002 s, stop 1.5 s" in printed
     with open(out / "results.csv") as f:
         rows = list(csv.reader(f))
     header = rows[0]

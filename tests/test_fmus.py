@@ -42,7 +42,7 @@ EXPECTED = {
         "parameter": (
             "R", "d", "r", "mc", "mw", "Ic", "Iw", "Im", "d11", "d22", "Ra1", "Ra2", "La1", "La2",
             "KE1", "KE2", "KT1", "KT2", "N1", "N2", "x0", "y0", "theta0",
-            "omega1_0", "omega2_0", "i1_0", "i2_0", "max_step",
+            "omega1_0", "omega2_0", "i1_0", "i2_0", "coupling", "max_step",
         ),
         "input": ("u1", "u2"),
         "output": ("x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2"),
@@ -57,7 +57,7 @@ EXPECTED = {
             "k1", "k2", "k3", "k4", "k5", "gamma1", "gamma2", "sigma1", "sigma2", "sigma3", "sigma4",
             "tau2", "tau3", *(f"Gamma1_{i}" for i in range(1, 9)), *(f"Gamma2_{i}" for i in range(1, 7)),
             "a1_hat0", "a2_hat0", *(f"W1_hat0_{i}" for i in range(1, 9)), *(f"W2_hat0_{i}" for i in range(1, 7)),
-            "discretization", "start_on", "beta_min", "max_step",
+            "discretization", "start_on", "coupling", "beta_min", "max_step",
         ),
         "input": (
             "x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2",
@@ -252,7 +252,8 @@ def test_types_and_variability_follow_the_tables(md, name):
 
 @pytest.mark.parametrize("name, variable, choices", [
     ("ReferenceRobot", "profile", P.PROFILES), ("DSCController", "discretization", P.DISCRETIZATIONS),
-    ("DSCController", "start_on", P.START_ON),
+    ("DSCController", "start_on", P.START_ON), ("DSCController", "coupling", P.COUPLINGS),
+    ("MobileRobot", "coupling", P.COUPLINGS[:2]),
 ])
 def test_choices_are_fixed_integer_parameters_with_their_range(md, name, variable, choices):
     scalar_ = scalar(md[name], variable)

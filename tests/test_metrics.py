@@ -84,7 +84,7 @@ def test_results_and_summary_written(tmp_path):
     result = decaying()
     run = CosimulationResult(
         result=result, steps=30000, wall_time=1.5,
-        settings={"scenario": "paper", "step_size": 1e-3, "order": "jacobi", "stop_time": 30.0,
+        settings={"scenario": "paper", "step_size": 1e-3, "order": "jacobi", "coupling": "linear", "stop_time": 30.0,
                   "output_interval": 0.01},
         fmus={"MobileRobot": {"path": "MobileRobot.fmu", "build_id": "abc"}},
     )
@@ -95,10 +95,11 @@ def test_results_and_summary_written(tmp_path):
     np.testing.assert_array_equal(back["position_error"], result["position_error"])
     summary = json.loads(paths["summary"].read_text())
     assert summary["scenario"] == "paper" and summary["scenario_source"] == scenario.source
-    assert summary["settings"] == {"step_size": 1e-3, "order": "jacobi", "stop_time": 30.0, "output_interval": 0.01,
+    assert summary["settings"] == {"step_size": 1e-3, "order": "jacobi", "coupling": "linear", "stop_time": 30.0,
+                                   "output_interval": 0.01,
                                    "steps": 30000, "wall_time_s": 1.5}
     assert summary["metrics"] == metrics
     assert summary["units"]["position_error"] == "m" and summary["units"]["u1"] == "V"
     assert summary["fmus"] == {"MobileRobot": "abc"}
     text = format_summary(run, metrics)
-    assert "jacobi" in text and "30000 steps" in text and f"{metrics['settling_time_0p1_s']:.4g} s" in text
+    assert "jacobi, linear coupling" in text and "30000 steps" in text and f"{metrics['settling_time_0p1_s']:.4g} s" in text

@@ -5,6 +5,7 @@ import math
 import pytest
 
 from dsc_fmu.models.parameters import CONTROLLER_PARAMETERS, PLANT_PARAMETERS, REFERENCE_PARAMETERS
+from dsc_fmu.registry import FMUS
 from dsc_fmu.scenario import ScenarioError, load_scenario, scenario_names
 
 PAPER = """
@@ -27,9 +28,9 @@ def test_paper_scenario_has_the_papers_values():
     s = load_scenario("paper")
     assert s.simulation.stop_time == 30.0 and s.simulation.step_size == 1e-3
     assert s.simulation.order == "gauss-seidel"
-    for table, variables in (("plant", PLANT_PARAMETERS), ("controller", CONTROLLER_PARAMETERS)):
+    for name, variables in (("MobileRobot", PLANT_PARAMETERS), ("DSCController", CONTROLLER_PARAMETERS)):
         for v in variables:
-            assert getattr(s, table)[v.name] == v.start, v.name
+            assert s.parameters(name)[v.name] == v.start, v.name
     assert (s.reference["x0"], s.reference["y0"], s.reference["theta0"]) == (2.0, 2.0, 0.0)
     assert (s.plant["x0"], s.plant["y0"], s.plant["theta0"]) == (2.5, 1.0, math.pi / 2)
     assert s.reference["vr0"] == 1.0 and s.reference["wr0"] == 0.2
@@ -98,3 +99,20 @@ def test_with_simulation_checks_overrides():
 def test_choices_are_given_by_name(tmp_path):
     s = load_scenario(write(tmp_path, "[controller]\ndiscretization = 'euler'\n[reference]\nprofile = 'figure_eight'\n"))
     assert s.controller["discretization"] == 1 and s.reference["profile"] == 1
+
+
+def test_coupling_is_a_simulation_setting_that_sets_the_fmus_parameters(tmp_path):
+    scenario = load_scenario("paper")
+    assert scenario.simulation.coupling == "hold"
+    assert {name: scenario.parameters(name).get("coupling") for name in FMUS} == {
+        "ReferenceRobot": None, "MobileRobot": 0, "DSCController": 0}
+    for order, controller in (("gauss-seidel", 2), ("jacobi", 1)):  # interpolate, extrapolate
+        linear = scenario.with_simulation(coupling="linear", order=order)
+        assert (linear.parameters("MobileRobot")["coupling"], linear.parameters("DSCController")["coupling"]) == (
+            1, controller)
+    with pytest.raises(ScenarioError, match=r"coupling = 'cubic' is not allowed; allowed: hold, linear"):
+        scenario.with_simulation(coupling="cubic")
+    path = tmp_path / "own.toml"
+    path.write_text("[plant]\ncoupling = 1\n")
+    with pytest.raises(ScenarioError, match=r"\[plant\] coupling is not set here; allowed: \[simulation\] coupling"):
+        load_scenario(path)

@@ -114,11 +114,12 @@ class Cosimulator:
             fmu.renew(self._callbacks)
 
     def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
-            order: str | None = None, output_interval: float | None = None) -> CosimulationResult:
+            order: str | None = None, output_interval: float | None = None,
+            coupling: str | None = None) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
         ``wall_time`` counts this run only (not loading the FMUs)."""
         scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                            output_interval=output_interval)
+                                            output_interval=output_interval, coupling=coupling)
         settings = scenario.simulation
         n = step_count(settings.stop_time, settings.step_size)
         every = max(1, round(settings.output_interval / settings.step_size))
@@ -145,7 +146,8 @@ class Cosimulator:
             steps=n,
             wall_time=clock.perf_counter() - started,
             settings={"scenario": scenario.name, "step_size": settings.step_size, "order": settings.order,
-                      "stop_time": settings.stop_time, "output_interval": settings.output_interval},
+                      "coupling": settings.coupling, "stop_time": settings.stop_time,
+                      "output_interval": settings.output_interval},
             log=list(self.log),
             fmus={name: dict(entry) for name, entry in self.fmus.items()},
         )
@@ -243,7 +245,7 @@ def _close_all(fmus: list[LoadedFmu]) -> None:
 
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
                stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
-               workdir: Path | None = None) -> CosimulationResult:
+               coupling: str | None = None, workdir: Path | None = None) -> CosimulationResult:
     """Co-simulate ``scenario`` with the FMUs in ``fmu_paths`` (by name) on a fixed communication step.
 
     Settings left as None come from ``scenario.simulation``; the others are validated like the
@@ -261,6 +263,11 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
       ``doStep(t_k, h)``, so that its states integrate with the measurements of the end of the step.
       (Those inputs are already in place at the exchange at ``t_{k+1}``, so it does not set them again.)
 
+    The coupling (``scenario.simulation.coupling``) is the FMUs' business: with ``"linear"`` the plant
+    extrapolates ``u`` over each step from the two last communication points, and the controller
+    interpolates its inputs between those of the two ends of the step (Gauss-Seidel) or extrapolates
+    them from the two last points (Jacobi); the master's calls are the same.
+
     Rows are recorded at ``t = 0``, every ``max(1, round(output_interval / h))`` steps and at
     ``stop_time``, each after the exchange at that point: every output in ``signals.RECORDED``,
     then the tracking errors. After each exchange every measurement and ``u`` must be finite and
@@ -270,7 +277,7 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     For many runs, load the FMUs once with ``Cosimulator`` instead: its runs give the same results.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                        output_interval=output_interval)
+                                        output_interval=output_interval, coupling=coupling)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
         run = simulator.run(scenario)

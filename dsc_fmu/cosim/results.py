@@ -22,6 +22,7 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
         "settings": {
             "step_size": run.settings["step_size"],
             "order": run.settings["order"],
+            "coupling": run.settings["coupling"],
             "stop_time": run.settings["stop_time"],
             "output_interval": run.settings["output_interval"],
             "steps": run.steps,
@@ -52,7 +53,7 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
     """A short multi-line text of the run's settings, cost and metrics, for the command line."""
     s = run.settings
     return "\n".join([
-        f"scenario {s['scenario']}: {s['order']}, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
+        f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
         f"output every {s['output_interval']:g} s",
         f"  {run.steps} steps in {run.wall_time:.2f} s wall time",
         f"  position error over [{metrics['window_start_s']:g}, {metrics['window_end_s']:g}] s: "

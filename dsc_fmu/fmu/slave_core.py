@@ -8,9 +8,12 @@ put it on their slave base classes and supply the three hooks ``_register``, ``l
 
 import math
 
+from ..models.parameters import COUPLINGS
 from ..models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
 
 __all__ = ["SlaveCore"]
+
+HOLD, INTERPOLATE = COUPLINGS.index("hold"), COUPLINGS.index("interpolate")
 
 
 class SlaveCore:
@@ -20,7 +23,9 @@ class SlaveCore:
     ``initial_state``, ``derivatives`` and ``outputs``. Until the first step, the state is
     ``initial_state()`` of the current parameters and inputs; the first ``do_step`` starts from it
     and integrates with RK4 in sub-steps no longer than the parameter ``max_step`` (at most
-    ``MAX_SUBSTEPS`` per step).
+    ``MAX_SUBSTEPS`` per step). Over a step the model sees ``inputs(t)``: the inputs set, held, or,
+    with the parameter ``coupling``, a line through them and those of the previous step (its
+    ``history``, part of the FMU state).
 
     A value outside its allowed range is refused without raising, so that the set call succeeds and
     the importer can correct it: the refusal is logged as an error naming the variable and its
@@ -38,6 +43,9 @@ class SlaveCore:
         self._constants = None
         self.u = [v.start for v in self.INPUTS]
         self.state = None
+        self.history = None  # [time, inputs] of the inputs of the last step, stamped as ``coupling`` reads them
+        self._slope = None
+        self._stamp = 0.0
         self.rejected = {}
         self.time = 0.0
         self._cache = None
@@ -115,6 +123,25 @@ class SlaveCore:
         )
         return True
 
+    def inputs(self, t: float) -> list:
+        """The inputs at ``t`` within the current step: held, or on the line of ``coupling``."""
+        if self._slope is None:
+            return self.u
+        dt = t - self._stamp
+        return [value + dt * slope for value, slope in zip(self.u, self._slope)]
+
+    def _ramp(self, current_time: float, step_size: float) -> float:
+        """Set the line of the inputs over the step from ``current_time`` and return the time the
+        inputs set belong to: the step's end with ``coupling`` = interpolate, else its start. Hold,
+        the first step, or a previous step not before this one: no line."""
+        coupling = self.p.get("coupling", HOLD)
+        stamp = current_time + step_size if coupling == INTERPOLATE else current_time
+        self._slope, self._stamp = None, stamp
+        if coupling != HOLD and self.history is not None and stamp > self.history[0]:
+            since, before = self.history
+            self._slope = [(now - then) / (stamp - since) for now, then in zip(self.u, before)]
+        return stamp
+
     def integrate(self, t: float, x: list, step_size: float) -> list:
         """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
         return rk4_integrate(self.derivatives, t, x, step_size, self.p["max_step"])
@@ -136,7 +163,11 @@ class SlaveCore:
             return False
         if self.too_many_substeps(current_time, step_size):
             return False
-        new = self.integrate(current_time, self.current_state(), step_size)
+        stamp = self._ramp(current_time, step_size)
+        try:
+            new = self.integrate(current_time, self.current_state(), step_size)
+        finally:
+            self._slope = None
         if not all(math.isfinite(value) for value in new):
             self.log_error(
                 f"{self.instance_name}: state not finite after the step from t = {current_time} s "
@@ -144,6 +175,7 @@ class SlaveCore:
             )
             return False
         self.state = new
+        self.history = [stamp, list(self.u)]
         self.time = current_time + step_size
         self._cache = None
         return True
@@ -152,6 +184,7 @@ class SlaveCore:
         return {
             "p": dict(self.p), "u": list(self.u), "time": self.time,
             "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
+            "history": None if self.history is None else [self.history[0], list(self.history[1])],
             "extra": self.extra_state(),
         }
 
@@ -161,6 +194,7 @@ class SlaveCore:
         self.time = saved["time"]
         self.rejected = dict(saved["rejected"])
         self.state = None if saved["state"] is None else list(saved["state"])
+        self.history = None if saved["history"] is None else [saved["history"][0], list(saved["history"][1])]
         self.set_extra_state(saved["extra"])
         self._constants = None
         self._cache = None

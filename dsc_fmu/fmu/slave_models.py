@@ -41,7 +41,8 @@ class MobileRobotModel:
         return initial_plant_state(self.p)
 
     def derivatives(self, t, x):
-        return plant_derivatives(self.constants, x, self.u[0], self.u[1])
+        u1, u2 = self.inputs(t)
+        return plant_derivatives(self.constants, x, u1, u2)
 
     def outputs(self, x):
         x_, y, theta, v1, v2, i1, i2 = x
@@ -139,7 +140,7 @@ class DSCControllerModel:
         return start_filters(self.constants, initial_controller_state(self.p), self.u)
 
     def derivatives(self, t, x):
-        law = control_law(self.constants, x, self.u)
+        law = control_law(self.constants, x, self.inputs(t))
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative

@@ -16,6 +16,7 @@ __all__ = [
     "PROFILES",
     "DISCRETIZATIONS",
     "START_ON",
+    "COUPLINGS",
     "defaults",
 ]
 
@@ -84,6 +85,11 @@ def _per_wheel(name, value, unit, what, bound=POSITIVE):
     )
 
 
+# How inputs vary over a communication step (the ``coupling`` parameter): 0 = hold, 1 = extrapolate
+# (linearly from the inputs of the previous communication point to those set for this step's start),
+# 2 = interpolate (the inputs set are those of the step's end, the previous ones those of its start).
+COUPLINGS = ("hold", "extrapolate", "interpolate")
+
 MAX_STEP = Variable(
     "max_step", 1e-3, "s",
     "Longest internal RK4 sub-step between communication points (1 us to 1 s: it bounds the work of a step)",
@@ -113,6 +119,13 @@ PLANT_PARAMETERS = (
     Variable("omega2_0", 0.0, "rad/s", "Initial angular velocity, left wheel (docs/model.md §5: at rest)"),
     Variable("i1_0", 0.0, "A", "Initial motor current, right wheel"),
     Variable("i2_0", 0.0, "A", "Initial motor current, left wheel"),
+    Variable(
+        "coupling", 0, "1",
+        "How u1, u2 vary over a communication step (docs/model.md §5.10): 0 = hold (constant: zero-order "
+        "hold), 1 = extrapolate (linearly from the values of the previous communication point through "
+        "those of this one; the first step holds)",
+        NONNEGATIVE, integer=True, maximum=1, choices=COUPLINGS[:2],
+    ),
     MAX_STEP,
 )
 
@@ -205,6 +218,15 @@ CONTROLLER_PARAMETERS = (
         "unchanged, steps accepted; it starts at the first step with every input valid; for masters "
         "that start their connections at 0 without an initial exchange, such as fmpy.ssp.simulate_ssp)",
         NONNEGATIVE, integer=True, maximum=len(START_ON) - 1, choices=START_ON,
+    ),
+    Variable(
+        "coupling", 0, "1",
+        "How the inputs vary over a communication step (docs/model.md §5.10): 0 = hold (constant), "
+        "1 = extrapolate (the inputs set before a step are those of its start, as a Jacobi master sets "
+        "them: extrapolated linearly from those of the previous communication point), 2 = interpolate "
+        "(they are those of its end, as a Gauss-Seidel master sets them: interpolated linearly from those "
+        "of the previous step); the first step holds",
+        NONNEGATIVE, integer=True, maximum=len(COUPLINGS) - 1, choices=COUPLINGS,
     ),
     Variable(
         "beta_min", 0.05, "1",
