@@ -48,6 +48,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); linear: "
                      "the plant extrapolates u, the controller interpolates or extrapolates its inputs (default: the scenario's)")
     run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
+    run.add_argument("--tolerance", type=float, metavar="TOL", help="error-controlled step: the estimated position "
+                     "error (m) each step may add; the step then varies within [--h-min, --h-max] from --step-size")
+    run.add_argument("--h-min", type=float, help="smallest error-controlled step in s (default: the scenario's, 1e-5)")
+    run.add_argument("--h-max", type=float, help="largest error-controlled step in s (default: the scenario's, 0.02)")
     run.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
     run.add_argument("--no-plots", action="store_true", help="write no figures")
@@ -147,7 +151,7 @@ def _run(args) -> None:
 
     scenario = load_scenario(args.scenario).with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
-        coupling=args.coupling,
+        coupling=args.coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
     )
     print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
                        plots=not args.no_plots))

@@ -34,8 +34,11 @@ class ScenarioError(DscFmuError, ValueError):
 @dataclass(frozen=True)
 class Simulation:
     """How the scenario is co-simulated: stop time (s), communication step (s), coupling order
-    (``ORDERS``), coupling (``COUPLINGS``), output interval (s) and the bound on |signal| beyond
-    which a run counts as diverged."""
+    (``ORDERS``), coupling (``COUPLINGS``), output interval (s), the bound on |signal| beyond
+    which a run counts as diverged, and for an error-controlled step its ``tolerance`` (m: the
+    estimated position error of each step; None: a fixed step) within ``[h_min, h_max]`` (s),
+    starting from ``step_size``, with the position error per volt of coupling defect ``error_gain``
+    (m/V, see ``cosim.step_control``)."""
 
     stop_time: float = 30.0
     step_size: float = 1e-3
@@ -43,15 +46,22 @@ class Simulation:
     output_interval: float = 0.01
     bound: float = 1e6
     coupling: str = "hold"
+    tolerance: float | None = None
+    h_min: float = 1e-5
+    h_max: float = 0.02
+    error_gain: float = 0.02
 
     def check(self, where: str) -> None:
         """Raise ScenarioError naming ``where`` if a setting is out of its range."""
-        for key in ("stop_time", "step_size", "output_interval", "bound"):
+        positive = ("stop_time", "step_size", "output_interval", "bound", "h_min", "h_max", "error_gain")
+        for key in (*positive, *(("tolerance",) if self.tolerance is not None else ())):
             value = getattr(self, key)
             if isinstance(value, bool) or not isinstance(value, (int, float)):
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not a number; allowed: > 0")
             if not (math.isfinite(value) and value > 0):
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
+        if self.h_min > self.h_max:
+            raise ScenarioError(f"{where}: [simulation] h_min = {self.h_min!r} is not allowed; allowed: <= h_max = {self.h_max!r}")
         for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS)):
             if getattr(self, key) not in allowed:
                 raise ScenarioError(

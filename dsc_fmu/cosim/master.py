@@ -18,6 +18,7 @@ from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
 from ..scenario import Scenario
 from . import signals
 from .instance import LoadedFmu, LogMessage, failing_fmu, logging_callbacks, type_name
+from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
 
 __all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "cosimulate", "step_count"]
 
@@ -26,8 +27,10 @@ __all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage
 class CosimulationResult:
     """A finished run: ``result`` (structured array of dtype ``signals.DTYPE``, ``time`` in s first),
     ``steps`` (communication steps), ``wall_time`` (s, from loading the FMUs to freeing them),
-    ``settings`` (scenario name and simulation settings), ``log`` (the FMUs' log messages) and
-    ``fmus`` (each FMU's path and build id)."""
+    ``settings`` (scenario name and simulation settings), ``log`` (the FMUs' log messages),
+    ``fmus`` (each FMU's path and build id), ``fmu_steps`` (doStep calls, all FMUs) and, for an
+    error-controlled run, ``rejected`` (steps taken again smaller) and ``step_sizes`` (every accepted
+    step: ``time``, its start, and ``step_size``); ``steps`` then counts the accepted steps."""
 
     result: np.ndarray
     steps: int
@@ -35,6 +38,9 @@ class CosimulationResult:
     settings: dict
     log: list[LogMessage] = field(default_factory=list)
     fmus: dict = field(default_factory=dict)
+    fmu_steps: int = 0
+    rejected: int = 0
+    step_sizes: np.ndarray | None = None
 
 
 def step_count(stop_time: float, step_size: float) -> int:
@@ -83,6 +89,7 @@ class Cosimulator:
         self.measured_plant = [name for name in ctl.inputs if name in plant.outputs]
         self.measured_ref = [name for name in ctl.inputs if name not in plant.outputs]
         self.plant_out, self.ref_out = plant.refs(self.measured_plant), ref.refs(self.measured_ref)
+        self.position = (self.measured_plant.index("x"), self.measured_plant.index("y"))  # in the measurements
         self.ctl_in = ctl.refs(self.measured_plant + self.measured_ref)
         self.ctl_u, self.plant_u = ctl.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
         self.checked = [f"{PLANT}.{s}" for s in self.measured_plant] + [f"{REFERENCE}.{s}" for s in self.measured_ref]
@@ -114,12 +121,12 @@ class Cosimulator:
             fmu.renew(self._callbacks)
 
     def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
-            order: str | None = None, output_interval: float | None = None,
-            coupling: str | None = None) -> CosimulationResult:
+            order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
+            tolerance: float | None = None) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
         ``wall_time`` counts this run only (not loading the FMUs)."""
         scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                            output_interval=output_interval, coupling=coupling)
+                                            output_interval=output_interval, coupling=coupling, tolerance=tolerance)
         settings = scenario.simulation
         n = step_count(settings.stop_time, settings.step_size)
         every = max(1, round(settings.output_interval / settings.step_size))
@@ -129,10 +136,14 @@ class Cosimulator:
         self.log.clear()
         recorder = _Recorder(self, n // every + 1 + (n % every != 0))
         self._at = (0, 0.0)
+        controlled = None
         try:
             for fmu in self._loaded:
                 fmu.initialise(settings.stop_time, scenario.parameters(fmu.name))
-            self._steps(settings, n, every, recorder)
+            if settings.tolerance is None:
+                self._steps(settings, n, every, recorder)
+            else:
+                controlled = self._controlled(settings, recorder)
         except CosimulationError as error:
             error.result, error.steps = recorder.result(), self._at[0]
             raise
@@ -143,41 +154,103 @@ class Cosimulator:
                 fmu.terminate()
         return CosimulationResult(
             result=recorder.result(),
-            steps=n,
+            steps=n if controlled is None else len(controlled.times),
             wall_time=clock.perf_counter() - started,
             settings={"scenario": scenario.name, "step_size": settings.step_size, "order": settings.order,
                       "coupling": settings.coupling, "stop_time": settings.stop_time,
-                      "output_interval": settings.output_interval},
+                      "output_interval": settings.output_interval, "tolerance": settings.tolerance},
             log=list(self.log),
             fmus={name: dict(entry) for name, entry in self.fmus.items()},
+            fmu_steps=3 * n if controlled is None else controlled.fmu_steps,
+            rejected=0 if controlled is None else controlled.rejected,
+            step_sizes=None if controlled is None else controlled.table(),
         )
 
     def _steps(self, settings, n: int, every: int, recorder: _Recorder) -> None:
         """The exchanges and steps of one run, as ``cosimulate`` describes them; ``self._at`` follows
         (steps completed, time) for the messages of a failure."""
-        h, stop, bound = settings.step_size, settings.stop_time, settings.bound
-        jacobi = settings.order == "jacobi"
-        ref, plant, ctl = (fmu.slave for fmu in self._loaded)
-        plant_out, ref_out, ctl_in, checked = self.plant_out, self.ref_out, self.ctl_in, self.checked
-        measurements = plant.getReal(plant_out) + ref.getReal(ref_out)
-        _check(measurements, checked, 0.0, bound)
+        h, stop = settings.step_size, settings.stop_time
+        self._start(settings, recorder)
         for k in range(n):
             t = k * h
             self._at = (k, t)
-            self._exchange(t, measurements, jacobi or k == 0, bound)
-            if k % every == 0:
+            end = stop if k == n - 1 else (k + 1) * h
+            self._advance(t, end - t if k == n - 1 else h, end, settings)
+            if (k + 1) % every == 0 or k == n - 1:
+                recorder.record(end)
+
+    def _start(self, settings, recorder: _Recorder) -> None:
+        """The measurements at t = 0 (checked), the exchange there and its row."""
+        ref, plant = self._loaded[0].slave, self._loaded[1].slave
+        measurements = plant.getReal(self.plant_out) + ref.getReal(self.ref_out)
+        _check(measurements, self.checked, 0.0, settings.bound)
+        self._exchange(0.0, measurements, True, settings.bound)
+        recorder.record(0.0)
+
+    def _advance(self, t: float, step: float, end: float, settings) -> list:
+        """One communication step of ``step`` from ``t`` and the exchange at its ``end``: the reference
+        and the plant step, then (Gauss-Seidel) the controller's inputs are set from their new outputs,
+        the controller steps, and its ``u`` goes to the plant. Returns the measurements at ``end``."""
+        ref, plant, ctl = (fmu.slave for fmu in self._loaded)
+        jacobi, bound = settings.order == "jacobi", settings.bound
+        ref.doStep(t, step)
+        plant.doStep(t, step)
+        measured = plant.getReal(self.plant_out) + ref.getReal(self.ref_out)
+        _check(measured, self.checked, end, bound)
+        if not jacobi:
+            ctl.setReal(self.ctl_in, measured)
+        ctl.doStep(t, step)
+        self._at = (self._at[0] + 1, end)
+        self._exchange(end, measured, jacobi, bound)
+        return measured
+
+    def _controlled(self, settings, recorder: _Recorder) -> ControlledSteps:
+        """An error-controlled run (``step_control``): each step's position error estimated from the
+        defect of ``u`` at its end; a step that misses the tolerance is taken again, smaller, from the
+        FMU states saved before it."""
+        tolerance, order, gain = settings.tolerance, COUPLING_ORDER[settings.coupling], settings.error_gain
+        h_min, h_max, stop = settings.h_min, settings.h_max, settings.stop_time
+        slaves = [fmu.slave for fmu in self._loaded]
+        done = ControlledSteps()
+        self._start(settings, recorder)
+        u, u_before, h_before = self._u, None, None
+        t, h = 0.0, min(h_max, max(h_min, settings.step_size))
+        while t < stop:
+            h = min(h, stop - t)
+            end = stop if stop - t - h <= 1e-12 * stop else t + h
+            taken = end - t
+            self._at = (len(done.times), t)
+            saved = [slave.getFMUState() for slave in slaves]
+            try:
+                self._advance(t, taken, end, settings)
+                error = gain * defect(u, self._u, u_before if order == 2 else None, taken, h_before)
+            except CosimulationError:
+                if h <= h_min:
+                    raise
+                error = math.inf  # a step that diverges is too long
+            done.fmu_steps += 3
+            if error <= tolerance:
+                done.times.append(t)
+                done.sizes.append(taken)
+                done.errors.append(error)
+                t, u, u_before, h_before = end, self._u, u, taken
                 recorder.record(t)
-            step = h if k < n - 1 else stop - t
-            ref.doStep(t, step)
-            plant.doStep(t, step)
-            measurements = plant.getReal(plant_out) + ref.getReal(ref_out)
-            _check(measurements, checked, stop if k == n - 1 else (k + 1) * h, bound)
-            if not jacobi:
-                ctl.setReal(ctl_in, measurements)
-            ctl.doStep(t, step)
-        self._at = (n, stop)
-        self._exchange(stop, measurements, jacobi, bound)
-        recorder.record(stop)
+            elif h <= h_min:
+                raise CosimulationError(
+                    f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
+                    f"estimated error of a step of h_min = {h_min:g} s is {error:.3g} m; allowed: a smaller h_min "
+                    "or a larger tolerance", t)
+            else:
+                done.rejected += 1
+                self._restore(saved)
+            for slave, state in zip(slaves, saved):
+                slave.freeFMUState(state)
+            h = next_step(taken, error, tolerance, order, h_min, h_max)
+        return done
+
+    def _restore(self, saved: list) -> None:
+        for fmu, state in zip(self._loaded, saved):
+            fmu.slave.setFMUState(state)
 
     def _exchange(self, at: float, measurements: list, set_inputs: bool, bound: float) -> None:
         """The exchange at a communication point: the controller's inputs (if ``set_inputs``), then
@@ -188,6 +261,7 @@ class Cosimulator:
         u = ctl.getReal(self.ctl_u)
         _check(u, _U_NAMES, at, bound)
         plant.setReal(self.plant_u, u)
+        self._u = u
 
     def _failure(self, error: FMICallException, recorder: _Recorder) -> CosimulationError:
         """The CosimulationError of a failing FMI call: the FMU, the time and its last log messages."""
@@ -222,6 +296,8 @@ class _Recorder:
                         for i, kind, refs, cols in simulator.readers if refs]
 
     def record(self, at: float) -> None:
+        if self.rows == len(self.table):  # an error-controlled run: as many rows as accepted steps
+            self.table = np.concatenate([self.table, np.full_like(self.table, np.nan)])
         table, row = self.table, self.rows
         table[row, 0] = at
         for get, refs, cols in self.readers:
@@ -245,7 +321,8 @@ def _close_all(fmus: list[LoadedFmu]) -> None:
 
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
                stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
-               coupling: str | None = None, workdir: Path | None = None) -> CosimulationResult:
+               coupling: str | None = None, tolerance: float | None = None,
+               workdir: Path | None = None) -> CosimulationResult:
     """Co-simulate ``scenario`` with the FMUs in ``fmu_paths`` (by name) on a fixed communication step.
 
     Settings left as None come from ``scenario.simulation``; the others are validated like the
@@ -275,9 +352,16 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     CosimulationError, with the FMU's last log messages. FMUs are extracted into temporary folders
     (inside ``workdir`` if given), and every instance is freed and every folder removed at the end.
     For many runs, load the FMUs once with ``Cosimulator`` instead: its runs give the same results.
+
+    With a ``tolerance`` (m; or ``scenario.simulation.tolerance``) the step is error-controlled
+    instead (``step_control``): starting from ``h``, each step is taken whole and as two halves from
+    the same saved FMU states, accepted (continuing from the halves) if the estimated position error
+    is at most the tolerance, else taken again smaller; the next step grows or shrinks with the
+    estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every accepted step. If
+    a step of ``h_min`` misses the tolerance, CosimulationError names the time.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                        output_interval=output_interval, coupling=coupling)
+                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
         run = simulator.run(scenario)

@@ -8,7 +8,7 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["new_figure", "plot_trajectory", "plot_signals"]
+__all__ = ["new_figure", "plot_trajectory", "plot_signals", "plot_step_sizes"]
 
 
 def new_figure(width: float, height: float) -> Figure:
@@ -59,5 +59,24 @@ def plot_signals(result: np.ndarray, path: Path | str) -> Path:
         axes.legend(loc="best")
     for axes in (estimates, norms):
         axes.set_xlabel("time (s)")
+    figure.savefig(path, dpi=120)
+    return Path(path)
+
+
+def plot_step_sizes(step_sizes: np.ndarray, tolerance: float, path: Path | str) -> Path:
+    """An error-controlled run's step size (s, log scale) and estimated error per step (m, log scale)
+    against time (s), the tolerance marked; saved to ``path``."""
+    figure = new_figure(8.0, 5.5)
+    sizes, errors = figure.subplots(2, 1, sharex=True)
+    sizes.semilogy(step_sizes["time"], step_sizes["step_size"], ".-", markersize=2, color="tab:blue")
+    sizes.set(ylabel="step size (s)", title=f"Error-controlled communication step, tolerance {tolerance:g} m")
+    positive = step_sizes["estimated_error"] > 0
+    errors.semilogy(step_sizes["time"][positive], step_sizes["estimated_error"][positive], ".", markersize=2,
+                    color="tab:red", label="estimated error of the step")
+    errors.axhline(tolerance, color="black", linestyle="--", label="tolerance")
+    errors.set(xlabel="time (s)", ylabel="error (m)")
+    errors.legend(loc="best")
+    for axes in (sizes, errors):
+        axes.grid(True, which="both", alpha=0.3)
     figure.savefig(path, dpi=120)
     return Path(path)

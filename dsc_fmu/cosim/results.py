@@ -25,7 +25,10 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
             "coupling": run.settings["coupling"],
             "stop_time": run.settings["stop_time"],
             "output_interval": run.settings["output_interval"],
+            "tolerance": run.settings["tolerance"],
             "steps": run.steps,
+            "steps_rejected": run.rejected,
+            "fmu_steps": run.fmu_steps,
             "wall_time_s": run.wall_time,
         },
         "metrics": metrics,
@@ -35,12 +38,16 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
 
 
 def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict[str, Path]:
-    """Write ``results.csv`` (fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``) and
-    ``summary.json`` into ``out_dir`` (created if missing); return their paths by kind."""
+    """Write ``results.csv`` (fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``),
+    ``summary.json`` and, for an error-controlled run, ``step_sizes.csv`` (every accepted step: start
+    time, size, estimated error) into ``out_dir`` (created if missing); return their paths by kind."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "results.csv", "summary": out_dir / "summary.json"}
     write_csv(paths["csv"], run.result)
+    if run.step_sizes is not None:
+        paths["step_sizes"] = out_dir / "step_sizes.csv"
+        write_csv(paths["step_sizes"], run.step_sizes)
     paths["summary"].write_text(json.dumps(summary(run, scenario, metrics), indent=2) + "\n")
     return paths
 
@@ -55,7 +62,9 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
     return "\n".join([
         f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
         f"output every {s['output_interval']:g} s",
-        f"  {run.steps} steps in {run.wall_time:.2f} s wall time",
+        f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
+            "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} steps "
+            f"taken again, step {run.step_sizes['step_size'].min():.3g} s to {run.step_sizes['step_size'].max():.3g} s)"),
         f"  position error over [{metrics['window_start_s']:g}, {metrics['window_end_s']:g}] s: "
         f"final {_number(metrics['final_position_error_m'], 'm')}, "
         f"RMS {_number(metrics['rms_position_error_m'], 'm')}, max {_number(metrics['max_position_error_m'], 'm')}",

@@ -16,7 +16,8 @@ __all__ = ["run_scenario"]
 def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = DEFAULT_FMU_DIR,
                  plots: bool = True) -> str:
     """Co-simulate ``scenario`` through the FMUs and write ``results.csv``, ``summary.json`` and,
-    with ``plots``, ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2) into ``out_dir``.
+    with ``plots``, ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2) into ``out_dir``; an
+    error-controlled run (``scenario.simulation.tolerance``) adds ``step_sizes.csv`` and ``step_sizes.png``.
 
     Returns the printed summary. Nothing is written when the run fails.
     """
@@ -25,8 +26,11 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = 
     out_dir = Path(out_dir)
     paths = write_results(out_dir, run, scenario, metrics)
     if plots:
-        from .plots import plot_signals, plot_trajectory  # matplotlib: only when figures are drawn
+        from .plots import plot_signals, plot_step_sizes, plot_trajectory  # matplotlib: only when figures are drawn
 
         paths["trajectory"] = plot_trajectory(run.result, out_dir / "trajectory.png")
         paths["signals"] = plot_signals(run.result, out_dir / "signals.png")
+        if run.step_sizes is not None:
+            paths["step_size_figure"] = plot_step_sizes(run.step_sizes, scenario.simulation.tolerance,
+                                                        out_dir / "step_sizes.png")
     return f"{format_summary(run, metrics)}\n  written: {', '.join(str(p) for p in paths.values())}"

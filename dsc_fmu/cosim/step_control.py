@@ -1,0 +1,68 @@
+"""The error-controlled communication step: the coupling error of each step estimated from the defect
+of the exchanged voltages, and the next step size from it.
+
+Over a step from ``t_k`` the plant sees ``u`` held (hold coupling) or extrapolated from the last two
+communication points (linear coupling). At ``t_k+1`` the controller's actual ``u_k+1`` is known; the
+defect ``E = max |u_k+1 - u_hat_k+1|`` between it and the value the coupling assumed (``u_k``, or the
+line through ``u_k-1`` and ``u_k`` at ``t_k+1``) is of order ``h`` (hold) or ``h^2`` (linear), the order
+of the deviation the coupling causes. The position error that a defect ``E`` leaves is estimated as
+``error_gain * E``: ``error_gain`` (m/V, a scenario setting) is the loop's position deviation per
+volt of defect, measured on the paper's scenario as 1.2-1.9 mm/V for h = 1-4 ms, both couplings and
+both orders (``docs/model.md`` section 5.10; the sweep reports it for any scenario). A step whose
+estimate misses the tolerance is taken again, smaller, from the FMU states saved before it.
+
+>>> defect((10.0, 20.0), (11.0, 20.5), None, 1e-3, 1e-3)
+1.0
+>>> defect((10.0, 20.0), (11.0, 21.0), (9.0, 19.0), 1e-3, 1e-3)
+0.0
+>>> next_step(1e-3, error=1e-6, tolerance=1e-4, order=2, h_min=1e-5, h_max=0.02)
+0.004
+>>> next_step(1e-3, error=1e-2, tolerance=1e-4, order=2, h_min=1e-5, h_max=0.02)
+0.0002
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["COUPLING_ORDER", "SAFETY", "GROWTH", "ControlledSteps", "defect", "next_step"]
+
+COUPLING_ORDER = {"hold": 1, "linear": 2}  # the deviation's order in h, and the defect's
+SAFETY = 0.9
+GROWTH = (0.2, 4.0)  # the next step is between these factors of the last one
+
+
+def defect(u: tuple, u_next: tuple, u_before: tuple | None, h: float, h_before: float) -> float:
+    """Largest difference between ``u_next`` (at ``t + h``) and what the coupling assumed: ``u`` held
+    (``u_before`` None), or the line through ``u_before`` (at ``t - h_before``) and ``u`` (at ``t``)."""
+    if u_before is None:
+        return max(abs(b - a) for a, b in zip(u, u_next))
+    ratio = h / h_before
+    return max(abs(c - (b + ratio * (b - a))) for a, b, c in zip(u_before, u, u_next))
+
+
+def next_step(h: float, error: float, tolerance: float, order: int, h_min: float, h_max: float) -> float:
+    """The next step size after a step of ``h`` with estimated ``error``: the one that would meet the
+    tolerance with a safety margin (the error ~ h^order), within ``GROWTH`` times ``h`` and ``[h_min, h_max]``."""
+    factor = GROWTH[1] if error == 0 else SAFETY * (tolerance / error) ** (1.0 / order)
+    return min(h_max, max(h_min, h * min(GROWTH[1], max(GROWTH[0], factor))))
+
+
+@dataclass
+class ControlledSteps:
+    """What an error-controlled run did: the start time, size and estimated error of every accepted
+    step, the steps rejected, and the doStep calls made (each FMU's counted)."""
+
+    times: list = field(default_factory=list)
+    sizes: list = field(default_factory=list)
+    errors: list = field(default_factory=list)
+    rejected: int = 0
+    fmu_steps: int = 0
+
+    def table(self) -> np.ndarray:
+        """The accepted steps: ``time`` (s, the start), ``step_size`` (s) and ``estimated_error`` (m)."""
+        history = np.zeros(len(self.times), dtype=[(n, np.float64) for n in ("time", "step_size", "estimated_error")])
+        history["time"], history["step_size"], history["estimated_error"] = self.times, self.sizes, self.errors
+        return history

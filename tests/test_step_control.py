@@ -1,0 +1,98 @@
+"""The error-controlled communication step: honest against the reference solution, exact where the
+step is fixed, one clear error where h_min cannot meet the tolerance."""
+
+import dataclasses
+import json
+
+import numpy as np
+import pytest
+
+from dsc_fmu.cli import main
+from dsc_fmu.cosim.master import CosimulationError, Cosimulator
+from dsc_fmu.cosim.reference_solution import output_times, reference_solution
+from dsc_fmu.scenario import ScenarioError, load_scenario
+
+PAPER = load_scenario("paper")
+
+
+@pytest.fixture(scope="module")
+def simulator(fmu_paths):
+    with Cosimulator(fmu_paths) as simulator:
+        yield simulator
+
+
+def _deviation(result, reference):
+    t = result["time"]
+    return np.hypot(result["x"] - np.interp(t, reference["time"], reference["x"]),
+                    result["y"] - np.interp(t, reference["time"], reference["y"])).max()
+
+
+def test_with_one_allowed_step_size_the_controlled_run_is_the_fixed_step_run(simulator):
+    """h_min = h_max = h and a tolerance nothing misses: every step accepted, the same rows (to rounding:
+    the controlled run's time is the sum of its steps, the fixed run's k h)."""
+    h = 2e-3
+    scenario = PAPER.with_simulation(stop_time=1.0, step_size=h, output_interval=h, coupling="linear")
+    fixed = simulator.run(scenario)
+    controlled = simulator.run(dataclasses.replace(scenario, simulation=dataclasses.replace(
+        scenario.simulation, tolerance=1e9, h_min=h, h_max=h)))
+    assert controlled.rejected == 0 and controlled.steps == fixed.steps == 500
+    for name in fixed.result.dtype.names:
+        np.testing.assert_allclose(controlled.result[name], fixed.result[name], rtol=1e-9, atol=1e-12, err_msg=name)
+    assert controlled.fmu_steps == fixed.fmu_steps == 1500
+
+
+def test_steps_tile_the_run_within_their_bounds_and_meet_the_tolerance(simulator):
+    scenario = PAPER.with_simulation(stop_time=3.0, coupling="linear", tolerance=1e-3)
+    run = simulator.run(scenario)
+    steps = run.step_sizes
+    assert run.rejected > 0  # the start-up transient makes it shrink the step
+    np.testing.assert_allclose(steps["time"][1:], steps["time"][:-1] + steps["step_size"][:-1], rtol=0, atol=1e-12)
+    assert steps["time"][0] == 0.0 and steps["time"][-1] + steps["step_size"][-1] == pytest.approx(3.0, abs=1e-12)
+    settings = scenario.simulation
+    assert (steps["step_size"][:-1] >= settings.h_min).all() and (steps["step_size"] <= settings.h_max * (1 + 1e-9)).all()
+    assert (steps["estimated_error"] <= 1e-3).all()
+    np.testing.assert_array_equal(run.result["time"], np.concatenate([[0.0], steps["time"] + steps["step_size"]]))
+    assert run.fmu_steps == 3 * (run.steps + run.rejected)
+
+
+def test_an_h_min_that_cannot_meet_the_tolerance_is_one_error_naming_the_time(simulator):
+    scenario = PAPER.with_simulation(stop_time=2.0, coupling="hold", tolerance=1e-6, h_min=1e-3)
+    with pytest.raises(CosimulationError, match=r"^the error-controlled step cannot meet the tolerance 1e-06 m at "
+                       r"t = [0-9.e-]+ s: the estimated error of a step of h_min = 0\.001 s is .* m; allowed: a "
+                       r"smaller h_min or a larger tolerance$") as error:
+        simulator.run(scenario)
+    assert 0.0 <= error.value.time < 2.0 and "\n" not in str(error.value)
+
+
+@pytest.mark.parametrize("settings,message", [
+    ({"tolerance": 0.0}, r"tolerance = 0\.0 is not allowed; allowed: > 0"),
+    ({"h_min": 0.1, "h_max": 0.01}, r"h_min = 0\.1 is not allowed; allowed: <= h_max = 0\.01"),
+    ({"error_gain": -1.0}, r"error_gain = -1\.0 is not allowed; allowed: > 0"),
+])
+def test_bad_step_control_settings_are_refused(settings, message):
+    with pytest.raises(ScenarioError, match=message):
+        PAPER.with_simulation(**settings)
+
+
+def test_run_command_writes_the_step_size_history(tmp_path, fmu_paths, capsys):
+    out = tmp_path / "out"
+    fmu_dir = next(iter(fmu_paths.values())).parent
+    assert main(["run", "--stop-time", "1", "--coupling", "linear", "--tolerance", "1e-3", "--out", str(out),
+                 "--fmu-dir", str(fmu_dir)]) == 0
+    assert "error-controlled to 0.001 m" in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())["settings"]
+    assert summary["tolerance"] == 1e-3 and summary["fmu_steps"] == 3 * (summary["steps"] + summary["steps_rejected"])
+    header = (out / "step_sizes.csv").read_text().splitlines()[0]
+    assert header.replace('"', "") == "time,step_size,estimated_error"
+    assert (out / "step_sizes.png").stat().st_size > 0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("order", ["gauss-seidel", "jacobi"])
+def test_the_estimate_is_honest_against_the_reference_solution(simulator, order):
+    """Over the paper's 30 s, the largest deviation from the reference solution is within 3 times the
+    tolerance, for tolerances from 1e-2 m to 1e-4 m, with the linear coupling."""
+    reference = reference_solution(PAPER, times=output_times(30.0, 1e-3), rtol=1e-10, atol=1e-10, method="DOP853")
+    for tolerance in (1e-2, 1e-3, 1e-4):
+        run = simulator.run(PAPER.with_simulation(coupling="linear", order=order, tolerance=tolerance))
+        assert _deviation(run.result, reference) <= 3 * tolerance, tolerance
