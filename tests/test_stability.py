@@ -243,3 +243,51 @@ def test_predicted_boundary_accepts_a_scenario_and_uses_its_discretization(scena
 def test_no_operating_point_is_a_clear_error(scenario):
     with pytest.raises(st.OperatingPointError, match="no operating point"):
         st.operating_point(scenario, state=np.full(27, np.nan))
+
+
+# --- The linear coupling --------------------------------------------------------------------------------
+
+def _sampled_run(loop, h, order, steps, s0):
+    """The loop with the linear coupling stepped here with solve_ivp (ramp inputs built by hand from
+    the stored previous values), from ``s0 = [xp; xc; u_prev; y_prev]``: the state after ``steps`` steps."""
+    from scipy.integrate import solve_ivp
+
+    n_p, nc = loop.Ap.shape[0], loop.Ac.shape[0]
+    nu, ny = loop.Bp.shape[1], loop.Cp.shape[0]
+    xp, xc = s0[:n_p], s0[n_p:n_p + nc]
+    u_prev, y_prev = s0[n_p + nc:n_p + nc + nu], s0[n_p + nc + nu:]
+    for _ in range(steps):
+        y = loop.Cp @ xp
+        u = loop.Cc @ xc + loop.Dc @ y
+        plant = solve_ivp(lambda s, x: loop.Ap @ x + loop.Bp @ (u + (s / h) * (u - u_prev)), (0, h), xp,
+                          rtol=1e-12, atol=1e-14).y[:, -1]
+        y_next = loop.Cp @ plant
+        if order == "jacobi":
+            y_at = lambda s: y + (s / h) * (y - y_prev)  # noqa: E731
+        else:
+            y_at = lambda s: y + (s / h) * (y_next - y)  # noqa: E731
+        xc = solve_ivp(lambda s, x: loop.Ac @ x + loop.Bc @ y_at(s), (0, h), xc, rtol=1e-12, atol=1e-14).y[:, -1]
+        xp, u_prev, y_prev = plant, u, y
+    return np.concatenate([xp, xc, u_prev, y_prev])
+
+
+@pytest.mark.parametrize("order", ORDERS)
+def test_linear_transition_matrix_is_one_step_with_ramp_inputs(order):
+    """The matrix of the linear coupling maps the augmented state as the ramps integrated here do."""
+    loop = st.LinearLoop([[-1.0, 0.5], [0.0, -3.0]], [[0.0], [2.0]], [[1.0, 0.0]], [[-0.5]], [[1.0]], [[-2.0]],
+                         [[-1.5]])
+    rng = np.random.default_rng(7)
+    s0 = rng.normal(size=2 + 1 + 1 + 1)
+    h = 0.2
+    M = st.linear_transition_matrix(loop, h, order, "rk4")
+    np.testing.assert_allclose(M @ M @ s0, _sampled_run(loop, h, order, 2, s0), rtol=1e-8, atol=1e-10)
+
+
+def test_linear_coupling_predicted_boundaries_of_on_reference(loop):
+    """The linear coupling is stable to a smaller step than the hold (extrapolation amplifies)."""
+    for order in ORDERS:
+        hold = st.predicted_boundary(loop, order)
+        linear = st.predicted_boundary(loop, order, coupling="linear")
+        assert 0.01 < linear < hold
+    with pytest.raises(ValueError, match="coupling 'cubic' is not allowed; allowed: hold, linear"):
+        st.spectral_radius(loop, 1e-3, "jacobi", coupling="cubic")

@@ -8,18 +8,20 @@ from dataclasses import dataclass
 import control
 import numpy as np
 from scipy.integrate import solve_ivp
+from scipy.linalg import expm
 
 from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
 from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
 from ..models.parameters import DISCRETIZATIONS, PROFILES
 from ..models.reference import initial_reference_state
 from ..errors import DscFmuError
-from ..scenario import ORDERS, Scenario
+from ..scenario import COUPLINGS, ORDERS, Scenario
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
     "error_measurements", "closed_loop", "jacobian", "operating_point", "linearise", "sampled_pieces",
-    "transition_matrix", "spectral_radius", "spectral_radius_curve", "predicted_boundary",
+    "transition_matrix", "ramp_pieces", "linear_transition_matrix", "spectral_radius", "spectral_radius_curve",
+    "predicted_boundary",
 ]
 
 # Indices, in the stacked state z = [xp (7); xc (20)], of the parameter estimates a1_hat, a2_hat, W1_hat, W2_hat.
@@ -262,18 +264,68 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
     return np.block([[Kp, Kc], bottom])
 
 
-def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> float:
-    """Largest |eigenvalue| of ``transition_matrix``: the sampled loop is stable where it is < 1."""
-    return float(np.max(np.abs(np.linalg.eigvals(transition_matrix(loop, h, order, discretization)))))
+def ramp_pieces(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(Phi, G0, G1)`` of ``x' = A x + B w`` over a step h with the input a ramp ``w(s) = w0 + (s / h) d``:
+    ``x(h) = Phi x(0) + G0 w0 + G1 d`` (the exponential of ``[[A, B, 0], [0, 0, I/h], [0, 0, 0]] h``)."""
+    n, m = B.shape
+    F = np.zeros((n + 2 * m, n + 2 * m))
+    F[:n, :n], F[:n, n:n + m], F[n:n + m, n + m:] = A, B, np.eye(m) / h
+    E = expm(F * h)
+    return E[:n, :n], E[:n, n:n + m], E[:n, n + m:]
 
 
-def spectral_radius_curve(loop: LinearLoop, steps, order: str, discretization: str | None = None) -> np.ndarray:
+def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
+    """Transition matrix over one step with the linear coupling (``docs/model.md`` section 5.10), of the
+    state ``s_k = [xp_k; xc_k; u_{k-1}; y_{k-1}]``.
+
+    The plant sees the ramp through ``u_{k-1}`` and ``u_k = Cc xc_k + Dc y_k``:
+    ``xp_{k+1} = Phi_p xp_k + G0_p u_k + G1_p (u_k - u_{k-1})`` (``ramp_pieces``). The controller sees its
+    inputs extrapolated through ``y_{k-1}`` and ``y_k`` (Jacobi), ``xc_{k+1} = Phi_c xc_k + G0_c y_k +
+    G1_c (y_k - y_{k-1})``, or interpolated from ``y_k`` to ``y_{k+1} = Cp xp_{k+1}`` (Gauss-Seidel),
+    ``xc_{k+1} = Phi_c xc_k + G0_c y_k + G1_c (y_{k+1} - y_k)``. With ``discretization`` = euler the
+    controller takes ``xc + h (Ac xc + Bc y(t_k))``: ``G1_c = 0``.
+    """
+    if order not in ORDERS:
+        raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    Phi_p, G0_p, G1_p = ramp_pieces(loop.Ap, loop.Bp, h)
+    nc, ny = loop.Bc.shape
+    if (discretization or loop.discretization) == "euler":
+        Phi_c, G0_c, G1_c = np.eye(nc) + h * loop.Ac, h * loop.Bc, np.zeros((nc, ny))
+    else:
+        Phi_c, G0_c, G1_c = ramp_pieces(loop.Ac, loop.Bc, h)
+    Cp, Cc, Dc = loop.Cp, loop.Cc, loop.Dc
+    n_p, nu = loop.Ap.shape[0], loop.Bp.shape[1]
+    U = np.hstack([Dc @ Cp, Cc, np.zeros((nu, nu + ny))])  # u_k from s_k
+    Y = np.hstack([Cp, np.zeros((ny, nc + nu + ny))])  # y_k from s_k
+    U_before = np.hstack([np.zeros((nu, n_p + nc)), np.eye(nu), np.zeros((nu, ny))])
+    Y_before = np.hstack([np.zeros((ny, n_p + nc + nu)), np.eye(ny)])
+    Xp = np.hstack([Phi_p, np.zeros((n_p, nc + nu + ny))]) + (G0_p + G1_p) @ U - G1_p @ U_before
+    Xc = np.hstack([np.zeros((nc, n_p)), Phi_c, np.zeros((nc, nu + ny))])
+    if order == "jacobi":
+        Xc = Xc + (G0_c + G1_c) @ Y - G1_c @ Y_before
+    else:
+        Xc = Xc + (G0_c - G1_c) @ Y + G1_c @ Cp @ Xp
+    return np.vstack([Xp, Xc, U, Y])
+
+
+def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str | None = None,
+                    coupling: str = "hold") -> float:
+    """Largest |eigenvalue| of the transition matrix of ``coupling`` (``transition_matrix`` for hold,
+    ``linear_transition_matrix`` for linear): the sampled loop is stable where it is < 1."""
+    if coupling not in COUPLINGS:
+        raise ValueError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
+    matrix = (transition_matrix if coupling == "hold" else linear_transition_matrix)(loop, h, order, discretization)
+    return float(np.max(np.abs(np.linalg.eigvals(matrix))))
+
+
+def spectral_radius_curve(loop: LinearLoop, steps, order: str, discretization: str | None = None,
+                          coupling: str = "hold") -> np.ndarray:
     """``spectral_radius`` at each communication step in ``steps`` (s), for plotting against h."""
-    return np.array([spectral_radius(loop, h, order, discretization) for h in np.asarray(steps, float)])
+    return np.array([spectral_radius(loop, h, order, discretization, coupling) for h in np.asarray(steps, float)])
 
 
 def predicted_boundary(loop: LinearLoop | Scenario, order: str, discretization: str | None = None, *,
-                       steps=DEFAULT_STEPS, rtol: float = 1e-3, tol: float = 1e-9) -> float:
+                       steps=DEFAULT_STEPS, rtol: float = 1e-3, tol: float = 1e-9, coupling: str = "hold") -> float:
     """Smallest step h (s) at which the spectral radius reaches 1 (+ ``tol``, above rounding of the slow
     adaptation modes, |lambda| = 1 - O(1e-8 h)): the first crossing on the ascending grid ``steps``,
     bisected (geometrically) to ``rtol``. 0.0 if unstable at ``steps[0]``, inf if stable on the whole grid.
@@ -282,7 +334,7 @@ def predicted_boundary(loop: LinearLoop | Scenario, order: str, discretization: 
     """
     if isinstance(loop, Scenario):
         loop = linearise(loop)
-    unstable = lambda h: spectral_radius(loop, h, order, discretization) >= 1.0 + tol  # noqa: E731
+    unstable = lambda h: spectral_radius(loop, h, order, discretization, coupling) >= 1.0 + tol  # noqa: E731
     steps = np.asarray(steps, float)
     previous = None
     for h in steps:
