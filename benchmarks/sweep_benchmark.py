@@ -40,7 +40,7 @@ def speed_up(fmu_paths: dict, stop_time: float) -> None:
     for jobs in (1, 2):
         with tempfile.TemporaryDirectory(prefix="dsc_fmu_sweep_benchmark_") as out:
             started = time.perf_counter()
-            rows = execute(scenario, cases, Path(out), fmu_paths, jobs=jobs, progress=False)
+            rows = execute(scenario, cases, Path(out), fmu_paths, jobs=jobs, progress=False).rows
             times[jobs] = time.perf_counter() - started
         diverged = sum(row["diverged"] for row in rows)
         print(f"    jobs = {jobs}: {times[jobs]:6.2f} s wall ({len(rows)} rows, {diverged} diverged, "

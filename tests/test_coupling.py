@@ -8,7 +8,7 @@ from scipy.integrate import solve_ivp
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
-from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, PLANT_OUT, md, new  # noqa: F401
+from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, md, new  # noqa: F401 (fixtures)
 
 HOLD, EXTRAPOLATE, INTERPOLATE = range(3)
 FINE = 1e-6  # s: max_step of the FMUs here, so that RK4 is exact to rounding

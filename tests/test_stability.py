@@ -5,6 +5,7 @@ import math
 
 import numpy as np
 import pytest
+from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
 from dsc_fmu.study import stability as st
@@ -250,10 +251,8 @@ def test_no_operating_point_is_a_clear_error(scenario):
 def _sampled_run(loop, h, order, steps, s0):
     """The loop with the linear coupling stepped here with solve_ivp (ramp inputs built by hand from
     the stored previous values), from ``s0 = [xp; xc; u_prev; y_prev]``: the state after ``steps`` steps."""
-    from scipy.integrate import solve_ivp
-
     n_p, nc = loop.Ap.shape[0], loop.Ac.shape[0]
-    nu, ny = loop.Bp.shape[1], loop.Cp.shape[0]
+    nu = loop.Bp.shape[1]
     xp, xc = s0[:n_p], s0[n_p:n_p + nc]
     u_prev, y_prev = s0[n_p + nc:n_p + nc + nu], s0[n_p + nc + nu:]
     for _ in range(steps):

@@ -14,6 +14,7 @@ from dsc_fmu.study import cluster as sweep_dask
 from dsc_fmu.study import execute as sweep_exec
 from dsc_fmu.study import rows as sweep_rows
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
+from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
 from dsc_fmu.scenario import ScenarioError, load_scenario
 from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
@@ -169,6 +170,7 @@ def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(sho
     ({"sets": [parse_set("plant.mc=30")], "perturbations": [parse_perturb("plant.mc=20%")], "samples": 2},
      "also given with --set"),
     ({"step_sizes": [1e-3, 0.0]}, "step size 0.0 is not allowed"),
+    ({"step_sizes": [100, 3, 0.5]}, r"step size 100 s is not allowed: larger than the stop time 1 s; allowed: 0 < h"),
     ({"orders": ["backwards"]}, "order 'backwards' is not allowed"),
     ({"discretizations": ["trapezoidal"]}, "allowed: rk4, euler"),
     ({"sets": [("reference.vr0", (1.0, -1.0))]}, r"vr0 = -1.0 is not allowed"),
@@ -264,7 +266,7 @@ def test_stability_over_the_papers_run(fmu_paths, tmp_path):
     """The paper's 30 s: settled by the last third at h = 10 ms; Jacobi diverges at 20 ms, Gauss-Seidel not."""
     paper = load_scenario("paper")
     cases = [Case(0.01), Case(0.02, "jacobi"), Case(0.02)]
-    rows = execute(paper, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    rows = execute(paper, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert [row["stable"] for row in rows] == [True, False, True]
     assert rows[0]["max_position_error_m"] < STABLE_POSITION_ERROR and rows[1]["diverged"]
     assert "0.5 m over the last third of the run" in STABILITY_DEFINITION
@@ -291,17 +293,20 @@ def test_a_diverging_run_is_a_row_with_its_reason(short, fmu_paths, tmp_path, bo
 
 def test_second_execute_runs_nothing_and_a_new_step_only_itself(short, fmu_paths, tmp_path, counted):
     cases = build_cases(short, step_sizes=[2e-3, 0.01], orders=ORDERS)
-    first = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
-    assert counted == {"run": 4, "reference": 1}
+    done = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    first = done.rows
+    assert counted == {"run": 4, "reference": 1} and (done.cached, done.ran) == (0, 4)
     files = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")}
-    assert len(files) == 2 + 4 * 2 + 1  # two folders, a row and a trajectory per run, one reference
+    assert len(files) == 2 + 4 * 2 + 2  # two folders, a record and a trajectory per run, one reference and its record
     again = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
-    assert counted == {"run": 4, "reference": 1}
-    assert json.dumps(again) == json.dumps(first)  # wall times too: they come from the cache
+    assert counted == {"run": 4, "reference": 1} and (again.cached, again.ran, again.unverified) == (4, 0, ())
+    assert json.dumps(again.rows) == json.dumps(first)  # wall times too: they come from the cache
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")} == files
-    more = execute(short, build_cases(short, step_sizes=[2e-3, 5e-3, 0.01], orders=ORDERS), tmp_path, fmu_paths,
+    done = execute(short, build_cases(short, step_sizes=[2e-3, 5e-3, 0.01], orders=ORDERS), tmp_path, fmu_paths,
                    jobs=1, progress=False)
+    more = done.rows
     assert counted == {"run": 6, "reference": 1}  # the reference of the physical case is cached too
+    assert (done.cached, done.ran) == (4, 2)
     assert json.dumps([more[0], more[1], more[4], more[5]]) == json.dumps(first)
     trajectory = load_trajectory(tmp_path, first[0])
     assert trajectory.dtype.names == TRAJECTORY and len(trajectory) == 101 and trajectory["time"][-1] == 1.0
@@ -315,21 +320,23 @@ def test_a_changed_scenario_value_or_fmu_build_invalidates(short, fmu_paths, tmp
     cases = [Case(0.01), Case(0.01, "jacobi")]
     execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
     renamed = dataclasses.replace(short, name="renamed", source="elsewhere.toml")
-    rows = execute(renamed, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    rows = execute(renamed, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert counted["run"] == 2 and {row["scenario"] for row in rows} == {"renamed"}  # name and file do not count
     changed = dataclasses.replace(short, controller={**short.controller, "k5": 1.5})
     execute(changed, cases, tmp_path, fmu_paths, jobs=1, progress=False)
     assert counted == {"run": 4, "reference": 2}
     monkeypatch.setattr(sweep_cache, "fmu_build_id", lambda path: f"rebuilt {path.name}")
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert counted == {"run": 6, "reference": 2}  # same physics: the reference solution is still valid
     assert rows[0]["key"] == sweep_cache.case_key(short, cases[0], sweep_cache.fmu_identities(fmu_paths))
 
 
 def test_a_partial_cache_entry_is_a_miss(short, fmu_paths, tmp_path, counted):
-    [row] = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)
-    (tmp_path / "cache" / "runs" / f"{row['key']}.npz").unlink()
-    assert execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)[0]["key"] == row["key"]
+    """A trajectory without its record (a write interrupted between the two) is a plain miss."""
+    [row] = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
+    (tmp_path / "cache" / "runs" / f"{row['key']}.json").unlink()
+    again = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)
+    assert again.rows[0]["key"] == row["key"] and again.unverified == ()
     assert counted["run"] == 2
     assert not list((tmp_path / "cache").rglob("*.partial"))
 
@@ -339,7 +346,7 @@ def test_a_partial_cache_entry_is_a_miss(short, fmu_paths, tmp_path, counted):
 
 def test_diverging_cases_are_rows_in_a_sweep(short, fmu_paths, tmp_path):
     rows = execute(short.with_simulation(stop_time=5.0), [Case(0.01), Case(0.25)], tmp_path, fmu_paths, jobs=1,
-                   progress=False)
+                   progress=False).rows
     assert [row["diverged"] for row in rows] == [False, True]
     assert rows[1]["diverged_time"] > 0 and rows[1]["diverged_signal"]
 
@@ -362,7 +369,7 @@ def test_an_interrupted_sweep_cleans_up_and_resumes(short, fmu_paths, tmp_path, 
     assert len(list((tmp_path / "cache" / "runs").glob("*.json"))) == 1
     calls.clear()
     monkeypatch.setattr(sweep_exec, "simulate", lambda *args: calls.append(args) or simulate(*args))
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert len(calls) == 2 and [row["step_size"] for row in rows] == [0.01, 0.02, 0.05]
     assert leftovers(tmp_path) == []
 
@@ -381,8 +388,8 @@ def test_a_failing_sweep_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
 def test_two_jobs_give_the_rows_of_one(short, fmu_paths, tmp_path):
     scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
     cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
-    one = execute(scenario, cases, tmp_path / "one", fmu_paths, jobs=1, progress=False)
-    two = execute(scenario, cases, tmp_path / "two", fmu_paths, jobs=2, progress=False)
+    one = execute(scenario, cases, tmp_path / "one", fmu_paths, jobs=1, progress=False).rows
+    two = execute(scenario, cases, tmp_path / "two", fmu_paths, jobs=2, progress=False).rows
     assert without_wall_time(two) == without_wall_time(one)
     assert any(row["diverged"] for row in one) and not all(row["diverged"] for row in one)
     assert leftovers(tmp_path / "two") == []
@@ -406,11 +413,11 @@ def test_an_interrupt_stops_the_pool_and_cleans_up(short, fmu_paths, tmp_path, m
     store_run = sweep_cache.SweepCache.store_run
     stored = []
 
-    def interrupted(self, key, row, trajectory):
+    def interrupted(self, key, row, trajectory, fmus):
         if stored:
             raise KeyboardInterrupt
         stored.append(key)
-        store_run(self, key, row, trajectory)
+        store_run(self, key, row, trajectory, fmus)
 
     monkeypatch.setattr(sweep_cache.SweepCache, "store_run", interrupted)
     cases = [Case(h, order) for h in (1e-3, 2e-3, 5e-3) for order in ORDERS]
@@ -420,7 +427,7 @@ def test_an_interrupt_stops_the_pool_and_cleans_up(short, fmu_paths, tmp_path, m
     assert workers == [] and leftovers(tmp_path) == []
     assert [p.stem for p in (tmp_path / "cache" / "runs").glob("*.json")] == stored
     monkeypatch.setattr(sweep_cache.SweepCache, "store_run", store_run)
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False)
+    rows = execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False).rows
     assert len({row["key"] for row in rows}) == 6 and stored[0] in {row["key"] for row in rows}
 
 
@@ -451,12 +458,12 @@ def test_a_dask_cluster_gives_the_rows_of_a_local_run(short, fmu_paths, tmp_path
     distributed = pytest.importorskip("distributed")
     scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
     cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
-    local = execute(scenario, cases, tmp_path / "local", fmu_paths, jobs=1, progress=False)
+    local = execute(scenario, cases, tmp_path / "local", fmu_paths, jobs=1, progress=False).rows
     scratch = tmp_path / "dask"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                   host="127.0.0.1", local_directory=str(scratch)) as cluster:
         remote = execute(scenario, cases, tmp_path / "remote", fmu_paths, scheduler=cluster.scheduler_address,
-                         progress=False)
+                         progress=False).rows
         with distributed.Client(cluster.scheduler_address, set_as_default=False) as client:
             status = client.run(sweep_dask.worker_status)
     assert without_wall_time(remote) == without_wall_time(local)
@@ -470,9 +477,9 @@ def test_a_dask_cluster_gives_the_rows_of_a_local_run(short, fmu_paths, tmp_path
 
 def test_cache_files_are_complete_or_absent(tmp_path):
     target = tmp_path / "a" / "row.json"
-    sweep_cache.atomic_write(target, b"{}")
+    atomic_write(target, b"{}")
     with pytest.raises(TypeError):  # a write that fails midway leaves no file behind
-        sweep_cache.atomic_write(tmp_path / "a" / "other.json", object())
+        atomic_write(tmp_path / "a" / "other.json", object())
     assert target.read_bytes() == b"{}" and [p.name for p in target.parent.iterdir()] == ["row.json"]
 
 

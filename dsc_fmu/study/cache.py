@@ -1,10 +1,23 @@
-"""The sweep's cache: keys of runs and reference solutions, and their files, written atomically.
+"""The sweep's cache: keys of runs and reference solutions, and their entries, written atomically
+and verified whenever they are read.
 
 Layout inside a sweep's output folder::
 
-    cache/runs/<key>.json         one row (``rows.ROW_KEYS``), written last: its presence marks the entry
     cache/runs/<key>.npz          the run's trajectory (``TRAJECTORY`` columns, as recorded)
+    cache/runs/<key>.json         its record, written last (its presence marks the entry):
+                                  {"row": the row (rows.ROW_KEYS), "trajectory_sha256": of the .npz file,
+                                   "provenance": {...}, "checksum": ...}
     cache/references/<key>.npz    a reference solution (``REFERENCE_COLUMNS`` on a 1 ms grid)
+    cache/references/<key>.json   its record: {"reference_sha256": ..., "provenance": {...}, "checksum": ...}
+
+``provenance`` says what wrote the entry: its key, dsc-fmu's version, the FMUs' identities (runs
+only), the Python, NumPy and SciPy versions and the time (``provenance``). ``checksum`` is the
+SHA-256 of the canonical JSON (sorted keys, no spaces, NaN as ``NaN``) of the record without it.
+An entry verifies if its record parses, has this layout, matches its checksum and its key, and its
+.npz matches its SHA-256 and holds exactly the expected columns, 1-D floats of one length, without
+pickles. An entry that exists but does not verify (damaged, edited, of an older layout) is a
+``CacheEntryError``; a sweep recomputes it and says so in one ``CacheWarning``. An .npz without its
+record is a write that was interrupted: a plain miss, overwritten.
 
 A run's key is the SHA-256 of everything that determines its row: the scenario's content after the
 case is applied (parameter values and the simulation settings stop time, step, order, output
@@ -21,21 +34,26 @@ import functools
 import hashlib
 import io
 import json
-import os
-import tempfile
+import platform
+import zipfile
+import zlib
+from datetime import datetime, timezone
 from importlib.metadata import version
 from pathlib import Path
 
 import numpy as np
 
+from .. import __version__
 from ..build.fmus import fmu_build_id
+from ..files import atomic_write
 from ..registry import fmu_files
 from ..scenario import TABLES, Scenario
-from .cases import Case, apply
+from .cases import Case, SweepError, apply
 
 __all__ = [
     "ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "fmu_identities", "scenario_content", "case_key",
-    "reference_key", "SweepCache", "atomic_write", "TRAJECTORY", "REFERENCE_COLUMNS", "load_trajectory", "load_reference",
+    "reference_key", "provenance", "CacheWarning", "CacheEntryError", "SweepCache", "TRAJECTORY",
+    "REFERENCE_COLUMNS", "load_trajectory", "load_reference",
 ]
 
 ROW_VERSION = 2  # bump when the definition of a row changes
@@ -43,14 +61,33 @@ REFERENCE_GRID = 1e-3  # s: the reference solution's time grid, interpolated at 
 REFERENCE_SETTINGS = {"rtol": 1e-10, "atol": 1e-10, "method": "DOP853"}
 TRAJECTORY = ("time", "x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2")
 REFERENCE_COLUMNS = ("time", "x", "y", "theta", "u1", "u2")
+_RUN_FIELDS = ("row", "trajectory_sha256", "provenance")
+_REFERENCE_FIELDS = ("reference_sha256", "provenance")
 _PACKAGE = Path(__file__).parents[1]
 _CODE = ("cosim/reference_solution.py", "cosim/signals.py", "cosim/metrics.py", "models")
+
+
+class CacheWarning(UserWarning):
+    """Cache entries that did not verify were recomputed (one warning per sweep)."""
+
+
+class CacheEntryError(SweepError):
+    """A cache entry that is missing or does not verify: ``path``, the file at fault, and ``reason``."""
+
+    def __init__(self, path: Path, reason: str):
+        super().__init__(f"{path}: {reason}")
+        self.path, self.reason = Path(path), reason
 
 
 def _digest(data) -> str:
     """SHA-256 (hex) of ``data`` as canonical JSON (sorted keys, shortest exact float repr)."""
     text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
     return hashlib.sha256(text.encode()).hexdigest()
+
+
+def _checksum(record: dict) -> str:
+    """SHA-256 (hex) of ``record`` as canonical JSON, NaN and infinities written as Python's json does."""
+    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
 @functools.cache
@@ -96,83 +133,138 @@ def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     })
 
 
-def atomic_write(path: Path, data: bytes) -> None:
-    """Write ``data`` to ``path`` through a temporary file and ``os.replace``: never a partial file."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, partial = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".partial")
-    try:
-        with os.fdopen(fd, "wb") as file:
-            file.write(data)
-        os.replace(partial, path)
-    except BaseException:
-        Path(partial).unlink(missing_ok=True)
-        raise
+def provenance(key: str, fmus: dict | None = None) -> dict:
+    """What writes a cache entry now: its ``key``, dsc-fmu's version, the FMUs' identities (``fmus``,
+    for a run), the Python, NumPy and SciPy versions and the time (UTC, ISO 8601)."""
+    written = {"key": key, "dsc_fmu": __version__, "python": platform.python_version(), "numpy": np.__version__,
+               "scipy": version("scipy"), "written": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+    return written if fmus is None else {**written, "fmus": dict(sorted(fmus.items()))}
 
 
-def _npz(array: np.ndarray) -> bytes:
+def _npz(array: np.ndarray, columns: tuple) -> bytes:
+    if array.dtype.names != columns:
+        raise ValueError(f"columns {array.dtype.names} are not allowed here; allowed: {columns}")
     buffer = io.BytesIO()
-    np.savez_compressed(buffer, **{name: array[name] for name in array.dtype.names})
+    np.savez_compressed(buffer, **{name: array[name] for name in columns})
     return buffer.getvalue()
 
 
-def _from_npz(path: Path) -> np.ndarray:
-    with np.load(path) as data:
-        names = list(data.files)
-        columns = {name: data[name] for name in names}
-    array = np.zeros(len(columns[names[0]]) if names else 0, dtype=[(name, np.float64) for name in names])
-    for name in names:
-        array[name] = columns[name]
+def _write_entry(folder: Path, key: str, array: np.ndarray, columns: tuple, leading: dict, sha256_field: str,
+                 written_by: dict) -> None:
+    """Write ``array`` to ``folder/<key>.npz``, then its record to ``folder/<key>.json``: ``leading``,
+    the .npz file's SHA-256 as ``sha256_field``, the provenance ``written_by`` and the checksum."""
+    data = _npz(array, columns)
+    record = {**leading, sha256_field: hashlib.sha256(data).hexdigest(), "provenance": written_by}
+    record["checksum"] = _checksum(record)
+    atomic_write(folder / f"{key}.npz", data)
+    atomic_write(folder / f"{key}.json", json.dumps(record, indent=1).encode())
+
+
+def _read_record(path: Path, key: str, fields: tuple) -> dict | None:
+    """The record in ``path`` (without its checksum), verified; None if there is no such file."""
+    try:
+        text = path.read_bytes()
+    except FileNotFoundError:
+        return None
+    except OSError as error:
+        raise CacheEntryError(path, f"cannot be read ({error.strerror or type(error).__name__})") from None
+    try:
+        record = json.loads(text)
+    except (ValueError, RecursionError):
+        raise CacheEntryError(path, "not JSON") from None
+    if not isinstance(record, dict) or sorted(record) != sorted((*fields, "checksum")):
+        raise CacheEntryError(path, "not an entry record (an older cache layout, or edited)")
+    if record.pop("checksum") != _checksum(record):
+        raise CacheEntryError(path, "does not match its checksum (edited or damaged)")
+    if not isinstance(record["provenance"], dict) or record["provenance"].get("key") != key:
+        raise CacheEntryError(path, "written for another key")
+    return record
+
+
+def _read_npz(path: Path, sha256, columns: tuple) -> np.ndarray:
+    """The structured array in ``path`` if the file's SHA-256 is ``sha256`` and it holds exactly
+    ``columns``, 1-D floats of one length (no pickles); CacheEntryError otherwise."""
+    try:
+        data = path.read_bytes()
+    except FileNotFoundError:
+        raise CacheEntryError(path, "missing") from None
+    except OSError as error:
+        raise CacheEntryError(path, f"cannot be read ({error.strerror or type(error).__name__})") from None
+    if hashlib.sha256(data).hexdigest() != sha256:
+        raise CacheEntryError(path, "does not match the SHA-256 in its record (damaged or replaced)")
+    try:
+        with np.load(io.BytesIO(data), allow_pickle=False) as loaded:
+            arrays = {name: loaded[name] for name in loaded.files}
+    except (OSError, ValueError, EOFError, KeyError, TypeError, zipfile.BadZipFile, zlib.error) as error:
+        raise CacheEntryError(path, f"not a readable .npz file ({type(error).__name__})") from None
+    if tuple(arrays) != columns:
+        raise CacheEntryError(path, f"holds the columns {', '.join(arrays) or 'none'}; expected {', '.join(columns)}")
+    if len({a.shape for a in arrays.values()}) != 1 or any(a.ndim != 1 or a.dtype != np.float64
+                                                           for a in arrays.values()):
+        raise CacheEntryError(path, "its columns are not 1-D float arrays of one length")
+    array = np.zeros(len(arrays[columns[0]]), dtype=[(name, np.float64) for name in columns])
+    for name in columns:
+        array[name] = arrays[name]
     return array
 
 
 class SweepCache:
-    """The cache folder of a sweep's output folder ``out_dir`` (created on the first write)."""
+    """The cache folder of a sweep's output folder ``out_dir`` (created on the first write). Every
+    read verifies the entry: None if there is none, CacheEntryError if it does not verify."""
 
     def __init__(self, out_dir: Path | str):
         self.root = Path(out_dir) / "cache"
         self.runs, self.references = self.root / "runs", self.root / "references"
 
-    def row(self, key: str) -> dict | None:
-        """The cached row of ``key``, or None if there is no complete entry."""
+    def _run_record(self, key: str) -> dict | None:
         path = self.runs / f"{key}.json"
-        if not (path.is_file() and path.with_suffix(".npz").is_file()):
-            return None
-        try:
-            return json.loads(path.read_text())
-        except (OSError, ValueError):
-            return None
+        record = _read_record(path, key, _RUN_FIELDS)
+        if record is not None and not (isinstance(record["row"], dict) and record["row"].get("key") == key):
+            raise CacheEntryError(path, "its row is not the row of this key")
+        return record
 
-    def store_run(self, key: str, row: dict, trajectory: np.ndarray) -> None:
-        """Cache a run: its trajectory, then its row (the row's file completes the entry)."""
-        atomic_write(self.runs / f"{key}.npz", _npz(trajectory))
-        atomic_write(self.runs / f"{key}.json", json.dumps(row).encode())
+    def row(self, key: str) -> dict | None:
+        """The cached row of ``key`` (its trajectory verified too), or None if there is no entry."""
+        record = self._run_record(key)
+        if record is None:
+            return None
+        _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
+        return record["row"]
+
+    def store_run(self, key: str, row: dict, trajectory: np.ndarray, fmus: dict) -> None:
+        """Cache a run: its trajectory, then its record (the row, ``fmus``: the FMUs' identities)."""
+        _write_entry(self.runs, key, trajectory, TRAJECTORY, {"row": row}, "trajectory_sha256", provenance(key, fmus))
 
     def trajectory(self, key: str) -> np.ndarray:
         """The trajectory of the run cached under ``key`` (structured array, ``time`` first)."""
-        return _from_npz(self.runs / f"{key}.npz")
+        record = self._run_record(key)
+        if record is None:
+            raise CacheEntryError(self.runs / f"{key}.json", "missing: no run of this key is cached")
+        return _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
 
     def reference(self, key: str) -> np.ndarray | None:
-        """The cached reference solution of ``key``, or None."""
-        path = self.references / f"{key}.npz"
-        try:
-            return _from_npz(path) if path.is_file() else None
-        except (OSError, ValueError, KeyError, EOFError):
+        """The cached reference solution of ``key``, or None if there is none."""
+        record = _read_record(self.references / f"{key}.json", key, _REFERENCE_FIELDS)
+        if record is None:
             return None
+        return _read_npz(self.references / f"{key}.npz", record["reference_sha256"], REFERENCE_COLUMNS)
 
     def store_reference(self, key: str, reference: np.ndarray) -> None:
-        """Cache a reference solution."""
-        atomic_write(self.references / f"{key}.npz", _npz(reference))
+        """Cache a reference solution: the array, then its record."""
+        _write_entry(self.references, key, reference, REFERENCE_COLUMNS, {}, "reference_sha256", provenance(key))
 
 
 def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
     """The trajectory (``TRAJECTORY`` columns, as recorded; up to the failure for a diverged run)
-    of a run cached in the sweep folder ``out_dir``, given its row or its key."""
+    of a run cached in the sweep folder ``out_dir``, given its row or its key; CacheEntryError (one
+    line) if it is not cached or does not verify."""
     key = row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key
     return SweepCache(out_dir).trajectory(key)
 
 
 def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | None:
     """The reference solution (``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s) of a row cached in
-    the sweep folder ``out_dir``, given the row or its ``reference_key``; None if the solver failed."""
+    the sweep folder ``out_dir``, given the row or its ``reference_key``; None if the solver failed
+    (none is cached), CacheEntryError (one line) if it does not verify."""
     key = row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key
     return SweepCache(out_dir).reference(key)

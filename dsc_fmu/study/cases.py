@@ -1,7 +1,8 @@
 """Step-size sensitivity sweeps: the cases (step, order, discretisation, parameter values, samples) and their grid.
 
 A sweep runs one co-simulation per ``Case``; ``build_cases`` makes the full grid from the options of
-``dsc-fmu sweep`` (``parse_set``, ``parse_perturb``), ``apply`` turns a case into the scenario it runs.
+``dsc-fmu sweep`` (``parse_set``, ``parse_perturb``), ``apply`` turns a case into the scenario it runs;
+``check_scheduler`` checks the address of a Dask scheduler up front.
 Running them (cached, on a process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
 
 >>> parse_set("controller.k4=0.5,1,2")
@@ -17,6 +18,7 @@ from __future__ import annotations
 import dataclasses
 import itertools
 import math
+import socket
 from dataclasses import dataclass
 
 import numpy as np
@@ -27,8 +29,10 @@ from ..scenario import ORDERS, TABLES, Scenario, ScenarioError
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
+    "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler",
 ]
 
+SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
 _OWN_OPTION = {"controller.discretization": "the sweep's discretizations option (rk4, euler)"}
 
 
@@ -236,12 +240,16 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
     scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
     (``parse_perturb``) drawn for ``samples`` samples from ``numpy.random.default_rng(seed)``: sample
     ``i`` is the same plant at every step, order and ``sets`` combination. Every case is checked up
-    front (ScenarioError).
+    front (ScenarioError), every step size against the scenario's stop time too.
     """
     steps = default_step_sizes() if step_sizes is None else list(dict.fromkeys(step_sizes))
+    stop_time = scenario.simulation.stop_time
     for h in steps:
         if isinstance(h, bool) or not isinstance(h, (int, float)) or not (math.isfinite(h) and h > 0):
             raise ScenarioError(f"step size {h!r} is not allowed; allowed: > 0 (s)")
+        if h > stop_time:
+            raise ScenarioError(f"step size {h:g} s is not allowed: larger than the stop time {stop_time:g} s; "
+                                "allowed: 0 < h <= stop time")
     orders = [scenario.simulation.order] if orders is None else list(dict.fromkeys(orders))
     for order in orders:
         if order not in ORDERS:
@@ -290,3 +298,49 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
     tables["controller"]["discretization"] = DISCRETIZATIONS.index(case.discretization)
     changed = dataclasses.replace(scenario, **tables)
     return changed.with_simulation(step_size=case.step_size, order=case.order)
+
+
+_SCHEDULER_ALLOWED = "allowed: tcp://HOST:PORT or tls://HOST:PORT with PORT a whole number in 1..65535"
+
+
+def parse_scheduler(address: str) -> tuple[str, str, int]:
+    """The protocol, host and port of a Dask scheduler address ``tcp://HOST:PORT`` or ``tls://HOST:PORT``
+    (``HOST:PORT`` alone is tcp, ``[IPv6]:PORT`` in brackets, as for ``distributed.comm.parse_address``);
+    SweepError (one line, naming the address and what is allowed) otherwise.
+
+    >>> parse_scheduler("tcp://10.0.0.5:8786"), parse_scheduler("tls://[::1]:8786")
+    (('tcp', '10.0.0.5', 8786), ('tls', '::1', 8786))
+    """
+    protocol, separator, location = address.partition("://")
+    if not separator:
+        protocol, location = "tcp", address
+    if location.startswith("["):
+        host, bracket, rest = location[1:].partition("]")
+        port = rest[1:] if bracket and rest.startswith(":") else None
+    else:
+        host, colon, port = location.rpartition(":") if ":" in location else (location, "", None)
+    if protocol not in ("tcp", "tls"):
+        why = f"the protocol {protocol!r} is not supported"
+    elif not host:
+        why = "no host"
+    elif not port:
+        why = "no port"
+    elif not (port.isascii() and port.isdigit()):
+        why = f"the port {port!r} is not a whole number"
+    elif not 1 <= int(port) <= 65535:
+        why = f"the port {port} is out of range"
+    else:
+        return protocol, host, int(port)
+    raise SweepError(f"Dask scheduler address {address!r} is not allowed: {why}; {_SCHEDULER_ALLOWED}")
+
+
+def check_scheduler(address: str, timeout: float) -> None:
+    """SweepError (one line) unless ``address`` is a scheduler address (``parse_scheduler``) whose host
+    accepts a TCP connection on its port within ``timeout`` s. Run it before ``distributed.Client``:
+    a client of an address that is wrong or closed stalls for its own timeout, then complains when collected."""
+    _, host, port = parse_scheduler(address)
+    try:
+        socket.create_connection((host, port), timeout=timeout).close()
+    except OSError as error:
+        reason = error.strerror or str(error) or type(error).__name__
+        raise SweepError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: {reason}") from None

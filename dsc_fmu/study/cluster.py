@@ -11,19 +11,21 @@ Workers need dsc-fmu installed with the Python version the FMUs were built with.
 
 from __future__ import annotations
 
+import asyncio
 import atexit
 import hashlib
 import shutil
 import tempfile
 import threading
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import distributed
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..cosim.master import Cosimulator
-from .cases import SweepError
-from .rows import compute_reference, simulate
+from .cases import SweepError, check_scheduler
+from .rows import compute_reference, lost_outcome, simulate
 
 __all__ = ["connect", "run_on_cluster", "CosimulatorCleanup", "close_worker_simulator", "worker_status"]
 
@@ -32,11 +34,24 @@ _LOCK = threading.Lock()
 _EXIT_HOOK = []
 
 
+async def _identity(address: str) -> dict:
+    async with distributed.rpc(address, connection_args=distributed.Security().get_connection_args("client")) as peer:
+        return await peer.identity()
+
+
 def connect(address: str, timeout: float) -> distributed.Client:
-    """A client of the scheduler at ``address``; SweepError (one line) if it cannot be reached."""
+    """A client of the scheduler at ``address``; SweepError (one line) if it is not an address
+    (``check_scheduler``), cannot be reached, or what listens there does not answer as a Dask
+    scheduler within ``timeout`` s (a ``distributed.Client`` of such a server waits forever)."""
+    check_scheduler(address, timeout)
     try:
+        with ThreadPoolExecutor(1) as thread:  # an event loop of its own, whatever loop the caller runs
+            thread.submit(asyncio.run, asyncio.wait_for(_identity(address), timeout)).result()
         return distributed.Client(address, timeout=timeout, set_as_default=False)
-    except (OSError, TimeoutError, ValueError, TypeError) as error:
+    except TimeoutError:
+        raise SweepError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: "
+                         "no Dask scheduler answered there") from None
+    except (OSError, ValueError, TypeError) as error:
         reason = (str(error).splitlines() or [type(error).__name__])[0]
         raise SweepError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: {reason}") from None
 
@@ -109,7 +124,9 @@ def _run_on_worker(fmus: dict[str, bytes], applied) -> dict:
 
 def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
     """Submit the tasks (``(kind, tag, applied scenario)``) and yield ``(kind, tag, result)`` as
-    they finish; closing the generator early cancels what has not finished."""
+    they finish; closing the generator early cancels what has not finished. A task whose workers
+    the scheduler lost too often (``KilledWorker``) yields ``lost_outcome`` for a run; a reference
+    solution is computed in this process then."""
     client.register_plugin(CosimulatorCleanup())
     blobs = {name: Path(path).read_bytes() for name, path in fmu_paths.items()}
     [fmus] = client.scatter([blobs], broadcast=True)
@@ -119,11 +136,15 @@ def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
             future = client.submit(compute_reference, applied, pure=False)
         else:
             future = client.submit(_run_on_worker, fmus, applied, pure=False)
-        pending[future] = (kind, tag)
+        pending[future] = (kind, tag, applied)
     try:
         for future in distributed.as_completed(list(pending), loop=client.loop):
-            kind, tag = pending.pop(future)
-            result = future.result()
+            kind, tag, applied = pending.pop(future)
+            try:
+                result = future.result()
+            except distributed.KilledWorker as error:
+                reason = f"Dask worker lost {error.allowed_failures + 1} times while running it (killed or crashed)"
+                result = compute_reference(applied) if kind == "reference" else lost_outcome(reason)
             future.release()
             yield kind, tag, result
     finally:

@@ -12,13 +12,9 @@ import numpy as np
 from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
 from ..scenario import ORDERS, Scenario
-from .stability import OperatingPointError, linearise, predicted_boundary, spectral_radius_curve
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
-from .cases import apply, build_cases
+from .cases import SCHEDULER_TIMEOUT, SweepError, apply, build_cases, check_scheduler
 from .cache import load_trajectory
-from .execute import execute
-from .rows import STABILITY_DEFINITION
-from .figures import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
 
 __all__ = ["run_sweep", "write_rows_csv", "TRANSIENT_NOTE"]
 
@@ -48,6 +44,10 @@ def _predictions(scenario: Scenario, rows: list[dict], steps: np.ndarray):
     """Predicted boundaries and spectral-radius curves of the nominal series, or a note why there are none."""
     if scenario.reference["profile"] != 0:
         return {}, {}, ["No linearised prediction: it needs a constant-velocity reference (profile constant)."]
+    from .stability import (  # python-control: slow to import, needed only here
+        OperatingPointError, linearise, predicted_boundary, spectral_radius_curve,
+    )
+
     nominal = {group_label(row): (row["order"], row["discretization"]) for row in rows
                if row.get("sample") is None and not any("." in name for name in row)}
     try:
@@ -63,6 +63,8 @@ def _predictions(scenario: Scenario, rows: list[dict], steps: np.ndarray):
 
 def _path_figure(out_dir: Path, rows: list[dict]) -> Path | None:
     """Paths of a few steps of the first nominal series: smallest, a middle one, largest stable, first unstable."""
+    from .figures import plot_paths
+
     series = sorted((r for r in rows if r.get("sample") is None and not any("." in n for n in r)),
                     key=lambda r: (r["order"], r["discretization"], r["step_size"]))
     if not series:
@@ -80,16 +82,30 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
               jobs: int | None = None, scheduler: str | None = None, progress: bool = True,
               refine: bool = True) -> str:
     """Run a step-size study of ``scenario`` and write ``sweep.csv``, ``sweep.json``, figures and
-    ``report.md`` into ``out_dir``; return a short text summary.
+    ``report.md`` into ``out_dir``; return a short text summary, with how many runs came from the cache.
 
     The grid is ``build_cases`` of the arguments (both coupling orders unless ``orders`` is given); each series' stability boundary is refined by
     bisection between its last stable and first unstable grid step to 2 % (with ``refine``); the
     linearised prediction is added for the nominal series of a constant-velocity scenario.
+
+    Before anything runs, the grid, the scheduler (``check_scheduler``) and the output folder are
+    checked (one-line errors). Cache entries that did not verify, and worker processes lost, are
+    reported in one warning line each for the whole sweep (``Execution.warn``). Runs that did not
+    finish (their worker process lost twice) are rows with the reason, not cached: everything is
+    written, then SweepError says how many there are (``dsc-fmu sweep`` exits with status 1); the
+    next sweep runs them again.
     """
     out_dir = Path(out_dir)
     cases = build_cases(scenario, step_sizes, orders or ORDERS, discretizations, sets, perturbations, samples, seed)
+    if scheduler is not None:
+        check_scheduler(scheduler, SCHEDULER_TIMEOUT)
+    from .execute import execute, prepare_sweep_folder  # fmpy: imported after the checks that fail fast
+    from .rows import STABILITY_DEFINITION
+
+    prepare_sweep_folder(out_dir)
     fmu_paths = ensure_fmus(fmu_dir)
-    rows = execute(scenario, cases, out_dir, fmu_paths, jobs=jobs, scheduler=scheduler, progress=progress)
+    grid = execute(scenario, cases, out_dir, fmu_paths, jobs=jobs, scheduler=scheduler, progress=progress, warn=False)
+    rows, refining = grid.rows, []
     write_rows_csv(out_dir / "sweep.csv", rows)
 
     boundaries = {}
@@ -99,8 +115,14 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
             if bracket is not None:
                 def is_stable(h, case=template[label]):
                     run = [dataclasses.replace(case, step_size=h)]
-                    return execute(scenario, run, out_dir, fmu_paths, jobs=1, scheduler=scheduler, progress=False)[0]["stable"]
+                    refining.append(execute(scenario, run, out_dir, fmu_paths, jobs=1, scheduler=scheduler,
+                                            progress=False, warn=False))
+                    return refining[-1].rows[0]["stable"]
                 boundaries[label] = refine_boundary(is_stable, *bracket)
+    done = sum(refining, grid)
+    done.warn()
+
+    from .figures import plot_deviation, plot_spectral_radius, plot_tracking_and_cost  # matplotlib: slow to import
 
     steps = np.geomspace(1e-4, 0.2, 300)
     predictions, curves, notes = _predictions(apply(scenario, cases[0]) if cases else scenario, rows, steps)
@@ -117,18 +139,24 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                         fits=fit_orders(rows), predictions=predictions, notes=notes)
     write_summary_json(out_dir, summary)
 
-    figures = {
-        "deviation": plot_deviation(rows, fit_orders(rows), out_dir / "deviation.png"),
-        "tracking_and_cost": plot_tracking_and_cost(rows, out_dir / "tracking_and_cost.png"),
+    finished = [row for row in rows if row["key"] not in done.lost]  # the runs that did not finish have no data
+    figures = {} if not finished else {
+        "deviation": plot_deviation(finished, fit_orders(finished), out_dir / "deviation.png"),
+        "tracking_and_cost": plot_tracking_and_cost(finished, out_dir / "tracking_and_cost.png"),
     }
-    paths = _path_figure(out_dir, rows)
+    paths = _path_figure(out_dir, finished)
     if paths is not None:
         figures["paths"] = paths
     if curves:
         figures["spectral_radius"] = plot_spectral_radius(curves, measured, out_dir / "spectral_radius.png",
                                                           predicted=predictions)
     report = write_report(out_dir, summary, rows, figures)
-    lines = [f"sweep of {scenario.name}: {len(rows)} runs, {sum(not r['stable'] for r in rows)} not stable"]
+    if done.lost:
+        raise SweepError(f"{len(done.lost)} of {len(done.rows)} runs did not finish (their worker process was lost, "
+                         f"killed or crashed): their rows carry the reason and are not cached; everything else is "
+                         f"written to {out_dir}; run the sweep again to retry them")
+    lines = [f"sweep of {scenario.name}: {len(rows)} runs, {sum(not r['stable'] for r in rows)} not stable",
+             f"  runs: {_counts(grid, refining, done)}"]
     for label, group in summary["groups"].items():
         fit = group["observed_order"].get("max_position_deviation_m", {})
         order = f"{fit['slope']:.2f}" if "slope" in fit else "n/a"
@@ -136,3 +164,9 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                      f"{group['prediction']['statement']}")
     lines.append(f"  written: {out_dir / 'sweep.csv'}, {out_dir / 'sweep.json'}, {report}")
     return "\n".join(lines)
+
+
+def _counts(grid, refining: list, done) -> str:
+    """``24 (24 from the cache, 0 run now)``, or ``24 + 6 refining the boundaries (...)``."""
+    refined = f" + {len(refining)} refining the boundaries" if refining else ""
+    return f"{len(grid.rows)}{refined} ({done.cached} from the cache, {done.ran} run now)"
