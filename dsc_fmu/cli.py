@@ -61,6 +61,11 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--step-sizes", type=_floats, help="communication steps in s, comma-separated "
                        "(default: 12 log-spaced from 1e-4 to 5e-2)")
     sweep.add_argument("--orders", type=_names, help=f"coupling orders, comma-separated (default: {','.join(ORDERS)})")
+    sweep.add_argument("--couplings", type=_names, default=list(COUPLINGS),
+                       help=f"couplings, comma-separated: {', '.join(COUPLINGS)} (default: both)")
+    sweep.add_argument("--tolerances", type=_optional_floats, metavar="TOL,...",
+                       help="tolerances (m) of error-controlled runs with the linear coupling, comma-separated, or "
+                       "'' for none (default: 1e-2,1e-3,1e-4)")
     sweep.add_argument("--discretizations", type=_names,
                        help=f"controller discretizations, comma-separated: {', '.join(DISCRETIZATIONS)} (default: rk4)")
     sweep.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=V1,V2,...",
@@ -94,6 +99,10 @@ def _floats(text: str) -> list[float]:
         raise argparse.ArgumentTypeError(f"{text!r} is not a comma-separated list of numbers") from None
 
 
+def _optional_floats(text: str) -> list[float]:
+    return _floats(text) if text.strip() else []
+
+
 def _names(text: str) -> list[str]:
     return [item.strip() for item in text.split(",") if item.strip()]
 
@@ -117,7 +126,7 @@ def _export(args) -> None:
 
 
 def _sweep(args) -> None:
-    from .study.cases import parse_perturb, parse_set
+    from .study.cases import DEFAULT_TOLERANCES, parse_perturb, parse_set
     from .study.sweep import run_sweep
 
     scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
@@ -128,6 +137,7 @@ def _sweep(args) -> None:
         step_sizes=args.step_sizes, orders=args.orders, discretizations=args.discretizations,
         sets=[parse_set(text) for text in args.set], perturbations=[parse_perturb(text) for text in args.perturb],
         samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler, refine=not args.no_refine,
+        couplings=args.couplings, tolerances=DEFAULT_TOLERANCES if args.tolerances is None else args.tolerances,
     ))
 
 

@@ -11,7 +11,9 @@ import pytest
 
 from dsc_fmu.study.report import write_report
 from dsc_fmu.study.analysis import fit_orders, summarise
-from dsc_fmu.study.figures import plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost
+from dsc_fmu.study.figures import (
+    plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost, plot_work_precision,
+)
 from test_study import BOUNDARIES, STEPS, summary_of, synthetic_rows
 
 PNG = b"\x89PNG\r\n\x1a\n"
@@ -46,6 +48,7 @@ def figures(rows, out):
             {order: (STEPS, 0.99 + (STEPS / h) ** 2) for order, h in BOUNDARIES.items()},
             {"gauss-seidel": 0.012, "jacobi": None}, out / "spectral_radius.png",
             predicted={"gauss-seidel": 0.0125, "jacobi": 0.0092}),
+        "work_precision": plot_work_precision(rows, out / "work_precision.png"),
     }
 
 
@@ -95,10 +98,10 @@ def test_report_has_one_table_row_per_run(report, rows):
     assert len([line for line in runs.splitlines() if line.startswith("| ")]) == len(rows) + 1
     h = STEPS[0]
     deviation = 0.5 * h * (1 + (h / 3e-3) ** 3)
-    assert (f"| 0.0001 | gauss-seidel | rk4 | nominal | yes | {deviation:.3g} | {deviation / 3:.3g} | "
+    assert (f"| 0.0001 | gauss-seidel | rk4 | hold | – | nominal | yes | {deviation:.3g} | {deviation / 3:.3g} | "
             f"{2 * deviation:.3g} | {40 * deviation:.3g} | {0.02 + h:.3g} | {0.3 / h ** 0.9:.3g} |") in runs
-    assert "| 0.05 | jacobi | euler | nominal | diverged at t = 3.21 s (u1) | – | – | – | – | – |" in runs
-    assert f"| {STEPS[5]:.3g} | gauss-seidel | rk4 | controller.k4 = 5 | no | " in runs
+    assert "| 0.05 | jacobi | euler | hold | – | nominal | diverged at t = 3.21 s (u1) | – | – | – | – | – |" in runs
+    assert f"| {STEPS[5]:.3g} | gauss-seidel | rk4 | hold | – | controller.k4 = 5 | no | " in runs
 
 
 def test_report_gives_the_fitted_order_and_explains_it(report):
@@ -126,7 +129,7 @@ def test_report_gives_boundaries_predictions_and_the_disagreement(report):
 def test_report_links_the_figures_it_was_given(report):
     out, text, _ = report
     links = re.findall(r"!\[[^]]+\]\(([^)]+)\)", text)
-    assert links == ["deviation.png", "tracking_and_cost.png", "paths.png", "spectral_radius.png"]
+    assert links == ["deviation.png", "tracking_and_cost.png", "paths.png", "spectral_radius.png", "work_precision.png"]
     assert all((out / link).is_file() for link in links)
 
 

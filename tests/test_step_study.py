@@ -19,7 +19,7 @@ def fmu_dir(fmu_paths):
 def sweep(tmp_path_factory, fmu_dir):
     out = tmp_path_factory.mktemp("sweep")
     status = main(["sweep", "on_reference", "--step-sizes", "0.02,0.04,0.06", "--orders", "gauss-seidel,jacobi",
-                   "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
+                   "--couplings", "hold", "--tolerances", "", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
     assert status == 0
     return out
 
@@ -66,3 +66,27 @@ def test_bad_sweep_options_fail_in_one_line_and_write_nothing(tmp_path, fmu_dir,
     if message is not None:
         assert status == 1 and len(error) == 1 and message in error[0], error
     assert not out.exists()
+
+
+def test_a_sweep_reports_the_linear_coupling_beside_the_hold_and_error_controlled_runs(tmp_path, fmu_dir, capsys):
+    """Both couplings for both orders, their predictions, and the error-controlled runs in the
+    work-precision figure, the report and sweep.json; the linear series converge at second order."""
+    out = tmp_path / "sweep"
+    assert main(["sweep", "on_reference", "--stop-time", "5", "--step-sizes", "0.005,0.01,0.02", "--no-refine",
+                 "--tolerances", "1e-3,1e-4", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    summary = json.loads((out / "sweep.json").read_text())
+    assert set(summary["groups"]) == {"gauss-seidel/rk4", "jacobi/rk4", "gauss-seidel/rk4 linear", "jacobi/rk4 linear"}
+    for order in ("gauss-seidel", "jacobi"):
+        assert summary["groups"][f"{order}/rk4 linear"]["observed_order"]["max_position_deviation_m"]["slope"] >= 1.8
+        hold = summary["groups"][f"{order}/rk4"]["prediction"]["predicted_boundary_s"]
+        assert 0 < summary["groups"][f"{order}/rk4 linear"]["prediction"]["predicted_boundary_s"] < hold
+    controlled = summary["error_controlled"]
+    assert sorted((entry["order"], entry["tolerance"]) for entry in controlled) == [
+        (order, tolerance) for order in ("gauss-seidel", "jacobi") for tolerance in (1e-4, 1e-3)]
+    assert all(entry["max_position_deviation_m"] <= 3 * entry["tolerance"] for entry in controlled)
+    assert (out / "work_precision.png").read_bytes()[:4] == b"\x89PNG"
+    report = (out / "report.md").read_text()
+    assert "## Accuracy per cost" in report and "](work_precision.png)" in report
+    assert "second order, as expected" in report
+    printed = capsys.readouterr().out
+    assert "linear error-controlled, tolerance 0.0001 m: max deviation" in printed

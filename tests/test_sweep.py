@@ -240,7 +240,7 @@ def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tm
     with Cosimulator(fmu_paths, tmp_path) as simulator:
         row = run_case(short, case, simulator, own)
     expected = [k for k in ROW_KEYS if not k.startswith("<")]
-    assert list(row) == expected[:5] + ["controller.k4"] + expected[5:]
+    assert list(row) == expected[:7] + ["controller.k4"] + expected[7:]
     assert json.dumps(json.loads(json.dumps(row))) == json.dumps(row)
     assert row["controller.k4"] == 0.5 and row["steps"] == 500 and row["diverged"] is False
     for name in ("position", "heading", "u"):

@@ -36,9 +36,11 @@ def fmu_dir(fmu_paths):
 
 
 def sweep(out, fmu_dir, steps="0.005,0.01,0.02", stop_time="1", jobs="1"):
-    """``dsc-fmu sweep`` of the figure eight with one order and no refinement; the exit status."""
+    """``dsc-fmu sweep`` of the figure eight with one order, the hold, no error-controlled runs and no
+    refinement; the exit status."""
     return main(["sweep", SCENARIO, "--stop-time", stop_time, "--step-sizes", steps, "--orders", "gauss-seidel",
-                 "--no-refine", "--jobs", jobs, "--out", str(out), "--fmu-dir", str(fmu_dir)])
+                 "--couplings", "hold", "--tolerances", "", "--no-refine", "--jobs", jobs, "--out", str(out),
+                 "--fmu-dir", str(fmu_dir)])
 
 
 def records(out):

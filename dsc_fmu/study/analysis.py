@@ -182,9 +182,14 @@ def _value(value) -> str:
 
 
 def group_label(row: Mapping) -> str:
-    """The label of a row's series in a sweep: ``order/discretization``, then any overrides
-    ``name=value`` and ``sample N``; e.g. ``gauss-seidel/rk4 controller.k4=2 sample 3``."""
+    """The label of a row's series in a sweep: ``order/discretization``, the coupling if not the hold,
+    ``error-controlled`` for a run with a tolerance, then any overrides ``name=value`` and ``sample N``;
+    e.g. ``gauss-seidel/rk4 linear controller.k4=2 sample 3``."""
     parts = [f"{row['order']}/{row.get('discretization', 'rk4')}"]
+    if row.get("coupling", "hold") != "hold":
+        parts.append(row["coupling"])
+    if row.get("tolerance") is not None:
+        parts.append("error-controlled")
     parts += [f"{name}={_value(value)}" for name, value in sorted(overrides(row).items())]
     if row.get("sample") is not None:
         parts.append(f"sample {row['sample']}")

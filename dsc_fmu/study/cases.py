@@ -25,14 +25,15 @@ import numpy as np
 
 from ..models.parameters import DISCRETIZATIONS, Variable
 from ..errors import DscFmuError
-from ..scenario import ORDERS, TABLES, Scenario, ScenarioError
+from ..scenario import COUPLINGS, ORDERS, TABLES, Scenario, ScenarioError
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
-    "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler",
+    "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler", "DEFAULT_TOLERANCES",
 ]
 
 SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
+DEFAULT_TOLERANCES = (1e-2, 1e-3, 1e-4)  # m: the error-controlled runs of a sweep
 _OWN_OPTION = {"controller.discretization": "the sweep's discretizations option (rk4, euler)"}
 
 
@@ -51,18 +52,23 @@ def _number(value):
 
 @dataclass(frozen=True)
 class Case:
-    """One run of a sweep: communication step (s), coupling order, controller discretisation,
-    parameter overrides as ``("table.name", value)`` pairs (a choice by its name) and the Monte Carlo
-    sample index (None without perturbations). Numbers are stored as floats."""
+    """One run of a sweep: communication step (s; the first one if error-controlled), coupling order,
+    controller discretisation, parameter overrides as ``("table.name", value)`` pairs (a choice by its
+    name), the Monte Carlo sample index (None without perturbations), the coupling (``COUPLINGS``) and
+    the tolerance of an error-controlled step (m; None: a fixed step). Numbers are stored as floats."""
 
     step_size: float
     order: str = "gauss-seidel"
     discretization: str = "rk4"
     overrides: tuple = ()
     sample: int | None = None
+    coupling: str = "hold"
+    tolerance: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "step_size", float(self.step_size))
+        if self.tolerance is not None:
+            object.__setattr__(self, "tolerance", float(self.tolerance))
         object.__setattr__(self, "overrides", tuple((str(k), _number(v)) for k, v in self.overrides))
         if self.sample is not None:
             object.__setattr__(self, "sample", int(self.sample))
@@ -70,7 +76,8 @@ class Case:
     @property
     def label(self) -> str:
         """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, controller.k4 = 0.5``."""
-        parts = [f"h = {self.step_size:g} s", self.order, self.discretization]
+        parts = [f"h = {self.step_size:g} s" if self.tolerance is None else f"tolerance = {self.tolerance:g} m",
+                 self.order, self.discretization, f"{self.coupling} coupling"]
         parts += [f"{key} = {value:g}" if isinstance(value, float) else f"{key} = {value}"
                   for key, value in self.overrides]
         return ", ".join(parts + ([] if self.sample is None else [f"sample {self.sample}"]))
@@ -232,12 +239,14 @@ def _draw(scenario: Scenario, perturbations, samples, seed) -> list[tuple[int | 
 
 
 def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretizations=None, sets=(), perturbations=(),
-                samples: int | None = None, seed: int = 0) -> list[Case]:
-    """The full grid: every step size x order x discretisation x combination of the ``sets`` values
-    x Monte Carlo sample, in that nesting (the step size outermost).
+                samples: int | None = None, seed: int = 0, couplings=None, tolerances=()) -> list[Case]:
+    """The full grid: every step size x order x discretisation x coupling x combination of the ``sets``
+    values x Monte Carlo sample, in that nesting (the step size outermost); then, for each of the
+    ``tolerances`` (m), an error-controlled run with the linear coupling of every order x discretisation
+    x combination x sample, starting from the scenario's step size.
 
-    ``step_sizes`` default to ``default_step_sizes()``, ``orders`` and ``discretizations`` to the
-    scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
+    ``step_sizes`` default to ``default_step_sizes()``, ``orders``, ``discretizations`` and
+    ``couplings`` to the scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
     (``parse_perturb``) drawn for ``samples`` samples from ``numpy.random.default_rng(seed)``: sample
     ``i`` is the same plant at every step, order and ``sets`` combination. Every case is checked up
     front (ScenarioError), every step size against the scenario's stop time too.
@@ -259,8 +268,17 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
     for name in chosen:
         if name not in DISCRETIZATIONS:
             raise ScenarioError(f"discretization {name!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
-    if not (steps and orders and chosen):
-        raise ScenarioError("a sweep needs at least one step size, one order and one discretization")
+    couplings = [scenario.simulation.coupling] if couplings is None else list(dict.fromkeys(couplings))
+    for coupling in couplings:
+        if coupling not in COUPLINGS:
+            raise ScenarioError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
+    tolerances = list(dict.fromkeys(tolerances))
+    for tolerance in tolerances:
+        if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not (
+                math.isfinite(tolerance) and tolerance > 0):
+            raise ScenarioError(f"tolerance {tolerance!r} is not allowed; allowed: > 0 (m)")
+    if not (steps and orders and chosen and couplings):
+        raise ScenarioError("a sweep needs at least one step size, one order, one discretization and one coupling")
     axes, keys = [], set()
     for key, values in sets:
         variable = _variable(key, "--set")
@@ -276,8 +294,11 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
     physical = [(tuple(combo) + drawn, sample) for combo in itertools.product(*axes) for sample, drawn in draws]
     for overrides, sample in physical:  # Assumption 2 and the ranges, once per physical case
         apply(scenario, Case(steps[0], orders[0], chosen[0], overrides, sample))
-    return [Case(h, order, name, overrides, sample)
-            for h in steps for order in orders for name in chosen for overrides, sample in physical]
+    fixed = [Case(h, order, name, overrides, sample, coupling) for h in steps for order in orders for name in chosen
+             for coupling in couplings for overrides, sample in physical]
+    return fixed + [Case(scenario.simulation.step_size, order, name, overrides, sample, "linear", tolerance)
+                    for tolerance in tolerances for order in orders for name in chosen
+                    for overrides, sample in physical]
 
 
 def apply(scenario: Scenario, case: Case) -> Scenario:
@@ -297,7 +318,10 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
         tables[table][variable.name] = variable.choices.index(value) if variable.choices else value
     tables["controller"]["discretization"] = DISCRETIZATIONS.index(case.discretization)
     changed = dataclasses.replace(scenario, **tables)
-    return changed.with_simulation(step_size=case.step_size, order=case.order)
+    if case.coupling not in COUPLINGS:
+        raise ScenarioError(f"{where}: coupling {case.coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
+    changed = dataclasses.replace(changed, simulation=dataclasses.replace(changed.simulation, tolerance=case.tolerance))
+    return changed.with_simulation(step_size=case.step_size, order=case.order, coupling=case.coupling)
 
 
 _SCHEDULER_ALLOWED = "allowed: tcp://HOST:PORT or tls://HOST:PORT with PORT a whole number in 1..65535"

@@ -11,7 +11,7 @@ from matplotlib.transforms import blended_transform_factory
 from ..cosim.plots import new_figure
 from .analysis import OrderFit, fit_orders, group_rows
 
-__all__ = ["plot_deviation", "plot_tracking_and_cost", "plot_paths", "plot_spectral_radius"]
+__all__ = ["plot_deviation", "plot_tracking_and_cost", "plot_paths", "plot_spectral_radius", "plot_work_precision"]
 
 _MARKERS = {"rk4": "o", "euler": "s"}
 _LINESTYLES = {"rk4": "-", "euler": ":"}
@@ -238,3 +238,47 @@ def plot_spectral_radius(curves: Mapping[str, tuple[Sequence[float], Sequence[fl
     axes.legend(loc="best", fontsize="small")
     figure.savefig(path, dpi=120)
     return Path(path)
+
+
+def plot_work_precision(rows: Sequence[Mapping], path: Path | str) -> Path:
+    """Work-precision diagram: the largest position deviation from the reference solution (m) against
+    the wall time (s) and against the FMUs' doStep calls, one line per fixed-step series (its step
+    sizes) and one marked line per error-controlled series (its tolerances, annotated); runs that
+    diverged or have no deviation are left out."""
+    figure = new_figure(12.0, 5.0)
+    panels = figure.subplots(1, 2, sharey=True)
+    groups = group_rows([row for row in rows if np.isfinite(_number(row.get("max_position_deviation_m")))])
+    plotted = set()
+    for index, (label, group) in enumerate(groups.items()):
+        controlled = group[0].get("tolerance") is not None
+        if controlled:
+            group = sorted(group, key=lambda row: -row["tolerance"])
+        for panel, (axes, key) in enumerate(zip(panels, ("wall_time_s", "fmu_steps"))):
+            points = [(_number(row.get(key)), _number(row["max_position_deviation_m"]), row) for row in group]
+            points = [(x, y, row) for x, y, row in points if x > 0 and y > 0]  # NaN compares False
+            if not points:
+                continue
+            plotted.add(panel)
+            axes.plot([x for x, _, _ in points], [y for _, y, _ in points], "s--" if controlled else "o-",
+                      color=f"C{index % 10}", label=label, markersize=5 if controlled else 3)
+            for x, y, row in points if controlled else ():
+                axes.annotate(f"{row['tolerance']:g} m", (x, y), textcoords="offset points", xytext=(4, 4),
+                              fontsize="x-small")
+    for panel, (axes, xlabel) in enumerate(zip(panels, ("wall time (s)", "doStep calls, all FMUs"))):
+        axes.set(xlabel=xlabel)
+        if panel in plotted:
+            axes.set(xscale="log", yscale="log")
+        else:
+            axes.text(0.5, 0.5, "no runs with this measure", transform=axes.transAxes, ha="center")
+        axes.grid(True, which="both", alpha=0.3)
+    panels[0].set(ylabel="max position deviation from the reference solution (m)",
+                  title="Accuracy against wall time")
+    panels[1].set(title="Accuracy against FMU calls")
+    if plotted:
+        panels[max(plotted)].legend(loc="best", fontsize="small")
+    figure.savefig(path, dpi=120)
+    return Path(path)
+
+
+def _number(value) -> float:
+    return float("nan") if value is None else float(value)

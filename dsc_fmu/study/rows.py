@@ -34,9 +34,10 @@ METRIC_KEYS = ("final_position_error_m", "rms_position_error_m", "max_position_e
                "settling_time_0p1_s", "max_abs_u_V", "beta_guard_count")
 DEVIATION_KEYS = ("max_position_deviation_m", "rms_position_deviation_m", "max_heading_deviation_rad",
                   "rms_heading_deviation_rad", "max_u_deviation_V", "rms_u_deviation_V")
-ROW_KEYS = ("scenario", "step_size", "order", "discretization", "sample", "<table.name of each override>", "key",
-            "reference_key", "diverged", "diverged_time", "diverged_signal", "diverged_reason", "stable",
-            *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps")
+ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tolerance", "sample",
+            "<table.name of each override>", "key", "reference_key", "diverged", "diverged_time", "diverged_signal",
+            "diverged_reason", "stable", *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps", "steps_rejected",
+            "fmu_steps")
 
 
 def _columns(result: np.ndarray, names) -> np.ndarray:
@@ -56,11 +57,12 @@ def simulate(applied: Scenario, cosimulator: Cosimulator) -> dict:
     except CosimulationError as error:
         return {"trajectory": _columns(error.result, TRAJECTORY), "metrics": None, "diverged_time": float(error.time),
                 "diverged_signal": error.signal or error.fmu, "diverged_reason": " ".join(str(error).split()),
-                "steps": error.steps, "wall_time_s": clock.perf_counter() - started}
+                "steps": error.steps, "steps_rejected": math.nan, "fmu_steps": math.nan,
+                "wall_time_s": clock.perf_counter() - started}
     metrics = tracking_metrics(run.result, applied.simulation.stop_time)
     return {"trajectory": _columns(run.result, TRAJECTORY), "metrics": {k: metrics[k] for k in METRIC_KEYS},
             "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": None, "steps": run.steps,
-            "wall_time_s": clock.perf_counter() - started}
+            "steps_rejected": run.rejected, "fmu_steps": run.fmu_steps, "wall_time_s": clock.perf_counter() - started}
 
 
 def compute_reference(applied: Scenario) -> tuple[np.ndarray | None, str | None]:
@@ -82,7 +84,7 @@ def lost_outcome(reason: str) -> dict:
     marks it as one not to cache (a later sweep tries it again)."""
     return {"trajectory": np.zeros(0, dtype=[(name, np.float64) for name in TRAJECTORY]), "metrics": None,
             "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": reason, "steps": math.nan,
-            "wall_time_s": math.nan, "lost": True}
+            "steps_rejected": math.nan, "fmu_steps": math.nan, "wall_time_s": math.nan, "lost": True}
 
 
 def error_grows(trajectory: np.ndarray) -> bool:
@@ -119,7 +121,8 @@ def make_row(scenario_name: str, case: Case, keys: tuple[str, str], outcome: dic
     diverged = outcome["metrics"] is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
     row = {"scenario": scenario_name, "step_size": case.step_size, "order": case.order,
-           "discretization": case.discretization, "sample": case.sample, **dict(case.overrides), "key": keys[0],
+           "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
+           "sample": case.sample, **dict(case.overrides), "key": keys[0],
            "reference_key": keys[1],
            "diverged": diverged, "diverged_time": outcome["diverged_time"],
            "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
@@ -128,7 +131,8 @@ def make_row(scenario_name: str, case: Case, keys: tuple[str, str], outcome: dic
     usable = not diverged and reference is not None and len(outcome["trajectory"])
     row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
     row.update({name: math.nan if value is None else value for name, value in metrics.items()})
-    row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"])
+    row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"], steps_rejected=outcome["steps_rejected"],
+               fmu_steps=outcome["fmu_steps"])
     return json.loads(json.dumps(row))  # exactly what the cache gives back
 
 

@@ -11,12 +11,16 @@ import numpy as np
 
 from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
-from ..scenario import ORDERS, Scenario
+from ..scenario import COUPLINGS, ORDERS, Scenario
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
-from .cases import SCHEDULER_TIMEOUT, SweepError, apply, build_cases, check_scheduler
+from .cases import DEFAULT_TOLERANCES, SCHEDULER_TIMEOUT, SweepError, apply, build_cases, check_scheduler
 from .cache import load_trajectory
 
-__all__ = ["run_sweep", "write_rows_csv", "TRANSIENT_NOTE"]
+__all__ = ["run_sweep", "write_rows_csv", "TRANSIENT_NOTE", "CONTROLLED_KEYS"]
+
+# What sweep.json keeps of each error-controlled run.
+CONTROLLED_KEYS = ("order", "discretization", "coupling", "tolerance", "max_position_deviation_m", "steps",
+                   "steps_rejected", "fmu_steps", "wall_time_s", "diverged", "diverged_reason")
 
 TRANSIENT_NOTE = (
     "The prediction linearises the loop about steady tracking of the constant-velocity reference, with the "
@@ -48,16 +52,16 @@ def _predictions(scenario: Scenario, rows: list[dict], steps: np.ndarray):
         OperatingPointError, linearise, predicted_boundary, spectral_radius_curve,
     )
 
-    nominal = {group_label(row): (row["order"], row["discretization"]) for row in rows
+    nominal = {group_label(row): (row["order"], row["discretization"], row.get("coupling", "hold")) for row in rows
                if row.get("sample") is None and not any("." in name for name in row)}
     try:
         loop = linearise(scenario)
     except OperatingPointError as error:
         return {}, {}, [f"No linearised prediction: {error}"]
     predictions, curves = {}, {}
-    for label, (order, discretization) in nominal.items():
-        predictions[label] = predicted_boundary(loop, order, discretization)
-        curves[label] = (steps, spectral_radius_curve(loop, steps, order, discretization))
+    for label, (order, discretization, coupling) in nominal.items():
+        predictions[label] = predicted_boundary(loop, order, discretization, coupling=coupling)
+        curves[label] = (steps, spectral_radius_curve(loop, steps, order, discretization, coupling))
     return predictions, curves, []
 
 
@@ -80,13 +84,16 @@ def _path_figure(out_dir: Path, rows: list[dict]) -> Path | None:
 def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = DEFAULT_FMU_DIR, step_sizes=None,
               orders=None, discretizations=None, sets=(), perturbations=(), samples=None, seed: int = 0,
               jobs: int | None = None, scheduler: str | None = None, progress: bool = True,
-              refine: bool = True) -> str:
+              refine: bool = True, couplings=COUPLINGS, tolerances=DEFAULT_TOLERANCES) -> str:
     """Run a step-size study of ``scenario`` and write ``sweep.csv``, ``sweep.json``, figures and
     ``report.md`` into ``out_dir``; return a short text summary, with how many runs came from the cache.
 
-    The grid is ``build_cases`` of the arguments (both coupling orders unless ``orders`` is given); each series' stability boundary is refined by
-    bisection between its last stable and first unstable grid step to 2 % (with ``refine``); the
-    linearised prediction is added for the nominal series of a constant-velocity scenario.
+    The grid is ``build_cases`` of the arguments (both coupling orders unless ``orders`` is given, both
+    couplings and error-controlled runs at ``DEFAULT_TOLERANCES`` unless ``couplings`` and
+    ``tolerances`` are given); each fixed-step series' stability boundary is refined by bisection
+    between its last stable and first unstable grid step to 2 % (with ``refine``); the linearised
+    prediction (of each series' coupling) is added for the nominal series of a constant-velocity
+    scenario. Every run, fixed-step and error-controlled, is a point of the work-precision figure.
 
     Before anything runs, the grid, the scheduler (``check_scheduler``) and the output folder are
     checked (one-line errors). Cache entries that did not verify, and worker processes lost, are
@@ -96,7 +103,8 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     next sweep runs them again.
     """
     out_dir = Path(out_dir)
-    cases = build_cases(scenario, step_sizes, orders or ORDERS, discretizations, sets, perturbations, samples, seed)
+    cases = build_cases(scenario, step_sizes, orders or ORDERS, discretizations, sets, perturbations, samples, seed,
+                        couplings, tolerances)
     if scheduler is not None:
         check_scheduler(scheduler, SCHEDULER_TIMEOUT)
     from .execute import execute, prepare_sweep_folder  # fmpy: imported after the checks that fail fast
@@ -105,12 +113,13 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     prepare_sweep_folder(out_dir)
     fmu_paths = ensure_fmus(fmu_dir)
     grid = execute(scenario, cases, out_dir, fmu_paths, jobs=jobs, scheduler=scheduler, progress=progress, warn=False)
-    rows, refining = grid.rows, []
-    write_rows_csv(out_dir / "sweep.csv", rows)
+    all_rows, refining = grid.rows, []
+    write_rows_csv(out_dir / "sweep.csv", all_rows)
+    rows = [row for row in all_rows if row.get("tolerance") is None]  # the fixed-step series
 
     boundaries = {}
     if refine:
-        template = {group_label(row): case for row, case in zip(rows, cases)}
+        template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
         for label, bracket in grid_brackets(rows).items():
             if bracket is not None:
                 def is_stable(h, case=template[label]):
@@ -122,13 +131,17 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     done = sum(refining, grid)
     done.warn()
 
-    from .figures import plot_deviation, plot_spectral_radius, plot_tracking_and_cost  # matplotlib: slow to import
+    from .figures import (  # matplotlib: slow to import
+        plot_deviation, plot_spectral_radius, plot_tracking_and_cost, plot_work_precision,
+    )
 
     steps = np.geomspace(1e-4, 0.2, 300)
     predictions, curves, notes = _predictions(apply(scenario, cases[0]) if cases else scenario, rows, steps)
     settings = {"scenario": scenario.name, "scenario_source": scenario.source, "cases": len(cases),
                 "step_sizes": sorted({c.step_size for c in cases}), "orders": sorted({c.order for c in cases}),
-                "discretizations": sorted({c.discretization for c in cases}), "sets": [list(s) for s in sets],
+                "discretizations": sorted({c.discretization for c in cases}),
+                "couplings": sorted({c.coupling for c in cases if c.tolerance is None}),
+                "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}), "sets": [list(s) for s in sets],
                 "perturbations": [str(p) for p in perturbations], "samples": samples, "seed": seed,
                 "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval}
     measured = {label: b.h_stable for label, b in boundaries.items()}
@@ -137,12 +150,16 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
         notes.append(TRANSIENT_NOTE)
     summary = summarise(rows, stability_definition=STABILITY_DEFINITION, settings=settings, boundaries=boundaries,
                         fits=fit_orders(rows), predictions=predictions, notes=notes)
+    summary["error_controlled"] = [{key: row.get(key) for key in CONTROLLED_KEYS} | {"series": group_label(row)}
+                                   for row in all_rows if row.get("tolerance") is not None]
     write_summary_json(out_dir, summary)
 
     finished = [row for row in rows if row["key"] not in done.lost]  # the runs that did not finish have no data
     figures = {} if not finished else {
         "deviation": plot_deviation(finished, fit_orders(finished), out_dir / "deviation.png"),
         "tracking_and_cost": plot_tracking_and_cost(finished, out_dir / "tracking_and_cost.png"),
+        "work_precision": plot_work_precision([row for row in all_rows if row["key"] not in done.lost],
+                                              out_dir / "work_precision.png"),
     }
     paths = _path_figure(out_dir, finished)
     if paths is not None:
@@ -150,18 +167,22 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     if curves:
         figures["spectral_radius"] = plot_spectral_radius(curves, measured, out_dir / "spectral_radius.png",
                                                           predicted=predictions)
-    report = write_report(out_dir, summary, rows, figures)
+    report = write_report(out_dir, summary, all_rows, figures)
     if done.lost:
         raise SweepError(f"{len(done.lost)} of {len(done.rows)} runs did not finish (their worker process was lost, "
                          f"killed or crashed): their rows carry the reason and are not cached; everything else is "
                          f"written to {out_dir}; run the sweep again to retry them")
-    lines = [f"sweep of {scenario.name}: {len(rows)} runs, {sum(not r['stable'] for r in rows)} not stable",
+    lines = [f"sweep of {scenario.name}: {len(all_rows)} runs, {sum(not r['stable'] for r in all_rows)} not stable",
              f"  runs: {_counts(grid, refining, done)}"]
     for label, group in summary["groups"].items():
         fit = group["observed_order"].get("max_position_deviation_m", {})
         order = f"{fit['slope']:.2f}" if "slope" in fit else "n/a"
         lines.append(f"  {label}: observed order {order}; {group['stability_boundary']['message']}; "
                      f"{group['prediction']['statement']}")
+    for entry in summary["error_controlled"]:
+        lines.append(f"  {entry['series']}, tolerance {entry['tolerance']:g} m: max deviation "
+                     f"{entry['max_position_deviation_m']:.3g} m, {entry['steps']} steps "
+                     f"({entry['steps_rejected']} taken again), {entry['wall_time_s']:.2f} s")
     lines.append(f"  written: {out_dir / 'sweep.csv'}, {out_dir / 'sweep.json'}, {report}")
     return "\n".join(lines)
 
