@@ -3,11 +3,15 @@ against independent integrations of the model with those inputs; the history is 
 
 import numpy as np
 import pytest
+from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
+
+from dsc_fmu.cosim.master import Cosimulator
 
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
+from dsc_fmu.scenario import load_scenario
 from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, md, new  # noqa: F401 (fixtures)
 
 HOLD, EXTRAPOLATE, INTERPOLATE = range(3)
@@ -117,3 +121,52 @@ def test_the_coupling_parameters_are_fixed_integers_with_named_choices():
         assert coupling.integer and not coupling.tunable and coupling.start == HOLD
         assert coupling.choices == P.COUPLINGS[:count] and coupling.maximum == count - 1
     assert np.array_equal(P.COUPLINGS, ("hold", "extrapolate", "interpolate"))
+
+
+# --- the standard route: canInterpolateInputs and fmi2SetRealInputDerivatives ---------------------
+
+def test_fmus_with_inputs_declare_that_they_interpolate_inputs(md):
+    assert {name: description.coSimulation.canInterpolateInputs for name, description in md.items()} == {
+        "ReferenceRobot": False, "MobileRobot": True, "DSCController": True}
+
+
+def test_an_input_derivative_sets_the_slope_of_the_next_step_only(new):
+    """Through the project's binary: u(t) = u_k + d (t - t_k) over the next step, then held again."""
+    slopes = (2000.0, -1500.0)
+    plant = new("MobileRobot", real={"max_step": FINE})
+    vr = [plant.vr["u1"], plant.vr["u2"]]
+    plant.set(("u1", "u2"), U1)
+    plant.fmu.setRealInputDerivatives(vr, [1, 1], list(slopes))
+    plant.step(0.0, H)
+    plant.step(H, H)
+    x = [PLANT["x0"], PLANT["y0"], PLANT["theta0"], 0.0, 0.0, 0.0, 0.0]
+    x = _plant_step(x, 0.0, lambda t: [u + d * t for u, d in zip(U1, slopes)])
+    x = _plant_step(x, H, lambda t: U1)
+    assert plant.get(("x", "y", "theta", "omega1", "omega2", "i1", "i2")) == pytest.approx(list(x), rel=1e-9, abs=1e-12)
+
+
+@pytest.mark.parametrize("vr_name,order,message", [
+    ("u1", 2, "derivative order 2 of u1 is not allowed; allowed: 1"),
+    ("x0", 1, "is not a Real input"),
+])
+def test_a_wrong_input_derivative_is_an_error_naming_it(new, vr_name, order, message):
+    plant = new("MobileRobot")
+    with pytest.raises(FMICallException):
+        plant.fmu.setRealInputDerivatives([plant.vr[vr_name]], [order], [1.0])
+    assert any(message in text for _, text in plant.messages())
+
+
+def test_the_master_takes_the_standard_route_to_the_same_coupling(fmu_paths, fmu3_paths):
+    """Jacobi: the same run bit for bit as with the coupling parameters; Gauss-Seidel: the same but
+    for the first step (the route interpolates it from the start, the parameters hold it)."""
+    scenario = load_scenario("paper").with_simulation(stop_time=2.0, step_size=2e-3, coupling="linear")
+    with Cosimulator(fmu_paths) as simulator:
+        jacobi = [simulator.run(scenario, order="jacobi", input_derivatives=route).result for route in (False, True)]
+        np.testing.assert_array_equal(*jacobi)
+        seidel = [simulator.run(scenario, input_derivatives=route).result for route in (False, True)]
+        for name in ("x", "y", "theta"):
+            np.testing.assert_allclose(seidel[0][name], seidel[1][name], rtol=0, atol=1e-4)
+        with pytest.raises(ValueError, match="input derivatives realise the linear coupling at a fixed step"):
+            simulator.run(scenario, coupling="hold", input_derivatives=True)
+    with Cosimulator(fmu3_paths) as simulator, pytest.raises(ValueError, match="input derivatives need FMI 2.0"):
+        simulator.run(scenario, input_derivatives=True)

@@ -54,9 +54,12 @@ def _complete_variable(typed: ET.Element, v, real: bool) -> None:
 
 
 def complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
-    """Add units, ranges, output dependencies and initial unknowns that pythonfmu does not write (FMI 2.0)."""
+    """Add units, ranges, output dependencies and initial unknowns that pythonfmu does not write (FMI 2.0);
+    an FMU with inputs declares ``canInterpolateInputs`` (the project's binary takes input derivatives)."""
     root = ET.fromstring(xml)
     tables = spec.variables
+    if spec.inputs:
+        root.find("CoSimulation").set("canInterpolateInputs", "true")
     position = list(root).index(root.find("CoSimulation")) + 1
     root.insert(position, _unit_definitions({v.unit for v in tables.values() if not v.integer}))
 

@@ -18,6 +18,7 @@ from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
 from ..scenario import Scenario
 from . import signals
 from .instance import LoadedFmu, LogMessage, failing_fmu, logging_callbacks, type_name
+from .derivatives import InputRamps
 from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
 
 __all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "cosimulate", "step_count"]
@@ -68,6 +69,7 @@ class Cosimulator:
         self.paths = paths
         self.fmus = {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()}
         self.runs = 0
+        self._ramps = None
         self.log: list[LogMessage] = []
         self._callbacks = logging_callbacks(self.log)
         self._loaded: list[LoadedFmu] = []
@@ -122,9 +124,11 @@ class Cosimulator:
 
     def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
             order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
-            tolerance: float | None = None) -> CosimulationResult:
+            tolerance: float | None = None, input_derivatives: bool = False) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
-        ``wall_time`` counts this run only (not loading the FMUs)."""
+        ``wall_time`` counts this run only (not loading the FMUs). With ``input_derivatives`` the
+        linear coupling goes through ``fmi2SetRealInputDerivatives`` (``cosim.derivatives``) instead
+        of the FMUs' ``coupling`` parameters: FMI 2.0 FMUs, coupling "linear", a fixed step."""
         scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                             output_interval=output_interval, coupling=coupling, tolerance=tolerance)
         settings = scenario.simulation
@@ -136,10 +140,14 @@ class Cosimulator:
         self.log.clear()
         recorder = _Recorder(self, n // every + 1 + (n % every != 0))
         self._at = (0, 0.0)
+        self._ramps = self._input_ramps(settings) if input_derivatives else None
         controlled = None
         try:
             for fmu in self._loaded:
-                fmu.initialise(settings.stop_time, scenario.parameters(fmu.name))
+                parameters = scenario.parameters(fmu.name)
+                if self._ramps is not None and "coupling" in parameters:
+                    parameters = {**parameters, "coupling": 0}  # hold: the master gives the slopes
+                fmu.initialise(settings.stop_time, parameters)
             if settings.tolerance is None:
                 self._steps(settings, n, every, recorder)
             else:
@@ -192,17 +200,32 @@ class Cosimulator:
         and the plant step, then (Gauss-Seidel) the controller's inputs are set from their new outputs,
         the controller steps, and its ``u`` goes to the plant. Returns the measurements at ``end``."""
         ref, plant, ctl = (fmu.slave for fmu in self._loaded)
-        jacobi, bound = settings.order == "jacobi", settings.bound
+        jacobi, bound, ramps = settings.order == "jacobi", settings.bound, self._ramps
+        if ramps is not None:
+            ramps.before_plant()
         ref.doStep(t, step)
         plant.doStep(t, step)
         measured = plant.getReal(self.plant_out) + ref.getReal(self.ref_out)
         _check(measured, self.checked, end, bound)
-        if not jacobi:
+        if ramps is not None:
+            ramps.before_controller(step, measured)
+        elif not jacobi:
             ctl.setReal(self.ctl_in, measured)
         ctl.doStep(t, step)
         self._at = (self._at[0] + 1, end)
-        self._exchange(end, measured, jacobi, bound)
+        self._exchange(end, measured, jacobi or ramps is not None, bound)
         return measured
+
+    def _input_ramps(self, settings) -> InputRamps:
+        """The master's input derivatives for the linear coupling; ValueError where they cannot apply."""
+        if settings.coupling != "linear" or settings.tolerance is not None:
+            raise ValueError("input derivatives realise the linear coupling at a fixed step; allowed: "
+                             f"coupling 'linear' and no tolerance (here {settings.coupling!r}, {settings.tolerance})")
+        if any(fmu.fmi_version != 2 for fmu in self._loaded):
+            raise ValueError("input derivatives need FMI 2.0 FMUs; allowed: FMI 2.0 (FMI 3.0 has no "
+                             "fmi3SetInputDerivatives)")
+        plant, ctl = self._loaded[1].slave, self._loaded[2].slave
+        return InputRamps(plant, self.plant_u, ctl, self.ctl_in, settings.order == "jacobi")
 
     def _controlled(self, settings, recorder: _Recorder) -> ControlledSteps:
         """An error-controlled run (``step_control``): each step's position error estimated from the
@@ -262,6 +285,8 @@ class Cosimulator:
         _check(u, _U_NAMES, at, bound)
         plant.setReal(self.plant_u, u)
         self._u = u
+        if self._ramps is not None:
+            self._ramps.exchanged(at, u, measurements)
 
     def _failure(self, error: FMICallException, recorder: _Recorder) -> CosimulationError:
         """The CosimulationError of a failing FMI call: the FMU, the time and its last log messages."""

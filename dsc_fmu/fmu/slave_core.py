@@ -46,6 +46,7 @@ class SlaveCore:
         self.history = None  # [time, inputs] of the inputs of the last step, stamped as ``coupling`` reads them
         self._slope = None
         self._stamp = 0.0
+        self.derivatives_given = {}  # input index -> first derivative for the next step (fmi2SetRealInputDerivatives)
         self.rejected = {}
         self.time = 0.0
         self._cache = None
@@ -130,10 +131,33 @@ class SlaveCore:
         dt = t - self._stamp
         return [value + dt * slope for value, slope in zip(self.u, self._slope)]
 
+    def set_input_derivatives(self, refs: list, orders: list, values: list) -> None:
+        """fmi2SetRealInputDerivatives: the first derivatives (order 1) of Real inputs (by value
+        reference) at the current communication point, for the next step only; ValueError
+        (fmi2Error) for anything else, and then none of them is taken."""
+        indices = {v.name: i for i, v in enumerate(self.INPUTS)}
+        given = {}
+        for vr, order, value in zip(refs, orders, values):
+            index = indices.get(self.vars[int(vr)].name)
+            if index is None:
+                raise ValueError(f"value reference {int(vr)} is not a Real input")
+            if order != 1:
+                raise ValueError(f"derivative order {int(order)} of {self.INPUTS[index].name} is not allowed; allowed: 1")
+            if not math.isfinite(value):
+                raise ValueError(f"the derivative of {self.INPUTS[index].name} is {value}; allowed: finite")
+            given[index] = float(value)
+        self.derivatives_given.update(given)
+
     def _ramp(self, current_time: float, step_size: float) -> float:
         """Set the line of the inputs over the step from ``current_time`` and return the time the
         inputs set belong to: the step's end with ``coupling`` = interpolate, else its start. Hold,
-        the first step, or a previous step not before this one: no line."""
+        the first step, or a previous step not before this one: no line. Input derivatives given
+        for the step (``set_input_derivatives``) take precedence: the line through the inputs set,
+        at the step's start, with those slopes (0 for inputs without one)."""
+        if self.derivatives_given:
+            self._slope = [self.derivatives_given.get(i, 0.0) for i in range(len(self.u))]
+            self._stamp = current_time
+            return current_time
         coupling = self.p.get("coupling", HOLD)
         stamp = current_time + step_size if coupling == INTERPOLATE else current_time
         self._slope, self._stamp = None, stamp
@@ -176,6 +200,7 @@ class SlaveCore:
             return False
         self.state = new
         self.history = [stamp, list(self.u)]
+        self.derivatives_given = {}
         self.time = current_time + step_size
         self._cache = None
         return True
@@ -185,6 +210,7 @@ class SlaveCore:
             "p": dict(self.p), "u": list(self.u), "time": self.time,
             "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
             "history": None if self.history is None else [self.history[0], list(self.history[1])],
+            "derivatives": [[index, value] for index, value in self.derivatives_given.items()],
             "extra": self.extra_state(),
         }
 
@@ -195,6 +221,7 @@ class SlaveCore:
         self.rejected = dict(saved["rejected"])
         self.state = None if saved["state"] is None else list(saved["state"])
         self.history = None if saved["history"] is None else [saved["history"][0], list(saved["history"][1])]
+        self.derivatives_given = {int(index): value for index, value in saved["derivatives"]}
         self.set_extra_state(saved["extra"])
         self._constants = None
         self._cache = None

@@ -155,7 +155,8 @@ fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReferenc
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[]) {
-    return (fmi2Status)instance_unsupported((Instance *)c, "fmi2SetRealInputDerivatives", "canInterpolateInputs is false");
+    return (fmi2Status)instance_set_input_derivatives((Instance *)c, "fmi2SetRealInputDerivatives", vr, nvr, order,
+                                                      value);
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,

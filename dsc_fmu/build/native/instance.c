@@ -214,6 +214,25 @@ int instance_set(Instance *instance, const char *function, int type, const unsig
     return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
 }
 
+int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
+                                   const int order[], const double value[]) {
+    if (instance_refused(instance, function, InitializationMode | StepMode)) return STATUS_ERROR;
+    if (nvr == 0) return STATUS_OK;
+    if (!vr || !order || !value) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no %s array", instance->name, function,
+                     nvr, !vr ? "value reference" : !order ? "order" : "value");
+        return STATUS_ERROR;
+    }
+    for (size_t i = 0; i < nvr; i++) {
+        if (slave_type_of(&instance->slave, vr[i]) != TYPE_REAL || instance->slave.causality[vr[i]] != CAUSALITY_INPUT) {
+            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is not a Real input", instance->name,
+                         function, vr[i]);
+            return STATUS_ERROR;
+        }
+    }
+    return slave_set_input_derivatives(&instance->slave, vr, nvr, order, value);
+}
+
 int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],
                               size_t nvr) {
     if (nvr && !vr) {

@@ -59,6 +59,11 @@ int instance_get(Instance *instance, const char *function, int type, const unsig
 int instance_set(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr,
                  const void *values, size_t nvalues, CType ctype);
 
+/* fmi2SetRealInputDerivatives: first derivatives of Real inputs for the next step (the slave's
+   set_input_derivatives). */
+int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
+                                   const int order[], const double value[]);
+
 /* For the types these FMUs have no variables of: STATUS_OK for no value references, else STATUS_ERROR
    naming the type of the first. */
 int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],

@@ -355,6 +355,27 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
     return status;
 }
 
+int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *orders = py.PyList_New((Py_ssize_t)n);
+    PyObject *given = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; orders && given && i < n; i++) {
+        py.PyList_SetItem(orders, (Py_ssize_t)i, py.PyLong_FromLong(order[i]));
+        py.PyList_SetItem(given, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
+    }
+    PyObject *items[] = {references(vr, n), orders, given};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
+    int status = STATUS_OK;
+    if (!result) {
+        log_exception(s, STATUS_ERROR, "set_input_derivatives");
+        status = STATUS_ERROR;
+    }
+    clear(&result);
+    drain_log(s);
+    pyhost_leave(gil);
+    return status;
+}
+
 /* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
 static PyObject *doubles(int n, const double *values, const int *defined) {
     PyObject *items[8] = {NULL};

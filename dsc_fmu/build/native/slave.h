@@ -65,6 +65,8 @@ int slave_type_of(const Slave *s, unsigned int vr);
 /* Typed get and set of `n` values; STATUS_OK or STATUS_ERROR (logged). */
 int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype);
 int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype);
+/* The slave's set_input_derivatives(value references, orders, values). */
+int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values);
 
 /* Call a method of the slave with `n` float arguments (None where `defined`, if not NULL, is 0).
    STATUS_OK, or STATUS_ERROR after logging the exception. */

@@ -1,0 +1,49 @@
+"""The linear coupling through the standard route: ``fmi2SetRealInputDerivatives`` from the master.
+
+With its FMUs' ``coupling`` parameters left at hold, the master gives each step's slopes itself: the
+plant's ``u`` the slope through the last two communication points (extrapolation), the controller's
+inputs the slope to the measurements at the step's end (Gauss-Seidel: interpolation; its inputs
+stay those of the step's start until the exchange there) or through the last two points (Jacobi:
+extrapolation). The first step holds. FMI 2.0 only: FMI 3.0 has no input derivatives.
+"""
+
+from __future__ import annotations
+
+__all__ = ["InputRamps"]
+
+
+def _slope(now: list, before: list, dt: float) -> list:
+    return [(a - b) / dt for a, b in zip(now, before)]
+
+
+class InputRamps:
+    """The values of the last two exchanges, and the input derivatives set from them."""
+
+    def __init__(self, plant, plant_u: list, controller, controller_in: list, jacobi: bool):
+        self.plant, self.plant_u = plant, plant_u
+        self.controller, self.controller_in = controller, controller_in
+        self.jacobi = jacobi
+        self.at = self.u = self.measured = None
+        self.before = None  # (time, u, measurements) of the exchange before the last
+
+    def exchanged(self, at: float, u: list, measured: list) -> None:
+        """Note the exchange at ``at``: ``u`` set on the plant, ``measured`` on the controller."""
+        if self.at is not None:
+            self.before = (self.at, self.u, self.measured)
+        self.at, self.u, self.measured = at, list(u), list(measured)
+
+    def before_plant(self) -> None:
+        """The plant's slope of ``u`` for the step from the last exchange (none at the first)."""
+        if self.before is not None:
+            self.plant.setRealInputDerivatives(self.plant_u, [1] * len(self.plant_u),
+                                               _slope(self.u, self.before[1], self.at - self.before[0]))
+
+    def before_controller(self, step: float, measured_end: list) -> None:
+        """The controller's slopes for the step of ``step`` from the last exchange."""
+        if self.jacobi:
+            if self.before is None:
+                return
+            slopes = _slope(self.measured, self.before[2], self.at - self.before[0])
+        else:
+            slopes = _slope(measured_end, self.measured, step)
+        self.controller.setRealInputDerivatives(self.controller_in, [1] * len(self.controller_in), slopes)
