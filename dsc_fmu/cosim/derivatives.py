@@ -4,7 +4,9 @@ With its FMUs' ``coupling`` parameters left at hold, the master gives each step'
 plant's ``u`` the slope through the last two communication points (extrapolation), the controller's
 inputs the slope to the measurements at the step's end (Gauss-Seidel: interpolation; its inputs
 stay those of the step's start until the exchange there) or through the last two points (Jacobi:
-extrapolation). The first step holds. FMI 2.0 only: FMI 3.0 has no input derivatives.
+extrapolation). The plant's first step holds (there is no earlier u), as does the controller's with
+Jacobi; with Gauss-Seidel it interpolates from the first step on. FMI 2.0 only: FMI 3.0 has no
+input derivatives.
 """
 
 from __future__ import annotations

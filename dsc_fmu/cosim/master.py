@@ -1,4 +1,5 @@
-"""The co-simulation master: the three FMUs (FMI 2.0 or 3.0) on fmpy, a fixed communication step, Gauss-Seidel or Jacobi."""
+"""The co-simulation master: the three FMUs (FMI 2.0 or 3.0) on fmpy, a fixed or error-controlled communication
+step, Gauss-Seidel or Jacobi."""
 
 from __future__ import annotations
 
@@ -240,34 +241,36 @@ class Cosimulator:
         t, h = 0.0, min(h_max, max(h_min, settings.step_size))
         while t < stop:
             h = min(h, stop - t)
-            end = stop if stop - t - h <= 1e-12 * stop else t + h
+            end = stop if stop - t - h < h_min * (1 - 1e-9) else t + h  # no last step shorter than h_min
             taken = end - t
             self._at = (len(done.times), t)
             saved = [slave.getFMUState() for slave in slaves]
             try:
-                self._advance(t, taken, end, settings)
-                error = gain * defect(u, self._u, u_before if order == 2 else None, taken, h_before)
-            except CosimulationError:
-                if h <= h_min:
-                    raise
-                error = math.inf  # a step that diverges is too long
-            done.fmu_steps += 3
-            if error <= tolerance:
-                done.times.append(t)
-                done.sizes.append(taken)
-                done.errors.append(error)
-                t, u, u_before, h_before = end, self._u, u, taken
-                recorder.record(t)
-            elif h <= h_min:
-                raise CosimulationError(
-                    f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
-                    f"estimated error of a step of h_min = {h_min:g} s is {error:.3g} m; allowed: a smaller h_min "
-                    "or a larger tolerance", t)
-            else:
-                done.rejected += 1
-                self._restore(saved)
-            for slave, state in zip(slaves, saved):
-                slave.freeFMUState(state)
+                try:
+                    self._advance(t, taken, end, settings)
+                    error = gain * defect(u, self._u, u_before if order == 2 else None, taken, h_before)
+                except (CosimulationError, FMICallException):
+                    if taken <= h_min:
+                        raise
+                    error = math.inf  # a step that diverges or that an FMU discards is too long
+                done.fmu_steps += 3
+                if error <= tolerance:
+                    done.times.append(t)
+                    done.sizes.append(taken)
+                    done.errors.append(error)
+                    t, u, u_before, h_before = end, self._u, u, taken
+                    recorder.record(t)
+                elif taken <= h_min:
+                    raise CosimulationError(
+                        f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
+                        f"estimated error of a step of h_min = {h_min:g} s is {error:.3g} m; allowed: a smaller "
+                        "h_min or a larger tolerance", t)
+                else:
+                    done.rejected += 1
+                    self._restore(saved)
+            finally:
+                for slave, state in zip(slaves, saved):
+                    slave.freeFMUState(state)
             h = next_step(taken, error, tolerance, order, h_min, h_max)
         return done
 
@@ -379,11 +382,11 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     For many runs, load the FMUs once with ``Cosimulator`` instead: its runs give the same results.
 
     With a ``tolerance`` (m; or ``scenario.simulation.tolerance``) the step is error-controlled
-    instead (``step_control``): starting from ``h``, each step is taken whole and as two halves from
-    the same saved FMU states, accepted (continuing from the halves) if the estimated position error
-    is at most the tolerance, else taken again smaller; the next step grows or shrinks with the
-    estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every accepted step. If
-    a step of ``h_min`` misses the tolerance, CosimulationError names the time.
+    instead (``step_control``): starting from ``h``, each step's position error is estimated from the
+    defect of ``u`` at its end; a step whose estimate exceeds the tolerance (or that diverges or is
+    discarded) is taken again, smaller, from the FMU states saved before it; the next step grows or
+    shrinks with the estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every
+    accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                         output_interval=output_interval, coupling=coupling, tolerance=tolerance)

@@ -138,7 +138,7 @@ class SlaveCore:
         indices = {v.name: i for i, v in enumerate(self.INPUTS)}
         given = {}
         for vr, order, value in zip(refs, orders, values):
-            index = indices.get(self.vars[int(vr)].name)
+            index = indices.get(getattr(self.vars.get(int(vr)), "name", None))
             if index is None:
                 raise ValueError(f"value reference {int(vr)} is not a Real input")
             if order != 1:

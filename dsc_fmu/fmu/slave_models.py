@@ -161,6 +161,7 @@ class DSCControllerModel:
                     f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}"
                 )
             self.waited_steps += 1
+            self.derivatives_given = {}
             self.time = current_time + step_size
             self._cache = None
             return True

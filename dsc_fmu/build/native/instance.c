@@ -225,8 +225,8 @@ int instance_set_input_derivatives(Instance *instance, const char *function, con
     }
     for (size_t i = 0; i < nvr; i++) {
         if (slave_type_of(&instance->slave, vr[i]) != TYPE_REAL || instance->slave.causality[vr[i]] != CAUSALITY_INPUT) {
-            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is not a Real input", instance->name,
-                         function, vr[i]);
+            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is not a Real input; allowed: the value "
+                         "references of Real inputs", instance->name, function, vr[i]);
             return STATUS_ERROR;
         }
     }
