@@ -12,7 +12,7 @@ from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
 from dsc_fmu.scenario import load_scenario
-from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, md, new  # noqa: F401 (fixtures)
+from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, Instance, md, new  # noqa: F401 (fixtures)
 
 HOLD, EXTRAPOLATE, INTERPOLATE = range(3)
 FINE = 1e-6  # s: max_step of the FMUs here, so that RK4 is exact to rounding
@@ -84,23 +84,29 @@ def test_controller_integrates_with_held_extrapolated_or_interpolated_inputs(new
         assert control_law(g, held, inputs[-1]).u1 != pytest.approx(ctrl.get1("u1"), rel=1e-6)
 
 
-@pytest.mark.parametrize("name,inputs,values", [
-    ("MobileRobot", ("u1", "u2"), (U0, U1, U2, U0)),
-    ("DSCController", CONTROLLER_IN, (M_PAPER, M_OTHER, M_PAPER, M_OTHER)),
-])
-def test_the_input_history_is_part_of_the_fmu_state(new, name, inputs, values):
+@pytest.mark.parametrize("name,inputs,values,coupling,pending", [
+    ("MobileRobot", ("u1", "u2"), (U0, U1, U2, U0), EXTRAPOLATE, False),
+    ("DSCController", CONTROLLER_IN, (M_PAPER, M_OTHER, M_PAPER, M_OTHER), EXTRAPOLATE, False),
+    ("DSCController", CONTROLLER_IN, (M_PAPER, M_OTHER, M_PAPER, M_OTHER), INTERPOLATE, False),
+    ("MobileRobot", ("u1", "u2"), (U0, U1, U2, U0), HOLD, True),
+], ids=["plant-extrapolate", "controller-extrapolate", "controller-interpolate", "plant-pending-derivatives"])
+def test_the_input_history_is_part_of_the_fmu_state(new, name, inputs, values, coupling, pending):
     """Rolled back to a saved state, a linear-coupled FMU repeats its steps exactly (the line of the
-    inputs starts from the saved history), also from a serialized state in a new instance."""
-    coupling = EXTRAPOLATE
+    inputs starts from the saved history, or from input derivatives set before the state was
+    saved), also from a serialized state in a new instance."""
     inst = new(name, integer={"coupling": coupling})
     for k, value in enumerate(values[:2]):
         inst.set(inputs, value)
         inst.step(k * H, H)
+    if pending:
+        inst.set(inputs, values[2])
+        inst.fmu.setRealInputDerivatives([inst.vr[n] for n in inputs], [1] * len(inputs), [3000.0, -2000.0])
     state = inst.fmu.getFMUstate()
     serialized = inst.fmu.serializeFMUstate(state)
 
     def step_on(instance):
-        instance.set(inputs, values[2])
+        if not pending:
+            instance.set(inputs, values[2])
         instance.step(2 * H, H)
         instance.set(inputs, values[3])
         instance.step(3 * H, H / 2)  # another step size after a rollback: the slope still spans the last points
@@ -109,6 +115,11 @@ def test_the_input_history_is_part_of_the_fmu_state(new, name, inputs, values):
     first = step_on(inst)
     inst.fmu.setFMUstate(state)
     assert step_on(inst) == first
+    if pending:  # the derivatives did act: without them the same step holds u
+        plain = new(name, integer={"coupling": coupling}, label="plain")
+        plain.fmu.setFMUstate(state)
+        plain.fmu.setRealInputDerivatives([plain.vr[n] for n in inputs], [1] * len(inputs), [0.0] * len(inputs))
+        assert step_on(plain) != first
     other = new(name, integer={"coupling": coupling}, label="restored")
     other.fmu.setFMUstate(other.fmu.deSerializeFMUstate(serialized))
     assert step_on(other) == first
@@ -124,6 +135,16 @@ def test_the_coupling_parameters_are_fixed_integers_with_named_choices():
 
 
 # --- the standard route: canInterpolateInputs and fmi2SetRealInputDerivatives ---------------------
+
+def test_input_derivatives_outside_initialisation_and_stepping_are_refused(md, fmu_unzipped):
+    plant = Instance(md["MobileRobot"], fmu_unzipped["MobileRobot"], "guard")
+    try:
+        with pytest.raises(FMICallException):
+            plant.fmu.setRealInputDerivatives([plant.vr["u1"]], [1], [1.0])
+        assert any("fmi2SetRealInputDerivatives" in text for _, text in plant.messages())
+    finally:
+        plant.fmu.freeInstance()
+
 
 def test_fmus_with_inputs_declare_that_they_interpolate_inputs(md):
     assert {name: description.coSimulation.canInterpolateInputs for name, description in md.items()} == {

@@ -248,7 +248,7 @@ def test_no_operating_point_is_a_clear_error(scenario):
 
 # --- The linear coupling --------------------------------------------------------------------------------
 
-def _sampled_run(loop, h, order, steps, s0):
+def _sampled_run(loop, h, order, steps, s0, discretization="rk4"):
     """The loop with the linear coupling stepped here with solve_ivp (ramp inputs built by hand from
     the stored previous values), from ``s0 = [xp; xc; u_prev; y_prev]``: the state after ``steps`` steps."""
     n_p, nc = loop.Ap.shape[0], loop.Ac.shape[0]
@@ -265,21 +265,25 @@ def _sampled_run(loop, h, order, steps, s0):
             y_at = lambda s: y + (s / h) * (y - y_prev)  # noqa: E731
         else:
             y_at = lambda s: y + (s / h) * (y_next - y)  # noqa: E731
-        xc = solve_ivp(lambda s, x: loop.Ac @ x + loop.Bc @ y_at(s), (0, h), xc, rtol=1e-12, atol=1e-14).y[:, -1]
+        if discretization == "euler":  # one explicit Euler step with the inputs at the step's start
+            xc = xc + h * (loop.Ac @ xc + loop.Bc @ y_at(0.0))
+        else:
+            xc = solve_ivp(lambda s, x: loop.Ac @ x + loop.Bc @ y_at(s), (0, h), xc, rtol=1e-12, atol=1e-14).y[:, -1]
         xp, u_prev, y_prev = plant, u, y
     return np.concatenate([xp, xc, u_prev, y_prev])
 
 
+@pytest.mark.parametrize("discretization", ["rk4", "euler"])
 @pytest.mark.parametrize("order", ORDERS)
-def test_linear_transition_matrix_is_one_step_with_ramp_inputs(order):
+def test_linear_transition_matrix_is_one_step_with_ramp_inputs(order, discretization):
     """The matrix of the linear coupling maps the augmented state as the ramps integrated here do."""
     loop = st.LinearLoop([[-1.0, 0.5], [0.0, -3.0]], [[0.0], [2.0]], [[1.0, 0.0]], [[-0.5]], [[1.0]], [[-2.0]],
                          [[-1.5]])
     rng = np.random.default_rng(7)
     s0 = rng.normal(size=2 + 1 + 1 + 1)
     h = 0.2
-    M = st.linear_transition_matrix(loop, h, order, "rk4")
-    np.testing.assert_allclose(M @ M @ s0, _sampled_run(loop, h, order, 2, s0), rtol=1e-8, atol=1e-10)
+    M = st.linear_transition_matrix(loop, h, order, discretization)
+    np.testing.assert_allclose(M @ M @ s0, _sampled_run(loop, h, order, 2, s0, discretization), rtol=1e-8, atol=1e-10)
 
 
 def test_linear_coupling_predicted_boundaries_of_on_reference(loop):
