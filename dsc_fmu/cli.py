@@ -64,8 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--couplings", type=_names, default=list(COUPLINGS),
                        help=f"couplings, comma-separated: {', '.join(COUPLINGS)} (default: both)")
     sweep.add_argument("--tolerances", type=_optional_floats, metavar="TOL,...",
-                       help="tolerances (m) of error-controlled runs with the linear coupling, comma-separated, or "
-                       "'' for none (default: 1e-2,1e-3,1e-4)")
+                       help="tolerances (m) of error-controlled runs, always with the linear coupling (whatever "
+                       "--couplings), comma-separated, or '' for none (default: 1e-2,1e-3,1e-4)")
     sweep.add_argument("--discretizations", type=_names,
                        help=f"controller discretizations, comma-separated: {', '.join(DISCRETIZATIONS)} (default: rk4)")
     sweep.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=V1,V2,...",

@@ -192,7 +192,8 @@ def format_report(out_dir: Path | str, summary: Mapping, rows: Sequence[Mapping]
         "continuous reference solution.", "",
         "## Settings", "", *settings,
         f"- stable: {summary['stability_definition']}",
-        f"- runs: {counts['runs']}, of which {counts['diverged']} diverged and {counts['unstable']} not stable", "",
+        f"- runs: {counts['runs']} at a fixed step, of which {counts['diverged']} diverged and {counts['unstable']} "
+        f"not stable; {len(summary.get('error_controlled', []))} error-controlled (Accuracy per cost)", "",
         "## Observed convergence order", "", *_orders(summary["groups"], {
             group_label(row): 2 if (row.get("coupling"), row.get("discretization", "rk4")) == ("linear", "rk4") else 1
             for row in rows}),
