@@ -1,4 +1,4 @@
-"""The FMUs' binary layer: ``dsc_fmu/native`` compiled with Zig's C compiler (the ``ziglang`` package).
+"""The FMUs' binary layer: ``dsc_fmu/build/native`` compiled with Zig's C compiler (the ``ziglang`` package).
 
 The binary replaces pythonfmu's and pythonfmu3's Linux binaries in every FMU. It links no
 Python: it finds one at run time (``native/pyhost.c``), so the FMUs load in C and C++ importers

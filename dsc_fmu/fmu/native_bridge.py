@@ -1,4 +1,4 @@
-"""What the project's FMU binary (``dsc_fmu/native``) calls besides the slave's own FMI methods.
+"""What the project's FMU binary (``dsc_fmu/build/native``) calls besides the slave's own FMI methods.
 
 Bundled into every FMU beside the slave code; imports only the standard library. The binary
 creates the slave through ``instantiate``, reads the variable table once (``variables``) to guard

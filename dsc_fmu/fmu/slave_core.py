@@ -1,7 +1,7 @@
 """The FMI-version-independent part of the slaves: variables from tables, checks, steps, state.
 
 Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
-``fmi_slave.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3_slave.DscSlave`` (FMI 3.0, pythonfmu3)
+``fmi2.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3.DscSlave`` (FMI 3.0, pythonfmu3)
 put it on their slave base classes and supply the three hooks ``_register``, ``log_error`` and
 ``log_warning``.
 """
@@ -42,6 +42,7 @@ class SlaveCore:
         self.p = {v.name: v.start for v in self.PARAMETERS}
         self._constants = None
         self.u = [v.start for v in self.INPUTS]
+        self._input_index = {v.name: i for i, v in enumerate(self.INPUTS)}
         self.state = None
         self.history = None  # [time, inputs] of the inputs of the last step, stamped as ``coupling`` reads them
         self._slope = None
@@ -135,10 +136,9 @@ class SlaveCore:
         """fmi2SetRealInputDerivatives: the first derivatives (order 1) of Real inputs (by value
         reference) at the current communication point, for the next step only; ValueError
         (fmi2Error) for anything else, and then none of them is taken."""
-        indices = {v.name: i for i, v in enumerate(self.INPUTS)}
         given = {}
         for vr, order, value in zip(refs, orders, values):
-            index = indices.get(getattr(self.vars.get(int(vr)), "name", None))
+            index = self._input_index.get(getattr(self.vars.get(int(vr)), "name", None))
             if index is None:
                 raise ValueError(f"value reference {int(vr)} is not a Real input")
             if order != 1:

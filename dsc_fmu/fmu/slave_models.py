@@ -1,7 +1,7 @@
 """What each FMU computes, independent of the FMI version: the robot, the reference robot, the controller.
 
 Bundled into every FMU beside ``slave_core`` and ``models``. Each class is a mixin put before an
-FMI glue class (``fmi_slave.DscSlave`` or ``fmi3_slave.DscSlave``) in a slave script of
+FMI glue class (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
 ``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
 """
 

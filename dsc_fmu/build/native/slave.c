@@ -338,19 +338,26 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
     return status;
 }
 
+/* The status of a slave call that returned `result` (NULL: it raised; `failure` after logging the
+   exception as `what`); releases `result` and forwards the slave's queued log messages. */
+static int finished(Slave *s, PyObject *result, int failure, const char *what) {
+    int status = STATUS_OK;
+    if (!result) {
+        log_exception(s, failure, what);
+        status = failure;
+    }
+    clear(&result);
+    drain_log(s);
+    return status;
+}
+
 int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
     PyGILState_STATE gil = pyhost_enter();
     PyObject *list = py.PyList_New((Py_ssize_t)n);
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
     PyObject *items[] = {references(vr, n), list};
     PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
-    int status = STATUS_OK;
-    if (!result) {
-        log_exception(s, STATUS_ERROR, s->names->set[type]);
-        status = STATUS_ERROR;
-    }
-    clear(&result);
-    drain_log(s);
+    int status = finished(s, result, STATUS_ERROR, s->names->set[type]);
     pyhost_leave(gil);
     return status;
 }
@@ -365,13 +372,7 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
     }
     PyObject *items[] = {references(vr, n), orders, given};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
-    int status = STATUS_OK;
-    if (!result) {
-        log_exception(s, STATUS_ERROR, "set_input_derivatives");
-        status = STATUS_ERROR;
-    }
-    clear(&result);
-    drain_log(s);
+    int status = finished(s, result, STATUS_ERROR, "set_input_derivatives");
     pyhost_leave(gil);
     return status;
 }
@@ -394,15 +395,8 @@ static int call_logged(Slave *s, const char *method, PyObject *cached, int n, co
     PyObject *function = cached ? borrowed(cached) : py.PyObject_GetAttrString(s->slave, method);
     PyObject *args = n ? doubles(n, values, defined) : NULL;
     PyObject *result = call(function, args);
-    int status = STATUS_OK;
-    if (!result) {
-        log_exception(s, failure, method);
-        status = failure;
-    } else if (truth) {
-        *truth = py.PyObject_IsTrue(result) == 1;
-    }
-    clear(&result);
-    drain_log(s);
+    if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
+    int status = finished(s, result, failure, method);
     pyhost_leave(gil);
     return status;
 }
@@ -447,13 +441,7 @@ int slave_set_state(Slave *s, PyObject *state) {
     PyGILState_STATE gil = pyhost_enter();
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
-    int status = STATUS_OK;
-    if (!result) {
-        log_exception(s, STATUS_ERROR, "setting the FMU state");
-        status = STATUS_ERROR;
-    }
-    clear(&result);
-    drain_log(s);
+    int status = finished(s, result, STATUS_ERROR, "setting the FMU state");
     pyhost_leave(gil);
     return status;
 }
