@@ -25,7 +25,7 @@ from .models.parameters import (
     REFERENCE_PARAMETERS,
 )
 
-__all__ = ["REFERENCE", "PLANT", "CONTROLLER", "ORDER", "FmuSpec", "FMUS", "Connection", "CONNECTIONS", "inputs_of", "fmu_files"]
+__all__ = ["REFERENCE", "PLANT", "CONTROLLER", "ORDER", "FmuSpec", "FMUS", "Connection", "CONNECTIONS", "fmu_files"]
 
 REFERENCE, PLANT, CONTROLLER = "ReferenceRobot", "MobileRobot", "DSCController"
 ORDER = (REFERENCE, PLANT, CONTROLLER)
@@ -100,11 +100,6 @@ def _connections() -> tuple[Connection, ...]:
 
 
 CONNECTIONS = _connections()
-
-
-def inputs_of(end: str, start: str) -> tuple[str, ...]:
-    """Names of the inputs of FMU ``end`` fed by FMU ``start``, in ``end``'s input order."""
-    return tuple(c.signal for c in CONNECTIONS if c.end == end and c.start == start)
 
 
 def fmu_files(fmu_paths: dict) -> dict[str, Path]:
