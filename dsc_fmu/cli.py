@@ -10,7 +10,7 @@ from pathlib import Path
 from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .scenario import COUPLINGS, ORDERS, load_scenario, scenario_names
+from .scenario import COUPLINGS, ORDERS, STABILITIES, load_scenario, scenario_names
 
 __all__ = ["main"]
 
@@ -64,8 +64,8 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--couplings", type=_names, default=list(COUPLINGS),
                        help=f"couplings, comma-separated: {', '.join(COUPLINGS)} (default: both)")
     sweep.add_argument("--tolerances", type=_optional_floats, metavar="TOL,...",
-                       help="tolerances (m) of error-controlled runs, always with the linear coupling (whatever "
-                       "--couplings), comma-separated, or '' for none (default: 1e-2,1e-3,1e-4)")
+                       help="tolerances (m) of error-controlled runs, with the linear coupling if --couplings has it "
+                       "(else the hold), comma-separated, or '' for none (default: 1e-2,1e-3,1e-4)")
     sweep.add_argument("--discretizations", type=_names,
                        help=f"controller discretizations, comma-separated: {', '.join(DISCRETIZATIONS)} (default: rk4)")
     sweep.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=V1,V2,...",
@@ -75,6 +75,9 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--samples", type=int, help="number of Monte Carlo samples of the --perturb parameters")
     sweep.add_argument("--seed", type=int, default=0, help="seed of the Monte Carlo draws (default: %(default)s)")
     sweep.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
+    sweep.add_argument("--stability", choices=STABILITIES,
+                       help="what a stable run is: settled (where it ends up) or local (it stays with the reference "
+                            "solution from its start: for a scenario starting in steady tracking); default: the scenario's")
     sweep.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
     sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786")
     sweep.add_argument("--no-refine", action="store_true", help="do not bisect the stability boundaries")
@@ -129,7 +132,7 @@ def _sweep(args) -> None:
     from .study.cases import DEFAULT_TOLERANCES, parse_perturb, parse_set
     from .study.sweep import run_sweep
 
-    scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time)
+    scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time, stability=args.stability)
     if args.jobs is not None and args.jobs < 1:
         raise DscFmuError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
     print(run_sweep(

@@ -13,13 +13,21 @@ from .models.parameters import COUPLINGS as FMU_COUPLINGS
 from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
-__all__ = ["ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "load_scenario", "scenario_names", "SCENARIO_DIR"]
+__all__ = [
+    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "load_scenario", "scenario_names",
+    "SCENARIO_DIR",
+]
 
 ORDERS = ("gauss-seidel", "jacobi")
 COUPLINGS = ("hold", "linear")
 """How the exchanged signals vary over a step: held (zero-order hold), or linear (first-order: the plant
 extrapolates u, the controller interpolates its inputs with Gauss-Seidel and extrapolates them with
 Jacobi). It sets the FMUs' ``coupling`` parameters, which a scenario does not set itself."""
+STABILITIES = ("settled", "local")
+"""What a step-size study calls a stable run (``study.rows.stability_definition``): "settled" judges where
+the run ends up; "local", for a scenario that starts in steady tracking, also asks that the run stay
+with the reference solution from its start (the stability of steady tracking, what the linearised
+prediction predicts)."""
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
 
@@ -38,7 +46,7 @@ class Simulation:
     which a run counts as diverged, and for an error-controlled step its ``tolerance`` (m: the
     estimated position error of each step; None: a fixed step) within ``[h_min, h_max]`` (s),
     starting from ``step_size``, with the position error per volt of coupling defect ``error_gain``
-    (m/V, see ``cosim.step_control``)."""
+    (m/V, see ``cosim.step_control``); ``stability`` (``STABILITIES``) is how a step-size study judges a run."""
 
     stop_time: float = 30.0
     step_size: float = 1e-3
@@ -50,6 +58,7 @@ class Simulation:
     h_min: float = 1e-5
     h_max: float = 0.02
     error_gain: float = 0.02
+    stability: str = "settled"
 
     def check(self, where: str) -> None:
         """Raise ScenarioError naming ``where`` if a setting is out of its range."""
@@ -62,7 +71,7 @@ class Simulation:
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
         if self.h_min > self.h_max:
             raise ScenarioError(f"{where}: [simulation] h_min = {self.h_min!r} is not allowed; allowed: <= h_max = {self.h_max!r}")
-        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS)):
+        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS), ("stability", STABILITIES)):
             if getattr(self, key) not in allowed:
                 raise ScenarioError(
                     f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"

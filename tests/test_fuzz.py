@@ -2,7 +2,7 @@
 
 Every call is drawn at random with arguments good and bad (unknown value references, wrong types,
 NaN, infinite, zero and negative step sizes, huge values, damaged serialized states, a '%' in the
-instance name) in any order, but for what the standard leaves undefined (using a freed instance or
+instance name, input derivatives of any order) in any order, but for what the standard leaves undefined (using a freed instance or
 a freed FMU state). No process may die of a signal and no call may return fmi2Fatal. The figures of
 one run of the full seed range are in the README.
 """
@@ -40,7 +40,8 @@ for name in ("fmi2SetupExperiment", "fmi2EnterInitializationMode", "fmi2ExitInit
              "fmi2Reset", "fmi2DoStep", "fmi2GetReal", "fmi2GetInteger", "fmi2GetBoolean", "fmi2GetString",
              "fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetString", "fmi2GetFMUstate", "fmi2SetFMUstate",
              "fmi2FreeFMUstate", "fmi2SerializedFMUstateSize", "fmi2SerializeFMUstate", "fmi2DeSerializeFMUstate",
-             "fmi2SetDebugLogging", "fmi2CancelStep", "fmi2GetRealStatus", "fmi2GetBooleanStatus", "fmi2GetStatus"):
+             "fmi2SetDebugLogging", "fmi2CancelStep", "fmi2GetRealStatus", "fmi2GetBooleanStatus", "fmi2GetStatus",
+             "fmi2SetRealInputDerivatives", "fmi2GetRealOutputDerivatives"):
     getattr(lib, name).restype = c_int
 lib.fmi2FreeInstance.argtypes = [c_void_p]
 lib.fmi2DoStep.argtypes = [c_void_p, c_double, c_double, c_int]
@@ -63,7 +64,7 @@ def refs():
 
 def call():
     global component
-    action = rng.randrange(20)
+    action = rng.randrange(21)
     c = c_void_p(component)
     if action == 0:
         return lib.fmi2SetupExperiment(c, rng.random() < 0.5, rng.choice(NUMBERS), rng.choice(NUMBERS), rng.random() < 0.5, rng.choice(NUMBERS))
@@ -127,6 +128,13 @@ def call():
         value = c_double()
         return rng.choice([lambda: lib.fmi2CancelStep(c), lambda: lib.fmi2GetRealStatus(c, rng.randrange(4), byref(value)),
                            lambda: lib.fmi2GetStatus(c, rng.randrange(4), byref(c_int()))])()
+    if action == 19:
+        n, vr = refs()
+        orders = (c_int * 4)(*[rng.choice([1, 1, 0, 2, -1, 2**31 - 1]) for _ in range(4)])
+        values = (c_double * 4)(*[rng.choice(NUMBERS) for _ in range(4)])
+        derivatives = rng.choice([lib.fmi2SetRealInputDerivatives, lib.fmi2SetRealInputDerivatives,
+                                  lib.fmi2GetRealOutputDerivatives])
+        return derivatives(c, vr, c_size_t(n), orders, values)
     for state in states:
         lib.fmi2FreeFMUstate(c, byref(c_void_p(state)))
     states.clear()

@@ -168,3 +168,26 @@ def test_plots_and_report_of_a_sweep_where_every_run_diverged(tmp_path):
     assert "already unstable at the smallest step 0.0001 s" in text
     assert "jacobi/rk4: no order fitted: 0 usable points" in text
     assert "differ by more than 20%** for jacobi/rk4" in text  # predicted 1 ms, unstable at 0.1 ms
+
+
+def test_the_order_verdict_expects_two_only_of_the_linear_coupling_with_rk4(tmp_path):
+    """Euler is first order itself, so with the linear coupling its series is expected at slope 1; a
+    linear RK4 series at slope 1 is called out."""
+    rows = []
+    for row in synthetic_rows(boundaries={"gauss-seidel": 1.0, "jacobi": 1.0}):
+        h = row["step_size"]
+        linear = dict(row, coupling="linear", key=row["key"] + "-linear")
+        if (row["order"], row["discretization"]) == ("gauss-seidel", "rk4"):
+            for name in ("max_position_deviation_m", "max_heading_deviation_rad", "max_u_deviation_V"):
+                linear[name] = row[name] * h / (1 + (h / 3e-3) ** 3)  # O(h^2) up to the same knee
+        rows += [row, linear]
+    summary = summarise(rows, stability_definition="-", boundaries={}, predictions={}, settings={"scenario": "paper"})
+    text = write_report(tmp_path, summary, rows, {}).read_text()
+    verdicts = dict(re.findall(r"^- (\S+/\S+(?: linear)?): the maximum position deviation falls as .*: (.*)\.$",
+                               text, re.MULTILINE))
+    assert verdicts == {
+        "gauss-seidel/rk4": "first order, as expected", "gauss-seidel/euler": "first order, as expected",
+        "jacobi/rk4": "first order, as expected", "jacobi/euler": "first order, as expected",
+        "gauss-seidel/rk4 linear": "second order, as expected", "gauss-seidel/euler linear": "first order, as expected",
+        "jacobi/rk4 linear": "NOT second order", "jacobi/euler linear": "first order, as expected",
+    }

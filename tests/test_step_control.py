@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from dsc_fmu.cli import main
+from dsc_fmu.cosim import master
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator
 from dsc_fmu.cosim.reference_solution import output_times, reference_solution
 from dsc_fmu.scenario import ScenarioError, load_scenario
@@ -63,6 +64,52 @@ def test_an_h_min_that_cannot_meet_the_tolerance_is_one_error_naming_the_time(si
                        r"smaller h_min or a larger tolerance$") as error:
         simulator.run(scenario)
     assert 0.0 <= error.value.time < 2.0 and "\n" not in str(error.value)
+
+
+def _replay(simulator, scenario, sizes, monkeypatch):
+    """``scenario`` run with exactly the step sizes ``sizes``, every one accepted (no estimate, no rollback)."""
+    following = iter(sizes[1:])
+    monkeypatch.setattr(master, "next_step", lambda *arguments: next(following, 1.0))
+    settings = dataclasses.replace(scenario.simulation, tolerance=1e9, step_size=sizes[0])
+    run = simulator.run(dataclasses.replace(scenario, simulation=settings))
+    monkeypatch.undo()
+    return run
+
+
+@pytest.mark.parametrize("order", ["gauss-seidel", "jacobi"])
+def test_rejected_steps_leave_no_trace(simulator, monkeypatch, order):
+    """A controlled run with rejections is bit for bit the run that takes its accepted steps directly:
+    the rollback through fmi2GetFMUstate/SetFMUstate restores the coupling history too."""
+    scenario = PAPER.with_simulation(stop_time=2.0, coupling="linear", order=order, tolerance=1e-3)
+    run = simulator.run(scenario)
+    assert run.rejected > 0
+    again = _replay(simulator, scenario, run.step_sizes["step_size"], monkeypatch)
+    assert again.rejected == 0 and again.steps == run.steps
+    assert again.result.tobytes() == run.result.tobytes()
+
+
+def test_a_step_an_fmu_discards_is_taken_again_smaller(simulator, monkeypatch):
+    """The plant advances and then discards every step longer than 4 ms (fmi2Discard): each such step
+    is taken again, smaller, from the saved states, and the run is the one of its accepted steps."""
+    from fmpy.fmi1 import FMICallException
+    from fmpy.fmi2 import FMU2Slave
+
+    do_step, discarded = FMU2Slave.doStep, []
+
+    def discarding(self, t, h, *rest):
+        do_step(self, t, h, *rest)
+        if self.instanceName == "MobileRobot" and h > 4e-3:
+            discarded.append(t)
+            raise FMICallException(function="fmi2DoStep", status=2)
+
+    scenario = PAPER.with_simulation(stop_time=2.0, coupling="linear", tolerance=1e-2)
+    monkeypatch.setattr(FMU2Slave, "doStep", discarding)
+    run = simulator.run(scenario)
+    monkeypatch.undo()
+    sizes = run.step_sizes["step_size"]
+    assert discarded and run.rejected >= len(discarded) and (sizes <= 4e-3).all()
+    assert run.fmu_steps == 3 * (run.steps + run.rejected)
+    assert _replay(simulator, scenario, sizes, monkeypatch).result.tobytes() == run.result.tobytes()
 
 
 @pytest.mark.parametrize("settings,message", [

@@ -6,6 +6,10 @@ import json
 import pytest
 
 from dsc_fmu.cli import main
+from dsc_fmu.cosim.master import Cosimulator
+from dsc_fmu.scenario import load_scenario
+from dsc_fmu.study.cases import Case, apply
+from dsc_fmu.study.rows import compute_reference, run_case
 
 pytestmark = pytest.mark.slow
 
@@ -19,7 +23,7 @@ def fmu_dir(fmu_paths):
 def sweep(tmp_path_factory, fmu_dir):
     out = tmp_path_factory.mktemp("sweep")
     status = main(["sweep", "on_reference", "--step-sizes", "0.02,0.04,0.06", "--orders", "gauss-seidel,jacobi",
-                   "--couplings", "hold", "--tolerances", "", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
+                   "--tolerances", "", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
     assert status == 0
     return out
 
@@ -37,14 +41,34 @@ def test_sweep_writes_table_summary_figures_and_report(sweep):
 
 
 def test_on_reference_boundaries_agree_with_the_linearised_prediction(sweep):
+    """Both orders, both couplings: the stability of steady tracking (on_reference's "local" definition)."""
     summary = json.loads((sweep / "sweep.json").read_text())
-    assert set(summary["groups"]) == {"gauss-seidel/rk4", "jacobi/rk4"}
+    assert summary["settings"]["stability"] == "local"
+    assert set(summary["groups"]) == {f"{order}/rk4{coupling}" for order in ("gauss-seidel", "jacobi")
+                                      for coupling in ("", " linear")}
     for label, group in summary["groups"].items():
         boundary = group["stability_boundary"]
         refined = boundary["refined"]
         assert refined["h_unstable_s"] / refined["h_stable_s"] <= 1.02 + 1e-9, label
         assert group["prediction"]["agrees"] is True, group["prediction"]["statement"]
         assert 0.8 <= group["prediction"]["ratio_predicted_to_measured"] <= 1.2
+
+
+def test_beyond_the_predicted_boundary_a_run_settles_but_steady_tracking_is_unstable(sweep, fmu_paths, tmp_path):
+    """20 % above the linear coupling's predicted boundary the oscillation grows from the start (the
+    deviation from the reference solution rises far above its start), then the adaptation damps it:
+    stable as a settled run, unstable as one of steady tracking."""
+    summary = json.loads((sweep / "sweep.json").read_text())
+    case = Case(1.2 * summary["groups"]["gauss-seidel/rk4 linear"]["prediction"]["predicted_boundary_s"],
+                coupling="linear")
+    local = load_scenario("on_reference")
+    settled = local.with_simulation(stability="settled")
+    reference, why = compute_reference(apply(local, case))
+    assert why is None
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        rows = {s.simulation.stability: run_case(s, case, simulator, reference) for s in (local, settled)}
+    assert rows["settled"]["stable"] is True and rows["local"]["stable"] is False
+    assert rows["local"]["max_position_deviation_m"] == rows["settled"]["max_position_deviation_m"] > 0.01
 
 
 @pytest.mark.parametrize("arguments, message", [

@@ -22,7 +22,7 @@ from dsc_fmu.study.cases import (
     Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
-from dsc_fmu.study.rows import ROW_KEYS, STABILITY_DEFINITION, STABLE_POSITION_ERROR, run_case
+from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -147,6 +147,16 @@ def test_build_cases_defaults_to_the_scenarios_order_and_discretization(short):
     assert {(c.order, c.discretization, c.overrides, c.sample) for c in cases} == {("gauss-seidel", "rk4", (), None)}
 
 
+@pytest.mark.parametrize("couplings, controlled", [(["hold", "linear"], "linear"), (["hold"], "hold"),
+                                                    (["linear"], "linear")])
+def test_error_controlled_cases_take_the_highest_order_coupling_chosen(short, couplings, controlled):
+    cases = build_cases(short, step_sizes=[1e-3], orders=ORDERS, couplings=couplings, tolerances=[1e-3, 1e-4])
+    assert [c.coupling for c in cases if c.tolerance is None] == [
+        coupling for order in ORDERS for coupling in couplings]
+    assert [(c.order, c.coupling, c.tolerance) for c in cases if c.tolerance is not None] == [
+        (order, controlled, tolerance) for tolerance in (1e-3, 1e-4) for order in ORDERS]
+
+
 def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(short):
     def grid(seed):
         return build_cases(short, step_sizes=[1e-3, 1e-2], orders=ORDERS, samples=20, seed=seed,
@@ -269,7 +279,7 @@ def test_stability_over_the_papers_run(fmu_paths, tmp_path):
     rows = execute(paper, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert [row["stable"] for row in rows] == [True, False, True]
     assert rows[0]["max_position_error_m"] < STABLE_POSITION_ERROR and rows[1]["diverged"]
-    assert "0.5 m over the last third of the run" in STABILITY_DEFINITION
+    assert "0.5 m over the last third of the run" in SETTLED_DEFINITION
 
 
 @pytest.mark.parametrize(("bound", "h", "signal"), [(1e6, 0.2, None), (1e-3, 1e-3, "MobileRobot.x")],
@@ -500,3 +510,30 @@ def test_error_growth_criterion(shape, grows):
     from dsc_fmu.study.rows import error_grows
     t = np.linspace(0.0, 30.0, 3001)
     assert error_grows(_trajectory_with_error(shape(t))) is grows
+
+
+@pytest.mark.parametrize("shape, grows", [
+    (lambda t: 1e-4 * np.exp(-t / 5.0), False),                                   # the start's seed decays
+    (lambda t: 1e-4 * (1.0 + 0.5 * np.sin(2.0 * t)), False),                       # stays at the seed's level
+    (lambda t: 1e-4 * np.exp(np.minimum(t, 8.0)) * np.exp(-np.maximum(t - 8.0, 0.0) / 3.0), True),  # grows, then damped
+    (lambda t: 1e-6 * np.exp(t / 15.0), False),                                    # grows within the 0.01 mm slack
+])
+def test_local_stability_criterion(shape, grows):
+    """The deviation from the reference solution against its level over the first twentieth of the run."""
+    from dsc_fmu.study.rows import deviation_grows, position_deviation
+    t = np.linspace(0.0, 30.0, 3001)
+    reference = np.zeros(len(t), dtype=[(n, float) for n in ("time", "x", "y")])
+    reference["time"], reference["x"], reference["y"] = t, np.cos(0.2 * t), np.sin(0.2 * t)
+    run = reference.copy()
+    run["y"] += shape(t)
+    np.testing.assert_allclose(position_deviation(run, reference), shape(t), rtol=1e-12, atol=1e-15)
+    assert deviation_grows(run, reference) is grows
+
+
+def test_the_scenario_chooses_the_stability_definition(short):
+    from dsc_fmu.study.rows import LOCAL_DEFINITION, SETTLED_DEFINITION, stability_definition
+    assert load_scenario("on_reference").simulation.stability == "local"
+    assert short.simulation.stability == "settled" and stability_definition("settled") == SETTLED_DEFINITION
+    assert stability_definition("local") == LOCAL_DEFINITION and "first twentieth" in LOCAL_DEFINITION
+    with pytest.raises(ScenarioError, match=r"\[simulation\] stability = 'loose' is not allowed; allowed: settled, local"):
+        short.with_simulation(stability="loose")

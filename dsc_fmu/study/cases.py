@@ -242,8 +242,9 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
                 samples: int | None = None, seed: int = 0, couplings=None, tolerances=()) -> list[Case]:
     """The full grid: every step size x order x discretisation x coupling x combination of the ``sets``
     values x Monte Carlo sample, in that nesting (the step size outermost); then, for each of the
-    ``tolerances`` (m), an error-controlled run with the linear coupling of every order x discretisation
-    x combination x sample, starting from the scenario's step size.
+    ``tolerances`` (m), an error-controlled run of every order x discretisation x combination x sample,
+    starting from the scenario's step size, with the highest-order coupling of ``couplings`` (linear
+    unless only the hold is chosen).
 
     ``step_sizes`` default to ``default_step_sizes()``, ``orders``, ``discretizations`` and
     ``couplings`` to the scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
@@ -296,7 +297,8 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
         apply(scenario, Case(steps[0], orders[0], chosen[0], overrides, sample))
     fixed = [Case(h, order, name, overrides, sample, coupling) for h in steps for order in orders for name in chosen
              for coupling in couplings for overrides, sample in physical]
-    return fixed + [Case(scenario.simulation.step_size, order, name, overrides, sample, "linear", tolerance)
+    best = max(couplings, key=COUPLINGS.index)
+    return fixed + [Case(scenario.simulation.step_size, order, name, overrides, sample, best, tolerance)
                     for tolerance in tolerances for order in orders for name in chosen
                     for overrides, sample in physical]
 

@@ -366,8 +366,8 @@ def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache
               disable=None if progress else True) as bar:
 
         def finish(key, outcome):
-            case, _, ref_key = todo[key]
-            rows[key] = make_row(scenario.name, case, (key, ref_key), outcome, references[ref_key])
+            case, applied, ref_key = todo[key]
+            rows[key] = make_row(applied, case, (key, ref_key), outcome, references[ref_key])
             if outcome.get("lost"):
                 lost.append(key)
             else:

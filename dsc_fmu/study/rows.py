@@ -15,13 +15,15 @@ from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJEC
 from .cases import Case, apply
 
 __all__ = [
-    "STABLE_POSITION_ERROR", "STABILITY_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS", "simulate",
-    "compute_reference", "lost_outcome", "error_grows", "deviations", "make_row", "run_case",
+    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS", "simulate",
+    "compute_reference", "lost_outcome", "error_grows", "position_deviation", "deviation_grows", "deviations",
+    "make_row", "run_case",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
-GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m
-STABILITY_DEFINITION = (
+GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m: the position error over the last third
+DEVIATION_GROWTH, DEVIATION_SLACK = 2.0, 1e-5  # 1, m: the deviation from the reference solution after its start
+SETTLED_DEFINITION = (
     "A run is stable if it did not diverge (every exchanged signal stayed finite and within the scenario's "
     f"bound, and no FMU failed), its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
     "over the last third of the run, and it did not grow there: its maximum over the last sixth of the run is "
@@ -29,6 +31,18 @@ STABILITY_DEFINITION = (
     "growing oscillation, a spectral radius just above 1, is unstable even if it has not diverged yet). The "
     "criterion assumes a run long enough for the start-up transient to have decayed by its last third "
     "(30 s for the paper's scenario)."
+)
+LOCAL_DEFINITION = (
+    "Stability of steady tracking ([simulation] stability = \"local\", for a scenario that starts in steady "
+    "tracking): a run is stable if it is stable as a settled run is (it did not diverge, its position error "
+    f"stayed below {STABLE_POSITION_ERROR:g} m over the last third of the run and did not grow there by more "
+    f"than {GROWTH_FACTOR:g} times plus {GROWTH_SLACK * 1e3:g} mm from the sixth before the last to the last) "
+    "and it stayed with the reference solution: its position deviation from it never exceeded "
+    f"{DEVIATION_GROWTH:g} times its maximum over the first twentieth of the run, plus {DEVIATION_SLACK * 1e3:g} mm. "
+    "The coupling error of the first steps seeds the deviation; a sampled loop that is stable about steady "
+    "tracking keeps it at that level, an unstable one amplifies it, even where the oscillation later moves the "
+    "parameter estimates and the adaptation damps it (the linearised prediction freezes the estimates: this "
+    "is the instability it predicts). A run without a reference solution is judged as a settled one."
 )
 METRIC_KEYS = ("final_position_error_m", "rms_position_error_m", "max_position_error_m", "max_abs_thetae_rad",
                "settling_time_0p1_s", "max_abs_u_V", "beta_guard_count")
@@ -87,24 +101,54 @@ def lost_outcome(reason: str) -> dict:
             "steps_rejected": math.nan, "fmu_steps": math.nan, "wall_time_s": math.nan, "lost": True}
 
 
-def error_grows(trajectory: np.ndarray) -> bool:
-    """Whether the position error grows over the last third of the run (``STABILITY_DEFINITION``)."""
-    t = trajectory["time"]
-    error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
+def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
+    """Whether ``values`` over the last sixth of ``t`` exceed ``GROWTH_FACTOR`` times their maximum over
+    the sixth before, plus ``GROWTH_SLACK``."""
     end = t[-1]
-    earlier = error[(t >= 2.0 * end / 3.0) & (t < 5.0 * end / 6.0)]
-    later = error[t >= 5.0 * end / 6.0]
+    earlier = values[(t >= 2.0 * end / 3.0) & (t < 5.0 * end / 6.0)]
+    later = values[t >= 5.0 * end / 6.0]
     if not len(earlier) or not len(later):
         return False
     return bool(later.max() > GROWTH_FACTOR * earlier.max() + GROWTH_SLACK)
 
 
+def error_grows(trajectory: np.ndarray) -> bool:
+    """Whether the position error grows over the last third of the run (``STABILITY_DEFINITION``)."""
+    error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
+    return _grows_at_end(trajectory["time"], error)
+
+
+def _reference_at(trajectory: np.ndarray, reference: np.ndarray, names) -> dict:
+    """The reference solution's columns ``names`` interpolated linearly at the run's times."""
+    return {name: np.interp(trajectory["time"], reference["time"], reference[name]) for name in names}
+
+
+def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """The run's distance (m) from the reference solution at each of its times."""
+    at = _reference_at(trajectory, reference, ("x", "y"))
+    return np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
+
+
+def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
+    """Whether the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
+    maximum over the first twentieth of the run plus ``DEVIATION_SLACK``: the sampled loop amplifying
+    the coupling error about steady tracking (``LOCAL_DEFINITION``)."""
+    t = trajectory["time"]
+    start = t <= t[-1] / 20.0
+    deviation = position_deviation(trajectory, reference)
+    return bool(deviation.max() > DEVIATION_GROWTH * deviation[start].max() + DEVIATION_SLACK)
+
+
+def stability_definition(stability: str) -> str:
+    """What "stable" means for a scenario's ``[simulation] stability`` (``STABILITIES``)."""
+    return {"settled": SETTLED_DEFINITION, "local": LOCAL_DEFINITION}[stability]
+
+
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
     """Largest and RMS deviation of a run from the reference solution (interpolated linearly at the
     run's times) over all its rows: position (m), wrapped heading (rad), voltage of both wheels (V)."""
-    t = trajectory["time"]
-    at = {name: np.interp(t, reference["time"], reference[name]) for name in REFERENCE_COLUMNS[1:]}
-    position = np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
+    at = _reference_at(trajectory, reference, ("theta", "u1", "u2"))
+    position = position_deviation(trajectory, reference)
     heading = np.abs(np.remainder(trajectory["theta"] - at["theta"] + np.pi, 2.0 * np.pi) - np.pi)
     voltage = np.abs(np.concatenate([trajectory["u1"] - at["u1"], trajectory["u2"] - at["u2"]]))
     values = {}
@@ -114,21 +158,23 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
     return values
 
 
-def make_row(scenario_name: str, case: Case, keys: tuple[str, str], outcome: dict,
-             reference: np.ndarray | None) -> dict:
+def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: dict, reference: np.ndarray | None) -> dict:
     """The row (``ROW_KEYS``; JSON-serialisable, NaN where a value does not apply) of a simulated case;
-    ``keys`` are its cache key and that of its reference solution."""
+    ``applied`` is the case applied to its scenario (``apply``), ``keys`` are its cache key and that of
+    its reference solution."""
     diverged = outcome["metrics"] is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
-    row = {"scenario": scenario_name, "step_size": case.step_size, "order": case.order,
+    usable = not diverged and reference is not None and len(outcome["trajectory"])
+    local = applied.simulation.stability == "local"
+    row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
            "sample": case.sample, **dict(case.overrides), "key": keys[0],
            "reference_key": keys[1],
            "diverged": diverged, "diverged_time": outcome["diverged_time"],
            "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
            "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
-           and not error_grows(outcome["trajectory"])}
-    usable = not diverged and reference is not None and len(outcome["trajectory"])
+           and not error_grows(outcome["trajectory"])
+           and not (usable and local and deviation_grows(outcome["trajectory"], reference))}
     row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
     row.update({name: math.nan if value is None else value for name, value in metrics.items()})
     row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"], steps_rejected=outcome["steps_rejected"],
@@ -141,4 +187,5 @@ def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference
     of the case's physical scenario (``reference_solution(apply(scenario, case), times=...)``,
     at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN."""
     keys = case_key(scenario, case, fmu_identities(cosimulator.paths)), reference_key(scenario, case)
-    return make_row(scenario.name, case, keys, simulate(apply(scenario, case), cosimulator), reference)
+    applied = apply(scenario, case)
+    return make_row(applied, case, keys, simulate(applied, cosimulator), reference)
