@@ -47,6 +47,9 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--order", choices=ORDERS, help="coupling order (default: the scenario's)")
     run.add_argument("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); linear: "
                      "the plant extrapolates u, the controller interpolates or extrapolates its inputs (default: the scenario's)")
+    run.add_argument("--input-derivatives", action="store_true", default=None,
+                     help="with --coupling linear: the master sets the slopes with fmi2SetRealInputDerivatives "
+                          "(the standard route, FMI 2.0) instead of the FMUs' coupling parameters")
     run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
     run.add_argument("--tolerance", type=float, metavar="TOL", help="error-controlled step: the estimated position "
                      "error (m) each step may add; the step then varies within [--h-min, --h-max] from --step-size")
@@ -165,6 +168,7 @@ def _run(args) -> None:
     scenario = load_scenario(args.scenario).with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
         coupling=args.coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
+        input_derivatives=args.input_derivatives,
     )
     print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
                        plots=not args.no_plots))

@@ -46,7 +46,10 @@ class Simulation:
     which a run counts as diverged, and for an error-controlled step its ``tolerance`` (m: the
     estimated position error of each step; None: a fixed step) within ``[h_min, h_max]`` (s),
     starting from ``step_size``, with the position error per volt of coupling defect ``error_gain``
-    (m/V, see ``cosim.step_control``); ``stability`` (``STABILITIES``) is how a step-size study judges a run."""
+    (m/V, see ``cosim.step_control``). ``input_derivatives`` realises the linear coupling through the
+    standard route instead of the FMUs' ``coupling`` parameters (``cosim.derivatives``: the master sets
+    the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold; FMI 2.0 FMUs, a fixed step).
+    ``stability`` (``STABILITIES``) is how a step-size study judges a run."""
 
     stop_time: float = 30.0
     step_size: float = 1e-3
@@ -58,6 +61,7 @@ class Simulation:
     h_min: float = 1e-5
     h_max: float = 0.02
     error_gain: float = 0.02
+    input_derivatives: bool = False
     stability: str = "settled"
 
     def check(self, where: str) -> None:
@@ -76,6 +80,13 @@ class Simulation:
                 raise ScenarioError(
                     f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"
                 )
+        if not isinstance(self.input_derivatives, bool):
+            raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not allowed; "
+                                "allowed: true, false")
+        if self.input_derivatives and (self.coupling != "linear" or self.tolerance is not None):
+            raise ScenarioError(f"{where}: [simulation] input_derivatives = true realises the linear coupling at a fixed "
+                                f"step; allowed: with coupling = \"linear\" and no tolerance (here {self.coupling!r}, "
+                                f"tolerance {self.tolerance!r})")
 
     def fmu_coupling(self, fmu: str) -> int | None:
         """The ``coupling`` parameter of FMU ``fmu`` for these settings (None: it has none)."""
@@ -99,12 +110,15 @@ class Scenario:
     controller: dict
     reference: dict
 
-    def parameters(self, fmu: str) -> dict:
+    def parameters(self, fmu: str, *, slopes_from_master: bool = False) -> dict:
         """Parameter values of the FMU named ``fmu`` (``MobileRobot``, ``DSCController``, ``ReferenceRobot``):
-        its table, and its ``coupling`` from the simulation settings."""
+        its table, and its ``coupling`` from the simulation settings, or the hold where the master gives
+        the slopes (``slopes_from_master``: ``input_derivatives``, which only this project's master does)."""
         table = {v: k for k, v in FMU_OF_TABLE.items()}[fmu]
         coupling = self.simulation.fmu_coupling(fmu)
-        return getattr(self, table) if coupling is None else {**getattr(self, table), "coupling": coupling}
+        if coupling is None:
+            return getattr(self, table)
+        return {**getattr(self, table), "coupling": FMU_COUPLINGS.index("hold") if slopes_from_master else coupling}
 
     def with_simulation(self, **settings) -> Scenario:
         """This scenario with some simulation settings replaced (None leaves a setting as it is)."""

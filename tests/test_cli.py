@@ -70,6 +70,18 @@ def test_run_without_plots(tmp_path, fmu_dir):
     assert sorted(p.name for p in out.iterdir()) == ["results.csv", "summary.json"]
 
 
+def test_run_takes_the_standard_route_of_the_linear_coupling(tmp_path, fmu_dir):
+    """--input-derivatives: the master's slopes through fmi2SetRealInputDerivatives, with Jacobi the
+    same rows as the FMUs' coupling parameters."""
+    rows = {}
+    for route in ([], ["--input-derivatives"]):
+        out = tmp_path / ("route" if route else "parameters")
+        assert main(["run", "--stop-time", "0.5", "--order", "jacobi", "--coupling", "linear", *route, "--no-plots",
+                     "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+        rows[bool(route)] = (out / "results.csv").read_text()
+    assert rows[True] == rows[False]
+
+
 BAD_SCENARIO = "[plant]\nmc = -30.0\n"
 
 
@@ -83,6 +95,7 @@ BAD_SCENARIO = "[plant]\nmc = -30.0\n"
         (["run", "no_such_scenario"], "unknown scenario 'no_such_scenario'; allowed:"),
         (["run", "{bad}"], "[plant] mc = -30.0 is not allowed: it must be > 0"),
         (["run", "{missing}"], "scenario file not found"),
+        (["run", "--input-derivatives"], "input_derivatives = true realises the linear coupling at a fixed step"),
     ],
 )
 def test_bad_input_gives_one_line_and_writes_nothing(tmp_path, capsys, arguments, message):

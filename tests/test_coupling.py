@@ -11,7 +11,7 @@ from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
-from dsc_fmu.scenario import load_scenario
+from dsc_fmu.scenario import ScenarioError, load_scenario
 from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, Instance, md, new  # noqa: F401 (fixtures)
 
 HOLD, EXTRAPOLATE, INTERPOLATE = range(3)
@@ -187,7 +187,11 @@ def test_the_master_takes_the_standard_route_to_the_same_coupling(fmu_paths, fmu
         seidel = [simulator.run(scenario, input_derivatives=route).result for route in (False, True)]
         for name in ("x", "y", "theta"):
             np.testing.assert_allclose(seidel[0][name], seidel[1][name], rtol=0, atol=1e-4)
-        with pytest.raises(ValueError, match="input derivatives realise the linear coupling at a fixed step"):
+        with pytest.raises(ScenarioError, match=r"input_derivatives = true realises the linear coupling at a fixed "
+                           r"step; allowed: with coupling = \"linear\" and no tolerance \(here 'hold', tolerance None\)$"):
             simulator.run(scenario, coupling="hold", input_derivatives=True)
-    with Cosimulator(fmu3_paths) as simulator, pytest.raises(ValueError, match="input derivatives need FMI 2.0"):
+    with Cosimulator(fmu3_paths) as simulator, pytest.raises(ScenarioError, match="input_derivatives = true needs FMI 2.0"):
         simulator.run(scenario, input_derivatives=True)
+    routed, names = scenario.with_simulation(input_derivatives=True), ("ReferenceRobot", "MobileRobot", "DSCController")
+    assert [routed.parameters(name).get("coupling") for name in names] == [None, 1, 2]  # what other masters get
+    assert [routed.parameters(name, slopes_from_master=True).get("coupling") for name in names] == [None, 0, 0]

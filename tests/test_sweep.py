@@ -537,3 +537,13 @@ def test_the_scenario_chooses_the_stability_definition(short):
     assert stability_definition("local") == LOCAL_DEFINITION and "first twentieth" in LOCAL_DEFINITION
     with pytest.raises(ScenarioError, match=r"\[simulation\] stability = 'loose' is not allowed; allowed: settled, local"):
         short.with_simulation(stability="loose")
+
+
+def test_an_error_controlled_run_that_cannot_meet_its_tolerance_is_reported_with_why(short, fmu_paths, tmp_path):
+    from dsc_fmu.study.sweep import run_sweep
+    text = run_sweep(short.with_simulation(stop_time=1.0), tmp_path / "out", fmu_dir=next(iter(fmu_paths.values())).parent,
+                     step_sizes=[0.01], couplings=["hold"], tolerances=[1e-9], jobs=1, progress=False, refine=False)
+    why = "the error-controlled step cannot meet the tolerance 1e-09 m at t = 0 s"
+    assert f"  gauss-seidel/rk4 error-controlled, tolerance 1e-09 m: failed: {why}" in text
+    report = (tmp_path / "out" / "report.md").read_text()
+    assert f"- gauss-seidel/rk4 error-controlled, tolerance 1e-09 m, failed: {why}" in report

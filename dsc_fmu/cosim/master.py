@@ -16,7 +16,7 @@ from fmpy.fmi1 import FMICallException
 from ..build.fmus import fmu_build_id
 from ..errors import CosimulationError
 from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
-from ..scenario import Scenario
+from ..scenario import Scenario, ScenarioError
 from . import signals
 from .instance import LoadedFmu, LogMessage, failing_fmu, logging_callbacks, type_name
 from .derivatives import InputRamps
@@ -125,13 +125,12 @@ class Cosimulator:
 
     def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
             order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
-            tolerance: float | None = None, input_derivatives: bool = False) -> CosimulationResult:
+            tolerance: float | None = None, input_derivatives: bool | None = None) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
-        ``wall_time`` counts this run only (not loading the FMUs). With ``input_derivatives`` the
-        linear coupling goes through ``fmi2SetRealInputDerivatives`` (``cosim.derivatives``) instead
-        of the FMUs' ``coupling`` parameters: FMI 2.0 FMUs, coupling "linear", a fixed step."""
+        ``wall_time`` counts this run only (not loading the FMUs)."""
         scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                            output_interval=output_interval, coupling=coupling, tolerance=tolerance)
+                                            output_interval=output_interval, coupling=coupling, tolerance=tolerance,
+                                            input_derivatives=input_derivatives)
         settings = scenario.simulation
         n = step_count(settings.stop_time, settings.step_size)
         every = max(1, round(settings.output_interval / settings.step_size))
@@ -141,14 +140,12 @@ class Cosimulator:
         self.log.clear()
         recorder = _Recorder(self, n // every + 1 + (n % every != 0))
         self._at = (0, 0.0)
-        self._ramps = self._input_ramps(settings) if input_derivatives else None
+        self._ramps = self._input_ramps(scenario) if settings.input_derivatives else None
         controlled = None
         try:
             for fmu in self._loaded:
-                parameters = scenario.parameters(fmu.name)
-                if self._ramps is not None and "coupling" in parameters:
-                    parameters = {**parameters, "coupling": 0}  # hold: the master gives the slopes
-                fmu.initialise(settings.stop_time, parameters)
+                fmu.initialise(settings.stop_time,
+                               scenario.parameters(fmu.name, slopes_from_master=settings.input_derivatives))
             if settings.tolerance is None:
                 self._steps(settings, n, every, recorder)
             else:
@@ -167,7 +164,8 @@ class Cosimulator:
             wall_time=clock.perf_counter() - started,
             settings={"scenario": scenario.name, "step_size": settings.step_size, "order": settings.order,
                       "coupling": settings.coupling, "stop_time": settings.stop_time,
-                      "output_interval": settings.output_interval, "tolerance": settings.tolerance},
+                      "output_interval": settings.output_interval, "tolerance": settings.tolerance,
+                      "input_derivatives": settings.input_derivatives},
             log=list(self.log),
             fmus={name: dict(entry) for name, entry in self.fmus.items()},
             fmu_steps=3 * n if controlled is None else controlled.fmu_steps,
@@ -217,16 +215,14 @@ class Cosimulator:
         self._exchange(end, measured, jacobi or ramps is not None, bound)
         return measured
 
-    def _input_ramps(self, settings) -> InputRamps:
-        """The master's input derivatives for the linear coupling; ValueError where they cannot apply."""
-        if settings.coupling != "linear" or settings.tolerance is not None:
-            raise ValueError("input derivatives realise the linear coupling at a fixed step; allowed: "
-                             f"coupling 'linear' and no tolerance (here {settings.coupling!r}, {settings.tolerance})")
+    def _input_ramps(self, scenario: Scenario) -> InputRamps:
+        """The master's input derivatives for the linear coupling; ScenarioError with FMI 3.0 FMUs."""
         if any(fmu.fmi_version != 2 for fmu in self._loaded):
-            raise ValueError("input derivatives need FMI 2.0 FMUs; allowed: FMI 2.0 (FMI 3.0 has no "
-                             "fmi3SetInputDerivatives)")
+            raise ScenarioError(f"{scenario.source}: [simulation] input_derivatives = true needs FMI 2.0 FMUs (FMI 3.0 "
+                                "has no fmi3SetInputDerivatives); allowed: FMI 2.0 FMUs, or the coupling parameters "
+                                "(input_derivatives = false)")
         plant, ctl = self._loaded[1].slave, self._loaded[2].slave
-        return InputRamps(plant, self.plant_u, ctl, self.ctl_in, settings.order == "jacobi")
+        return InputRamps(plant, self.plant_u, ctl, self.ctl_in, scenario.simulation.order == "jacobi")
 
     def _controlled(self, settings, recorder: _Recorder) -> ControlledSteps:
         """An error-controlled run (``step_control``): each step's position error estimated from the

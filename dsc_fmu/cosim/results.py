@@ -23,6 +23,7 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
             "step_size": run.settings["step_size"],
             "order": run.settings["order"],
             "coupling": run.settings["coupling"],
+            "input_derivatives": run.settings["input_derivatives"],
             "stop_time": run.settings["stop_time"],
             "output_interval": run.settings["output_interval"],
             "tolerance": run.settings["tolerance"],
@@ -60,7 +61,8 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
     """A short multi-line text of the run's settings, cost and metrics, for the command line."""
     s = run.settings
     return "\n".join([
-        f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
+        f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
+        f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
         f"output every {s['output_interval']:g} s",
         f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
             "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} steps "

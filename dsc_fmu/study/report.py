@@ -160,10 +160,12 @@ def _controlled(entries: Sequence[Mapping]) -> list[str]:
               _number((entry["max_position_deviation_m"] or math.nan) / entry["tolerance"], 2),
               _number(entry["steps"], 6), _number(entry["steps_rejected"], 6), _number(entry["fmu_steps"], 7),
               _number(entry["wall_time_s"])] for entry in entries]
+    failed = [f"- {entry['series']}, tolerance {entry['tolerance']:g} m, failed: {entry['diverged_reason']}"
+              for entry in entries if entry["diverged"]]
     return ["Each error-controlled run starts from the scenario's step, estimates the position error each step "
             "adds from the defect of the exchanged voltages and takes a step again, smaller, from the FMUs' "
             "saved states where the estimate exceeds the tolerance (`dsc_fmu.cosim.step_control`).", "",
-            *_table(header, lines)]
+            *_table(header, lines), *failed, *([""] if failed else [])]
 
 
 def _figures(out_dir: Path, figures: Mapping[str, Path | str]) -> list[str]:

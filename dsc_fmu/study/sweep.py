@@ -191,9 +191,10 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
         lines.append(f"  {label}: observed order {order}; {group['stability_boundary']['message']}; "
                      f"{group['prediction']['statement']}")
     for entry in summary["error_controlled"]:
-        lines.append(f"  {entry['series']}, tolerance {entry['tolerance']:g} m: max deviation "
-                     f"{entry['max_position_deviation_m']:.3g} m, {entry['steps']} steps "
-                     f"({entry['steps_rejected']} taken again), {entry['wall_time_s']:.2f} s")
+        outcome = (f"failed: {entry['diverged_reason']}" if entry["diverged"] else
+                   f"max deviation {entry['max_position_deviation_m']:.3g} m, {entry['steps']} steps "
+                   f"({entry['steps_rejected']} taken again), {entry['wall_time_s']:.2f} s")
+        lines.append(f"  {entry['series']}, tolerance {entry['tolerance']:g} m: {outcome}")
     lines.append(f"  written: {out_dir / 'sweep.csv'}, {out_dir / 'sweep.json'}, {report}")
     return "\n".join(lines)
 
