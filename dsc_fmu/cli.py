@@ -80,7 +80,8 @@ def _parser() -> argparse.ArgumentParser:
     sweep.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
     sweep.add_argument("--stability", choices=STABILITIES,
                        help="what a stable run is: settled (where it ends up) or local (it stays with the reference "
-                            "solution from its start: for a scenario starting in steady tracking); default: the scenario's")
+                            "solution from its start: for a scenario starting in steady tracking); "
+                            "default: the scenario's")
     sweep.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
     sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786")
     sweep.add_argument("--no-refine", action="store_true", help="do not bisect the stability boundaries")

@@ -81,12 +81,12 @@ class Simulation:
                     f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"
                 )
         if not isinstance(self.input_derivatives, bool):
-            raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not allowed; "
-                                "allowed: true, false")
+            raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not "
+                                "allowed; allowed: true, false")
         if self.input_derivatives and (self.coupling != "linear" or self.tolerance is not None):
-            raise ScenarioError(f"{where}: [simulation] input_derivatives = true realises the linear coupling at a fixed "
-                                f"step; allowed: with coupling = \"linear\" and no tolerance (here {self.coupling!r}, "
-                                f"tolerance {self.tolerance!r})")
+            raise ScenarioError(f"{where}: [simulation] input_derivatives = true realises the linear coupling at a "
+                                "fixed step; allowed: with coupling = \"linear\" and no tolerance (here "
+                                f"{self.coupling!r}, tolerance {self.tolerance!r})")
 
     def fmu_coupling(self, fmu: str) -> int | None:
         """The ``coupling`` parameter of FMU ``fmu`` for these settings (None: it has none)."""

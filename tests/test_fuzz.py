@@ -2,9 +2,9 @@
 
 Every call is drawn at random with arguments good and bad (unknown value references, wrong types,
 NaN, infinite, zero and negative step sizes, huge values, damaged serialized states, a '%' in the
-instance name, input derivatives of any order) in any order, but for what the standard leaves undefined (using a freed instance or
-a freed FMU state). No process may die of a signal and no call may return fmi2Fatal. The figures of
-one run of the full seed range are in the README.
+instance name, input derivatives of any order) in any order, but for what the standard leaves
+undefined (using a freed instance or a freed FMU state). No process may die of a signal and no call
+may return fmi2Fatal. The figures of one run of the full seed range are in the README.
 """
 
 import json

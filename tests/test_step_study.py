@@ -31,8 +31,9 @@ def sweep(tmp_path_factory, fmu_dir):
 def test_sweep_writes_table_summary_figures_and_report(sweep):
     with open(sweep / "sweep.csv") as file:
         rows = list(csv.DictReader(file))
-    assert [(float(r["step_size"]), r["order"]) for r in rows] == [
-        (h, order) for h in (0.02, 0.04, 0.06) for order in ("gauss-seidel", "jacobi")]
+    assert [(float(r["step_size"]), r["order"], r["coupling"]) for r in rows] == [
+        (h, order, coupling) for h in (0.02, 0.04, 0.06) for order in ("gauss-seidel", "jacobi")
+        for coupling in ("hold", "linear")]
     for name in ("deviation.png", "tracking_and_cost.png", "paths.png", "spectral_radius.png"):
         assert (sweep / name).read_bytes()[:4] == b"\x89PNG"
     report = (sweep / "report.md").read_text()

@@ -62,8 +62,8 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
     s = run.settings
     return "\n".join([
         f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
-        f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, stop {s['stop_time']:g} s, "
-        f"output every {s['output_interval']:g} s",
+        f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
+        f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
         f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
             "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} steps "
             f"taken again, step {run.step_sizes['step_size'].min():.3g} s to {run.step_sizes['step_size'].max():.3g} s)"),

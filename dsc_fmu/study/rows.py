@@ -15,9 +15,9 @@ from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJEC
 from .cases import Case, apply
 
 __all__ = [
-    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS", "simulate",
-    "compute_reference", "lost_outcome", "error_grows", "position_deviation", "deviation_grows", "deviations",
-    "make_row", "run_case",
+    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
+    "DEVIATION_KEYS", "ROW_KEYS", "simulate", "compute_reference", "lost_outcome", "error_grows",
+    "position_deviation", "deviation_grows", "deviations", "make_row", "run_case",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -113,7 +113,7 @@ def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
 
 
 def error_grows(trajectory: np.ndarray) -> bool:
-    """Whether the position error grows over the last third of the run (``STABILITY_DEFINITION``)."""
+    """Whether the position error grows over the last third of the run (``SETTLED_DEFINITION``)."""
     error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
     return _grows_at_end(trajectory["time"], error)
 

@@ -159,8 +159,9 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
         notes.append(TRANSIENT_NOTE)
     if scenario.simulation.stability == "settled" and any(ratio < 0.8 for ratio in ratios):
         notes.append(RECOVERY_NOTE)
-    summary = summarise(rows, stability_definition=stability_definition(scenario.simulation.stability), settings=settings, boundaries=boundaries,
-                        fits=fit_orders(rows), predictions=predictions, notes=notes)
+    summary = summarise(rows, stability_definition=stability_definition(scenario.simulation.stability),
+                        settings=settings, boundaries=boundaries, fits=fit_orders(rows), predictions=predictions,
+                        notes=notes)
     summary["error_controlled"] = [{key: row.get(key) for key in CONTROLLED_KEYS} | {"series": group_label(row)}
                                    for row in all_rows if row.get("tolerance") is not None]
     write_summary_json(out_dir, summary)
