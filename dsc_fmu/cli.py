@@ -47,9 +47,10 @@ def _parser() -> argparse.ArgumentParser:
     run.add_argument("--order", choices=ORDERS, help="coupling order (default: the scenario's)")
     run.add_argument("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); linear: "
                      "the plant extrapolates u, the controller interpolates or extrapolates its inputs (default: the scenario's)")
-    run.add_argument("--input-derivatives", action="store_true", default=None,
+    run.add_argument("--input-derivatives", action=argparse.BooleanOptionalAction,
                      help="with --coupling linear: the master sets the slopes with fmi2SetRealInputDerivatives "
-                          "(the standard route, FMI 2.0) instead of the FMUs' coupling parameters")
+                          "(the standard route, FMI 2.0) instead of the FMUs' coupling parameters (default: the "
+                          "scenario's)")
     run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
     run.add_argument("--tolerance", type=float, metavar="TOL", help="error-controlled step: the estimated position "
                      "error (m) each step may add; the step then varies within [--h-min, --h-max] from --step-size")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import math
 import tomllib
 from dataclasses import dataclass
@@ -84,9 +85,10 @@ class Simulation:
             raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not "
                                 "allowed; allowed: true, false")
         if self.input_derivatives and (self.coupling != "linear" or self.tolerance is not None):
+            here = f"coupling = {json.dumps(self.coupling)}" + (
+                "" if self.tolerance is None else f", tolerance = {self.tolerance!r}")
             raise ScenarioError(f"{where}: [simulation] input_derivatives = true realises the linear coupling at a "
-                                "fixed step; allowed: with coupling = \"linear\" and no tolerance (here "
-                                f"{self.coupling!r}, tolerance {self.tolerance!r})")
+                                f"fixed step; allowed: with coupling = \"linear\" and no tolerance (here {here})")
 
     def fmu_coupling(self, fmu: str) -> int | None:
         """The ``coupling`` parameter of FMU ``fmu`` for these settings (None: it has none)."""

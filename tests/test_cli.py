@@ -82,6 +82,20 @@ def test_run_takes_the_standard_route_of_the_linear_coupling(tmp_path, fmu_dir):
     assert rows[True] == rows[False]
 
 
+@pytest.mark.parametrize("option, stability", [([], "local"), (["--stability", "settled"], "settled")])
+def test_sweep_judges_by_the_scenarios_stability_unless_told(tmp_path, fmu_dir, option, stability):
+    from dsc_fmu.study.rows import stability_definition
+    out = tmp_path / "sweep"
+    assert main(["sweep", "on_reference", *option, "--stop-time", "3", "--step-sizes", "0.01", "--orders",
+                 "gauss-seidel", "--couplings", "hold", "--tolerances", "", "--no-refine", "--jobs", "1",
+                 "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    summary = json.loads((out / "sweep.json").read_text())
+    assert summary["settings"]["stability"] == stability
+    assert summary["stability_definition"] == stability_definition(stability)
+    with open(out / "sweep.csv") as file:
+        assert [(row["stability"], row["stable"]) for row in csv.DictReader(file)] == [(stability, "True")]
+
+
 BAD_SCENARIO = "[plant]\nmc = -30.0\n"
 
 

@@ -67,7 +67,7 @@ def test_an_h_min_that_cannot_meet_the_tolerance_is_one_error_naming_the_time(si
 
 
 def _replay(simulator, scenario, sizes, monkeypatch):
-    """``scenario`` run with exactly the step sizes ``sizes``, every one accepted (no estimate, no rollback)."""
+    """``scenario`` run with exactly the step sizes ``sizes``, every one accepted (no rollback)."""
     following = iter(sizes[1:])
     monkeypatch.setattr(master, "next_step", lambda *arguments: next(following, 1.0))
     settings = dataclasses.replace(scenario.simulation, tolerance=1e9, step_size=sizes[0])

@@ -345,7 +345,7 @@ def _close_all(fmus: list[LoadedFmu]) -> None:
 
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
                stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
-               coupling: str | None = None, tolerance: float | None = None,
+               coupling: str | None = None, tolerance: float | None = None, input_derivatives: bool | None = None,
                workdir: Path | None = None) -> CosimulationResult:
     """Co-simulate ``scenario`` with the FMUs in ``fmu_paths`` (by name) on a fixed communication step.
 
@@ -367,7 +367,10 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     The coupling (``scenario.simulation.coupling``) is the FMUs' business: with ``"linear"`` the plant
     extrapolates ``u`` over each step from the two last communication points, and the controller
     interpolates its inputs between those of the two ends of the step (Gauss-Seidel) or extrapolates
-    them from the two last points (Jacobi); the master's calls are the same.
+    them from the two last points (Jacobi); the master's calls are the same. With ``input_derivatives``
+    (or ``scenario.simulation.input_derivatives``; FMI 2.0 FMUs, a fixed step) the linear coupling takes
+    the standard route instead: the FMUs' ``coupling`` parameters hold and the master sets each step's
+    slopes with ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``).
 
     Rows are recorded at ``t = 0``, every ``max(1, round(output_interval / h))`` steps and at
     ``stop_time``, each after the exchange at that point: every output in ``signals.RECORDED``,
@@ -385,7 +388,8 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance)
+                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance,
+                                        input_derivatives=input_derivatives)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
         run = simulator.run(scenario)

@@ -20,9 +20,9 @@ pickles. An entry that exists but does not verify (damaged, edited, of an older 
 record is a write that was interrupted: a plain miss, overwritten.
 
 A run's key is the SHA-256 of everything that determines its row: the scenario's content after the
-case is applied (parameter values and the simulation settings stop time, step, order, output
-interval and bound; not its file or name), the case, the FMUs' build ids, the key of its reference
-solution and ``ROW_VERSION``. A reference's key leaves out what the monolithic ODE does not see (the
+case is applied (parameter values and every simulation setting, the stability definition included,
+so another ``--stability`` runs the cases again; not its file or name), the case, the FMUs' build
+ids, the key of its reference solution and ``ROW_VERSION``. A reference's key leaves out what the monolithic ODE does not see (the
 step, order, output interval, bound and the controller's discretisation) and adds the reference
 grid, the solver settings and a hash of the Python code the reference and the metrics run.
 """

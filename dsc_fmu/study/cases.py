@@ -305,7 +305,9 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
 
 def apply(scenario: Scenario, case: Case) -> Scenario:
     """``scenario`` with the case's overrides (checked), its discretisation (as the controller's
-    integer ``discretization``) and its step size and order: the scenario this case runs."""
+    integer ``discretization``), its step size, order, coupling and tolerance: the scenario this case
+    runs. The scenario's ``input_derivatives`` carries over to a linear fixed-step case only; the
+    others run on the FMUs' coupling parameters."""
     where = scenario.source
     if case.order not in ORDERS:
         raise ScenarioError(f"{where}: order {case.order!r} is not allowed; allowed: {', '.join(ORDERS)}")
@@ -322,7 +324,9 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
     changed = dataclasses.replace(scenario, **tables)
     if case.coupling not in COUPLINGS:
         raise ScenarioError(f"{where}: coupling {case.coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
-    changed = dataclasses.replace(changed, simulation=dataclasses.replace(changed.simulation, tolerance=case.tolerance))
+    routed = changed.simulation.input_derivatives and case.coupling == "linear" and case.tolerance is None
+    changed = dataclasses.replace(changed, simulation=dataclasses.replace(
+        changed.simulation, tolerance=case.tolerance, input_derivatives=routed))
     return changed.with_simulation(step_size=case.step_size, order=case.order, coupling=case.coupling)
 
 

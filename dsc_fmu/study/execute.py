@@ -359,9 +359,11 @@ def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache
              progress: bool, lost: list) -> dict:
     """Rows (by key) of the runs of ``todo`` (key: (case, applied scenario, reference key)) from
     ``results``, each cached as soon as both the run and its reference solution are in, except the
-    runs that did not finish (their keys are appended to ``lost``)."""
+    runs that did not finish (their keys are appended to ``lost``) and, under the "local" stability,
+    those whose reference solution failed (judged as settled runs for now)."""
     rows, waiting = {}, defaultdict(list)
     remaining = Counter(ref_key for _, _, ref_key in todo.values())
+    local = scenario.simulation.stability == "local"
     with tqdm(total=len(todo), unit="run", desc=f"sweep {scenario.name}", file=sys.stderr,
               disable=None if progress else True) as bar:
 
@@ -370,7 +372,7 @@ def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache
             rows[key] = make_row(applied, case, (key, ref_key), outcome, references[ref_key])
             if outcome.get("lost"):
                 lost.append(key)
-            else:
+            elif references[ref_key] is not None or not local:  # judged without its reference: not for keeps
                 cache.store_run(key, rows[key], outcome["trajectory"], identities)
             bar.update()
             remaining[ref_key] -= 1
@@ -381,7 +383,9 @@ def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache
             if kind == "reference":
                 reference, why = value
                 if reference is None:
-                    warnings.warn(f"reference solution failed ({why}): deviations are NaN for its runs", stacklevel=4)
+                    judged = "; they are judged as settled runs and not cached" if local else ""
+                    warnings.warn(f"reference solution failed ({why}): deviations are NaN for its runs{judged}",
+                                  stacklevel=4)
                 else:
                     cache.store_reference(tag, reference)
                 if remaining[tag]:

@@ -23,6 +23,7 @@ __all__ = [
 STABLE_POSITION_ERROR = 0.5  # m
 GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m: the position error over the last third
 DEVIATION_GROWTH, DEVIATION_SLACK = 2.0, 1e-5  # 1, m: the deviation from the reference solution after its start
+SEED_TIME, SEED_ROWS = 1.0, 3  # s, rows after t = 0: the window over which the first steps seed the deviation
 SETTLED_DEFINITION = (
     "A run is stable if it did not diverge (every exchanged signal stayed finite and within the scenario's "
     f"bound, and no FMU failed), its position error sqrt(xe^2 + ye^2) stayed below {STABLE_POSITION_ERROR:g} m "
@@ -38,11 +39,13 @@ LOCAL_DEFINITION = (
     f"stayed below {STABLE_POSITION_ERROR:g} m over the last third of the run and did not grow there by more "
     f"than {GROWTH_FACTOR:g} times plus {GROWTH_SLACK * 1e3:g} mm from the sixth before the last to the last) "
     "and it stayed with the reference solution: its position deviation from it never exceeded "
-    f"{DEVIATION_GROWTH:g} times its maximum over the first twentieth of the run, plus {DEVIATION_SLACK * 1e3:g} mm. "
-    "The coupling error of the first steps seeds the deviation; a sampled loop that is stable about steady "
-    "tracking keeps it at that level, an unstable one amplifies it, even where the oscillation later moves the "
-    "parameter estimates and the adaptation damps it (the linearised prediction freezes the estimates: this "
-    "is the instability it predicts). A run without a reference solution is judged as a settled one."
+    f"{DEVIATION_GROWTH:g} times its maximum over the first {SEED_TIME:g} s of the run (at least its first "
+    f"{SEED_ROWS} recorded steps), plus {DEVIATION_SLACK * 1e3:g} mm. The coupling error of the first steps seeds "
+    "the deviation, which a stable loop reaches within a few tenths of a second; a sampled loop that is stable "
+    "about steady tracking keeps it at that level, an unstable one amplifies it, even where the oscillation "
+    "later moves the parameter estimates and the adaptation damps it (the linearised prediction freezes the "
+    "estimates: this is the instability it predicts). A run no longer than that window, an error-controlled "
+    "run (its step grows by design) and a run without a reference solution are judged as settled ones."
 )
 METRIC_KEYS = ("final_position_error_m", "rms_position_error_m", "max_position_error_m", "max_abs_thetae_rad",
                "settling_time_0p1_s", "max_abs_u_V", "beta_guard_count")
@@ -50,8 +53,8 @@ DEVIATION_KEYS = ("max_position_deviation_m", "rms_position_deviation_m", "max_h
                   "rms_heading_deviation_rad", "max_u_deviation_V", "rms_u_deviation_V")
 ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tolerance", "sample",
             "<table.name of each override>", "key", "reference_key", "diverged", "diverged_time", "diverged_signal",
-            "diverged_reason", "stable", *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps", "steps_rejected",
-            "fmu_steps")
+            "diverged_reason", "stability", "stable", *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps",
+            "steps_rejected", "fmu_steps")
 
 
 def _columns(result: np.ndarray, names) -> np.ndarray:
@@ -131,10 +134,15 @@ def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndar
 
 def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
     """Whether the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
-    maximum over the first twentieth of the run plus ``DEVIATION_SLACK``: the sampled loop amplifying
-    the coupling error about steady tracking (``LOCAL_DEFINITION``)."""
+    maximum over the seed window (the first ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after
+    t = 0) plus ``DEVIATION_SLACK``: the sampled loop amplifying the coupling error about steady
+    tracking (``LOCAL_DEFINITION``). False for a run no longer than its seed window."""
     t = trajectory["time"]
-    start = t <= t[-1] / 20.0
+    if len(t) <= SEED_ROWS + 1:
+        return False
+    start = t <= max(SEED_TIME, t[SEED_ROWS])
+    if start.all():
+        return False
     deviation = position_deviation(trajectory, reference)
     return bool(deviation.max() > DEVIATION_GROWTH * deviation[start].max() + DEVIATION_SLACK)
 
@@ -161,20 +169,22 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
 def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: dict, reference: np.ndarray | None) -> dict:
     """The row (``ROW_KEYS``; JSON-serialisable, NaN where a value does not apply) of a simulated case;
     ``applied`` is the case applied to its scenario (``apply``), ``keys`` are its cache key and that of
-    its reference solution."""
+    its reference solution. Its ``stability`` is the definition its ``stable`` was judged by: the
+    scenario's, or "settled" where "local" does not apply (``LOCAL_DEFINITION``)."""
     diverged = outcome["metrics"] is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
     usable = not diverged and reference is not None and len(outcome["trajectory"])
-    local = applied.simulation.stability == "local"
+    local = usable and applied.simulation.stability == "local" and case.tolerance is None
     row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
            "sample": case.sample, **dict(case.overrides), "key": keys[0],
            "reference_key": keys[1],
            "diverged": diverged, "diverged_time": outcome["diverged_time"],
            "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
+           "stability": "local" if local else "settled",
            "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
            and not error_grows(outcome["trajectory"])
-           and not (usable and local and deviation_grows(outcome["trajectory"], reference))}
+           and not (local and deviation_grows(outcome["trajectory"], reference))}
     row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
     row.update({name: math.nan if value is None else value for name, value in metrics.items()})
     row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"], steps_rejected=outcome["steps_rejected"],
@@ -185,7 +195,8 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: dict
 def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
     """Run one case with ``cosimulator`` and return its row; ``reference`` is the reference solution
     of the case's physical scenario (``reference_solution(apply(scenario, case), times=...)``,
-    at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN."""
+    at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN (and judge the run as a
+    settled one)."""
     keys = case_key(scenario, case, fmu_identities(cosimulator.paths)), reference_key(scenario, case)
     applied = apply(scenario, case)
     return make_row(applied, case, keys, simulate(applied, cosimulator), reference)

@@ -16,7 +16,7 @@ from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, s
 from .cases import DEFAULT_TOLERANCES, SCHEDULER_TIMEOUT, SweepError, apply, build_cases, check_scheduler
 from .cache import load_trajectory
 
-__all__ = ["run_sweep", "write_rows_csv", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
+__all__ = ["run_sweep", "write_rows_csv", "boundary_notes", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
 
 # What sweep.json keeps of each error-controlled run.
 CONTROLLED_KEYS = ("order", "discretization", "coupling", "tolerance", "max_position_deviation_m", "steps",
@@ -37,6 +37,16 @@ RECOVERY_NOTE = (
     "[simulation] stability = \"local\" (dsc-fmu sweep --stability local) judges the stability of steady "
     "tracking itself, the one the prediction predicts, for a scenario that starts in steady tracking."
 )
+
+
+def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[str]:
+    """Why refined boundaries lie more than 20 % from their predictions: below them, the start-up
+    transient (``TRANSIENT_NOTE``); above them under the "settled" definition, the adaptation damping
+    an oscillation that grows at first (``RECOVERY_NOTE``)."""
+    ratios = [predicted / boundaries[label].h_stable for label, predicted in predictions.items()
+              if label in boundaries and math.isfinite(predicted) and predicted > 0]
+    return ([TRANSIENT_NOTE] if any(ratio > 1.2 for ratio in ratios) else []) + (
+        [RECOVERY_NOTE] if stability == "settled" and any(ratio < 0.8 for ratio in ratios) else [])
 
 
 def write_rows_csv(path: Path, rows: list[dict]) -> Path:
@@ -101,6 +111,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     between its last stable and first unstable grid step to 2 % (with ``refine``); the linearised
     prediction (of each series' coupling) is added for the nominal series of a constant-velocity
     scenario. Every run, fixed-step and error-controlled, is a point of the work-precision figure.
+    "Stable" is judged by ``scenario.simulation.stability`` (``rows.stability_definition``).
 
     Before anything runs, the grid, the scheduler (``check_scheduler``) and the output folder are
     checked (one-line errors). Cache entries that did not verify, and worker processes lost, are
@@ -153,12 +164,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                 "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval,
                 "stability": scenario.simulation.stability}
     measured = {label: b.h_stable for label, b in boundaries.items()}
-    ratios = [predicted / measured[label] for label, predicted in predictions.items()
-              if label in measured and math.isfinite(predicted) and predicted > 0]
-    if any(ratio > 1.2 for ratio in ratios):
-        notes.append(TRANSIENT_NOTE)
-    if scenario.simulation.stability == "settled" and any(ratio < 0.8 for ratio in ratios):
-        notes.append(RECOVERY_NOTE)
+    notes += boundary_notes(predictions, boundaries, scenario.simulation.stability)
     summary = summarise(rows, stability_definition=stability_definition(scenario.simulation.stability),
                         settings=settings, boundaries=boundaries, fits=fit_orders(rows), predictions=predictions,
                         notes=notes)
