@@ -617,3 +617,12 @@ def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(f
     monkeypatch.undo()
     row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
     assert row["stability"] == "local" and row["max_position_deviation_m"] < 1e-3
+
+
+def test_a_local_run_shorter_than_its_seed_window_is_judged_as_settled(fmu_paths, tmp_path):
+    scenario = load_scenario("on_reference").with_simulation(stop_time=0.5)
+    case = Case(0.01)
+    reference, why = sweep_rows.compute_reference(apply(scenario, case))
+    with Cosimulator(fmu_paths, tmp_path) as simulator:
+        row = run_case(scenario, case, simulator, reference)
+    assert why is None and (row["stability"], row["stable"]) == ("settled", True)

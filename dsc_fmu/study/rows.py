@@ -17,7 +17,7 @@ from .cases import Case, apply
 __all__ = [
     "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
     "DEVIATION_KEYS", "ROW_KEYS", "simulate", "compute_reference", "lost_outcome", "error_grows",
-    "position_deviation", "deviation_grows", "deviations", "make_row", "run_case",
+    "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row", "run_case",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -132,16 +132,21 @@ def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndar
     return np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
 
 
+def seed_window(t: np.ndarray) -> np.ndarray | None:
+    """The rows of the times ``t`` (s) over which the first steps seed the deviation: the first
+    ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after t = 0; None for a run no longer."""
+    if len(t) <= SEED_ROWS + 1:
+        return None
+    start = t <= max(SEED_TIME, t[SEED_ROWS])
+    return None if start.all() else start
+
+
 def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
     """Whether the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
-    maximum over the seed window (the first ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after
-    t = 0) plus ``DEVIATION_SLACK``: the sampled loop amplifying the coupling error about steady
-    tracking (``LOCAL_DEFINITION``). False for a run no longer than its seed window."""
-    t = trajectory["time"]
-    if len(t) <= SEED_ROWS + 1:
-        return False
-    start = t <= max(SEED_TIME, t[SEED_ROWS])
-    if start.all():
+    maximum over the ``seed_window`` plus ``DEVIATION_SLACK``: the sampled loop amplifying the coupling
+    error about steady tracking (``LOCAL_DEFINITION``). False for a run without a seed window."""
+    start = seed_window(trajectory["time"])
+    if start is None:
         return False
     deviation = position_deviation(trajectory, reference)
     return bool(deviation.max() > DEVIATION_GROWTH * deviation[start].max() + DEVIATION_SLACK)
@@ -174,7 +179,8 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: dict
     diverged = outcome["metrics"] is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
     usable = not diverged and reference is not None and len(outcome["trajectory"])
-    local = usable and applied.simulation.stability == "local" and case.tolerance is None
+    local = bool(usable and applied.simulation.stability == "local" and case.tolerance is None
+                 and seed_window(outcome["trajectory"]["time"]) is not None)
     row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
            "sample": case.sample, **dict(case.overrides), "key": keys[0],
