@@ -92,7 +92,6 @@ class Cosimulator:
         self.measured_plant = [name for name in ctl.inputs if name in plant.outputs]
         self.measured_ref = [name for name in ctl.inputs if name not in plant.outputs]
         self.plant_out, self.ref_out = plant.refs(self.measured_plant), ref.refs(self.measured_ref)
-        self.position = (self.measured_plant.index("x"), self.measured_plant.index("y"))  # in the measurements
         self.ctl_in = ctl.refs(self.measured_plant + self.measured_ref)
         self.ctl_u, self.plant_u = ctl.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
         self.checked = [f"{PLANT}.{s}" for s in self.measured_plant] + [f"{REFERENCE}.{s}" for s in self.measured_ref]

@@ -200,10 +200,14 @@ class SlaveCore:
             return False
         self.state = new
         self.history = [stamp, list(self.u)]
-        self.derivatives_given = {}
-        self.time = current_time + step_size
-        self._cache = None
+        self._stepped(current_time + step_size)
         return True
+
+    def _stepped(self, end_time: float) -> None:
+        """A step taken up to ``end_time``: its input derivatives used up, the outputs to compute again."""
+        self.derivatives_given = {}
+        self.time = end_time
+        self._cache = None
 
     def _get_fmu_state(self):
         return {

@@ -161,9 +161,7 @@ class DSCControllerModel:
                     f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}"
                 )
             self.waited_steps += 1
-            self.derivatives_given = {}
-            self.time = current_time + step_size
-            self._cache = None
+            self._stepped(current_time + step_size)
             return True
         if self.state is None and self.waited_steps and not self.rejected:
             self.log_warning(

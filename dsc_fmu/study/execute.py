@@ -260,11 +260,7 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     for case, applied, key, ref_key in plans:
         if key in done or key in todo:
             continue
-        try:
-            cached = cache.row(key)
-        except CacheEntryError as error:
-            unverified.append(error)
-            cached = None
+        cached, _ = _verified(cache.row, key, unverified)
         if cached is not None:
             done[key] = {**cached, "scenario": scenario.name}
         else:
@@ -297,21 +293,27 @@ def _references(cache: SweepCache, plans, todo: dict, unverified: list) -> tuple
     solutions to compute (key: applied scenario): those the runs need and are not cached, and every
     one of ``plans`` cached but not verifying (appended to ``unverified``)."""
     needed = {ref_key for _, _, ref_key in todo.values()}
-    references, missing = {}, {}
+    references, missing, seen = {}, {}, set()
     for _, applied, _, ref_key in plans:
-        if ref_key in references or ref_key in missing:
+        if ref_key in seen:
             continue
-        try:
-            reference = cache.reference(ref_key)
-        except CacheEntryError as error:
-            unverified.append(error)
-            missing[ref_key] = applied
-            continue
+        seen.add(ref_key)
+        reference, verified = _verified(cache.reference, ref_key, unverified)
         if reference is not None and ref_key in needed:
             references[ref_key] = reference
-        elif reference is None and ref_key in needed:
+        elif not verified or ref_key in needed:
             missing[ref_key] = applied
     return references, missing
+
+
+def _verified(read, key: str, unverified: list) -> tuple:
+    """``read(key)`` from the cache (None: not cached) and whether the entry verified; one that does
+    not is appended to ``unverified`` and counts as not cached."""
+    try:
+        return read(key), True
+    except CacheEntryError as error:
+        unverified.append(error)
+        return None, False
 
 
 @contextmanager
