@@ -61,15 +61,21 @@ driver = importlib.util.module_from_spec(spec)
 spec.loader.exec_module(driver)
 
 
-def report(result):
-    """Print ``result``, with the modules loaded and what the blocker saw, as ``RESULT <json>``."""
+def loaded_modules():
+    """Every loaded module that has a file, with the file's real path."""
     modules = {}
     for name, module in list(sys.modules.items()):
         origin = getattr(module, "__file__", None)
         if origin:
             modules[name] = os.path.realpath(origin)
+    return modules
+
+
+def report(result):
+    """Print ``result``, with the modules loaded (unless it has them) and what the blocker saw, as
+    ``RESULT <json>``."""
+    result.setdefault("modules", loaded_modules())
     result.update(
-        modules=modules,
         attempts=ATTEMPTS,
         preloaded=PRELOADED,
         path_at_start=PATH_AT_START,

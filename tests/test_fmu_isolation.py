@@ -57,8 +57,10 @@ def run():
         fmu.do_step(k * h, h)
     rows.append(fmu.outputs())
     fmu.terminate()
+    alive = loaded_modules()
     fmu.free_instance()
-    return {"rows": rows, "messages": fmu.messages, "unzipped": os.path.realpath(str(unzipped))}
+    return {"rows": rows, "messages": fmu.messages, "unzipped": os.path.realpath(str(unzipped)), "modules": alive,
+            "modules_after_free": sorted(loaded_modules()), "path_after_free": list(sys.path)}
 
 
 report(selftest() if config["mode"] == "selftest" else run())
@@ -138,8 +140,14 @@ def test_fmu_runs_without_dsc_fmu_numpy_fmpy_scipy(fmu_paths, fmu_unzipped, tmp_
                   instance=f"{name}_isolated", **scenario)
     result = run_isolated(RUNNER, config, tmp_path)
 
-    # Isolated, and pythonfmu and our package come from inside the FMU.
-    assert violations(result, "pythonfmu", f"dsc_fmu_{name.lower()}_") == {}
+    # Isolated, and our package with its own pythonfmu come from inside the FMU, under the build's name.
+    package = f"dsc_fmu_{name.lower()}_"
+    assert violations(result, package) == {}
+    assert any(m.startswith(package) and m.endswith(".pythonfmu") for m in result["modules"])
+    assert not any(m.partition(".")[0] == "pythonfmu" for m in result["modules"])
+    # Freed, the FMU leaves the process's modules and path as they were.
+    assert not any(m.startswith(package) for m in result["modules_after_free"])
+    assert result["path_after_free"] == result["path_at_start"]
     rows = result["rows"]
     assert len(rows) == len(scenario["schedule"]) + 1
     assert all(math.isfinite(v) for row in rows for v in row.values())
@@ -179,6 +187,6 @@ def test_isolation_check_catches_an_fmu_that_imports_numpy(tmp_path, patched_mob
     config = dict(mode="run", fmu=str(leaky), workdir=str(tmp_path / "unzipped"), instance="leaky",
                   **SCENARIOS["MobileRobot"])
     result = run_isolated(RUNNER, config, tmp_path)
-    found = violations(result, "pythonfmu", "dsc_fmu_mobilerobot_")
+    found = violations(result, "dsc_fmu_mobilerobot_")
     assert list(found) == ["attempts"] and set(found["attempts"]) == {"numpy"}
     assert all(math.isfinite(v) for row in result["rows"] for v in row.values())

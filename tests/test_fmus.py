@@ -1058,7 +1058,7 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
             module = archive.read("resources/slavemodule.txt").decode().strip()
             assert digest[:12] in module
             assert any(f.startswith(f"resources/dsc_fmu_mobilerobot_{digest[:12]}/") for f in archive.namelist())
-            modules.append(module)
+            modules.append(f"dsc_fmu_mobilerobot_{digest[:12]}.{module}")
     assert modules[0] != modules[1]
 
     variant_md = read_model_description(str(variant))
@@ -1079,6 +1079,7 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
         assert module in sys.modules
     for inst in (a, b, c):
         inst.close()
+    assert not any(name.startswith("dsc_fmu_mobilerobot_") for name in sys.modules)
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -25,11 +25,15 @@ from ..errors import DscFmuError
 
 __all__ = [
     "BinaryBuildError", "PythonRuntime", "build_python", "compile_binary", "binary_sources", "binary_folder",
-    "OVERRIDE_VARIABLE",
+    "OVERRIDE_VARIABLE", "ENTRY_FILE",
 ]
 
 NATIVE_DIR = Path(__file__).parent / "native"
 OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
+# The file in an FMU's resources that names what the binary imports and creates:
+# "<bridge module> <slave module> <slave class> <GUID or token>"; the bridge's top level is the
+# build's private package.
+ENTRY_FILE = "dsc_fmu_entry.txt"
 GLIBC = "2.17"
 # FMI platform folders of the binary this module builds (x86_64 Linux).
 FOLDERS = {2: "linux64", 3: "x86_64-linux"}
@@ -97,6 +101,7 @@ def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str
         f"-DDSC_BUILD_LIBPYTHON={_c_string(runtime.library)}",
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
         f"-DDSC_PYTHON_SONAME={_c_string(runtime.system_library)}",
+        f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
         *(str(NATIVE_DIR / name) for name in _SOURCES[fmi_version]),
         "-o", str(output), "-ldl", "-lpthread", "-lm",
     ]

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import re
 import shutil
 import sys
 import tempfile
@@ -18,6 +19,7 @@ from pythonfmu import FmuBuilder
 from .. import __version__
 from ..files import atomic_write
 from ..registry import FMUS, FmuSpec
+from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import binary_folder, binary_sources, build_python, compile_binary
 from .model_description import complete_model_description, complete_model_description3, documentation
 
@@ -31,13 +33,14 @@ DEFAULT_FMU_DIR = Path("build") / "fmus"
 DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
 FMI_VERSIONS = (2, 3)
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
-# What the binary layer imports and creates: "<bridge module> <slave module> <slave class> <GUID or token>".
-ENTRY_FILE = "resources/dsc_fmu_entry.txt"
+ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue
 # of its FMI version only.
 _FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "native_bridge.py")
 _GLUE = {2: "fmi2.py", 3: "fmi3.py"}
+# The FMI library each FMU carries, under its build's private package.
+_LIBRARY = {2: "pythonfmu", 3: "pythonfmu3"}
 
 
 def _sources_dir() -> Path:
@@ -122,6 +125,18 @@ def _entry(root: ET.Element, script: Path, package_dir: Path, spec: FmuSpec) -> 
     return f"{package_dir.name}.fmu.native_bridge {script.stem} {spec.name} {token}\n"
 
 
+def _private(name: str, data: bytes, package: str, library: str) -> tuple[str, bytes]:
+    """A file of the FMU as the binary loads it: the FMI library under the build's private package, and
+    every bundled module importing it by that name, so that no other FMU build and no host shares it."""
+    public = f"resources/{library}/"
+    if name.startswith(public):
+        name = f"resources/{package}/{library}/{name[len(public):]}"
+    if name.startswith("resources/") and name.endswith(".py"):
+        text = re.sub(rf"^(\s*from\s+){library}\b", rf"\g<1>{package}.{library}", data.decode("utf-8"), flags=re.M)
+        data = text.encode("utf-8")
+    return name, data
+
+
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> Path:
     """The FMU as the FMI library builds it from the staged script and package."""
     if fmi_version == 3:
@@ -173,7 +188,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                 if item.filename == own_binary:
                     data = compile_binary(fmi_version)
                 if item.filename != DOCUMENTATION_FILE:
-                    dst.writestr(item.filename, data)
+                    dst.writestr(*_private(item.filename, data, package_dir.name, _LIBRARY[fmi_version]))
             dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,
                                                     "fmi_version": fmi_version}))
         return atomic_write(target, staged.read_bytes())

@@ -1,17 +1,24 @@
 """What the project's FMU binary (``dsc_fmu/build/native``) calls besides the slave's own FMI methods.
 
 Bundled into every FMU beside the slave code; imports only the standard library. The binary
-creates the slave through ``instantiate``, reads the variable table once (``variables``) to guard
-every get and set by value reference, type, causality and variability, forwards the slave's log
-queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
-``state_from_bytes``) with a checksum and the identity of the build that made them.
+imports the FMU build's private package from the resources by its location (sys.path is never
+touched) and this module from it, counts its users (``acquire``, ``release``: the last forgets
+every module of the package), creates the slave through ``instantiate``, reads the variable
+table once (``variables``) to guard every get and set by value reference, type, causality and
+variability, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
+back (``state_to_bytes``, ``state_from_bytes``) with a checksum and the identity of the build
+that made them.
 """
 
 import hashlib
-import importlib
+import importlib.util
 import json
+import os
+import sys
 
-__all__ = ["instantiate", "variables", "drain_log", "state_to_bytes", "state_from_bytes", "TYPES"]
+__all__ = [
+    "acquire", "release", "instantiate", "variables", "drain_log", "state_to_bytes", "state_from_bytes", "TYPES",
+]
 
 # Codes shared with native/slave.h.
 TYPES = {"Real": 0, "Float64": 0, "Integer": 1, "Int32": 1, "Boolean": 2, "String": 3}
@@ -20,11 +27,54 @@ VARIABILITIES = {"constant": 0, "fixed": 1, "tunable": 2, "discrete": 3, "contin
 OTHER = 9
 MAGIC = b"dsc-fmu FMU state 1\n"
 DIGEST = 32
+PACKAGE = __name__.partition(".")[0]
+_users = 0
+
+
+def acquire() -> None:
+    """Count one more slave of this FMU build in this process (the binary, once per instance)."""
+    global _users
+    _users += 1
+
+
+def _inside(path: str, folder: str) -> bool:
+    path = os.path.realpath(path)
+    return path == folder or path.startswith(folder + os.sep)
+
+
+def release(resources: str) -> None:
+    """Count one slave less; with the last, remove this build's modules from ``sys.modules`` and the
+    import system's caches of ``resources``, so that the process is as it was before the first."""
+    global _users
+    _users -= 1
+    if _users > 0:
+        return
+    for name in [name for name in sys.modules if name == PACKAGE or name.startswith(PACKAGE + ".")]:
+        del sys.modules[name]
+    folder = os.path.realpath(resources)
+    for key in [key for key in sys.path_importer_cache if isinstance(key, str) and _inside(key, folder)]:
+        del sys.path_importer_cache[key]
+
+
+def _slave_module(name: str, resources: str):
+    """The slave script ``resources/<name>.py``, imported as ``<PACKAGE>.<name>``."""
+    qualified = f"{PACKAGE}.{name}"
+    module = sys.modules.get(qualified)
+    if module is None:
+        spec = importlib.util.spec_from_file_location(qualified, os.path.join(resources, f"{name}.py"))
+        module = importlib.util.module_from_spec(spec)
+        sys.modules[qualified] = module
+        try:
+            spec.loader.exec_module(module)
+        except BaseException:
+            del sys.modules[qualified]
+            raise
+    return module
 
 
 def instantiate(slave_module: str, class_name: str, instance_name: str, resources: str, visible: bool):
-    """A new slave of ``class_name`` in ``slave_module`` (a module of the FMU's resources)."""
-    cls = getattr(importlib.import_module(slave_module), class_name)
+    """A new slave of ``class_name`` in ``slave_module`` (the slave script in the FMU's resources)."""
+    cls = getattr(_slave_module(slave_module, resources), class_name)
     return cls(instance_name=instance_name, resources=resources, visible=visible)
 
 

@@ -48,7 +48,7 @@ void instance_log(Instance *instance, int status, const char *format, ...) {
     va_start(args, format);
     vsnprintf(message, sizeof message, format, args);
     va_end(args);
-    forward(instance, status, status >= STATUS_ERROR ? "logStatusError" : "logStatusWarning", message);
+    forward(instance, status, slave_category(status), message);
 }
 
 Instance *instance_alloc(size_t size, const char *name, int logging_on, HostLog host_log) {
@@ -70,14 +70,7 @@ int instance_start(Instance *instance, const char *function, const char *resourc
                      instance->name, function, resources ? resources : "(null)");
         return -1;
     }
-    if (slave_create(&instance->slave, folder, instance->name, visible, names, forward, instance) != 0) return -1;
-    if (!token || strcmp(token, instance->slave.token) != 0) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the token %s does not match this FMU's %s", instance->name,
-                     function, token ? token : "(null)", instance->slave.token);
-        slave_free(&instance->slave);
-        return -1;
-    }
-    return 0;
+    return slave_create(&instance->slave, folder, token, instance->name, visible, names, forward, instance);
 }
 
 void instance_free(Instance *instance) {

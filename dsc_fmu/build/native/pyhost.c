@@ -6,7 +6,13 @@
      2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME);
      3. the system's DSC_PYTHON_SONAME (libpython3.X.so.1.0) by the dynamic loader's search.
    A Python this binary starts gets its home set explicitly, ignores PYTHON* environment variables,
-   imports no site packages, writes no bytecode and installs no signal handlers. */
+   imports no site packages, writes no bytecode and installs no signal handlers. It is started as
+   Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose status says why it
+   failed where Py_InitializeEx would end the process; of the configuration it touches only the
+   leading fields whose offsets every CPython since 3.8 shares, checked before they are set.
+
+   A host thread Python does not know gets a thread state on its first call, kept for its life and
+   deleted by a thread-exit destructor: thread pools cost nothing once their threads are gone. */
 
 #define _GNU_SOURCE
 #include "pyhost.h"
@@ -40,6 +46,9 @@ PyApi py;
 
 static pthread_once_t once = PTHREAD_ONCE_INIT;
 static int start_result = -1;
+static int start_attempted; /* a library on which Py_InitializeFromConfig ran stays loaded, whatever it said */
+static pthread_key_t thread_key; /* the thread state this binary made for a host thread */
+static int thread_key_made;
 static char start_error[2048];
 static wchar_t *home_wide;
 
@@ -50,19 +59,27 @@ typedef struct {
 
 #define SYMBOL(name) {#name, offsetof(PyApi, name)}
 static const Symbol SYMBOLS[] = {
-    SYMBOL(Py_IsInitialized), SYMBOL(Py_InitializeEx), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale),
-    SYMBOL(Py_GetVersion), SYMBOL(PyEval_SaveThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
-    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString),
-    SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str), SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8),
-    SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong), SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble),
-    SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong), SYMBOL(PyTuple_New), SYMBOL(PyTuple_SetItem),
-    SYMBOL(PyList_New), SYMBOL(PyList_SetItem), SYMBOL(PyList_Size), SYMBOL(PyBytes_FromStringAndSize), SYMBOL(PyBytes_AsStringAndSize),
-    SYMBOL(PyErr_Occurred), SYMBOL(PyErr_Fetch), SYMBOL(PyErr_Clear), SYMBOL(Py_DecRef), SYMBOL(Py_IncRef), SYMBOL(PySequence_Size),
-    SYMBOL(PySequence_GetItem), SYMBOL(PySys_GetObject),
-    SYMBOL(PyList_Insert), SYMBOL(PySequence_Contains), {"_Py_NoneStruct", offsetof(PyApi, None)},
+    SYMBOL(Py_IsInitialized), SYMBOL(_PyConfig_InitCompatConfig), SYMBOL(Py_InitializeFromConfig),
+    SYMBOL(PyConfig_Clear), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale), SYMBOL(Py_GetVersion),
+    SYMBOL(PyEval_SaveThread), SYMBOL(PyEval_RestoreThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
+    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_DeleteCurrent),
+    SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString), SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str),
+    SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8), SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong),
+    SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble), SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong),
+    SYMBOL(PyTuple_New), SYMBOL(PyTuple_SetItem), SYMBOL(PyList_New), SYMBOL(PyList_SetItem), SYMBOL(PyList_Size),
+    SYMBOL(PyDict_GetItemString), SYMBOL(PyDict_SetItemString), SYMBOL(PyDict_DelItemString),
+    SYMBOL(PyBytes_FromStringAndSize), SYMBOL(PyBytes_AsStringAndSize), SYMBOL(PyErr_Occurred), SYMBOL(PyErr_Fetch),
+    SYMBOL(PyErr_Restore), SYMBOL(PyErr_Clear), SYMBOL(Py_DecRef), SYMBOL(Py_IncRef), SYMBOL(PySequence_Size),
+    SYMBOL(PySequence_GetItem), SYMBOL(PySys_GetObject), {"_Py_NoneStruct", offsetof(PyApi, None)},
     SYMBOL(Py_IgnoreEnvironmentFlag), SYMBOL(Py_NoSiteFlag), SYMBOL(Py_NoUserSiteDirectory),
     SYMBOL(Py_DontWriteBytecodeFlag),
 };
+
+/* PyConfig's leading int fields (Include/cpython/initconfig.h, 3.8 and later). */
+enum { CONFIG_INIT, CONFIG_ISOLATED, CONFIG_USE_ENVIRONMENT, CONFIG_DEV_MODE, CONFIG_INSTALL_SIGNAL_HANDLERS };
+enum { CONFIG_INIT_COMPAT = 1 };
+/* Room for a PyConfig of any version (about 500 bytes in 3.13). */
+#define CONFIG_SIZE 8192
 
 static void append(char *text, size_t size, const char *format, ...) {
     size_t used = strlen(text);
@@ -118,10 +135,38 @@ static int home_of_library(char *home, size_t size) {
     return -1;
 }
 
+/* Py_InitializeEx(0), with the failure returned: -1 with why in start_error. */
+static int start_python(const char *what, const char *home) {
+    union {
+        int fields[CONFIG_SIZE / sizeof(int)];
+        max_align_t align;
+    } config;
+    memset(&config, 0, sizeof config);
+    py._PyConfig_InitCompatConfig(&config);
+    if (config.fields[CONFIG_INIT] != CONFIG_INIT_COMPAT || config.fields[CONFIG_INSTALL_SIGNAL_HANDLERS] != 1) {
+        append(start_error, sizeof start_error, "%s: its PyConfig does not start as CPython 3.8 and later; ", what);
+        return -1;
+    }
+    config.fields[CONFIG_INSTALL_SIGNAL_HANDLERS] = 0;
+    start_attempted = 1;
+    PyStatus status = py.Py_InitializeFromConfig(&config);
+    py.PyConfig_Clear(&config);
+    if (status.type != 0 || !py.Py_IsInitialized()) {
+        append(start_error, sizeof start_error, "%s (home %s): Python did not start: %s%s%s",
+               what, home, status.func ? status.func : "", status.func ? ": " : "",
+               status.err_msg ? status.err_msg : "no reason given");
+        if (status.type == 2) append(start_error, sizeof start_error, " (exit code %d)", status.exitcode);
+        append(start_error, sizeof start_error, "; ");
+        return -1;
+    }
+    py.PyEval_SaveThread();
+    return 0;
+}
+
 static int initialize(const char *home, const char *what) {
     home_wide = py.Py_DecodeLocale(home, NULL);
     if (!home_wide) {
-        append(start_error, sizeof start_error, "%s: cannot decode its home %s", what, home);
+        append(start_error, sizeof start_error, "%s: cannot decode its home %s; ", what, home);
         return -1;
     }
     py.Py_SetPythonHome(home_wide);
@@ -129,13 +174,7 @@ static int initialize(const char *home, const char *what) {
     *py.Py_NoSiteFlag = 1;
     *py.Py_NoUserSiteDirectory = 1;
     *py.Py_DontWriteBytecodeFlag = 1;
-    py.Py_InitializeEx(0);
-    if (!py.Py_IsInitialized()) {
-        append(start_error, sizeof start_error, "%s (home %s): Python did not start", what, home);
-        return -1;
-    }
-    py.PyEval_SaveThread();
-    return 0;
+    return start_python(what, home);
 }
 
 /* Use the Python that `library` holds (initialised already, or started here with `home`). */
@@ -178,30 +217,43 @@ static int try_library(const char *path, const char *home, const char *what) {
     char label[PATH_MAX + 64];
     snprintf(label, sizeof label, "%s %s", what, path);
     if (adopt(library, home, label) != 0 || !dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) {
-        dlclose(library);
+        if (!start_attempted) dlclose(library);
         return -1;
     }
     return 0;
 }
 
-static void start_once(void) {
-    start_error[0] = '\0';
-    if (dlsym(RTLD_DEFAULT, "Py_IsInitialized")) {
-        start_result = adopt(RTLD_DEFAULT, NULL, "the Python in this process");
-        return;
-    }
+/* At the exit of a host thread that has a thread state of this binary's: delete it. */
+static void forget_thread(void *state) {
+    if (!py.Py_IsInitialized()) return;
+    py.PyEval_RestoreThread(state);
+    py.PyThreadState_Clear(state);
+    py.PyThreadState_DeleteCurrent();
+}
+
+/* The binary unloaded: thread states of threads still running are left to them, never to a
+   destructor that is gone. */
+__attribute__((destructor)) static void unload(void) {
+    if (thread_key_made) pthread_key_delete(thread_key);
+}
+
+static int find_and_start(void) {
+    if (dlsym(RTLD_DEFAULT, "Py_IsInitialized")) return adopt(RTLD_DEFAULT, NULL, "the Python in this process");
     const char *override = getenv(OVERRIDE_VARIABLE);
-    if (override && *override) {
-        start_result = try_library(override, NULL, OVERRIDE_VARIABLE " =");
-        return;
-    }
+    if (override && *override) return try_library(override, NULL, OVERRIDE_VARIABLE " =");
     append(start_error, sizeof start_error, OVERRIDE_VARIABLE " not set; ");
     if (*DSC_BUILD_LIBPYTHON && try_library(DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,") == 0) {
-        start_result = 0;
-        return;
+        return 0;
     }
     if (!*DSC_BUILD_LIBPYTHON) append(start_error, sizeof start_error, "the Python that built the FMU has no shared library; ");
-    start_result = try_library(DSC_PYTHON_SONAME, NULL, "the system's");
+    if (start_attempted) return -1;
+    return try_library(DSC_PYTHON_SONAME, NULL, "the system's");
+}
+
+static void start_once(void) {
+    start_error[0] = '\0';
+    start_result = find_and_start();
+    if (start_result == 0) thread_key_made = pthread_key_create(&thread_key, forget_thread) == 0;
 }
 
 int pyhost_start(char *error, size_t size) {
@@ -213,13 +265,15 @@ int pyhost_start(char *error, size_t size) {
     return start_result;
 }
 
+/* A thread Python does not know: a thread state of its own, kept until the thread ends. */
+static void adopt_thread(void) {
+    py.PyGILState_Ensure();
+    PyThreadState *state = py.PyEval_SaveThread();
+    if (thread_key_made) pthread_setspecific(thread_key, state);
+}
+
 PyGILState_STATE pyhost_enter(void) {
-    if (!py.PyGILState_GetThisThreadState()) {
-        /* A thread Python does not know: give it a thread state that lives as long as the thread,
-           instead of one created and destroyed on every call. */
-        py.PyGILState_Ensure();
-        py.PyEval_SaveThread();
-    }
+    if (!py.PyGILState_GetThisThreadState()) adopt_thread();
     return py.PyGILState_Ensure();
 }
 

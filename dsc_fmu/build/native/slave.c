@@ -1,8 +1,9 @@
 /* One Python slave behind an FMU instance, for both FMI versions (see slave.h).
 
-   Every function that touches Python takes the GIL itself, forwards what the slave queued in its
-   log, and turns a Python exception into a logged message: nothing here raises, aborts or frees
-   what the slave still uses. */
+   Every function that touches Python takes the GIL itself, queues what the slave logged and turns
+   a Python exception into a queued message, and hands the queue to the logger once the GIL is
+   released: nothing here raises, aborts, frees what the slave still uses or calls back into the
+   importer with the GIL held. */
 
 #include "slave.h"
 
@@ -13,9 +14,51 @@
 #include <stdlib.h>
 #include <string.h>
 
-#define ENTRY_FILE "dsc_fmu_entry.txt"
+#ifndef DSC_ENTRY_FILE
+#error DSC_ENTRY_FILE (the resources file that names the bridge, slave and token) must be defined
+#endif
 #define MAX_VALUE_REFERENCE 100000
 
+const char *slave_category(int status) {
+    switch (status) {
+    case STATUS_OK: return "logAll";
+    case STATUS_WARNING: return "logStatusWarning";
+    case STATUS_DISCARD: return "logStatusDiscard";
+    case STATUS_ERROR: return "logStatusError";
+    }
+    return "logStatusFatal";
+}
+
+static void queue(Slave *s, int status, const char *category, const char *text) {
+    size_t length = strlen(text);
+    Message *message = malloc(sizeof *message + length + 1);
+    if (!message) return;
+    message->next = NULL;
+    message->status = status;
+    snprintf(message->category, sizeof message->category, "%s", category);
+    memcpy(message->text, text, length + 1);
+    *s->last = message;
+    s->last = &message->next;
+}
+
+/* Hand the queued messages to the logger, in order; call without the GIL. */
+static void deliver(Slave *s) {
+    Message *message = s->messages;
+    s->messages = NULL;
+    s->last = &s->messages;
+    while (message) {
+        Message *next = message->next;
+        s->log(s->context, message->status, message->category, message->text);
+        free(message);
+        message = next;
+    }
+}
+
+/* Release the GIL, then deliver what was queued under it. */
+static void leave(Slave *s, PyGILState_STATE gil) {
+    pyhost_leave(gil);
+    deliver(s);
+}
 
 static void say(Slave *s, int status, const char *format, ...) {
     char message[2048];
@@ -23,7 +66,7 @@ static void say(Slave *s, int status, const char *format, ...) {
     va_start(args, format);
     vsnprintf(message, sizeof message, format, args);
     va_end(args);
-    s->log(s->context, status, status >= STATUS_ERROR ? "logStatusError" : "logStatusWarning", message);
+    queue(s, status, slave_category(status), message);
 }
 
 static void clear(PyObject **object) {
@@ -86,7 +129,7 @@ static PyObject *bridge_call(Slave *s, const char *name, PyObject *args) {
     return call(py.PyObject_GetAttrString(s->bridge, name), args);
 }
 
-/* Forward the messages the slave queued (cheap when there are none). */
+/* Queue the messages the slave logged (cheap when there are none). */
 static void drain_log(Slave *s) {
     if (!s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
         py.PyErr_Clear();
@@ -103,7 +146,7 @@ static void drain_log(Slave *s) {
         const char *category_text = category ? py.PyUnicode_AsUTF8(category) : NULL;
         const char *message_text = text ? py.PyUnicode_AsUTF8(text) : NULL;
         if (status && category_text && message_text) {
-            s->log(s->context, (int)py.PyLong_AsLong(status), category_text, message_text);
+            queue(s, (int)py.PyLong_AsLong(status), category_text, message_text);
         }
         clear(&text);
         clear(&category);
@@ -114,30 +157,80 @@ static void drain_log(Slave *s) {
     py.PyErr_Clear();
 }
 
-static int read_entry(Slave *s) {
+/* The entry file: the bridge module (its top level the build's private package), the slave's
+   module and class, and the token; read before Python is started. */
+static int read_entry(Slave *s, char *bridge, size_t size) {
     char path[sizeof s->resources + 32];
-    snprintf(path, sizeof path, "%s/%s", s->resources, ENTRY_FILE);
+    snprintf(path, sizeof path, "%s/%s", s->resources, DSC_ENTRY_FILE);
     FILE *file = fopen(path, "r");
     if (!file) {
         say(s, STATUS_ERROR, "%s: cannot read %s: the FMU's resources are incomplete", s->instance_name, path);
         return -1;
     }
-    char bridge[256] = "";
     int found = fscanf(file, "%255s %255s %127s %127s", bridge, s->module, s->class_name, s->token);
     fclose(file);
-    if (found != 4) {
+    size_t package = strcspn(bridge, ".");
+    if (found != 4 || package == 0 || package >= sizeof s->package || package >= size) {
         say(s, STATUS_ERROR, "%s: %s does not name the bridge, module, class and token", s->instance_name, path);
         return -1;
     }
-    PyObject *sys_path = py.PySys_GetObject("path");
-    PyObject *folder = py.PyUnicode_FromString(s->resources);
-    if (sys_path && folder && py.PySequence_Contains(sys_path, folder) == 0) py.PyList_Insert(sys_path, 0, folder);
-    clear(&folder);
-    s->bridge = py.PyImport_ImportModule(bridge);
-    if (!s->bridge) {
-        log_exception(s, STATUS_ERROR, "importing the FMU's bridge module");
+    memcpy(s->package, bridge, package);
+    s->package[package] = '\0';
+    return 0;
+}
+
+/* Import the build's private package from the resources by its location, leaving sys.path alone;
+   nothing if this process has it already (another instance of the same build). */
+static int import_package(Slave *s) {
+    PyObject *modules = py.PySys_GetObject("modules");
+    if (!modules) return -1;
+    if (py.PyDict_GetItemString(modules, s->package)) return 0;
+    char init[sizeof s->resources + sizeof s->package + 16];
+    snprintf(init, sizeof init, "%s/%s/__init__.py", s->resources, s->package);
+    PyObject *util = py.PyImport_ImportModule("importlib.util");
+    PyObject *spec = NULL, *module = NULL, *loader = NULL, *done = NULL;
+    if (util) {
+        PyObject *items[] = {py.PyUnicode_FromString(s->package), py.PyUnicode_FromString(init)};
+        spec = call(py.PyObject_GetAttrString(util, "spec_from_file_location"), pack(2, items));
+    }
+    if (spec) {
+        PyObject *items[] = {borrowed(spec)};
+        module = call(py.PyObject_GetAttrString(util, "module_from_spec"), pack(1, items));
+        loader = py.PyObject_GetAttrString(spec, "loader");
+    }
+    if (module && loader && py.PyDict_SetItemString(modules, s->package, module) == 0) {
+        PyObject *items[] = {borrowed(module)};
+        done = call(py.PyObject_GetAttrString(loader, "exec_module"), pack(1, items));
+        if (!done) {
+            PyObject *type, *value, *traceback;
+            py.PyErr_Fetch(&type, &value, &traceback);
+            py.PyDict_DelItemString(modules, s->package);
+            py.PyErr_Restore(type, value, traceback);
+        }
+    }
+    int result = done ? 0 : -1;
+    clear(&done);
+    clear(&loader);
+    clear(&module);
+    clear(&spec);
+    clear(&util);
+    return result;
+}
+
+/* The bridge of the build's package, counted as one more user of the package (see native_bridge.release). */
+static int import_bridge(Slave *s, const char *bridge) {
+    if (import_package(s) != 0) {
+        log_exception(s, STATUS_ERROR, "importing the FMU's package");
         return -1;
     }
+    s->bridge = py.PyImport_ImportModule(bridge);
+    PyObject *counted = s->bridge ? bridge_call(s, "acquire", NULL) : NULL;
+    if (!counted) {
+        log_exception(s, STATUS_ERROR, "importing the FMU's bridge module");
+        clear(&s->bridge);
+        return -1;
+    }
+    clear(&counted);
     return 0;
 }
 
@@ -222,9 +315,10 @@ static int read_variables(Slave *s) {
     return 0;
 }
 
-int slave_create(Slave *s, const char *resources, const char *instance_name, int visible,
+int slave_create(Slave *s, const char *resources, const char *token, const char *instance_name, int visible,
                  const MethodNames *names, SlaveLog log, void *context) {
     memset(s, 0, sizeof *s);
+    s->last = &s->messages;
     s->log = log;
     s->context = context;
     s->names = names;
@@ -233,30 +327,48 @@ int slave_create(Slave *s, const char *resources, const char *instance_name, int
     snprintf(s->resources, sizeof s->resources, "%s", resources);
     size_t length = strlen(s->resources);
     while (length > 1 && s->resources[length - 1] == '/') s->resources[--length] = '\0';
-    char error[3072];
-    if (pyhost_start(error, sizeof error) != 0) {
+    char bridge[256] = "", error[3072];
+    int result = read_entry(s, bridge, sizeof bridge);
+    if (result == 0 && (!token || strcmp(token, s->token) != 0)) {
+        say(s, STATUS_ERROR, "%s: the token %s does not match this FMU's %s", s->instance_name,
+            token ? token : "(null)", s->token);
+        result = -1;
+    }
+    if (result == 0 && pyhost_start(error, sizeof error) != 0) {
         say(s, STATUS_ERROR, "%s: %s", s->instance_name, error);
-        return -1;
+        result = -1;
     }
-    PyGILState_STATE gil = pyhost_enter();
-    int result = -1;
-    if (read_entry(s) == 0) {
-        PyObject *slave = new_slave(s);
-        if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
-        else if (adopt_slave(s, slave) == 0) result = read_variables(s);
+    if (result == 0) {
+        PyGILState_STATE gil = pyhost_enter();
+        result = import_bridge(s, bridge);
+        if (result == 0) {
+            PyObject *slave = new_slave(s);
+            if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
+            result = slave && adopt_slave(s, slave) == 0 ? read_variables(s) : -1;
+        }
+        drain_log(s);
+        pyhost_leave(gil);
     }
-    drain_log(s);
-    pyhost_leave(gil);
     if (result != 0) slave_free(s);
+    deliver(s);
     return result;
+}
+
+/* Count one user less of the build's package; the last forgets its modules (native_bridge.release). */
+static void release_bridge(Slave *s) {
+    PyObject *items[] = {py.PyUnicode_FromString(s->resources)};
+    PyObject *result = bridge_call(s, "release", pack(1, items));
+    if (!result) log_exception(s, STATUS_WARNING, "releasing the FMU's package");
+    clear(&result);
+    clear(&s->bridge);
 }
 
 void slave_free(Slave *s) {
     if (s->bridge || s->slave || s->log_queue) {
         PyGILState_STATE gil = pyhost_enter();
         clear_slave(s);
-        clear(&s->bridge);
-        pyhost_leave(gil);
+        if (s->bridge) release_bridge(s);
+        leave(s, gil);
     }
     free(s->type);
     free(s->causality);
@@ -277,7 +389,7 @@ int slave_reset(Slave *s) {
         status = STATUS_ERROR;
     }
     drain_log(s);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -334,7 +446,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
     }
     clear(&result);
     drain_log(s);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -358,7 +470,7 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
     PyObject *items[] = {references(vr, n), list};
     PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
     int status = finished(s, result, STATUS_ERROR, s->names->set[type]);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -373,7 +485,7 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
     PyObject *items[] = {references(vr, n), orders, given};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
     int status = finished(s, result, STATUS_ERROR, "set_input_derivatives");
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -397,7 +509,7 @@ static int call_logged(Slave *s, const char *method, PyObject *cached, int n, co
     PyObject *result = call(function, args);
     if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
     int status = finished(s, result, failure, method);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -420,7 +532,7 @@ int slave_get_double(Slave *s, const char *attribute, double *value) {
         status = STATUS_ERROR;
     }
     clear(&object);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -433,7 +545,7 @@ int slave_get_state(Slave *s, PyObject **state) {
         status = STATUS_ERROR;
     }
     drain_log(s);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -442,7 +554,7 @@ int slave_set_state(Slave *s, PyObject *state) {
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
     int status = finished(s, result, STATUS_ERROR, "setting the FMU state");
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -469,7 +581,7 @@ int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
     }
     clear(&data);
     drain_log(s);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 
@@ -483,7 +595,7 @@ int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state
         status = STATUS_ERROR;
     }
     drain_log(s);
-    pyhost_leave(gil);
+    leave(s, gil);
     return status;
 }
 

@@ -1,5 +1,9 @@
 /* One Python slave behind an FMU instance, for both FMI versions: creation, guarded typed get and
-   set, calls whose exceptions become logged messages, FMU states, the slave's log queue. */
+   set, calls whose exceptions become logged messages, FMU states, the slave's log queue.
+
+   Messages that arise while the GIL is held (the slave's own log, a Python exception) are queued
+   and handed to the importer's logger after the GIL is released, in order, on the calling thread,
+   before the call returns: a logger that blocks never holds up another instance. */
 
 #ifndef DSC_SLAVE_H
 #define DSC_SLAVE_H
@@ -24,6 +28,14 @@ typedef enum { C_DOUBLE, C_INT, C_INT32, C_BOOL_INT, C_BOOL_BYTE } CType;
 
 typedef void (*SlaveLog)(void *context, int status, const char *category, const char *message);
 
+/* A message waiting for the GIL to be released. */
+typedef struct Message {
+    struct Message *next;
+    int status;
+    char category[32];
+    char text[];
+} Message;
+
 typedef struct {
     const char *get[TYPES];
     const char *set[TYPES];
@@ -32,6 +44,7 @@ typedef struct {
 
 typedef struct {
     PyObject *bridge;
+    char package[128];          /* the FMU build's private package, the bridge's top level */
     PyObject *slave;
     PyObject *log_queue;
     PyObject *bound[BOUND_METHODS];
@@ -48,11 +61,14 @@ typedef struct {
     signed char *variability;
     SlaveLog log;
     void *context;
+    Message *messages;          /* queued while the GIL is held */
+    Message **last;
 } Slave;
 
-/* Start Python if needed and create the slave of the FMU whose resources folder is `resources`
-   (a path). 0, or -1 after logging why (the Slave is then empty). */
-int slave_create(Slave *s, const char *resources, const char *instance_name, int visible,
+/* Check `token` against the FMU's, then start Python if needed and create the slave of the FMU
+   whose resources folder is `resources` (a path). 0, or -1 after logging why (the Slave is then
+   empty). */
+int slave_create(Slave *s, const char *resources, const char *token, const char *instance_name, int visible,
                  const MethodNames *names, SlaveLog log, void *context);
 void slave_free(Slave *s);
 
@@ -85,6 +101,9 @@ int slave_set_state(Slave *s, PyObject *state);
 void slave_release(PyObject *object);
 int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size);
 int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state);
+
+/* The log category of a message with `status` (logStatusWarning, ..., logAll for OK). */
+const char *slave_category(int status);
 
 /* The path of a file:// URI (or a plain path) in `path`; 0, or -1 if it is not one. */
 int slave_uri_to_path(const char *uri, char *path, size_t size);

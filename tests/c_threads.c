@@ -1,0 +1,247 @@
+/* A C host that calls one FMU from several threads, as GUI tools and thread pools do.
+
+   usage: c_threads MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN ARG...
+     logger VR VALUE STEPS   two instances, A and B. On a second thread A sets the Real (Float64)
+                             VR to VALUE, which the FMU refuses with a logged error; A's logger then
+                             waits until B, on the main thread, has done STEPS steps (at most 20 s).
+                             Prints "steps_while_logger_waited=N logger_calls=M timed_out=0|1".
+     threads COUNT           one instance, stepped once by each of 100 short-lived threads, then by
+                             COUNT more, one after another. Prints "rss_kb=BEFORE,AFTER
+                             thread_states=BEFORE,AFTER": the process's resident memory and the
+                             number of Python thread states after the first 100 and after the rest.
+   Exits 1 with a message on any failing call. */
+
+#define _GNU_SOURCE
+#include <dlfcn.h>
+#include <errno.h>
+#include <pthread.h>
+#include <stdarg.h>
+#include <stdio.h>
+#include <stdlib.h>
+#include <string.h>
+#include <time.h>
+
+#include "fmi2Functions.h"
+#include "fmi3Functions.h"
+
+typedef struct {
+    int version;
+    void *library;
+    char resources[4096];
+    const char *model, *token;
+} Fmu;
+
+static struct {
+    pthread_mutex_t lock;
+    pthread_cond_t changed;
+    int logger_waiting, steps, target, calls, timed_out;
+} shared = {PTHREAD_MUTEX_INITIALIZER, PTHREAD_COND_INITIALIZER, 0, 0, 0, 0, 0};
+
+static void fail(const char *format, ...) {
+    va_list args;
+    va_start(args, format);
+    vfprintf(stderr, format, args);
+    va_end(args);
+    fprintf(stderr, "\n");
+    exit(1);
+}
+
+static void *symbol(Fmu *fmu, const char *name) {
+    void *address = dlsym(fmu->library, name);
+    if (!address) fail("missing %s", name);
+    return address;
+}
+
+static void check(int status, const char *call) {
+    if (status > 1) fail("%s failed with status %d", call, status);
+}
+
+/* The blocking logger of instance A: wait (without a busy loop) until B has done its steps. */
+static void block(void) {
+    pthread_mutex_lock(&shared.lock);
+    shared.calls++;
+    shared.logger_waiting = 1;
+    pthread_cond_broadcast(&shared.changed);
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    until.tv_sec += 20;
+    while (shared.steps < shared.target && !shared.timed_out) {
+        if (pthread_cond_timedwait(&shared.changed, &shared.lock, &until) == ETIMEDOUT) shared.timed_out = 1;
+    }
+    pthread_mutex_unlock(&shared.lock);
+}
+
+static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                    fmi2String message, ...) {
+    if (env) block();
+}
+
+static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
+    if (env) block();
+}
+
+static void *instantiate(Fmu *fmu, const char *name, int blocking) {
+    void *c;
+    if (fmu->version == 2) {
+        static fmi2CallbackFunctions plain = {logger2, calloc, free, NULL, NULL};
+        static fmi2CallbackFunctions waiting = {logger2, calloc, free, NULL, &shared};
+        c = ((fmi2InstantiateTYPE *)symbol(fmu, "fmi2Instantiate"))(
+            name, fmi2CoSimulation, fmu->token, fmu->resources, blocking ? &waiting : &plain, fmi2False, fmi2True);
+    } else {
+        c = ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu, "fmi3InstantiateCoSimulation"))(
+            name, fmu->token, fmu->resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0,
+            blocking ? &shared : NULL, logger3, NULL);
+    }
+    if (!c) fail("instantiating %s returned NULL", name);
+    return c;
+}
+
+static void initialize(Fmu *fmu, void *c) {
+    if (fmu->version == 2) {
+        check(((fmi2SetupExperimentTYPE *)symbol(fmu, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0), "setup");
+        check(((fmi2EnterInitializationModeTYPE *)symbol(fmu, "fmi2EnterInitializationMode"))(c), "enter");
+        check(((fmi2ExitInitializationModeTYPE *)symbol(fmu, "fmi2ExitInitializationMode"))(c), "exit");
+    } else {
+        check(((fmi3EnterInitializationModeTYPE *)symbol(fmu, "fmi3EnterInitializationMode"))(c, fmi3False, 0.0, 0.0,
+                                                                                            fmi3False, 0.0), "enter");
+        check(((fmi3ExitInitializationModeTYPE *)symbol(fmu, "fmi3ExitInitializationMode"))(c), "exit");
+    }
+}
+
+static void set_real(Fmu *fmu, void *c, unsigned int vr, double value) {
+    if (fmu->version == 2) check(((fmi2SetRealTYPE *)symbol(fmu, "fmi2SetReal"))(c, &vr, 1, &value), "set");
+    else check(((fmi3SetFloat64TYPE *)symbol(fmu, "fmi3SetFloat64"))(c, &vr, 1, &value, 1), "set");
+}
+
+static void step(Fmu *fmu, void *c, double t, double h) {
+    if (fmu->version == 2) {
+        check(((fmi2DoStepTYPE *)symbol(fmu, "fmi2DoStep"))(c, t, h, fmi2True), "step");
+    } else {
+        fmi3Boolean event, terminate, early;
+        fmi3Float64 last;
+        check(((fmi3DoStepTYPE *)symbol(fmu, "fmi3DoStep"))(c, t, h, fmi3True, &event, &terminate, &early, &last),
+              "step");
+    }
+}
+
+static void release(Fmu *fmu, void *c) {
+    ((void (*)(void *))symbol(fmu, fmu->version == 2 ? "fmi2FreeInstance" : "fmi3FreeInstance"))(c);
+}
+
+/* --- logger --------------------------------------------------------------------------------------------- */
+
+typedef struct {
+    Fmu *fmu;
+    void *c;
+    unsigned int vr;
+    double value;
+} Refusal;
+
+static void *refuse(void *argument) {
+    Refusal *r = argument;
+    set_real(r->fmu, r->c, r->vr, r->value);
+    return NULL;
+}
+
+static int run_logger(Fmu *fmu, unsigned int vr, double value, int steps) {
+    void *a = instantiate(fmu, "A", 1), *b = instantiate(fmu, "B", 0);
+    initialize(fmu, b);
+    shared.target = steps;
+    Refusal refusal = {fmu, a, vr, value};
+    pthread_t thread;
+    pthread_create(&thread, NULL, refuse, &refusal);
+    pthread_mutex_lock(&shared.lock);
+    while (!shared.logger_waiting) pthread_cond_wait(&shared.changed, &shared.lock);
+    pthread_mutex_unlock(&shared.lock);
+    int done = 0;
+    for (int k = 0; k < steps; k++) {
+        step(fmu, b, k * 1e-3, 1e-3);
+        pthread_mutex_lock(&shared.lock);
+        done = shared.timed_out ? done : k + 1;
+        shared.steps = k + 1;
+        pthread_cond_broadcast(&shared.changed);
+        pthread_mutex_unlock(&shared.lock);
+    }
+    pthread_join(thread, NULL);
+    printf("steps_while_logger_waited=%d logger_calls=%d timed_out=%d\n", done, shared.calls, shared.timed_out);
+    release(fmu, a);
+    release(fmu, b);
+    return 0;
+}
+
+/* --- threads -------------------------------------------------------------------------------------------- */
+
+typedef struct {
+    Fmu *fmu;
+    void *c;
+    int k;
+} Work;
+
+static void *one_step(void *argument) {
+    Work *w = argument;
+    step(w->fmu, w->c, w->k * 1e-3, 1e-3);
+    return NULL;
+}
+
+static void run_threads(Fmu *fmu, void *c, int from, int count) {
+    for (int k = from; k < from + count; k++) {
+        Work work = {fmu, c, k};
+        pthread_t thread;
+        if (pthread_create(&thread, NULL, one_step, &work) != 0) fail("pthread_create failed");
+        pthread_join(thread, NULL);
+    }
+}
+
+static long resident_kb(void) {
+    FILE *file = fopen("/proc/self/status", "r");
+    char line[256];
+    long kb = -1;
+    while (file && fgets(line, sizeof line, file)) {
+        if (strncmp(line, "VmRSS:", 6) == 0) kb = atol(line + 6);
+    }
+    if (file) fclose(file);
+    return kb;
+}
+
+/* The thread states of the main interpreter, counted under the GIL through the Python in this process. */
+static int thread_states(void) {
+    int (*ensure)(void) = dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
+    void (*release_gil)(int) = dlsym(RTLD_DEFAULT, "PyGILState_Release");
+    void *(*main_interpreter)(void) = dlsym(RTLD_DEFAULT, "PyInterpreterState_Main");
+    void *(*head)(void *) = dlsym(RTLD_DEFAULT, "PyInterpreterState_ThreadHead");
+    void *(*next)(void *) = dlsym(RTLD_DEFAULT, "PyThreadState_Next");
+    if (!ensure || !release_gil || !main_interpreter || !head || !next) fail("no Python in this process");
+    int gil = ensure(), n = 0;
+    for (void *state = head(main_interpreter()); state; state = next(state)) n++;
+    release_gil(gil);
+    return n;
+}
+
+static int run_churn(Fmu *fmu, int count) {
+    void *c = instantiate(fmu, "churn", 0);
+    initialize(fmu, c);
+    run_threads(fmu, c, 0, 100);
+    long before = resident_kb();
+    int states_before = thread_states();
+    run_threads(fmu, c, 100, count);
+    printf("rss_kb=%ld,%ld thread_states=%d,%d\n", before, resident_kb(), states_before, thread_states());
+    release(fmu, c);
+    return 0;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 7) fail("usage: %s MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN ARG...", argv[0]);
+    Fmu fmu = {atoi(argv[2]), NULL, "", argv[4], argv[5]};
+    const char *dir = argv[3];
+    char path[4096];
+    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, fmu.version == 3 ? "x86_64-linux" : "linux64", fmu.model);
+    snprintf(fmu.resources, sizeof fmu.resources, fmu.version == 3 ? "%s/resources/" : "file://%s/resources", dir);
+    fmu.library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!fmu.library) fail("cannot load %s", dlerror());
+    if (strcmp(argv[1], "logger") == 0 && argc == 9) {
+        return run_logger(&fmu, (unsigned int)strtoul(argv[6], NULL, 10), atof(argv[7]), atoi(argv[8]));
+    }
+    if (strcmp(argv[1], "threads") == 0) return run_churn(&fmu, atoi(argv[6]));
+    fail("unknown mode %s or wrong arguments", argv[1]);
+    return 1;
+}
