@@ -136,14 +136,14 @@ def test_the_coupling_parameters_are_fixed_integers_with_named_choices():
 
 # --- the standard route: canInterpolateInputs and fmi2SetRealInputDerivatives ---------------------
 
-def test_input_derivatives_outside_initialisation_and_stepping_are_refused(md, fmu_unzipped):
-    plant = Instance(md["MobileRobot"], fmu_unzipped["MobileRobot"], "guard")
-    try:
-        with pytest.raises(FMICallException):
-            plant.fmu.setRealInputDerivatives([plant.vr["u1"]], [1], [1.0])
-        assert any("fmi2SetRealInputDerivatives" in text for _, text in plant.messages())
-    finally:
-        plant.fmu.freeInstance()
+def test_input_derivatives_after_termination_are_refused(new):
+    """Allowed in instantiated, initialization mode and stepComplete only (FMI 2.0.4, 4.2.4)."""
+    plant = new("MobileRobot")
+    plant.fmu.terminate()
+    with pytest.raises(FMICallException):
+        plant.fmu.setRealInputDerivatives([plant.vr["u1"]], [1], [1.0])
+    assert any("fmi2SetRealInputDerivatives is not allowed in state terminated" in text
+               for _, text in plant.messages())
 
 
 def test_fmus_with_inputs_declare_that_they_interpolate_inputs(md):

@@ -195,9 +195,9 @@ def new(md, fmu_unzipped):
         return instance.initialize(real, integer)
 
     yield make
-    for instance in opened:
+    for instance in opened:  # freed in whatever state the test left it (an error state cannot terminate)
         if not getattr(instance, "abandoned", False) and instance.fmu.component is not None:
-            instance.close()
+            instance.fmu.freeInstance()
 
 
 def scalar(md, name):
@@ -812,7 +812,9 @@ def healthy(md, fmu_unzipped):
 def test_bad_value_is_refused_named_and_holds_the_fmu_until_corrected(
         md, fmu_unzipped, healthy, name, kind, variable, value):
     """The value is refused with an error naming the variable and its range, the variable keeps its
-    last valid value, and doStep returns fmi2Discard until a valid value is set (see DscSlave)."""
+    last valid value, and doStep returns fmi2Discard while it is refused (see DscSlave). The
+    discarded step leaves the FMU in stepFailed (FMI 2.0.4, 4.2.4), where nothing may be set: the
+    state saved before the step leads back, and a valid value set there lets the step through."""
     inst = Instance(md[name], fmu_unzipped[name], "bad")
     fmu, ref = inst.fmu, inst.vr[variable]
     get = fmu.getInteger if kind == "integer" else fmu.getReal
@@ -830,9 +832,15 @@ def test_bad_value_is_refused_named_and_holds_the_fmu_until_corrected(
     assert any(named.search(message) and "allowed" in message for message in errors), errors
     if kind not in ("input", "tunable"):
         fmu.exitInitializationMode()
+    saved = fmu.getFMUstate()
     with pytest.raises(FMICallException) as failure:
         fmu.doStep(1e-3, 1e-3)
     assert (failure.value.function, failure.value.status) == ("fmi2DoStep", FMI2_DISCARD)
+    with pytest.raises(FMICallException) as refused:
+        put([ref], before)
+    assert refused.value.status == FMI2_ERROR and "not allowed in state step failed" in inst.messages()[-1][1]
+    fmu.setFMUstate(saved)
+    fmu.freeFMUstate(saved)
     if inst.variables[variable].variability == "fixed":
         # A fixed parameter cannot be set once initialisation has ended: a reset starts over.
         with pytest.raises(FMICallException) as refused:
@@ -922,11 +930,14 @@ def test_non_finite_state_discards_the_step_and_keeps_the_instance_usable(new):
     plant = new("MobileRobot")
     plant.set(("u1", "u2"), (1e308, 1e308))  # finite and allowed, but u / La overflows the state
     before = plant.get(PLANT_OUT)
+    saved = plant.fmu.getFMUstate()
     with pytest.raises(FMICallException) as failure:
         plant.step(0.0, 0.01)
     assert failure.value.status == FMI2_DISCARD
     assert any("not finite" in message for _, message in plant.messages())
     assert plant.get(PLANT_OUT) == before
+    plant.fmu.setFMUstate(saved)  # out of stepFailed, where nothing may be set
+    plant.fmu.freeFMUstate(saved)
     plant.set(("u1", "u2"), (5.0, 5.0))
     plant.step(0.0, 0.01)
     assert all(math.isfinite(v) for v in plant.get(PLANT_OUT))

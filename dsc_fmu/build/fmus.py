@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import hashlib
+import importlib.util
 import json
+import marshal
 import re
 import shutil
 import sys
@@ -137,6 +139,17 @@ def _private(name: str, data: bytes, package: str, library: str) -> tuple[str, b
     return name, data
 
 
+def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
+    """The cached bytecode of the bundled module ``name`` for the Python that builds, checked against its
+    source by hash (PEP 552): an importer on that Python imports it without compiling, whatever the
+    files' times after unzipping; any other Python compiles the source."""
+    folder, _, file = name.rpartition("/")
+    cache = f"{folder}/__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc"
+    flags = (0b11).to_bytes(4, "little")  # hash-based, checked against the source
+    code = compile(data, name, "exec", dont_inherit=True)
+    return cache, importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(data) + marshal.dumps(code)
+
+
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> Path:
     """The FMU as the FMI library builds it from the staged script and package."""
     if fmi_version == 3:
@@ -188,7 +201,10 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                 if item.filename == own_binary:
                     data = compile_binary(fmi_version)
                 if item.filename != DOCUMENTATION_FILE:
-                    dst.writestr(*_private(item.filename, data, package_dir.name, _LIBRARY[fmi_version]))
+                    name, data = _private(item.filename, data, package_dir.name, _LIBRARY[fmi_version])
+                    dst.writestr(name, data)
+                    if name.startswith("resources/") and name.endswith(".py"):
+                        dst.writestr(*_bytecode(name, data))
             dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,
                                                     "fmi_version": fmi_version}))
         return atomic_write(target, staged.read_bytes())

@@ -1,30 +1,59 @@
-/* The FMI 2.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states the standard
-   allows it in, then handed to instance.c. Nothing returns fmi2Fatal. */
+/* The FMI 2.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states the standard's
+   state table (FMI 2.0.4, section 4.2.4) allows it in, then handed to instance.c; every fmi2Error
+   moves the instance to the error state. Nothing returns fmi2Fatal. */
 
 #include <stdio.h>
 
 #include "fmi2Functions.h"
 #include "instance.h"
 
-#define MASK_Setup Instantiated
-#define MASK_Get (InitializationMode | StepMode | Terminated | Error)
-#define MASK_Set (Instantiated | InitializationMode | StepMode)
-#define MASK_Status (StepMode | Terminated)
+/* The states each function is allowed in (no stepInProgress, stepCanceled: fmi2DoStep is synchronous). */
+#define MASK_fmi2SetDebugLogging ANY_STATE
+#define MASK_fmi2SetupExperiment Instantiated
+#define MASK_fmi2EnterInitializationMode Instantiated
+#define MASK_fmi2ExitInitializationMode InitializationMode
+#define MASK_fmi2Terminate (StepMode | StepFailed)
+#define MASK_fmi2Reset ANY_STATE
+#define MASK_fmi2DoStep StepMode
+#define MASK_fmi2CancelStep 0
+#define MASK_GET (InitializationMode | StepMode | StepFailed | Terminated | Error)
+#define MASK_SET (Instantiated | InitializationMode | StepMode)
+#define MASK_fmi2GetReal MASK_GET
+#define MASK_fmi2GetInteger MASK_GET
+#define MASK_fmi2GetBoolean MASK_GET
+#define MASK_fmi2GetString MASK_GET
+#define MASK_fmi2SetReal MASK_SET
+#define MASK_fmi2SetInteger MASK_SET
+#define MASK_fmi2SetBoolean MASK_SET
+#define MASK_fmi2SetString MASK_SET
+#define MASK_fmi2GetDirectionalDerivative MASK_GET
+#define MASK_fmi2SetRealInputDerivatives MASK_SET
+#define MASK_fmi2GetRealOutputDerivatives (StepMode | StepFailed | Terminated | Error)
+#define MASK_STATUS (StepMode | StepFailed | Terminated)
+#define MASK_fmi2GetStatus MASK_STATUS
+#define MASK_fmi2GetRealStatus MASK_STATUS
+#define MASK_fmi2GetIntegerStatus MASK_STATUS
+#define MASK_fmi2GetBooleanStatus MASK_STATUS
+#define MASK_fmi2GetStringStatus MASK_STATUS
+#define MASK_fmi2GetFMUstate ANY_STATE
+#define MASK_fmi2SetFMUstate ANY_STATE
+#define MASK_fmi2FreeFMUstate ANY_STATE
+#define MASK_fmi2SerializedFMUstateSize ANY_STATE
+#define MASK_fmi2SerializeFMUstate ANY_STATE
+#define MASK_fmi2DeSerializeFMUstate ANY_STATE
 
 typedef struct {
     Instance base;
     fmi2CallbackFunctions functions;
 } Fmi2Instance;
 
-static const MethodNames METHODS = {
-    {"get_real", "get_integer", "get_boolean"},
-    {"set_real", "set_integer", "set_boolean"},
-    {"Real", "Integer", "Boolean", "String"},
-};
-
-#define BEGIN(function, mask)                                                                                        \
+/* The function's name and mask from one token; a refused call returns fmi2Error. */
+#define BEGIN(F)                                                                                                     \
     Instance *instance = (Instance *)c;                                                                              \
-    if (instance_refused(instance, function, mask)) return fmi2Error
+    if (instance_refused(instance, #F, MASK_##F)) return fmi2Error
+
+/* The call's status; fmi2Error moves the instance to the error state. */
+#define END(call) return (fmi2Status)instance_status(instance, (call))
 
 /* The logger takes a printf format: the message goes as a format with every '%' doubled and no
    arguments, so loggers that format and loggers that do not both show the text. */
@@ -41,6 +70,14 @@ static void host_log(Instance *instance, int status, const char *category, const
     functions->logger(functions->componentEnvironment, instance->name, (fmi2Status)status, category, text);
 }
 
+/* Warnings, errors and fatal errors are shown whatever the debug logging (section 2.1.3); OK and
+   discard messages only in the categories enabled. */
+static const Standard FMI2 = {
+    {{"get_real", "get_integer", "get_boolean"}, {"set_real", "set_integer", "set_boolean"},
+     {"Real", "Integer", "Boolean", "String"}},
+    Error, StepFailed, 1 << STATUS_WARNING | 1 << STATUS_ERROR | 1 << STATUS_FATAL, host_log,
+};
+
 /* --- inquiry, logging, creation ------------------------------------------------------------------------ */
 
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
@@ -48,8 +85,8 @@ const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 const char *fmi2GetVersion(void) { return fmi2Version; }
 
 fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories, const fmi2String categories[]) {
-    BEGIN("fmi2SetDebugLogging", ANY_STATE);
-    return (fmi2Status)instance_set_logging(instance, "fmi2SetDebugLogging", loggingOn, nCategories, categories);
+    BEGIN(fmi2SetDebugLogging);
+    END(instance_set_logging(instance, "fmi2SetDebugLogging", loggingOn, nCategories, categories));
 }
 
 /* `why` holds no '%'. */
@@ -69,10 +106,10 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (fmuType != fmi2CoSimulation) {
         return refuse_instantiation(functions, instanceName, "fmi2Instantiate: only fmi2CoSimulation is supported");
     }
-    Fmi2Instance *instance = (Fmi2Instance *)instance_alloc(sizeof(Fmi2Instance), instanceName, loggingOn, host_log);
+    Fmi2Instance *instance = (Fmi2Instance *)instance_alloc(sizeof(Fmi2Instance), instanceName, loggingOn, &FMI2);
     if (!instance) return refuse_instantiation(functions, instanceName, "fmi2Instantiate: out of memory");
     if (functions) instance->functions = *functions;
-    if (instance_start(&instance->base, "fmi2Instantiate", fmuResourceLocation, fmuGUID, visible, &METHODS) != 0) {
+    if (instance_start(&instance->base, "fmi2Instantiate", fmuResourceLocation, fmuGUID, visible) != 0) {
         instance_free(&instance->base);
         return NULL;
     }
@@ -85,54 +122,56 @@ void fmi2FreeInstance(fmi2Component c) { instance_free((Instance *)c); }
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
-    BEGIN("fmi2SetupExperiment", MASK_Setup);
+    BEGIN(fmi2SetupExperiment);
     double values[] = {startTime, stopTime, tolerance};
     int defined[] = {1, stopTimeDefined, toleranceDefined};
-    return (fmi2Status)instance_call(instance, "setup_experiment", 3, values, defined, Instantiated);
+    END(instance_call(instance, "setup_experiment", 3, values, defined, Instantiated));
 }
 
 fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
-    BEGIN("fmi2EnterInitializationMode", Instantiated);
-    return (fmi2Status)instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+    BEGIN(fmi2EnterInitializationMode);
+    END(instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode));
 }
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
-    BEGIN("fmi2ExitInitializationMode", InitializationMode);
-    return (fmi2Status)instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode);
+    BEGIN(fmi2ExitInitializationMode);
+    END(instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode));
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
-    BEGIN("fmi2Terminate", StepMode);
-    return (fmi2Status)instance_call(instance, "terminate", 0, NULL, NULL, Terminated);
+    BEGIN(fmi2Terminate);
+    END(instance_call(instance, "terminate", 0, NULL, NULL, Terminated));
 }
 
 fmi2Status fmi2Reset(fmi2Component c) {
-    BEGIN("fmi2Reset", ANY_STATE);
-    return (fmi2Status)instance_reset(instance);
+    BEGIN(fmi2Reset);
+    END(instance_reset(instance));
 }
 
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
-    BEGIN("fmi2DoStep", StepMode);
-    return (fmi2Status)instance_do_step(instance, "fmi2DoStep", currentCommunicationPoint, communicationStepSize);
+    BEGIN(fmi2DoStep);
+    END(instance_do_step(instance, "fmi2DoStep", currentCommunicationPoint, communicationStepSize));
 }
 
+/* Allowed only while a step is pending, which never happens: fmi2DoStep returns when the step is done. */
 fmi2Status fmi2CancelStep(fmi2Component c) {
-    return (fmi2Status)instance_unsupported((Instance *)c, "fmi2CancelStep", "fmi2DoStep returns when the step is done");
+    instance_refused((Instance *)c, "fmi2CancelStep", MASK_fmi2CancelStep);
+    return fmi2Error;
 }
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
 #define GETTER(function, type, ctype, cvalue)                                                                          \
     fmi2Status function(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, cvalue value[]) {                \
-        BEGIN(#function, MASK_Get);                                                                                  \
-        return (fmi2Status)instance_get(instance, #function, type, vr, nvr, value, nvr, ctype);                      \
+        BEGIN(function);                                                                                             \
+        END(instance_get(instance, #function, type, vr, nvr, value, nvr, ctype));                                    \
     }
 
 #define SETTER(function, type, ctype, cvalue)                                                                          \
     fmi2Status function(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const cvalue value[]) {          \
-        BEGIN(#function, MASK_Set);                                                                                  \
-        return (fmi2Status)instance_set(instance, #function, type, vr, nvr, value, nvr, ctype);                      \
+        BEGIN(function);                                                                                             \
+        END(instance_set(instance, #function, type, vr, nvr, value, nvr, ctype));                                    \
     }
 
 GETTER(fmi2GetReal, TYPE_REAL, C_DOUBLE, fmi2Real)
@@ -149,52 +188,54 @@ SETTER(fmi2SetString, TYPE_STRING, C_DOUBLE, fmi2String)
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
                                         const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    return (fmi2Status)instance_unsupported((Instance *)c, "fmi2GetDirectionalDerivative",
-                                            "providesDirectionalDerivative is false");
+    BEGIN(fmi2GetDirectionalDerivative);
+    END(instance_unsupported(instance, "fmi2GetDirectionalDerivative", "providesDirectionalDerivative is false"));
 }
 
 fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                        const fmi2Integer order[], const fmi2Real value[]) {
-    return (fmi2Status)instance_set_input_derivatives((Instance *)c, "fmi2SetRealInputDerivatives", vr, nvr, order,
-                                                      value);
+    BEGIN(fmi2SetRealInputDerivatives);
+    END(instance_set_input_derivatives(instance, "fmi2SetRealInputDerivatives", vr, nvr, order, value));
 }
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                         const fmi2Integer order[], fmi2Real value[]) {
-    return (fmi2Status)instance_unsupported((Instance *)c, "fmi2GetRealOutputDerivatives",
-                                            "maxOutputDerivativeOrder is 0");
+    BEGIN(fmi2GetRealOutputDerivatives);
+    END(instance_unsupported(instance, "fmi2GetRealOutputDerivatives", "maxOutputDerivativeOrder is 0"));
 }
 
 /* --- status: fmi2DoStep never returns fmi2Pending ------------------------------------------------------ */
 
-static fmi2Status no_status(fmi2Component c, const char *function) {
-    BEGIN(function, MASK_Status);
+static fmi2Status no_status(Instance *instance, const char *function) {
     instance_log(instance, STATUS_DISCARD, "%s: %s: this status is not available (fmi2DoStep never returns "
                  "fmi2Pending)", instance->name, function);
     return fmi2Discard;
 }
 
 fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    return no_status(c, "fmi2GetStatus");
+    BEGIN(fmi2GetStatus);
+    return no_status(instance, "fmi2GetStatus");
 }
 
 fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    return no_status(c, "fmi2GetIntegerStatus");
+    BEGIN(fmi2GetIntegerStatus);
+    return no_status(instance, "fmi2GetIntegerStatus");
 }
 
 fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    return no_status(c, "fmi2GetStringStatus");
+    BEGIN(fmi2GetStringStatus);
+    return no_status(instance, "fmi2GetStringStatus");
 }
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
-    if (s != fmi2LastSuccessfulTime || !value) return no_status(c, "fmi2GetRealStatus");
-    BEGIN("fmi2GetRealStatus", MASK_Status);
-    return (fmi2Status)slave_get_double(&instance->slave, "time", value);
+    BEGIN(fmi2GetRealStatus);
+    if (s != fmi2LastSuccessfulTime || !value) return no_status(instance, "fmi2GetRealStatus");
+    END(slave_get_double(&instance->slave, "time", value));
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
-    if (s != fmi2Terminated || !value) return no_status(c, "fmi2GetBooleanStatus");
-    BEGIN("fmi2GetBooleanStatus", MASK_Status);
+    BEGIN(fmi2GetBooleanStatus);
+    if (s != fmi2Terminated || !value) return no_status(instance, "fmi2GetBooleanStatus");
     *value = fmi2False;
     return fmi2OK;
 }
@@ -202,32 +243,32 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 
 fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    BEGIN("fmi2GetFMUstate", ANY_STATE);
-    return (fmi2Status)instance_get_state(instance, "fmi2GetFMUstate", FMUstate);
+    BEGIN(fmi2GetFMUstate);
+    END(instance_get_state(instance, "fmi2GetFMUstate", FMUstate));
 }
 
 fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
-    BEGIN("fmi2SetFMUstate", ANY_STATE);
-    return (fmi2Status)instance_set_state(instance, "fmi2SetFMUstate", FMUstate);
+    BEGIN(fmi2SetFMUstate);
+    END(instance_set_state(instance, "fmi2SetFMUstate", FMUstate));
 }
 
 fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    BEGIN("fmi2FreeFMUstate", ANY_STATE);
-    return (fmi2Status)instance_free_state(instance, "fmi2FreeFMUstate", FMUstate);
+    BEGIN(fmi2FreeFMUstate);
+    END(instance_free_state(instance, "fmi2FreeFMUstate", FMUstate));
 }
 
 fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
-    BEGIN("fmi2SerializedFMUstateSize", ANY_STATE);
-    return (fmi2Status)instance_serialized_size(instance, "fmi2SerializedFMUstateSize", FMUstate, size);
+    BEGIN(fmi2SerializedFMUstateSize);
+    END(instance_serialized_size(instance, "fmi2SerializedFMUstateSize", FMUstate, size));
 }
 
 fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
-    BEGIN("fmi2SerializeFMUstate", ANY_STATE);
-    return (fmi2Status)instance_serialize(instance, "fmi2SerializeFMUstate", FMUstate, serializedState, size);
+    BEGIN(fmi2SerializeFMUstate);
+    END(instance_serialize(instance, "fmi2SerializeFMUstate", FMUstate, serializedState, size));
 }
 
 fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
                                    fmi2FMUstate *FMUstate) {
-    BEGIN("fmi2DeSerializeFMUstate", ANY_STATE);
-    return (fmi2Status)instance_deserialize(instance, "fmi2DeSerializeFMUstate", serializedState, size, FMUstate);
+    BEGIN(fmi2DeSerializeFMUstate);
+    END(instance_deserialize(instance, "fmi2DeSerializeFMUstate", serializedState, size, FMUstate));
 }

@@ -1,14 +1,29 @@
-/* The FMI 3.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states the standard
-   allows it in, then handed to instance.c. No event mode, no model exchange, no scheduled
-   execution, no clocks: those functions refuse with a message. Nothing returns fmi3Fatal. */
+/* The FMI 3.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states FMI 3.0.2
+   (sections 2.3 and 4.2) allows it in, then handed to instance.c; every fmi3Error moves the
+   instance to Terminated. No event mode, no model exchange, no scheduled execution, no clocks:
+   those functions refuse with a message. Nothing returns fmi3Fatal. */
 
 #include <stdio.h>
 
 #include "fmi3Functions.h"
 #include "instance.h"
 
-#define MASK_Get (InitializationMode | StepMode | Terminated | Error)
-#define MASK_Set (Instantiated | InitializationMode | StepMode)
+/* The states each function is allowed in (FMI 3.0 has no error state: an error leads to Terminated). */
+#define MASK_fmi3SetDebugLogging ANY_STATE
+#define MASK_fmi3Reset ANY_STATE
+#define MASK_fmi3EnterInitializationMode Instantiated
+#define MASK_fmi3ExitInitializationMode InitializationMode
+#define MASK_fmi3Terminate StepMode
+#define MASK_fmi3DoStep StepMode
+#define MASK_GET (Instantiated | InitializationMode | StepMode | Terminated)
+#define MASK_SET (Instantiated | InitializationMode | StepMode)
+#define CLOCKS 0 /* clocks are read and set in event mode, which these FMUs do not have */
+#define MASK_fmi3GetFMUState ANY_STATE
+#define MASK_fmi3SetFMUState ANY_STATE
+#define MASK_fmi3FreeFMUState ANY_STATE
+#define MASK_fmi3SerializedFMUStateSize ANY_STATE
+#define MASK_fmi3SerializeFMUState ANY_STATE
+#define MASK_fmi3DeserializeFMUState ANY_STATE
 
 typedef struct {
     Instance base;
@@ -16,33 +31,41 @@ typedef struct {
     fmi3LogMessageCallback logMessage;
 } Fmi3Instance;
 
-static const MethodNames METHODS = {
-    {"get_float64", "get_int32", "get_boolean"},
-    {"set_float64", "set_int32", "set_boolean"},
-    {"Float64", "Int32", "Boolean", "String"},
-};
-
-#define BEGIN(function, mask)                                                                                        \
+/* A refused call returns fmi3Error; `mask`: the states the function is allowed in. */
+#define BEGIN_MASK(F, mask)                                                                                          \
     Instance *instance = (Instance *)c;                                                                              \
-    if (instance_refused(instance, function, mask)) return fmi3Error
+    if (instance_refused(instance, #F, mask)) return fmi3Error
+
+/* The function's name and mask from one token. */
+#define BEGIN(F) BEGIN_MASK(F, MASK_##F)
+
+/* The call's status; fmi3Error moves the instance to Terminated. */
+#define END(call) return (fmi3Status)instance_status(instance, (call))
 
 static void host_log(Instance *instance, int status, const char *category, const char *message) {
     Fmi3Instance *host = (Fmi3Instance *)instance;
     if (host->logMessage) host->logMessage(host->environment, (fmi3Status)status, category, message);
 }
 
+/* With loggingOn = fmi3False, or a category switched off, logMessage is never called (FMI 3.0.2, 2.3.1). */
+static const Standard FMI3 = {
+    {{"get_float64", "get_int32", "get_boolean"}, {"set_float64", "set_int32", "set_boolean"},
+     {"Float64", "Int32", "Boolean", "String"}},
+    Terminated, StepMode, 0, host_log,
+};
+
 /* --- inquiry, logging, creation ------------------------------------------------------------------------ */
 
 const char *fmi3GetVersion(void) { return fmi3Version; }
 
 fmi3Status fmi3SetDebugLogging(fmi3Instance c, fmi3Boolean loggingOn, size_t nCategories, const fmi3String categories[]) {
-    BEGIN("fmi3SetDebugLogging", ANY_STATE);
-    return (fmi3Status)instance_set_logging(instance, "fmi3SetDebugLogging", loggingOn, nCategories, categories);
+    BEGIN(fmi3SetDebugLogging);
+    END(instance_set_logging(instance, "fmi3SetDebugLogging", loggingOn, nCategories, categories));
 }
 
 static fmi3Instance refuse_instantiation(fmi3InstanceEnvironment environment, fmi3LogMessageCallback logMessage,
-                                         const char *why) {
-    if (logMessage) logMessage(environment, fmi3Error, "logStatusError", why);
+                                         fmi3Boolean loggingOn, const char *why) {
+    if (logMessage && loggingOn) logMessage(environment, fmi3Error, "logStatusError", why);
     return NULL;
 }
 
@@ -55,23 +78,22 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3LogMessageCallback logMessage,
                                          fmi3IntermediateUpdateCallback intermediateUpdate) {
     if (!instanceName || !*instanceName) {
-        return refuse_instantiation(instanceEnvironment, logMessage,
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                     "fmi3InstantiateCoSimulation: the instance name is missing or empty");
     }
     if (eventModeUsed) {
-        return refuse_instantiation(instanceEnvironment, logMessage,
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                     "fmi3InstantiateCoSimulation: eventModeUsed is not supported (hasEventMode is false)");
     }
     if (nRequiredIntermediateVariables > 0) {
-        return refuse_instantiation(instanceEnvironment, logMessage,
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                     "fmi3InstantiateCoSimulation: these FMUs provide no intermediate variables");
     }
-    Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, host_log);
-    if (!instance) return refuse_instantiation(instanceEnvironment, logMessage, "fmi3InstantiateCoSimulation: out of memory");
+    Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, &FMI3);
+    if (!instance) return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, "fmi3InstantiateCoSimulation: out of memory");
     instance->environment = instanceEnvironment;
     instance->logMessage = logMessage;
-    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken, visible,
-                       &METHODS) != 0) {
+    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken, visible) != 0) {
         instance_free(&instance->base);
         return NULL;
     }
@@ -82,7 +104,7 @@ fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String in
                                           fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
                                           fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    return refuse_instantiation(instanceEnvironment, logMessage,
+    return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                 "fmi3InstantiateModelExchange: these FMUs are co-simulation FMUs only");
 }
 
@@ -92,7 +114,7 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
                                                fmi3LogMessageCallback logMessage, fmi3ClockUpdateCallback clockUpdate,
                                                fmi3LockPreemptionCallback lockPreemption,
                                                fmi3UnlockPreemptionCallback unlockPreemption) {
-    return refuse_instantiation(instanceEnvironment, logMessage,
+    return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                 "fmi3InstantiateScheduledExecution: these FMUs are co-simulation FMUs only");
 }
 
@@ -102,64 +124,64 @@ void fmi3FreeInstance(fmi3Instance c) { instance_free((Instance *)c); }
 
 fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
                                        fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
-    BEGIN("fmi3EnterInitializationMode", Instantiated);
+    BEGIN(fmi3EnterInitializationMode);
     double start[] = {startTime};
     int status = instance_call(instance, "setup_experiment", 1, start, NULL, Instantiated);
-    if (status != fmi3OK) return (fmi3Status)status;
-    return (fmi3Status)instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+    if (status == fmi3OK) status = instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+    END(status);
 }
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
-    BEGIN("fmi3ExitInitializationMode", InitializationMode);
-    return (fmi3Status)instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode);
+    BEGIN(fmi3ExitInitializationMode);
+    END(instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode));
 }
 
 fmi3Status fmi3Terminate(fmi3Instance c) {
-    BEGIN("fmi3Terminate", StepMode);
-    return (fmi3Status)instance_call(instance, "terminate", 0, NULL, NULL, Terminated);
+    BEGIN(fmi3Terminate);
+    END(instance_call(instance, "terminate", 0, NULL, NULL, Terminated));
 }
 
 fmi3Status fmi3Reset(fmi3Instance c) {
-    BEGIN("fmi3Reset", ANY_STATE);
-    return (fmi3Status)instance_reset(instance);
+    BEGIN(fmi3Reset);
+    END(instance_reset(instance));
 }
 
 fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi3Float64 communicationStepSize,
                       fmi3Boolean noSetFMUStatePriorToCurrentPoint, fmi3Boolean *eventHandlingNeeded,
                       fmi3Boolean *terminateSimulation, fmi3Boolean *earlyReturn, fmi3Float64 *lastSuccessfulTime) {
-    BEGIN("fmi3DoStep", StepMode);
+    BEGIN(fmi3DoStep);
     if (!eventHandlingNeeded || !terminateSimulation || !earlyReturn || !lastSuccessfulTime) {
         instance_log(instance, STATUS_ERROR, "%s: fmi3DoStep: an output argument is NULL", instance->name);
-        return fmi3Error;
+        END(STATUS_ERROR);
     }
     int status = instance_do_step(instance, "fmi3DoStep", currentCommunicationPoint, communicationStepSize);
     *eventHandlingNeeded = fmi3False;
     *terminateSimulation = fmi3False;
     *earlyReturn = fmi3False;
     *lastSuccessfulTime = currentCommunicationPoint + (status == fmi3OK ? communicationStepSize : 0.0);
-    return (fmi3Status)status;
+    END(status);
 }
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
 #define GETTER(function, type, ctype, cvalue)                                                                          \
     fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, cvalue values[], size_t nValues) { \
-        BEGIN(#function, MASK_Get);                                                                                  \
-        return (fmi3Status)instance_get(instance, #function, type, vr, nvr, values, nValues, ctype);                 \
+        BEGIN_MASK(function, MASK_GET);                                                                              \
+        END(instance_get(instance, #function, type, vr, nvr, values, nValues, ctype));                               \
     }
 
 #define SETTER(function, type, ctype, cvalue)                                                                          \
     fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const cvalue values[],            \
                         size_t nValues) {                                                                            \
-        BEGIN(#function, MASK_Set);                                                                                  \
-        return (fmi3Status)instance_set(instance, #function, type, vr, nvr, values, nValues, ctype);                 \
+        BEGIN_MASK(function, MASK_SET);                                                                              \
+        END(instance_set(instance, #function, type, vr, nvr, values, nValues, ctype));                               \
     }
 
 /* A type these FMUs have no variables of: only an empty call succeeds. */
 #define ABSENT(function, mask, type_name, ...)                                                                         \
     fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, __VA_ARGS__) {                    \
-        BEGIN(#function, mask);                                                                                      \
-        return (fmi3Status)instance_no_variables_of(instance, #function, type_name, vr, nvr);                        \
+        BEGIN_MASK(function, mask);                                                                                  \
+        END(instance_no_variables_of(instance, #function, type_name, vr, nvr));                                      \
     }
 
 GETTER(fmi3GetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
@@ -169,67 +191,69 @@ SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
 SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
 SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
 
-ABSENT(fmi3GetFloat32, MASK_Get, "Float32", fmi3Float32 values[], size_t nValues)
-ABSENT(fmi3GetInt8, MASK_Get, "Int8", fmi3Int8 values[], size_t nValues)
-ABSENT(fmi3GetUInt8, MASK_Get, "UInt8", fmi3UInt8 values[], size_t nValues)
-ABSENT(fmi3GetInt16, MASK_Get, "Int16", fmi3Int16 values[], size_t nValues)
-ABSENT(fmi3GetUInt16, MASK_Get, "UInt16", fmi3UInt16 values[], size_t nValues)
-ABSENT(fmi3GetUInt32, MASK_Get, "UInt32", fmi3UInt32 values[], size_t nValues)
-ABSENT(fmi3GetInt64, MASK_Get, "Int64", fmi3Int64 values[], size_t nValues)
-ABSENT(fmi3GetUInt64, MASK_Get, "UInt64", fmi3UInt64 values[], size_t nValues)
-ABSENT(fmi3GetString, MASK_Get, "String", fmi3String values[], size_t nValues)
-ABSENT(fmi3GetBinary, MASK_Get, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
-ABSENT(fmi3GetClock, MASK_Get, "Clock", fmi3Clock values[])
-ABSENT(fmi3SetFloat32, MASK_Set, "Float32", const fmi3Float32 values[], size_t nValues)
-ABSENT(fmi3SetInt8, MASK_Set, "Int8", const fmi3Int8 values[], size_t nValues)
-ABSENT(fmi3SetUInt8, MASK_Set, "UInt8", const fmi3UInt8 values[], size_t nValues)
-ABSENT(fmi3SetInt16, MASK_Set, "Int16", const fmi3Int16 values[], size_t nValues)
-ABSENT(fmi3SetUInt16, MASK_Set, "UInt16", const fmi3UInt16 values[], size_t nValues)
-ABSENT(fmi3SetUInt32, MASK_Set, "UInt32", const fmi3UInt32 values[], size_t nValues)
-ABSENT(fmi3SetInt64, MASK_Set, "Int64", const fmi3Int64 values[], size_t nValues)
-ABSENT(fmi3SetUInt64, MASK_Set, "UInt64", const fmi3UInt64 values[], size_t nValues)
-ABSENT(fmi3SetString, MASK_Set, "String", const fmi3String values[], size_t nValues)
-ABSENT(fmi3SetBinary, MASK_Set, "Binary", const size_t valueSizes[], const fmi3Binary values[], size_t nValues)
-ABSENT(fmi3SetClock, MASK_Set, "Clock", const fmi3Clock values[])
+ABSENT(fmi3GetFloat32, MASK_GET, "Float32", fmi3Float32 values[], size_t nValues)
+ABSENT(fmi3GetInt8, MASK_GET, "Int8", fmi3Int8 values[], size_t nValues)
+ABSENT(fmi3GetUInt8, MASK_GET, "UInt8", fmi3UInt8 values[], size_t nValues)
+ABSENT(fmi3GetInt16, MASK_GET, "Int16", fmi3Int16 values[], size_t nValues)
+ABSENT(fmi3GetUInt16, MASK_GET, "UInt16", fmi3UInt16 values[], size_t nValues)
+ABSENT(fmi3GetUInt32, MASK_GET, "UInt32", fmi3UInt32 values[], size_t nValues)
+ABSENT(fmi3GetInt64, MASK_GET, "Int64", fmi3Int64 values[], size_t nValues)
+ABSENT(fmi3GetUInt64, MASK_GET, "UInt64", fmi3UInt64 values[], size_t nValues)
+ABSENT(fmi3GetString, MASK_GET, "String", fmi3String values[], size_t nValues)
+ABSENT(fmi3GetBinary, MASK_GET, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
+ABSENT(fmi3GetClock, CLOCKS, "Clock", fmi3Clock values[])
+ABSENT(fmi3SetFloat32, MASK_SET, "Float32", const fmi3Float32 values[], size_t nValues)
+ABSENT(fmi3SetInt8, MASK_SET, "Int8", const fmi3Int8 values[], size_t nValues)
+ABSENT(fmi3SetUInt8, MASK_SET, "UInt8", const fmi3UInt8 values[], size_t nValues)
+ABSENT(fmi3SetInt16, MASK_SET, "Int16", const fmi3Int16 values[], size_t nValues)
+ABSENT(fmi3SetUInt16, MASK_SET, "UInt16", const fmi3UInt16 values[], size_t nValues)
+ABSENT(fmi3SetUInt32, MASK_SET, "UInt32", const fmi3UInt32 values[], size_t nValues)
+ABSENT(fmi3SetInt64, MASK_SET, "Int64", const fmi3Int64 values[], size_t nValues)
+ABSENT(fmi3SetUInt64, MASK_SET, "UInt64", const fmi3UInt64 values[], size_t nValues)
+ABSENT(fmi3SetString, MASK_SET, "String", const fmi3String values[], size_t nValues)
+ABSENT(fmi3SetBinary, MASK_SET, "Binary", const size_t valueSizes[], const fmi3Binary values[], size_t nValues)
+ABSENT(fmi3SetClock, CLOCKS, "Clock", const fmi3Clock values[])
 
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 
 fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
-    BEGIN("fmi3GetFMUState", ANY_STATE);
-    return (fmi3Status)instance_get_state(instance, "fmi3GetFMUState", FMUState);
+    BEGIN(fmi3GetFMUState);
+    END(instance_get_state(instance, "fmi3GetFMUState", FMUState));
 }
 
 fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState) {
-    BEGIN("fmi3SetFMUState", ANY_STATE);
-    return (fmi3Status)instance_set_state(instance, "fmi3SetFMUState", FMUState);
+    BEGIN(fmi3SetFMUState);
+    END(instance_set_state(instance, "fmi3SetFMUState", FMUState));
 }
 
 fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
-    BEGIN("fmi3FreeFMUState", ANY_STATE);
-    return (fmi3Status)instance_free_state(instance, "fmi3FreeFMUState", FMUState);
+    BEGIN(fmi3FreeFMUState);
+    END(instance_free_state(instance, "fmi3FreeFMUState", FMUState));
 }
 
 fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size) {
-    BEGIN("fmi3SerializedFMUStateSize", ANY_STATE);
-    return (fmi3Status)instance_serialized_size(instance, "fmi3SerializedFMUStateSize", FMUState, size);
+    BEGIN(fmi3SerializedFMUStateSize);
+    END(instance_serialized_size(instance, "fmi3SerializedFMUStateSize", FMUState, size));
 }
 
 fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size) {
-    BEGIN("fmi3SerializeFMUState", ANY_STATE);
-    return (fmi3Status)instance_serialize(instance, "fmi3SerializeFMUState", FMUState, (char *)serializedState, size);
+    BEGIN(fmi3SerializeFMUState);
+    END(instance_serialize(instance, "fmi3SerializeFMUState", FMUState, (char *)serializedState, size));
 }
 
 fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size, fmi3FMUState *FMUState) {
-    BEGIN("fmi3DeserializeFMUState", ANY_STATE);
-    return (fmi3Status)instance_deserialize(instance, "fmi3DeserializeFMUState", (const char *)serializedState, size,
-                                            FMUState);
+    BEGIN(fmi3DeserializeFMUState);
+    END(instance_deserialize(instance, "fmi3DeserializeFMUState", (const char *)serializedState, size,
+                                            FMUState));
 }
 
 /* --- what these FMUs do not offer ------------------------------------------------------------------------- */
 
+/* A function of a capability these FMUs do not declare: fmi3Error with `why`, in any state. */
 #define UNSUPPORTED(function, why, ...)                                                                               \
     fmi3Status function(fmi3Instance c, __VA_ARGS__) {                                                               \
-        return (fmi3Status)instance_unsupported((Instance *)c, #function, why);                                     \
+        BEGIN_MASK(function, ANY_STATE);                                                                             \
+        END(instance_unsupported(instance, #function, why));                                                         \
     }
 
 #define NO_EVENT_MODE "hasEventMode is false"
@@ -237,27 +261,33 @@ fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedStat
 #define ME_ONLY "a function of model exchange; these FMUs are co-simulation FMUs"
 
 fmi3Status fmi3EnterEventMode(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterEventMode", NO_EVENT_MODE);
+    BEGIN_MASK(fmi3EnterEventMode, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3EnterEventMode", NO_EVENT_MODE));
 }
 
 fmi3Status fmi3EnterStepMode(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterStepMode", NO_EVENT_MODE);
+    BEGIN_MASK(fmi3EnterStepMode, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3EnterStepMode", NO_EVENT_MODE));
 }
 
 fmi3Status fmi3EnterConfigurationMode(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterConfigurationMode", "these FMUs have no structural parameters");
+    BEGIN_MASK(fmi3EnterConfigurationMode, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3EnterConfigurationMode", "these FMUs have no structural parameters"));
 }
 
 fmi3Status fmi3ExitConfigurationMode(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3ExitConfigurationMode", "these FMUs have no structural parameters");
+    BEGIN_MASK(fmi3ExitConfigurationMode, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3ExitConfigurationMode", "these FMUs have no structural parameters"));
 }
 
 fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EvaluateDiscreteStates", NO_EVENT_MODE);
+    BEGIN_MASK(fmi3EvaluateDiscreteStates, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3EvaluateDiscreteStates", NO_EVENT_MODE));
 }
 
 fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
-    return (fmi3Status)instance_unsupported((Instance *)c, "fmi3EnterContinuousTimeMode", ME_ONLY);
+    BEGIN_MASK(fmi3EnterContinuousTimeMode, ANY_STATE);
+    END(instance_unsupported(instance, "fmi3EnterContinuousTimeMode", ME_ONLY));
 }
 
 UNSUPPORTED(fmi3GetNumberOfVariableDependencies, "providesPerElementDependencies is false; see ModelStructure",

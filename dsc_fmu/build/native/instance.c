@@ -1,10 +1,12 @@
 /* An FMU instance, for both FMI versions (see instance.h).
 
    Every function checks its arguments (value references, types, causality, variability, step
-   sizes, FMU states) before Python sees them and logs every failure as text. A Python exception
-   is STATUS_ERROR (STATUS_DISCARD in a step) and leaves the instance usable; a step the slave
-   declines or fails leaves the instance at the start of that step, in step mode; nothing here
-   returns STATUS_FATAL. */
+   sizes, FMU states) before Python sees them and logs every failure as text. Any call that returns
+   STATUS_ERROR (an illegal call, a bad argument, a Python exception) moves the instance to the
+   standard's error state (FMI 2.0 error, FMI 3.0 terminated), from which fmiSetFMUstate,
+   fmiReset and fmiFreeInstance lead on. A step the slave declines or fails is STATUS_DISCARD: the
+   instance stays at the start of that step, in FMI 2.0 stepFailed, in FMI 3.0 step mode; nothing
+   here returns STATUS_FATAL. */
 
 #include "instance.h"
 
@@ -23,23 +25,36 @@ typedef struct {
     ModelState state;
 } State;
 
+/* The log categories of the model descriptions; messages of any other category count as logAll. */
 static const char *CATEGORIES[] = {"logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal", "logAll"};
+enum { CATEGORY_COUNT = sizeof CATEGORIES / sizeof CATEGORIES[0], ALL_CATEGORIES = (1 << CATEGORY_COUNT) - 1 };
 
 static const char *state_name(ModelState state) {
     switch (state) {
     case Instantiated: return "instantiated";
     case InitializationMode: return "initialization mode";
     case StepMode: return "step mode";
+    case StepFailed: return "step failed";
     case Terminated: return "terminated";
     case Error: return "error";
     }
     return "unknown";
 }
 
+static int category_bit(const char *category) {
+    for (int k = 0; category && k < CATEGORY_COUNT; k++) {
+        if (strcmp(category, CATEGORIES[k]) == 0) return 1 << k;
+    }
+    return -1;
+}
+
+/* To the importer's logger, if the standard and the enabled categories let the message through. */
 static void forward(void *context, int status, const char *category, const char *message) {
     Instance *instance = context;
-    if (status < STATUS_WARNING && !instance->logging_on) return;
-    instance->host_log(instance, status, category, message);
+    int bit = category_bit(category);
+    int enabled = instance->categories & (bit > 0 ? bit : 1 << (CATEGORY_COUNT - 1));
+    if (!enabled && !(instance->standard->always_logged & (1 << status))) return;
+    instance->standard->log(instance, status, category, message);
 }
 
 void instance_log(Instance *instance, int status, const char *format, ...) {
@@ -51,26 +66,26 @@ void instance_log(Instance *instance, int status, const char *format, ...) {
     forward(instance, status, slave_category(status), message);
 }
 
-Instance *instance_alloc(size_t size, const char *name, int logging_on, HostLog host_log) {
+Instance *instance_alloc(size_t size, const char *name, int logging_on, const Standard *standard) {
     Instance *instance = calloc(1, size);
     if (!instance) return NULL;
     instance->magic = INSTANCE_MAGIC;
     instance->state = Instantiated;
-    instance->logging_on = logging_on;
-    instance->host_log = host_log;
+    instance->categories = logging_on ? ALL_CATEGORIES : 0;
+    instance->standard = standard;
     snprintf(instance->name, sizeof instance->name, "%s", name);
     return instance;
 }
 
-int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible,
-                   const MethodNames *names) {
+int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible) {
     char folder[4096];
     if (slave_uri_to_path(resources, folder, sizeof folder) != 0) {
         instance_log(instance, STATUS_ERROR, "%s: %s: the resource location %s is not a file URI or an absolute path",
                      instance->name, function, resources ? resources : "(null)");
         return -1;
     }
-    return slave_create(&instance->slave, folder, token, instance->name, visible, names, forward, instance);
+    return slave_create(&instance->slave, folder, token, instance->name, visible, &instance->standard->names, forward,
+                        instance);
 }
 
 void instance_free(Instance *instance) {
@@ -80,17 +95,22 @@ void instance_free(Instance *instance) {
     free(instance);
 }
 
+int instance_status(Instance *instance, int status) {
+    if (status >= STATUS_ERROR) instance->state = instance->standard->after_error;
+    return status;
+}
+
 int instance_refused(Instance *instance, const char *function, int mask) {
     if (!instance || instance->magic != INSTANCE_MAGIC) return 1;
     if (instance->state & mask) return 0;
     instance_log(instance, STATUS_ERROR, "%s: %s is not allowed in state %s", instance->name, function,
                  state_name(instance->state));
+    instance_status(instance, STATUS_ERROR);
     return 1;
 }
 
 static int settle(Instance *instance, int status, int next) {
     if (status == STATUS_OK) instance->state = (ModelState)next;
-    else if (status >= STATUS_ERROR) instance->state = Error;
     return status;
 }
 
@@ -110,7 +130,13 @@ int instance_do_step(Instance *instance, const char *function, double time, doub
     }
     int accepted = 0;
     int status = slave_step(&instance->slave, time, step, &accepted);
-    return status == STATUS_OK && !accepted ? STATUS_DISCARD : status;
+    if (status == STATUS_OK && !accepted) {
+        instance_log(instance, STATUS_DISCARD, "%s: %s: the step from t = %.17g s by %g s is discarded; the FMU stays "
+                     "at t = %.17g s", instance->name, function, time, step, time);
+        status = STATUS_DISCARD;
+    }
+    if (status == STATUS_DISCARD) instance->state = instance->standard->after_discard;
+    return status;
 }
 
 int instance_set_logging(Instance *instance, const char *function, int logging_on, size_t n, const char *const categories[]) {
@@ -118,19 +144,18 @@ int instance_set_logging(Instance *instance, const char *function, int logging_o
         instance_log(instance, STATUS_ERROR, "%s: %s: %zu categories but no array", instance->name, function, n);
         return STATUS_ERROR;
     }
+    int chosen = n ? 0 : ALL_CATEGORIES;
     for (size_t i = 0; i < n; i++) {
-        int known = 0;
-        for (size_t k = 0; categories[i] && k < sizeof CATEGORIES / sizeof CATEGORIES[0]; k++) {
-            known |= strcmp(categories[i], CATEGORIES[k]) == 0;
-        }
-        if (!known) {
+        int bit = category_bit(categories[i]);
+        if (bit < 0) {
             instance_log(instance, STATUS_ERROR, "%s: %s: unknown log category %s; allowed: logStatusWarning, "
                          "logStatusDiscard, logStatusError, logStatusFatal, logAll", instance->name, function,
                          categories[i] ? categories[i] : "(null)");
             return STATUS_ERROR;
         }
+        chosen |= bit;
     }
-    instance->logging_on = logging_on;
+    instance->categories = logging_on ? instance->categories | chosen : instance->categories & ~chosen;
     return STATUS_OK;
 }
 
@@ -209,7 +234,6 @@ int instance_set(Instance *instance, const char *function, int type, const unsig
 
 int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
                                    const int order[], const double value[]) {
-    if (instance_refused(instance, function, InitializationMode | StepMode)) return STATUS_ERROR;
     if (nvr == 0) return STATUS_OK;
     if (!vr || !order || !value) {
         instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no %s array", instance->name, function,
@@ -236,7 +260,6 @@ int instance_no_variables_of(Instance *instance, const char *function, const cha
 }
 
 int instance_unsupported(Instance *instance, const char *function, const char *why) {
-    if (instance_refused(instance, function, ANY_STATE)) return STATUS_ERROR;
     instance_log(instance, STATUS_ERROR, "%s: %s is not supported: %s", instance->name, function, why);
     return STATUS_ERROR;
 }

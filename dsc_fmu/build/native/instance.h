@@ -10,43 +10,60 @@
 
 #include "slave.h"
 
+/* The states of the standards' state machines that these FMUs reach (no event mode, no
+   asynchronous step, no configuration mode). */
 typedef enum {
     Instantiated = 1 << 0,
     InitializationMode = 1 << 1,
-    StepMode = 1 << 2, /* FMI 2.0: step complete */
-    Terminated = 1 << 3,
-    Error = 1 << 4,
+    StepMode = 1 << 2,   /* FMI 2.0 stepComplete; FMI 3.0 Step Mode */
+    StepFailed = 1 << 3, /* FMI 2.0 stepFailed: fmi2DoStep returned fmi2Discard */
+    Terminated = 1 << 4,
+    Error = 1 << 5,      /* FMI 2.0 error: a call returned fmi2Error (FMI 3.0 enters Terminated instead) */
 } ModelState;
 
-#define ANY_STATE (Instantiated | InitializationMode | StepMode | Terminated | Error)
+#define ANY_STATE (Instantiated | InitializationMode | StepMode | StepFailed | Terminated | Error)
 
 typedef struct Instance Instance;
 
 /* Hand `message` to the importer's logger as text. */
 typedef void (*HostLog)(Instance *instance, int status, const char *category, const char *message);
 
+/* What the two standards do differently beyond their names. */
+typedef struct {
+    MethodNames names;
+    ModelState after_error;   /* FMI 2.0 Error, FMI 3.0 Terminated */
+    ModelState after_discard; /* FMI 2.0 StepFailed, FMI 3.0 StepMode (the state before the call) */
+    int always_logged;        /* statuses (bit 1 << status) logged whatever the categories: FMI 2.0 warnings,
+                                 errors and fatal errors; FMI 3.0 none (loggingOn = false silences all) */
+    HostLog log;
+} Standard;
+
 struct Instance {
     unsigned int magic;
     Slave slave;
     ModelState state;
     char name[256];
-    int logging_on;
-    HostLog host_log;
+    int categories; /* the log categories enabled, bit i for CATEGORIES[i] of instance.c */
+    const Standard *standard;
 };
 
 /* A zeroed instance of `size` bytes (at least sizeof(Instance)) named `name`, or NULL. */
-Instance *instance_alloc(size_t size, const char *name, int logging_on, HostLog host_log);
+Instance *instance_alloc(size_t size, const char *name, int logging_on, const Standard *standard);
 
 /* Create the slave (resources: a path or file URI; token: the GUID or instantiation token the
    importer passed). 0, or -1 after logging why; the caller then frees the instance. */
-int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible,
-                   const MethodNames *names);
+int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible);
 void instance_free(Instance *instance);
 
 void instance_log(Instance *instance, int status, const char *format, ...);
 
-/* Whether the call `function` is refused: a foreign pointer (silently) or a state outside `mask` (logged). */
+/* Whether the call `function` is refused: a foreign pointer (silently) or a state outside `mask` (logged,
+   and the instance enters its error state). */
 int instance_refused(Instance *instance, const char *function, int mask);
+
+/* `status`, the result of the call that the functions below made; STATUS_ERROR moves the instance to
+   its error state. The adapters end every call with it. */
+int instance_status(Instance *instance, int status);
 
 /* setup, enter, exit, terminate: call `method` with `n` floats; on success the state becomes `next`. */
 int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next);
@@ -60,7 +77,7 @@ int instance_set(Instance *instance, const char *function, int type, const unsig
                  const void *values, size_t nvalues, CType ctype);
 
 /* fmi2SetRealInputDerivatives: first derivatives of Real inputs for the next step (the slave's
-   set_input_derivatives). */
+   set_input_derivatives). The caller checks the state. */
 int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
                                    const int order[], const double value[]);
 

@@ -1,0 +1,313 @@
+"""The FMI state machines to the letter: every function of the API, FMI 2.0 and 3.0, called in every
+state these FMUs reach, allowed exactly where the standard's state tables allow it; and the rules that
+come with them (logging, discarded steps, start values, input derivatives before initialisation).
+
+The tables below are the standards' (FMI 2.0.4, section 4.2.4, the co-simulation state table; FMI
+3.0.2, sections 2.3 and 4.2, the allowed calls of each state), written out for the states these FMUs
+reach: instantiated (I), initialization mode (N), step mode / stepComplete (S), FMI 2.0 stepFailed
+(F), terminated (T) and FMI 2.0 error (E). A call the standard does not allow returns fmiError, logs
+why, and leaves the instance in the error state (FMI 2.0 error, FMI 3.0 terminated). A function
+these FMUs do not offer (model exchange, events, clocks, derivatives) is fmiError in every state.
+The walk runs the FMUs' binary through ctypes, in this process (a Python host).
+"""
+
+import ctypes
+import math
+import re
+from ctypes import byref, c_bool, c_char_p, c_double, c_int, c_size_t, c_void_p
+from pathlib import Path
+
+import pytest
+from fmpy import extract, read_model_description
+
+from fmi_ctypes import Fmi2Slave, Fmi3Slave, FmiCallError
+
+ERROR, DISCARD = 3, 2
+FMI2_STATES = "INSFTE"
+FMI3_STATES = "INST"
+STATE_NAMES = {"I": "instantiated", "N": "initialization mode", "S": "step mode", "F": "step failed",
+               "T": "terminated", "E": "error"}
+
+# FMI 2.0.4, co-simulation (section 4.2.4): the states each function is allowed in.
+FMI2_ALLOWED = {
+    "fmi2SetDebugLogging": "INSFTE", "fmi2SetupExperiment": "I", "fmi2EnterInitializationMode": "I",
+    "fmi2ExitInitializationMode": "N", "fmi2Terminate": "SF", "fmi2Reset": "INSFTE",
+    **{f"fmi2Get{t}": "NSFTE" for t in ("Real", "Integer", "Boolean", "String")},
+    **{f"fmi2Set{t}": "INS" for t in ("Real", "Integer", "Boolean", "String")},
+    **{f: "INSFTE" for f in ("fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate", "fmi2SerializedFMUstateSize",
+                             "fmi2SerializeFMUstate", "fmi2DeSerializeFMUstate")},
+    "fmi2GetDirectionalDerivative": "NSFTE", "fmi2SetRealInputDerivatives": "INS",
+    "fmi2GetRealOutputDerivatives": "SFTE", "fmi2DoStep": "S", "fmi2CancelStep": "",
+    **{f"fmi2Get{t}Status": "SFT" for t in ("", "Real", "Integer", "Boolean", "String")},
+}
+# FMI 3.0.2, co-simulation without event mode (sections 2.3, 4.2): every function not named here
+# belongs to a capability these FMUs do not declare and is allowed in none of these states.
+FMI3_TYPES = ("Float32", "Float64", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64",
+              "Boolean", "String", "Binary")
+FMI3_ALLOWED = {
+    "fmi3SetDebugLogging": "INST", "fmi3Reset": "INST", "fmi3EnterInitializationMode": "I",
+    "fmi3ExitInitializationMode": "N", "fmi3Terminate": "S", "fmi3DoStep": "S",
+    **{f"fmi3Get{t}": "INST" for t in FMI3_TYPES}, **{f"fmi3Set{t}": "INS" for t in FMI3_TYPES},
+    **{f: "INST" for f in ("fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState", "fmi3SerializedFMUStateSize",
+                           "fmi3SerializeFMUState", "fmi3DeserializeFMUState")},
+}
+NOT_CALLED = {"fmi2GetTypesPlatform", "fmi2GetVersion", "fmi2Instantiate", "fmi2FreeInstance", "fmi3GetVersion",
+              "fmi3InstantiateModelExchange", "fmi3InstantiateCoSimulation", "fmi3InstantiateScheduledExecution",
+              "fmi3FreeInstance"}
+
+
+def api(version: int) -> list[str]:
+    """Every function the FMI standard's header declares (as FMPy ships it)."""
+    import fmpy
+
+    header = Path(fmpy.__file__).parent / "c-code" / f"fmi{version}Functions.h"
+    names = re.findall(rf"^#define (fmi{version}\w+) +fmi{version}FullName", header.read_text(), flags=re.M)
+    return [name for name in names if name not in NOT_CALLED and not name.endswith("Version")]
+
+
+class Walk:
+    """One instance of ReferenceRobot (FMI 2.0 or 3.0), driven into a state, and its raw calls."""
+
+    def __init__(self, folder: Path, version: int, state: str, logging_on: bool = True):
+        self.version = version
+        self.fmu = (Fmi3Slave if version == 3 else Fmi2Slave)(folder, f"walk_{state}")
+        self.fmu.instantiate(logging_on=logging_on)
+        self.saved = c_void_p()
+        self.raw(f"fmi{version}GetFMUState" if version == 3 else "fmi2GetFMUstate", byref(self.saved))
+        self.bytes = self._serialized()
+        self.enter(state)
+
+    def raw(self, name: str, *args) -> int:
+        function = self.fmu.dll[name]  # a function object of its own, without the driver's argtypes
+        function.restype = c_int
+        return function(c_void_p(self.fmu.instance), *args)
+
+    def _serialized(self):
+        size = c_size_t()
+        prefix = "fmi3SerializedFMUStateSize" if self.version == 3 else "fmi2SerializedFMUstateSize"
+        assert self.raw(prefix, self.saved, byref(size)) == 0
+        buffer = ctypes.create_string_buffer(size.value)
+        name = "fmi3SerializeFMUState" if self.version == 3 else "fmi2SerializeFMUstate"
+        assert self.raw(name, self.saved, buffer, size) == 0
+        return buffer
+
+    def enter(self, state: str) -> None:
+        v = self.version
+        if state == "E":
+            self.raw("fmi2CancelStep")
+            return
+        if state in "NSFT":
+            if v == 2:
+                assert self.raw("fmi2SetupExperiment", c_int(0), c_double(0), c_double(0), c_int(0), c_double(0)) == 0
+            assert self.raw(f"fmi{v}EnterInitializationMode", *self._experiment()) == 0
+        if state in "SFT":
+            assert self.raw(f"fmi{v}ExitInitializationMode") == 0
+        if state == "F":
+            assert self.step(1e9) == DISCARD  # more sub-steps than a step may take
+        if state == "T":
+            assert self.raw(f"fmi{v}Terminate") == 0
+        self.fmu.messages.clear()
+
+    def _experiment(self):
+        return (c_bool(False), c_double(0), c_double(0), c_bool(False), c_double(0)) if self.version == 3 else ()
+
+    def step(self, h: float = 1e-3) -> int:
+        if self.version == 2:
+            return self.raw("fmi2DoStep", c_double(0), c_double(h), c_int(1))
+        flags = [c_bool() for _ in range(3)]
+        return self.raw("fmi3DoStep", c_double(0), c_double(h), c_bool(True), *map(byref, flags), byref(c_double()))
+
+    def call(self, name: str) -> int:
+        """``name`` with valid arguments (no variables, the state saved at instantiation)."""
+        none, zero = c_void_p(), c_size_t(0)
+        special = {
+            "fmi2SetDebugLogging": (c_int(1), zero, none), "fmi3SetDebugLogging": (c_bool(True), zero, none),
+            "fmi2SetupExperiment": (c_int(0), c_double(0), c_double(0), c_int(0), c_double(0)),
+            "fmi3EnterInitializationMode": self._experiment(), "fmi2SetRealInputDerivatives": (none, zero, none, none),
+            "fmi2GetStatus": (c_int(0), byref(c_int())), "fmi2GetRealStatus": (c_int(2), byref(c_double())),
+            "fmi2GetIntegerStatus": (c_int(0), byref(c_int())), "fmi2GetBooleanStatus": (c_int(3), byref(c_int())),
+            "fmi2GetStringStatus": (c_int(0), byref(c_char_p())),
+            "fmi2GetFMUstate": (byref(c_void_p()),), "fmi3GetFMUState": (byref(c_void_p()),),
+            "fmi2SetFMUstate": (self.saved,), "fmi3SetFMUState": (self.saved,),
+            "fmi2FreeFMUstate": (byref(c_void_p()),), "fmi3FreeFMUState": (byref(c_void_p()),),
+            "fmi2SerializedFMUstateSize": (self.saved, byref(c_size_t())),
+            "fmi3SerializedFMUStateSize": (self.saved, byref(c_size_t())),
+            "fmi2SerializeFMUstate": (self.saved, self.bytes, c_size_t(len(self.bytes))),
+            "fmi3SerializeFMUState": (self.saved, self.bytes, c_size_t(len(self.bytes))),
+            "fmi2DeSerializeFMUstate": (self.bytes, c_size_t(len(self.bytes)), byref(c_void_p())),
+            "fmi3DeserializeFMUState": (self.bytes, c_size_t(len(self.bytes)), byref(c_void_p())),
+        }
+        if name in ("fmi2DoStep", "fmi3DoStep"):
+            return self.step()
+        if name in special:
+            return self.raw(name, *special[name])
+        if name.startswith(("fmi2Get", "fmi2Set")) and name[7:] in ("Real", "Integer", "Boolean", "String"):
+            return self.raw(name, none, zero, none)
+        if name in ("fmi3GetBinary", "fmi3SetBinary"):
+            return self.raw(name, none, zero, none, none, zero)
+        if name.startswith(("fmi3Get", "fmi3Set")) and name[7:] in FMI3_TYPES:
+            return self.raw(name, none, zero, none, zero)
+        return self.raw(name)  # a function these FMUs do not offer reads none of its arguments
+
+    def refusals(self, name: str) -> list[str]:
+        return [m for m in self.messages() if f"{name} is not allowed in state" in m]
+
+    def messages(self) -> list[str]:
+        return [m[-1] for m in self.fmu.messages]
+
+    def in_error_state(self) -> bool:
+        """Whether the instance is in the standard's error state (FMI 2.0 error, FMI 3.0 terminated)."""
+        probe = "fmi2CancelStep" if self.version == 2 else "fmi3EnterInitializationMode"
+        self.call(probe)
+        expected = "error" if self.version == 2 else "terminated"
+        return f"{probe} is not allowed in state {expected}" in self.messages()[-1]
+
+    def close(self):
+        self.fmu.free_instance()
+
+
+@pytest.fixture(scope="module")
+def folders(fmu_paths, fmu3_paths, tmp_path_factory):
+    root = tmp_path_factory.mktemp("states")
+    return {2: Path(extract(str(fmu_paths["ReferenceRobot"]), unzipdir=root / "fmi2")),
+            3: Path(extract(str(fmu3_paths["ReferenceRobot"]), unzipdir=root / "fmi3"))}
+
+
+def test_the_tables_name_every_function_the_binary_exports(folders):
+    """The walk covers the whole API: every function of the standard's header is exported (FMI 2.0:
+    but model exchange's), and the tables name only functions of the header."""
+    model_exchange = {"fmi2EnterEventMode", "fmi2NewDiscreteStates", "fmi2EnterContinuousTimeMode",
+                      "fmi2CompletedIntegratorStep", "fmi2SetTime", "fmi2SetContinuousStates", "fmi2GetDerivatives",
+                      "fmi2GetEventIndicators", "fmi2GetContinuousStates", "fmi2GetNominalsOfContinuousStates"}
+    for version, table in ((2, FMI2_ALLOWED), (3, FMI3_ALLOWED)):
+        library = ctypes.CDLL(str(next((folders[version] / "binaries").glob("*/ReferenceRobot.so"))))
+        names = set(api(version)) - model_exchange
+        assert [name for name in sorted(names) if not hasattr(library, name)] == []
+        assert set(table) <= names
+        if version == 2:
+            assert set(table) == names
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_every_function_in_every_state_is_allowed_exactly_where_the_standard_allows_it(folders, version):
+    table, states = (FMI2_ALLOWED, FMI2_STATES) if version == 2 else (FMI3_ALLOWED, FMI3_STATES)
+    wrong = []
+    for name in (n for n in api(version) if version == 3 or n in table):
+        for state in states:
+            walk = Walk(folders[version], version, state)
+            try:
+                status = walk.call(name)
+                if state in table.get(name, ""):
+                    if walk.refusals(name):
+                        wrong.append(f"{name} in {STATE_NAMES[state]}: refused, allowed by the standard")
+                elif status != ERROR or not walk.in_error_state():
+                    wrong.append(f"{name} in {STATE_NAMES[state]}: status {status}, not fmiError and the error state")
+                elif not any(name in m for m in walk.messages()):
+                    wrong.append(f"{name} in {STATE_NAMES[state]}: refused without a message naming it")
+            finally:
+                walk.close()
+    assert wrong == []
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_an_error_leaves_a_way_back_through_a_saved_state(folders, version):
+    """After fmiError, the state saved before leads on (the standard's way to continue)."""
+    walk = Walk(folders[version], version, "S")
+    saved = c_void_p()
+    get, put = ("fmi3GetFMUState", "fmi3SetFMUState") if version == 3 else ("fmi2GetFMUstate", "fmi2SetFMUstate")
+    assert walk.raw(get, byref(saved)) == 0
+    assert walk.call(f"fmi{version}EnterInitializationMode") == ERROR and walk.in_error_state()
+    assert walk.step() == ERROR
+    assert walk.raw(put, saved) == 0
+    assert walk.step() == 0
+    walk.close()
+
+
+def test_a_discarded_fmi2_step_leaves_the_slave_in_step_failed(folders):
+    """FMI 2.0.4: after fmi2Discard only getters, status, termination, reset and FMU states; another
+    step only after fmi2SetFMUstate. The discard is logged with its status."""
+    walk = Walk(folders[2], 2, "S")
+    saved = c_void_p()
+    assert walk.raw("fmi2GetFMUstate", byref(saved)) == 0
+    assert walk.step(1e9) == DISCARD
+    assert [m for m in walk.fmu.messages if m[1] == DISCARD and "discarded" in m[3]]
+    last = c_double()
+    assert walk.raw("fmi2GetRealStatus", c_int(2), byref(last)) == 0 and last.value == 0.0
+    assert walk.step() == ERROR and walk.refusals("fmi2DoStep")
+    assert walk.raw("fmi2SetFMUstate", saved) == 0
+    assert walk.step() == 0
+    walk.close()
+
+
+def test_a_discarded_fmi3_step_leaves_the_fmu_as_before_the_call(folders):
+    """FMI 3.0: "the FMU is in the same state as before the call": step mode, another step allowed;
+    the discard is logged with the status fmi3Discard."""
+    walk = Walk(folders[3], 3, "S")
+    assert walk.step(1e9) == DISCARD
+    assert [m for m in walk.fmu.messages if m[0] == DISCARD and "discarded" in m[2]]
+    assert walk.step() == 0
+    walk.close()
+
+
+def test_fmi3_start_values_are_readable_before_initialisation(fmu3_paths, folders):
+    md = read_model_description(str(fmu3_paths["ReferenceRobot"]))
+    parameters = [v for v in md.modelVariables if v.causality == "parameter" and v.type == "Float64"]
+    walk = Walk(folders[3], 3, "I")
+    values = walk.fmu.get_float64([v.name for v in parameters])
+    assert values == [float(v.start) for v in parameters]
+    walk.close()
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_logging_off_is_silent_as_the_standard_says(folders, version):
+    """FMI 3.0.2: loggingOn = fmi3False, logMessage is never called, not even for errors or a refused
+    instantiation. FMI 2.0: only debug logging is off; warnings and errors are still shown, OK and
+    discard messages are not."""
+    walk = Walk(folders[version], version, "S", logging_on=False)
+    assert walk.step(1e9) == DISCARD
+    assert walk.call(f"fmi{version}EnterInitializationMode") == ERROR
+    statuses = [m[0] if version == 3 else m[1] for m in walk.fmu.messages]
+    assert statuses == ([] if version == 3 else [ERROR, ERROR])  # the slave's own error, the illegal call
+    walk.close()
+    if version == 3:
+        walk.fmu.description.set("instantiationToken", "{wrong}")
+        with pytest.raises(FmiCallError):
+            walk.fmu.instantiate(logging_on=False)
+        assert walk.fmu.messages == []
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_categories_switched_off_are_not_logged(folders, version):
+    walk = Walk(folders[version], version, "S")
+    names = (c_char_p * 1)(b"logStatusError")
+    assert walk.raw(f"fmi{version}SetDebugLogging", c_bool(False) if version == 3 else c_int(0), c_size_t(1),
+                    names) == 0
+    assert walk.step(1e9) == DISCARD
+    statuses = [m[0] if version == 3 else m[1] for m in walk.fmu.messages]
+    # FMI 3.0: only the discard; FMI 2.0 shows errors whatever the categories.
+    assert statuses == ([DISCARD] if version == 3 else [ERROR, DISCARD])
+    walk.close()
+
+
+def test_input_derivatives_set_before_initialisation_shape_the_first_step(fmu_paths, tmp_path):
+    """fmi2SetRealInputDerivatives is allowed in instantiated (FMI 2.0.4, 4.2.4) and its slopes act on
+    the first step as if set just before it."""
+    folder = Path(extract(str(fmu_paths["MobileRobot"]), unzipdir=tmp_path / "plant"))
+    rows = []
+    for when in ("instantiated", "step mode", "never"):
+        walk = Walk(folder, 2, "I")
+        refs = (ctypes.c_uint * 2)(*(walk.fmu.variables[n][0] for n in ("u1", "u2")))
+        derivative = lambda: walk.raw("fmi2SetRealInputDerivatives", refs, c_size_t(2),  # noqa: E731
+                                      (c_int * 2)(1, 1), (c_double * 2)(40.0, -20.0))
+        if when == "instantiated":
+            assert derivative() == 0
+        walk.enter("N")
+        walk.fmu.set_real(["u1", "u2"], [6.0, 5.0])
+        assert walk.raw("fmi2ExitInitializationMode") == 0
+        if when == "step mode":
+            assert derivative() == 0
+        assert walk.step(0.05) == 0
+        rows.append(walk.fmu.get_real(["x", "y", "theta", "i1", "i2"]))
+        walk.close()
+    assert rows[0] == rows[1] != rows[2]
+    assert all(math.isfinite(v) for v in rows[0])
