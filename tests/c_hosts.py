@@ -1,6 +1,7 @@
-"""The project's C importers (``c_importer.c``: one FMU; ``c_master.c``: the paper's loop) built and run
-as a C tool without Python runs them: compiled with Zig's C compiler from the package index,
-started with an empty environment from another working directory."""
+"""The project's C importers (``c_importer.c``: FMUs of one model side by side; ``c_master.c``: the paper's
+loop; ``c_threads.c``: one FMU called from several threads) built and run as a C tool without Python
+runs them: compiled with Zig's C compiler from the package index, started with an empty environment
+from another working directory."""
 
 import subprocess
 import sys

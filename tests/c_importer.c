@@ -1,10 +1,12 @@
-/* A minimal FMI 2.0 / 3.0 co-simulation importer in C, as a non-Python tool loads one FMU.
+/* A minimal FMI 2.0 / 3.0 co-simulation importer in C, as a non-Python tool loads FMUs.
 
-   usage: c_importer FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN STEPS STEP_SIZE VR [VR ...]
-   Loads binaries/linux64/<MODEL_IDENTIFIER>.so (FMI 2.0) or binaries/x86_64-linux/... (FMI 3.0),
-   instantiates, initialises, does STEPS steps of STEP_SIZE and prints "time,value,..." of the given
-   Real (Float64) value references at t = 0 and after every step; exits 1 with a message on the first
-   failing call, 2 if instantiation returns NULL. */
+   usage: c_importer FMI_VERSION UNZIPPED_DIRS MODEL_IDENTIFIER GUIDS STEPS STEP_SIZE VR [VR ...]
+   UNZIPPED_DIRS and GUIDS (or instantiation tokens) name one FMU or several of the same model, comma
+   separated; each is loaded from its own binaries/linux64/<MODEL_IDENTIFIER>.so (FMI 2.0) or
+   binaries/x86_64-linux/... (FMI 3.0) into this one process. Instantiates and initialises each, does
+   STEPS steps of STEP_SIZE with all of them in turn and prints "time,value,..." with the given Real
+   (Float64) value references of each FMU in order, at t = 0 and after every step; exits 1 with a
+   message on the first failing call, 2 if an instantiation returns NULL. */
 
 #include <dlfcn.h>
 #include <stdarg.h>
@@ -14,6 +16,13 @@
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
+
+#define MAX_FMUS 8
+
+typedef struct {
+    void *library;
+    void *instance;
+} Fmu;
 
 static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
                     fmi2String message, ...) {
@@ -45,73 +54,94 @@ static void check(int status, const char *call) {
     }
 }
 
-static void print_row(double t, const double *values, size_t n) {
-    printf("%.17g", t);
-    for (size_t i = 0; i < n; i++) printf(",%.17g", values[i]);
-    printf("\n");
-}
-
-static int run2(void *library, const char *dir, const char *model, const char *guid, int steps, double h,
-                const unsigned int *vr, double *values, size_t n) {
+static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid) {
     char resources[4096];
     snprintf(resources, sizeof resources, "file://%s/resources", dir);
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
-    fmi2Component c = ((fmi2InstantiateTYPE *)symbol(library, "fmi2Instantiate"))(
+    void *c = ((fmi2InstantiateTYPE *)symbol(fmu->library, "fmi2Instantiate"))(
         model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
     if (!c) {
         fprintf(stderr, "fmi2Instantiate returned NULL\n");
         return 2;
     }
-    fmi2GetRealTYPE *get = symbol(library, "fmi2GetReal");
-    fmi2DoStepTYPE *step = symbol(library, "fmi2DoStep");
-    check(((fmi2SetupExperimentTYPE *)symbol(library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0), "fmi2SetupExperiment");
-    check(((fmi2EnterInitializationModeTYPE *)symbol(library, "fmi2EnterInitializationMode"))(c), "fmi2EnterInitializationMode");
-    check(((fmi2ExitInitializationModeTYPE *)symbol(library, "fmi2ExitInitializationMode"))(c), "fmi2ExitInitializationMode");
-    for (int k = 0; k <= steps; k++) {
-        check(get(c, vr, n, values), "fmi2GetReal");
-        print_row(k * h, values, n);
-        if (k < steps) check(step(c, k * h, h, fmi2True), "fmi2DoStep");
-    }
-    check(((fmi2TerminateTYPE *)symbol(library, "fmi2Terminate"))(c), "fmi2Terminate");
-    ((fmi2FreeInstanceTYPE *)symbol(library, "fmi2FreeInstance"))(c);
+    fmu->instance = c;
+    check(((fmi2SetupExperimentTYPE *)symbol(fmu->library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0),
+          "fmi2SetupExperiment");
+    check(((fmi2EnterInitializationModeTYPE *)symbol(fmu->library, "fmi2EnterInitializationMode"))(c),
+          "fmi2EnterInitializationMode");
+    check(((fmi2ExitInitializationModeTYPE *)symbol(fmu->library, "fmi2ExitInitializationMode"))(c),
+          "fmi2ExitInitializationMode");
     return 0;
 }
 
-static int run3(void *library, const char *dir, const char *model, const char *token, int steps, double h,
-                const unsigned int *vr, double *values, size_t n) {
+static int start3(Fmu *fmu, const char *dir, const char *model, const char *token) {
     char resources[4096];
     snprintf(resources, sizeof resources, "%s/resources/", dir);
-    fmi3Instance c = ((fmi3InstantiateCoSimulationTYPE *)symbol(library, "fmi3InstantiateCoSimulation"))(
+    void *c = ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu->library, "fmi3InstantiateCoSimulation"))(
         model, token, resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
     if (!c) {
         fprintf(stderr, "fmi3InstantiateCoSimulation returned NULL\n");
         return 2;
     }
-    fmi3GetFloat64TYPE *get = symbol(library, "fmi3GetFloat64");
-    fmi3DoStepTYPE *step = symbol(library, "fmi3DoStep");
-    check(((fmi3EnterInitializationModeTYPE *)symbol(library, "fmi3EnterInitializationMode"))(c, fmi3False, 0.0, 0.0,
-                                                                                                fmi3False, 0.0),
-          "fmi3EnterInitializationMode");
-    check(((fmi3ExitInitializationModeTYPE *)symbol(library, "fmi3ExitInitializationMode"))(c), "fmi3ExitInitializationMode");
-    for (int k = 0; k <= steps; k++) {
-        check(get(c, vr, n, values, n), "fmi3GetFloat64");
-        print_row(k * h, values, n);
+    fmu->instance = c;
+    check(((fmi3EnterInitializationModeTYPE *)symbol(fmu->library, "fmi3EnterInitializationMode"))(
+              c, fmi3False, 0.0, 0.0, fmi3False, 0.0), "fmi3EnterInitializationMode");
+    check(((fmi3ExitInitializationModeTYPE *)symbol(fmu->library, "fmi3ExitInitializationMode"))(c),
+          "fmi3ExitInitializationMode");
+    return 0;
+}
+
+static void get(int version, Fmu *fmu, const unsigned int *vr, double *values, size_t n) {
+    if (version == 3) {
+        check(((fmi3GetFloat64TYPE *)symbol(fmu->library, "fmi3GetFloat64"))(fmu->instance, vr, n, values, n),
+              "fmi3GetFloat64");
+    } else {
+        check(((fmi2GetRealTYPE *)symbol(fmu->library, "fmi2GetReal"))(fmu->instance, vr, n, values), "fmi2GetReal");
+    }
+}
+
+static void step(int version, Fmu *fmu, double t, double h) {
+    if (version == 3) {
         fmi3Boolean event, terminate, early;
         fmi3Float64 last;
-        if (k < steps) check(step(c, k * h, h, fmi3True, &event, &terminate, &early, &last), "fmi3DoStep");
+        check(((fmi3DoStepTYPE *)symbol(fmu->library, "fmi3DoStep"))(fmu->instance, t, h, fmi3True, &event, &terminate,
+                                                                     &early, &last), "fmi3DoStep");
+    } else {
+        check(((fmi2DoStepTYPE *)symbol(fmu->library, "fmi2DoStep"))(fmu->instance, t, h, fmi2True), "fmi2DoStep");
     }
-    check(((fmi3TerminateTYPE *)symbol(library, "fmi3Terminate"))(c), "fmi3Terminate");
-    ((fmi3FreeInstanceTYPE *)symbol(library, "fmi3FreeInstance"))(c);
-    return 0;
+}
+
+static void finish(int version, Fmu *fmu) {
+    if (version == 3) {
+        check(((fmi3TerminateTYPE *)symbol(fmu->library, "fmi3Terminate"))(fmu->instance), "fmi3Terminate");
+        ((fmi3FreeInstanceTYPE *)symbol(fmu->library, "fmi3FreeInstance"))(fmu->instance);
+    } else {
+        check(((fmi2TerminateTYPE *)symbol(fmu->library, "fmi2Terminate"))(fmu->instance), "fmi2Terminate");
+        ((fmi2FreeInstanceTYPE *)symbol(fmu->library, "fmi2FreeInstance"))(fmu->instance);
+    }
+}
+
+/* Split `list` at commas in place; the number of items (at most MAX_FMUS). */
+static int split(char *list, char **items) {
+    int n = 0;
+    for (char *item = strtok(list, ","); item && n < MAX_FMUS; item = strtok(NULL, ",")) items[n++] = item;
+    return n;
 }
 
 int main(int argc, char **argv) {
     if (argc < 8) {
-        fprintf(stderr, "usage: %s FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID STEPS STEP_SIZE VR [VR ...]\n", argv[0]);
+        fprintf(stderr, "usage: %s FMI_VERSION UNZIPPED_DIRS MODEL_IDENTIFIER GUIDS STEPS STEP_SIZE VR [VR ...]\n",
+                argv[0]);
         return 2;
     }
     int version = atoi(argv[1]);
-    const char *dir = argv[2], *model = argv[3], *guid = argv[4];
+    char *dirs[MAX_FMUS], *guids[MAX_FMUS];
+    int count = split(argv[2], dirs);
+    const char *model = argv[3];
+    if (split(argv[4], guids) != count) {
+        fprintf(stderr, "as many GUIDS as UNZIPPED_DIRS are needed\n");
+        return 2;
+    }
     int steps = atoi(argv[5]);
     double h = atof(argv[6]);
     size_t n = (size_t)(argc - 7);
@@ -119,16 +149,29 @@ int main(int argc, char **argv) {
     double *values = calloc(n, sizeof *values);
     for (size_t i = 0; i < n; i++) vr[i] = (unsigned int)strtoul(argv[7 + i], NULL, 10);
 
-    char path[4096];
-    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, version == 3 ? "x86_64-linux" : "linux64", model);
-    void *library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!library) {
-        fprintf(stderr, "cannot load %s\n", dlerror());
-        return 1;
+    Fmu fmus[MAX_FMUS];
+    for (int f = 0; f < count; f++) {
+        char path[4096];
+        snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dirs[f], version == 3 ? "x86_64-linux" : "linux64", model);
+        fmus[f].library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+        if (!fmus[f].library) {
+            fprintf(stderr, "cannot load %s\n", dlerror());
+            return 1;
+        }
+        int started = version == 3 ? start3(&fmus[f], dirs[f], model, guids[f]) : start2(&fmus[f], dirs[f], model, guids[f]);
+        if (started != 0) return started;
     }
-    int result = version == 3 ? run3(library, dir, model, guid, steps, h, vr, values, n)
-                              : run2(library, dir, model, guid, steps, h, vr, values, n);
+    for (int k = 0; k <= steps; k++) {
+        printf("%.17g", k * h);
+        for (int f = 0; f < count; f++) {
+            get(version, &fmus[f], vr, values, n);
+            for (size_t i = 0; i < n; i++) printf(",%.17g", values[i]);
+        }
+        printf("\n");
+        for (int f = 0; k < steps && f < count; f++) step(version, &fmus[f], k * h, h);
+    }
+    for (int f = 0; f < count; f++) finish(version, &fmus[f]);
     free(vr);
     free(values);
-    return result;
+    return 0;
 }

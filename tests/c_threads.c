@@ -9,6 +9,9 @@
                              COUNT more, one after another. Prints "rss_kb=BEFORE,AFTER
                              thread_states=BEFORE,AFTER": the process's resident memory and the
                              number of Python thread states after the first 100 and after the rest.
+     steps N STEPS THREADED  N instances, each doing STEPS steps of 1 ms: one after another on this
+                             thread (THREADED 0), or each on a thread of its own at once (1). Prints
+                             "seconds=S", the wall time of the steps.
    Exits 1 with a message on any failing call. */
 
 #define _GNU_SOURCE
@@ -229,6 +232,45 @@ static int run_churn(Fmu *fmu, int count) {
     return 0;
 }
 
+/* --- steps -------------------------------------------------------------------------------------------- */
+
+typedef struct {
+    Fmu *fmu;
+    void *c;
+    int steps;
+    pthread_t thread;
+} Stepper;
+
+static void *run_steps(void *argument) {
+    Stepper *s = argument;
+    for (int k = 0; k < s->steps; k++) step(s->fmu, s->c, k * 1e-3, 1e-3);
+    return NULL;
+}
+
+static double now(void) {
+    struct timespec t;
+    clock_gettime(CLOCK_MONOTONIC, &t);
+    return t.tv_sec + 1e-9 * t.tv_nsec;
+}
+
+static int run_steppers(Fmu *fmu, int n, int steps, int threaded) {
+    Stepper steppers[16];
+    if (n < 1 || n > 16) fail("1 to 16 instances");
+    for (int i = 0; i < n; i++) {
+        steppers[i] = (Stepper){fmu, instantiate(fmu, "stepper", 0), steps};
+        initialize(fmu, steppers[i].c);
+    }
+    double start = now();
+    for (int i = 0; i < n; i++) {
+        if (threaded) pthread_create(&steppers[i].thread, NULL, run_steps, &steppers[i]);
+        else run_steps(&steppers[i]);
+    }
+    for (int i = 0; threaded && i < n; i++) pthread_join(steppers[i].thread, NULL);
+    printf("seconds=%.6f\n", now() - start);
+    for (int i = 0; i < n; i++) release(fmu, steppers[i].c);
+    return 0;
+}
+
 int main(int argc, char **argv) {
     if (argc < 7) fail("usage: %s MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN ARG...", argv[0]);
     Fmu fmu = {atoi(argv[2]), NULL, "", argv[4], argv[5]};
@@ -242,6 +284,7 @@ int main(int argc, char **argv) {
         return run_logger(&fmu, (unsigned int)strtoul(argv[6], NULL, 10), atof(argv[7]), atoi(argv[8]));
     }
     if (strcmp(argv[1], "threads") == 0) return run_churn(&fmu, atoi(argv[6]));
+    if (strcmp(argv[1], "steps") == 0 && argc == 9) return run_steppers(&fmu, atoi(argv[6]), atoi(argv[7]), atoi(argv[8]));
     fail("unknown mode %s or wrong arguments", argv[1]);
     return 1;
 }

@@ -90,7 +90,9 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                     "fmi3InstantiateCoSimulation: these FMUs provide no intermediate variables");
     }
     Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, &FMI3);
-    if (!instance) return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, "fmi3InstantiateCoSimulation: out of memory");
+    if (!instance) {
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, "fmi3InstantiateCoSimulation: out of memory");
+    }
     instance->environment = instanceEnvironment;
     instance->logMessage = logMessage;
     if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken, visible) != 0) {

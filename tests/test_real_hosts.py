@@ -1,0 +1,181 @@
+"""The binary layer in hosts that do what real tools do: a logger that blocks, thread pools, a Python
+that cannot start, a wrong token, FMUs whose bundled pythonfmu differ, a host with a pythonfmu of its
+own, and hosts that free the FMUs and delete their folders. C hosts run with an empty environment."""
+
+import shutil
+import sys
+import sysconfig
+import zipfile
+from pathlib import Path
+
+import pytest
+import pythonfmu
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+
+import dsc_fmu.build.fmus as fmus_module
+from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c
+from dsc_fmu.build.binary import OVERRIDE_VARIABLE, build_python
+from dsc_fmu.build.fmus import build_fmu
+from dsc_fmu.registry import FMUS
+
+STEPS = 200
+THREADS = 2000
+
+
+@pytest.fixture(scope="module")
+def c_threads(tmp_path_factory):
+    return compile_c("c_threads.c", tmp_path_factory.mktemp("c") / "c_threads")
+
+
+@pytest.fixture(scope="module")
+def importer(tmp_path_factory):
+    return compile_c("c_importer.c", tmp_path_factory.mktemp("c") / "c_importer")
+
+
+def unzipped(path: Path, folder: Path):
+    md = read_model_description(str(path))
+    token = md.guid if md.fmiVersion.startswith("2") else md.instantiationToken
+    return Path(extract(str(path), unzipdir=folder)), md, token
+
+
+def fields(line: str) -> dict:
+    return {key: value for key, _, value in (item.partition("=") for item in line.split())}
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_a_blocking_logger_never_holds_up_another_instance(c_threads, fmu_paths, fmu3_paths, tmp_path, version):
+    """Instance A's logger waits until instance B, on another thread, has done its steps: B steps
+    while A's logger waits (with the GIL held by A's logger, B could not, and A would time out)."""
+    path = (fmu3_paths if version == 3 else fmu_paths)["MobileRobot"]
+    folder, md, token = unzipped(path, tmp_path / "plant")
+    mass = {v.name: v.valueReference for v in md.modelVariables}["mc"]
+    run = run_c([c_threads, "logger", version, folder, "MobileRobot", token, mass, -1.0, STEPS], tmp_path)
+    assert run.returncode == 0, run.stderr
+    result = fields(run.stdout)
+    assert result == {"steps_while_logger_waited": str(STEPS), "logger_calls": "1", "timed_out": "0"}, run.stdout
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_short_lived_threads_leave_no_thread_state_behind(c_threads, fmu_paths, fmu3_paths, tmp_path, version):
+    """2,000 threads, one after another, each stepping one instance once: no Python thread state
+    outlives its thread, and the process grows by less than 1 MB."""
+    path = (fmu3_paths if version == 3 else fmu_paths)["ReferenceRobot"]
+    folder, md, token = unzipped(path, tmp_path / "reference")
+    run = run_c([c_threads, "threads", version, folder, "ReferenceRobot", token, THREADS], tmp_path)
+    assert run.returncode == 0, run.stderr
+    result = fields(run.stdout)
+    before, after = (int(kb) for kb in result["rss_kb"].split(","))
+    states = [int(n) for n in result["thread_states"].split(",")]
+    assert states[1] == states[0], run.stdout
+    assert after - before < 1024, run.stdout
+
+
+@pytest.fixture()
+def broken_python(tmp_path):
+    """A libpython whose standard library cannot start: encodings raises on import."""
+    built = build_python()
+    if not built.library:
+        pytest.fail("the Python running the tests has no shared library to copy")
+    home = tmp_path / "broken-python"
+    stdlib = home / "lib" / f"python{built.version}"
+    (stdlib / "encodings").mkdir(parents=True)
+    shutil.copy(Path(sysconfig.get_paths()["stdlib"]) / "os.py", stdlib / "os.py")
+    (stdlib / "encodings" / "__init__.py").write_text('raise ImportError("this standard library is broken")\n')
+    library = home / "lib" / Path(built.library).name
+    shutil.copy(built.library, library)
+    return library
+
+
+def test_a_python_that_cannot_start_is_a_null_instance_and_one_message(importer, fmu_paths, tmp_path, broken_python):
+    folder, md, token = unzipped(fmu_paths["ReferenceRobot"], tmp_path / "reference")
+    env = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(broken_python)}
+    run = run_c([importer, 2, folder, "ReferenceRobot", token, 1, 0.1, 10], tmp_path, env)
+    assert run.returncode == 2, run.stderr  # the host lived on to report the NULL
+    messages = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert len(messages) == 1, run.stderr
+    assert str(broken_python) in messages[0] and "Python did not start: init_fs_encoding" in messages[0]
+
+
+def test_the_token_is_checked_before_any_python_is_looked_for(importer, fmu_paths, tmp_path):
+    """With no Python to be found, a wrong token is still what the host is told."""
+    folder, md, token = unzipped(fmu_paths["ReferenceRobot"], tmp_path / "reference")
+    env = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: "/nonexistent/libpython.so"}
+    run = run_c([importer, 2, folder, "ReferenceRobot", "{not-the-guid}", 1, 0.1, 10], tmp_path, env)
+    assert run.returncode == 2, run.stderr
+    messages = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert len(messages) == 1 and "the token {not-the-guid} does not match" in messages[0], run.stderr
+
+
+SHIFT = 1000.0
+
+
+@pytest.fixture(scope="module")
+def variant(tmp_path_factory):
+    """ReferenceRobot built as with another pythonfmu (a build identity of its own), whose bundled
+    pythonfmu returns every Real 1000 higher: what runs shows which pythonfmu ran."""
+    folder = tmp_path_factory.mktemp("variant")
+    patch = pytest.MonkeyPatch()
+    patch.setattr(fmus_module, "_library_version", lambda version: f"pythonfmu {pythonfmu.__version__}+variant")
+    try:
+        built = build_fmu(FMUS["ReferenceRobot"], folder / "built")
+    finally:
+        patch.undo()
+    path = folder / "ReferenceRobot.fmu"
+    with zipfile.ZipFile(built) as source, zipfile.ZipFile(path, "w") as target:
+        for item in source.infolist():
+            data = source.read(item)
+            if item.filename.endswith("/pythonfmu/fmi2slave.py"):
+                original = b"refs.append(float(var.getter()))"
+                assert original in data
+                data = data.replace(original, b"refs.append(float(var.getter()) + %r)" % SHIFT)
+            target.writestr(item, data)
+    return path
+
+
+def test_two_builds_with_different_pythonfmu_each_run_their_own_in_a_c_host(importer, fmu_paths, variant, tmp_path):
+    folders, tokens = [], []
+    for name, path in (("original", fmu_paths["ReferenceRobot"]), ("variant", variant)):
+        folder, md, token = unzipped(path, tmp_path / name)
+        folders.append(str(folder))
+        tokens.append(token)
+    refs = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    run = run_c([importer, 2, ",".join(folders), "ReferenceRobot", ",".join(tokens), 5, 0.1, *refs], tmp_path)
+    assert run.returncode == 0, run.stderr
+    for row in parse_rows(run.stdout):
+        original, shifted = row[1:1 + len(refs)], row[1 + len(refs):]
+        assert shifted == [value + SHIFT for value in original]
+
+
+def _outputs(path: Path, folder: Path) -> list[float]:
+    md = read_model_description(str(path))
+    refs = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(extract(str(path), unzipdir=folder)),
+                    modelIdentifier="ReferenceRobot", instanceName=folder.name)
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.exitInitializationMode()
+    fmu.doStep(0.0, 0.1)
+    values = fmu.getReal(refs)
+    fmu.terminate()
+    fmu.freeInstance()
+    return values
+
+
+def test_in_a_python_host_with_its_own_pythonfmu_nothing_is_shared_and_nothing_is_left(fmu_paths, variant, tmp_path):
+    """fmpy in this process, where pythonfmu is imported: each FMU runs its own bundled pythonfmu, the
+    host's pythonfmu stays the host's, and once the FMUs are freed and their folders deleted, the
+    host's sys.path and sys.modules are as they were."""
+    host_pythonfmu = sys.modules["pythonfmu"]
+    path_before, modules_before = list(sys.path), set(sys.modules)
+    original = _outputs(fmu_paths["ReferenceRobot"], tmp_path / "original")
+    shifted = _outputs(variant, tmp_path / "variant")
+    assert shifted == [value + SHIFT for value in original]
+    shutil.rmtree(tmp_path / "original")
+    shutil.rmtree(tmp_path / "variant")
+    assert sys.modules["pythonfmu"] is host_pythonfmu
+    assert Path(host_pythonfmu.__file__).is_relative_to(sysconfig.get_paths()["purelib"])
+    assert sys.path == path_before
+    assert set(sys.modules) - modules_before == set()
+    assert not any(str(tmp_path) in str(key) for key in sys.path_importer_cache)
