@@ -19,6 +19,7 @@ TESTS = Path(__file__).resolve().parent
 REPO = TESTS.parent
 DRIVER = TESTS / "fmi_ctypes.py"
 FLAGS = {"isolated": 1, "ignore_environment": 1, "no_site": 1, "safe_path": True}
+PUBLIC_LIBRARIES = ("pythonfmu", "pythonfmu3")
 
 PRELUDE = r'''
 import sys
@@ -120,7 +121,9 @@ def foreign_modules(result) -> dict:
 
 def violations(result, *bundled) -> dict:
     """What in a run's ``result`` breaks isolation, by check; empty if nothing does. ``bundled``:
-    prefixes of module names that must have been loaded, all from the FMU's resources folder."""
+    prefixes of module names that must have been loaded, all from the FMU's resources folder, with a
+    pythonfmu of their own, and (where the result has ``modules_after_free`` and ``path_after_free``)
+    gone, with ``sys.path`` as at the start, once the FMU was freed. No public pythonfmu may load."""
     found = {
         "flags": result["flags"] if result["flags"] != FLAGS else {},
         "preloaded": result["preloaded"],
@@ -129,11 +132,18 @@ def violations(result, *bundled) -> dict:
         "blocked_loaded": result["blocked_loaded"],
         "foreign modules": foreign_modules(result),
     }
+    found["a public pythonfmu"] = sorted(m for m in result["modules"] if m.partition(".")[0] in PUBLIC_LIBRARIES)
     resources = os.path.join(result["unzipped"], "resources")
     for prefix in bundled:
         modules = {m: p for m, p in result["modules"].items() if m.startswith(prefix)}
         found[f"{prefix}* not from the FMU's resources"] = (
             {m: p for m, p in modules.items() if not _within(p, [resources])} if modules else "none loaded")
+        found[f"{prefix}* without its own pythonfmu"] = not any(m.rpartition(".")[2] in PUBLIC_LIBRARIES
+                                                               for m in modules)
+        found[f"{prefix}* left after the instance was freed"] = [
+            m for m in result.get("modules_after_free", ()) if m.startswith(prefix)]
+    if "path_after_free" in result:
+        found["sys.path changed by the FMU"] = result["path_after_free"] != result["path_at_start"]
     return {check: what for check, what in found.items() if what}
 
 

@@ -15,6 +15,7 @@ from fmpy.fmi2 import FMU2Slave
 
 import dsc_fmu.build.fmus as fmus_module
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c
+from test_c_importer import importer  # noqa: F401 (fixture)
 from dsc_fmu.build.binary import OVERRIDE_VARIABLE, build_python
 from dsc_fmu.build.fmus import build_fmu
 from dsc_fmu.registry import FMUS
@@ -26,11 +27,6 @@ THREADS = 2000
 @pytest.fixture(scope="module")
 def c_threads(tmp_path_factory):
     return compile_c("c_threads.c", tmp_path_factory.mktemp("c") / "c_threads")
-
-
-@pytest.fixture(scope="module")
-def importer(tmp_path_factory):
-    return compile_c("c_importer.c", tmp_path_factory.mktemp("c") / "c_importer")
 
 
 def unzipped(path: Path, folder: Path):
@@ -87,21 +83,26 @@ def broken_python(tmp_path):
     return library
 
 
-def test_a_python_that_cannot_start_is_a_null_instance_and_one_message(importer, fmu_paths, tmp_path, broken_python):
-    folder, md, token = unzipped(fmu_paths["ReferenceRobot"], tmp_path / "reference")
+@pytest.mark.parametrize("version", (2, 3))
+def test_a_python_that_cannot_start_is_a_null_instance_and_one_message(importer, fmu_paths, fmu3_paths, tmp_path,
+                                                                       broken_python, version):
+    path = (fmu3_paths if version == 3 else fmu_paths)["ReferenceRobot"]
+    folder, md, token = unzipped(path, tmp_path / "reference")
     env = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(broken_python)}
-    run = run_c([importer, 2, folder, "ReferenceRobot", token, 1, 0.1, 10], tmp_path, env)
+    run = run_c([importer, version, folder, "ReferenceRobot", token, 1, 0.1, 10], tmp_path, env)
     assert run.returncode == 2, run.stderr  # the host lived on to report the NULL
     messages = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert len(messages) == 1, run.stderr
     assert str(broken_python) in messages[0] and "Python did not start: init_fs_encoding" in messages[0]
 
 
-def test_the_token_is_checked_before_any_python_is_looked_for(importer, fmu_paths, tmp_path):
+@pytest.mark.parametrize("version", (2, 3))
+def test_the_token_is_checked_before_any_python_is_looked_for(importer, fmu_paths, fmu3_paths, tmp_path, version):
     """With no Python to be found, a wrong token is still what the host is told."""
-    folder, md, token = unzipped(fmu_paths["ReferenceRobot"], tmp_path / "reference")
+    path = (fmu3_paths if version == 3 else fmu_paths)["ReferenceRobot"]
+    folder, md, token = unzipped(path, tmp_path / "reference")
     env = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: "/nonexistent/libpython.so"}
-    run = run_c([importer, 2, folder, "ReferenceRobot", "{not-the-guid}", 1, 0.1, 10], tmp_path, env)
+    run = run_c([importer, version, folder, "ReferenceRobot", "{not-the-guid}", 1, 0.1, 10], tmp_path, env)
     assert run.returncode == 2, run.stderr
     messages = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert len(messages) == 1 and "the token {not-the-guid} does not match" in messages[0], run.stderr
