@@ -3,7 +3,9 @@
 All instances of one process share one CPython and its interpreter lock (GIL): a host that steps two
 instances on two threads gets no more done than one that steps them one after another; two
 processes do. Each route steps N MobileRobot instances (FMI 2.0) for STEPS steps of 1 ms from a C
-host without Python (``tests/c_threads.c``), on this machine's cores.
+host without Python (``tests/c_threads.c``), on this machine's cores. The threads' routes time the
+steps only; the processes' route times whole processes (starting each, its Python and its
+instance too), so it errs against processes.
 Run: ``python benchmarks/threads.py [--instances 2] [--steps 20000] [--repeat 3]``.
 """
 

@@ -121,10 +121,13 @@ static void finish(int version, Fmu *fmu) {
     }
 }
 
-/* Split `list` at commas in place; the number of items (at most MAX_FMUS). */
+/* Split `list` at commas in place; the number of items, or -1 if there are more than MAX_FMUS. */
 static int split(char *list, char **items) {
     int n = 0;
-    for (char *item = strtok(list, ","); item && n < MAX_FMUS; item = strtok(NULL, ",")) items[n++] = item;
+    for (char *item = strtok(list, ","); item; item = strtok(NULL, ",")) {
+        if (n == MAX_FMUS) return -1;
+        items[n++] = item;
+    }
     return n;
 }
 
@@ -138,8 +141,8 @@ int main(int argc, char **argv) {
     char *dirs[MAX_FMUS], *guids[MAX_FMUS];
     int count = split(argv[2], dirs);
     const char *model = argv[3];
-    if (split(argv[4], guids) != count) {
-        fprintf(stderr, "as many GUIDS as UNZIPPED_DIRS are needed\n");
+    if (count < 1 || split(argv[4], guids) != count) {
+        fprintf(stderr, "1 to %d UNZIPPED_DIRS and as many GUIDS are needed\n", MAX_FMUS);
         return 2;
     }
     int steps = atoi(argv[5]);

@@ -1,6 +1,6 @@
 /* A C host that calls one FMU from several threads, as GUI tools and thread pools do.
 
-   usage: c_threads MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN ARG...
+   usage: c_threads MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN [ARG...]
      logger VR VALUE STEPS   two instances, A and B. On a second thread A sets the Real (Float64)
                              VR to VALUE, which the FMU refuses with a logged error; A's logger then
                              waits until B, on the main thread, has done STEPS steps (at most 20 s).
@@ -8,7 +8,14 @@
      threads COUNT           one instance, stepped once by each of 100 short-lived threads, then by
                              COUNT more, one after another. Prints "rss_kb=BEFORE,AFTER
                              thread_states=BEFORE,AFTER": the process's resident memory and the
-                             number of Python thread states after the first 100 and after the rest.
+                             number of Python thread states after the first 100 and after the rest
+                             (once the FMU's reaper has caught up: polled for at most 5 s).
+     create THREADS ROUNDS   THREADS threads at once, each ROUNDS times creating, initialising, stepping
+                             and freeing an instance. Prints "failures=F": instances not created or
+                             calls that failed.
+     join                    one instance, stepped once by a worker thread, which this thread then
+                             joins while holding the GIL (as a Python extension's destructor may).
+                             Prints "joined=1", or "joined=0" if the worker had not ended after 20 s.
      steps N STEPS THREADED  N instances, each doing STEPS steps of 1 ms: one after another on this
                              thread (THREADED 0), or each on a thread of its own at once (1). Prints
                              "seconds=S", the wall time of the steps.
@@ -23,6 +30,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <time.h>
+#include <unistd.h>
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"
@@ -82,6 +90,11 @@ static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Statu
 static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
     if (env) block();
 }
+
+static void silent2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                    fmi2String message, ...) {}
+
+static fmi2CallbackFunctions quiet2 = {silent2, calloc, free, NULL, NULL};
 
 static void *instantiate(Fmu *fmu, const char *name, int blocking) {
     void *c;
@@ -220,14 +233,118 @@ static int thread_states(void) {
     return n;
 }
 
+/* The thread states once no more are being deleted, or at most `limit` (s) from now. */
+static int settled_thread_states(int target, double limit) {
+    struct timespec pause = {0, 10000000};
+    int n = thread_states();
+    for (int k = 0; n > target && k < limit / 0.01; k++) {
+        nanosleep(&pause, NULL);
+        n = thread_states();
+    }
+    return n;
+}
+
 static int run_churn(Fmu *fmu, int count) {
     void *c = instantiate(fmu, "churn", 0);
     initialize(fmu, c);
     run_threads(fmu, c, 0, 100);
+    int states_before = settled_thread_states(2, 5.0); /* this thread's and the reaper's */
     long before = resident_kb();
-    int states_before = thread_states();
     run_threads(fmu, c, 100, count);
-    printf("rss_kb=%ld,%ld thread_states=%d,%d\n", before, resident_kb(), states_before, thread_states());
+    int states_after = settled_thread_states(states_before, 5.0);
+    printf("rss_kb=%ld,%ld thread_states=%d,%d\n", before, resident_kb(), states_before, states_after);
+    release(fmu, c);
+    return 0;
+}
+
+/* --- create ------------------------------------------------------------------------------------------- */
+
+static pthread_barrier_t start_line;
+
+typedef struct {
+    Fmu *fmu;
+    int rounds, failures;
+    pthread_t thread;
+} Creator;
+
+static int try_step(Fmu *fmu, void *c) {
+    if (fmu->version == 2) return ((fmi2DoStepTYPE *)symbol(fmu, "fmi2DoStep"))(c, 0.0, 1e-3, fmi2True);
+    fmi3Boolean event, terminate, early;
+    fmi3Float64 last;
+    return ((fmi3DoStepTYPE *)symbol(fmu, "fmi3DoStep"))(c, 0.0, 1e-3, fmi3True, &event, &terminate, &early, &last);
+}
+
+static void *create_and_free(void *argument) {
+    Creator *creator = argument;
+    Fmu *fmu = creator->fmu;
+    pthread_barrier_wait(&start_line);
+    for (int k = 0; k < creator->rounds; k++) {
+        void *c = fmu->version == 2
+            ? ((fmi2InstantiateTYPE *)symbol(fmu, "fmi2Instantiate"))("creator", fmi2CoSimulation, fmu->token,
+                                                                    fmu->resources, &quiet2, fmi2False, fmi2False)
+            : ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu, "fmi3InstantiateCoSimulation"))(
+                  "creator", fmu->token, fmu->resources, fmi3False, fmi3False, fmi3False, fmi3False, NULL, 0, NULL, NULL,
+                  NULL);
+        if (!c) {
+            creator->failures++;
+            continue;
+        }
+        initialize(fmu, c);
+        if (try_step(fmu, c) != 0) creator->failures++;
+        release(fmu, c);
+    }
+    return NULL;
+}
+
+static int run_creators(Fmu *fmu, int threads, int rounds) {
+    Creator creators[16];
+    if (threads < 1 || threads > 16) fail("1 to 16 threads");
+    pthread_barrier_init(&start_line, NULL, (unsigned)threads);
+    for (int i = 0; i < threads; i++) {
+        creators[i] = (Creator){fmu, rounds, 0};
+        pthread_create(&creators[i].thread, NULL, create_and_free, &creators[i]);
+    }
+    int failures = 0;
+    for (int i = 0; i < threads; i++) {
+        pthread_join(creators[i].thread, NULL);
+        failures += creators[i].failures;
+    }
+    printf("failures=%d\n", failures);
+    return 0;
+}
+
+/* --- join ---------------------------------------------------------------------------------------------- */
+
+static void *step_once(void *argument) {
+    Work *w = argument;
+    step(w->fmu, w->c, 0.0, 1e-3);
+    pthread_mutex_lock(&shared.lock);
+    shared.steps = 1;
+    pthread_cond_broadcast(&shared.changed);
+    pthread_mutex_unlock(&shared.lock);
+    return NULL;
+}
+
+static int run_join(Fmu *fmu) {
+    void *c = instantiate(fmu, "join", 0);
+    initialize(fmu, c);
+    Work work = {fmu, c, 0};
+    pthread_t thread;
+    pthread_create(&thread, NULL, step_once, &work);
+    pthread_mutex_lock(&shared.lock);
+    while (!shared.steps) pthread_cond_wait(&shared.changed, &shared.lock);
+    pthread_mutex_unlock(&shared.lock);
+    int (*ensure)(void) = dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
+    void (*release_gil)(int) = dlsym(RTLD_DEFAULT, "PyGILState_Release");
+    if (!ensure || !release_gil) fail("no Python in this process");
+    int gil = ensure();
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    until.tv_sec += 20;
+    int joined = pthread_timedjoin_np(thread, NULL, &until) == 0;
+    release_gil(gil);
+    printf("joined=%d\n", joined);
+    if (!joined) _exit(0); /* the worker cannot end: leave without waiting for it */
     release(fmu, c);
     return 0;
 }
@@ -272,7 +389,7 @@ static int run_steppers(Fmu *fmu, int n, int steps, int threaded) {
 }
 
 int main(int argc, char **argv) {
-    if (argc < 7) fail("usage: %s MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN ARG...", argv[0]);
+    if (argc < 6) fail("usage: %s MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN [ARG...]", argv[0]);
     Fmu fmu = {atoi(argv[2]), NULL, "", argv[4], argv[5]};
     const char *dir = argv[3];
     char path[4096];
@@ -283,7 +400,9 @@ int main(int argc, char **argv) {
     if (strcmp(argv[1], "logger") == 0 && argc == 9) {
         return run_logger(&fmu, (unsigned int)strtoul(argv[6], NULL, 10), atof(argv[7]), atoi(argv[8]));
     }
-    if (strcmp(argv[1], "threads") == 0) return run_churn(&fmu, atoi(argv[6]));
+    if (strcmp(argv[1], "threads") == 0 && argc == 7) return run_churn(&fmu, atoi(argv[6]));
+    if (strcmp(argv[1], "join") == 0) return run_join(&fmu);
+    if (strcmp(argv[1], "create") == 0 && argc == 8) return run_creators(&fmu, atoi(argv[6]), atoi(argv[7]));
     if (strcmp(argv[1], "steps") == 0 && argc == 9) return run_steppers(&fmu, atoi(argv[6]), atoi(argv[7]), atoi(argv[8]));
     fail("unknown mode %s or wrong arguments", argv[1]);
     return 1;

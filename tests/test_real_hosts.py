@@ -67,6 +67,24 @@ def test_short_lived_threads_leave_no_thread_state_behind(c_threads, fmu_paths, 
     assert after - before < 1024, run.stdout
 
 
+@pytest.mark.parametrize("version", (2, 3))
+def test_a_host_may_join_its_threads_holding_the_gil(c_threads, fmu_paths, fmu3_paths, tmp_path, version):
+    """A worker thread that stepped an instance ends while this thread holds the GIL and joins it (as a
+    Python extension's destructor may): its thread state is deleted later, by the FMU's reaper."""
+    folder, md, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["ReferenceRobot"], tmp_path / "r")
+    run = run_c([c_threads, "join", version, folder, "ReferenceRobot", token], tmp_path, timeout=60)
+    assert run.returncode == 0 and fields(run.stdout) == {"joined": "1"}, run.stdout + run.stderr
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_threads_create_and_free_instances_of_one_build_at_once(c_threads, fmu_paths, fmu3_paths, tmp_path, version):
+    """8 threads, each creating, stepping and freeing an instance 25 times, all at once: the build's
+    modules are imported, counted and forgotten whole."""
+    folder, md, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["MobileRobot"], tmp_path / "plant")
+    run = run_c([c_threads, "create", version, folder, "MobileRobot", token, 8, 25], tmp_path)
+    assert run.returncode == 0 and fields(run.stdout) == {"failures": "0"}, run.stdout + run.stderr
+
+
 @pytest.fixture()
 def broken_python(tmp_path):
     """A libpython whose standard library cannot start: encodings raises on import."""
@@ -173,10 +191,28 @@ def test_in_a_python_host_with_its_own_pythonfmu_nothing_is_shared_and_nothing_i
     original = _outputs(fmu_paths["ReferenceRobot"], tmp_path / "original")
     shifted = _outputs(variant, tmp_path / "variant")
     assert shifted == [value + SHIFT for value in original]
-    shutil.rmtree(tmp_path / "original")
-    shutil.rmtree(tmp_path / "variant")
+    for folder in ("original", "variant"):
+        shutil.rmtree(tmp_path / folder)
     assert sys.modules["pythonfmu"] is host_pythonfmu
-    assert Path(host_pythonfmu.__file__).is_relative_to(sysconfig.get_paths()["purelib"])
     assert sys.path == path_before
+    assert set(sys.modules) - modules_before == set()
+    assert not any(str(tmp_path) in str(key) for key in sys.path_importer_cache)
+
+
+def test_one_build_extracted_twice_is_forgotten_in_both_folders(fmu_paths, tmp_path):
+    """Two instances of one build from two folders share its modules (one count); once both are freed,
+    nothing of either folder is left in the import system."""
+    path = fmu_paths["MobileRobot"]
+    md = read_model_description(str(path))
+    modules_before = set(sys.modules)
+    instances = []
+    for folder in ("first", "second"):
+        fmu = FMU2Slave(guid=md.guid, unzipDirectory=str(extract(str(path), unzipdir=tmp_path / folder)),
+                        modelIdentifier="MobileRobot", instanceName=folder)
+        fmu.instantiate()
+        instances.append(fmu)
+    instances[0].freeInstance()
+    assert any(name.startswith("dsc_fmu_mobilerobot_") for name in sys.modules)  # the second still uses them
+    instances[1].freeInstance()
     assert set(sys.modules) - modules_before == set()
     assert not any(str(tmp_path) in str(key) for key in sys.path_importer_cache)

@@ -22,7 +22,7 @@ from .. import __version__
 from ..files import atomic_write
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
-from .binary import binary_folder, binary_sources, build_python, compile_binary
+from .binary import BinaryBuildError, binary_folder, binary_sources, build_python, compile_binary
 from .model_description import complete_model_description, complete_model_description3, documentation
 
 __all__ = [
@@ -135,6 +135,10 @@ def _private(name: str, data: bytes, package: str, library: str) -> tuple[str, b
         name = f"resources/{package}/{library}/{name[len(public):]}"
     if name.startswith("resources/") and name.endswith(".py"):
         text = re.sub(rf"^(\s*from\s+){library}\b", rf"\g<1>{package}.{library}", data.decode("utf-8"), flags=re.M)
+        public = re.search(rf"^\s*import\s+{library}\b|import_module\(\s*['\"]{library}\b", text, flags=re.M)
+        if public:
+            raise BinaryBuildError(f"{name} imports {library} by its public name ({public.group().strip()}); "
+                                   f"allowed: 'from {library}... import ...', which the build makes private")
         data = text.encode("utf-8")
     return name, data
 
@@ -146,7 +150,7 @@ def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
     folder, _, file = name.rpartition("/")
     cache = f"{folder}/__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc"
     flags = (0b11).to_bytes(4, "little")  # hash-based, checked against the source
-    code = compile(data, name, "exec", dont_inherit=True)
+    code = compile(data, name, "exec", dont_inherit=True, optimize=0)
     return cache, importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(data) + marshal.dumps(code)
 
 

@@ -57,6 +57,9 @@ class DscSlave(SlaveCore, Fmi2Slave):
     def log_error(self, message):
         self.log(message, Fmi2Status.error)
 
+    def log_discard(self, message):
+        self.log(message, Fmi2Status.discard)
+
     def log_warning(self, message):
         self.log(message, Fmi2Status.warning)
 

@@ -63,6 +63,9 @@ class DscSlave(SlaveCore, Fmi3Slave):
     def log_error(self, message):
         self.log(message, Fmi3Status.error)
 
+    def log_discard(self, message):
+        self.log(message, Fmi3Status.discard)
+
     def log_warning(self, message):
         self.log(message, Fmi3Status.warning)
 

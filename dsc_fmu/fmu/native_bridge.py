@@ -1,9 +1,9 @@
 """What the project's FMU binary (``dsc_fmu/build/native``) calls besides the slave's own FMI methods.
 
 Bundled into every FMU beside the slave code; imports only the standard library. The binary
-imports the FMU build's private package from the resources by its location (sys.path is never
-touched) and this module from it, counts its users (``acquire``, ``release``: the last forgets
-every module of the package), creates the slave through ``instantiate``, reads the variable
+loads this module from its file in the FMU's resources (sys.path is never touched), counts the
+users of the build's private package (``acquire`` imports it by its location; the last
+``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
 table once (``variables``) to guard every get and set by value reference, type, causality and
 variability, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
 back (``state_to_bytes``, ``state_from_bytes``) with a checksum and the identity of the build
@@ -29,47 +29,56 @@ MAGIC = b"dsc-fmu FMU state 1\n"
 DIGEST = 32
 PACKAGE = __name__.partition(".")[0]
 _users = 0
+_folders = set()
 
 
-def acquire() -> None:
-    """Count one more slave of this FMU build in this process (the binary, once per instance)."""
+def _load(name: str, path: str):
+    """The module ``name`` from the file ``path``, registered in ``sys.modules`` (and removed if it fails)."""
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
+
+
+def acquire(resources: str) -> None:
+    """One more slave of this FMU build in this process, from the FMU extracted to ``resources``: the
+    build's package is imported from there by its location if this process has not got it. The
+    binary calls this, and ``release``, holding the import lock."""
     global _users
+    if PACKAGE not in sys.modules:
+        _load(PACKAGE, os.path.join(resources, PACKAGE, "__init__.py"))
     _users += 1
+    _folders.add(os.path.realpath(resources))
 
 
-def _inside(path: str, folder: str) -> bool:
+def _inside(path: str, folders) -> bool:
     path = os.path.realpath(path)
-    return path == folder or path.startswith(folder + os.sep)
+    return any(path == folder or path.startswith(folder + os.sep) for folder in folders)
 
 
-def release(resources: str) -> None:
-    """Count one slave less; with the last, remove this build's modules from ``sys.modules`` and the
-    import system's caches of ``resources``, so that the process is as it was before the first."""
+def release() -> None:
+    """One slave less; with the last, this build's modules leave ``sys.modules`` and the import
+    system's caches of every folder it was loaded from: the process is as before the first."""
     global _users
     _users -= 1
     if _users > 0:
         return
-    for name in [name for name in sys.modules if name == PACKAGE or name.startswith(PACKAGE + ".")]:
-        del sys.modules[name]
-    folder = os.path.realpath(resources)
-    for key in [key for key in sys.path_importer_cache if isinstance(key, str) and _inside(key, folder)]:
-        del sys.path_importer_cache[key]
+    for name in [name for name in list(sys.modules) if name == PACKAGE or name.startswith(PACKAGE + ".")]:
+        sys.modules.pop(name, None)
+    for key in [key for key in list(sys.path_importer_cache) if isinstance(key, str) and _inside(key, _folders)]:
+        sys.path_importer_cache.pop(key, None)
+    _folders.clear()
 
 
 def _slave_module(name: str, resources: str):
     """The slave script ``resources/<name>.py``, imported as ``<PACKAGE>.<name>``."""
     qualified = f"{PACKAGE}.{name}"
-    module = sys.modules.get(qualified)
-    if module is None:
-        spec = importlib.util.spec_from_file_location(qualified, os.path.join(resources, f"{name}.py"))
-        module = importlib.util.module_from_spec(spec)
-        sys.modules[qualified] = module
-        try:
-            spec.loader.exec_module(module)
-        except BaseException:
-            del sys.modules[qualified]
-            raise
-    return module
+    return sys.modules.get(qualified) or _load(qualified, os.path.join(resources, f"{name}.py"))
 
 
 def instantiate(slave_module: str, class_name: str, instance_name: str, resources: str, visible: bool):

@@ -2,8 +2,8 @@
 
 Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
 ``fmi2.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3.DscSlave`` (FMI 3.0, pythonfmu3)
-put it on their slave base classes and supply the three hooks ``_register``, ``log_error`` and
-``log_warning``.
+put it on their slave base classes and supply the hooks ``_register``, ``log_error``,
+``log_discard`` and ``log_warning``.
 """
 
 import math
@@ -68,6 +68,10 @@ class SlaveCore:
         """Hook: log ``message`` with the status error."""
         raise NotImplementedError
 
+    def log_discard(self, message: str) -> None:
+        """Hook: log ``message`` with the status discard (why a step is discarded)."""
+        raise NotImplementedError
+
     def log_warning(self, message: str) -> None:
         """Hook: log ``message`` with the status warning."""
         raise NotImplementedError
@@ -119,7 +123,7 @@ class SlaveCore:
         n = self.substep_count(step_size)
         if n <= MAX_SUBSTEPS:
             return False
-        self.log_error(
+        self.log_discard(
             f"{self.instance_name}: the step of {step_size} s from t = {current_time} s needs {n} sub-steps of at most "
             f"max_step = {self.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step; the step is discarded"
         )
@@ -181,8 +185,9 @@ class SlaveCore:
 
     def do_step(self, current_time, step_size):
         if self.rejected:
-            self.log_error(
-                f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}"
+            self.log_discard(
+                f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}; "
+                "the step is discarded"
             )
             return False
         if self.too_many_substeps(current_time, step_size):
@@ -193,7 +198,7 @@ class SlaveCore:
         finally:
             self._slope = None
         if not all(math.isfinite(value) for value in new):
-            self.log_error(
+            self.log_discard(
                 f"{self.instance_name}: state not finite after the step from t = {current_time} s "
                 f"of {step_size} s; the step is discarded"
             )

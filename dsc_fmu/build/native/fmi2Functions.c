@@ -2,7 +2,7 @@
    state table (FMI 2.0.4, section 4.2.4) allows it in, then handed to instance.c; every fmi2Error
    moves the instance to the error state. Nothing returns fmi2Fatal. */
 
-#include <stdio.h>
+#include <math.h>
 
 #include "fmi2Functions.h"
 #include "instance.h"
@@ -123,6 +123,7 @@ void fmi2FreeInstance(fmi2Component c) { instance_free((Instance *)c); }
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
     BEGIN(fmi2SetupExperiment);
+    instance->stop_time = stopTimeDefined ? stopTime : INFINITY;
     double values[] = {startTime, stopTime, tolerance};
     int defined[] = {1, stopTimeDefined, toleranceDefined};
     END(instance_call(instance, "setup_experiment", 3, values, defined, Instantiated));
@@ -229,14 +230,16 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
     BEGIN(fmi2GetRealStatus);
-    if (s != fmi2LastSuccessfulTime || !value) return no_status(instance, "fmi2GetRealStatus");
+    if (s != fmi2LastSuccessfulTime) return no_status(instance, "fmi2GetRealStatus");
+    if (!instance_given(instance, "fmi2GetRealStatus", value, "place for the value")) END(STATUS_ERROR);
     END(slave_get_double(&instance->slave, "time", value));
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
     BEGIN(fmi2GetBooleanStatus);
-    if (s != fmi2Terminated || !value) return no_status(instance, "fmi2GetBooleanStatus");
-    *value = fmi2False;
+    if (s != fmi2Terminated) return no_status(instance, "fmi2GetBooleanStatus");
+    if (!instance_given(instance, "fmi2GetBooleanStatus", value, "place for the value")) END(STATUS_ERROR);
+    *value = fmi2False; /* these FMUs never ask to end the simulation */
     return fmi2OK;
 }
 

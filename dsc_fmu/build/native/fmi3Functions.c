@@ -3,7 +3,7 @@
    instance to Terminated. No event mode, no model exchange, no scheduled execution, no clocks:
    those functions refuse with a message. Nothing returns fmi3Fatal. */
 
-#include <stdio.h>
+#include <math.h>
 
 #include "fmi3Functions.h"
 #include "instance.h"
@@ -127,6 +127,7 @@ void fmi3FreeInstance(fmi3Instance c) { instance_free((Instance *)c); }
 fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefined, fmi3Float64 tolerance,
                                        fmi3Float64 startTime, fmi3Boolean stopTimeDefined, fmi3Float64 stopTime) {
     BEGIN(fmi3EnterInitializationMode);
+    instance->stop_time = stopTimeDefined ? stopTime : INFINITY;
     double start[] = {startTime};
     int status = instance_call(instance, "setup_experiment", 1, start, NULL, Instantiated);
     if (status == fmi3OK) status = instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);

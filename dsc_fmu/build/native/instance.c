@@ -51,6 +51,7 @@ static int category_bit(const char *category) {
 /* To the importer's logger, if the standard and the enabled categories let the message through. */
 static void forward(void *context, int status, const char *category, const char *message) {
     Instance *instance = context;
+    if (status < STATUS_OK || status > STATUS_FATAL) status = STATUS_ERROR;
     int bit = category_bit(category);
     int enabled = instance->categories & (bit > 0 ? bit : 1 << (CATEGORY_COUNT - 1));
     if (!enabled && !(instance->standard->always_logged & (1 << status))) return;
@@ -71,6 +72,7 @@ Instance *instance_alloc(size_t size, const char *name, int logging_on, const St
     if (!instance) return NULL;
     instance->magic = INSTANCE_MAGIC;
     instance->state = Instantiated;
+    instance->stop_time = INFINITY;
     instance->categories = logging_on ? ALL_CATEGORIES : 0;
     instance->standard = standard;
     snprintf(instance->name, sizeof instance->name, "%s", name);
@@ -128,13 +130,14 @@ int instance_do_step(Instance *instance, const char *function, double time, doub
                      "step size > 0", instance->name, function, time, step);
         return STATUS_ERROR;
     }
+    if (time + step > instance->stop_time + 1e-9 * fmax(1.0, fabs(instance->stop_time))) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: the step from t = %.17g s by %g s ends after the stop time %.17g s "
+                     "of the experiment", instance->name, function, time, step, instance->stop_time);
+        return STATUS_ERROR;
+    }
     int accepted = 0;
     int status = slave_step(&instance->slave, time, step, &accepted);
-    if (status == STATUS_OK && !accepted) {
-        instance_log(instance, STATUS_DISCARD, "%s: %s: the step from t = %.17g s by %g s is discarded; the FMU stays "
-                     "at t = %.17g s", instance->name, function, time, step, time);
-        status = STATUS_DISCARD;
-    }
+    if (status == STATUS_OK && !accepted) status = STATUS_DISCARD; /* the slave logged why */
     if (status == STATUS_DISCARD) instance->state = instance->standard->after_discard;
     return status;
 }
@@ -275,10 +278,7 @@ static State *valid_state(Instance *instance, const char *function, void *pointe
 }
 
 int instance_get_state(Instance *instance, const char *function, void **pointer) {
-    if (!pointer) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: no place for the FMU state (NULL)", instance->name, function);
-        return STATUS_ERROR;
-    }
+    if (!instance_given(instance, function, pointer, "place for the FMU state")) return STATUS_ERROR;
     State *state = *pointer ? valid_state(instance, function, *pointer) : calloc(1, sizeof(State));
     if (!state) return STATUS_ERROR;
     PyObject *object = NULL;
@@ -323,15 +323,24 @@ static int serialize(Instance *instance, State *state, char **bytes, size_t *siz
         (*bytes)[0] = (char)state->state;
         memcpy(*bytes + 1, body, length);
         *size = length + 1;
+    } else {
+        instance_log(instance, STATUS_ERROR, "%s: out of memory for the serialized FMU state", instance->name);
     }
     free(body);
     return *bytes ? 0 : -1;
 }
 
+int instance_given(Instance *instance, const char *function, const void *pointer, const char *what) {
+    if (!pointer) instance_log(instance, STATUS_ERROR, "%s: %s: no %s (NULL)", instance->name, function, what);
+    return pointer != NULL;
+}
+
 int instance_serialized_size(Instance *instance, const char *function, void *pointer, size_t *size) {
     State *state = valid_state(instance, function, pointer);
     char *bytes = NULL;
-    if (!state || !size || serialize(instance, state, &bytes, size) != 0) return STATUS_ERROR;
+    if (!state || !instance_given(instance, function, size, "place for the size") || serialize(instance, state, &bytes, size) != 0) {
+        return STATUS_ERROR;
+    }
     free(bytes);
     return STATUS_OK;
 }
@@ -340,7 +349,9 @@ int instance_serialize(Instance *instance, const char *function, void *pointer, 
     State *state = valid_state(instance, function, pointer);
     char *bytes = NULL;
     size_t needed = 0;
-    if (!state || !buffer || serialize(instance, state, &bytes, &needed) != 0) return STATUS_ERROR;
+    if (!state || !instance_given(instance, function, buffer, "buffer") || serialize(instance, state, &bytes, &needed) != 0) {
+        return STATUS_ERROR;
+    }
     int status = STATUS_OK;
     if (size < needed) {
         instance_log(instance, STATUS_ERROR, "%s: %s: the buffer holds %zu bytes, the state needs %zu", instance->name,

@@ -44,6 +44,7 @@ struct Instance {
     ModelState state;
     char name[256];
     int categories; /* the log categories enabled, bit i for CATEGORIES[i] of instance.c */
+    double stop_time; /* of the experiment (INFINITY: none); no step may end after it */
     const Standard *standard;
 };
 
@@ -56,6 +57,9 @@ int instance_start(Instance *instance, const char *function, const char *resourc
 void instance_free(Instance *instance);
 
 void instance_log(Instance *instance, int status, const char *format, ...);
+
+/* Whether `pointer`, an argument of `function` that must not be NULL, is given (if not, logged as `what`). */
+int instance_given(Instance *instance, const char *function, const void *pointer, const char *what);
 
 /* Whether the call `function` is refused: a foreign pointer (silently) or a state outside `mask` (logged,
    and the instance enters its error state). */

@@ -11,8 +11,11 @@
    failed where Py_InitializeEx would end the process; of the configuration it touches only the
    leading fields whose offsets every CPython since 3.8 shares, checked before they are set.
 
-   A host thread Python does not know gets a thread state on its first call, kept for its life and
-   deleted by a thread-exit destructor: thread pools cost nothing once their threads are gone. */
+   A host thread Python does not know gets a thread state on its first call, kept for its life. When
+   the thread ends, its thread state is handed to the reaper, a thread of this binary's that deletes
+   it: thread pools cost nothing once their threads are gone. The ending thread cannot delete it
+   itself: that needs the GIL, and a host that joins its threads while holding the GIL (a Python
+   extension's destructor, a thread pool's) would wait for ever. */
 
 #define _GNU_SOURCE
 #include "pyhost.h"
@@ -49,6 +52,16 @@ static int start_result = -1;
 static int start_attempted; /* a library on which Py_InitializeFromConfig ran stays loaded, whatever it said */
 static pthread_key_t thread_key; /* the thread state this binary made for a host thread */
 static int thread_key_made;
+
+/* Thread states of host threads that ended, for the reaper. */
+typedef struct Ended {
+    struct Ended *next;
+    PyThreadState *state;
+} Ended;
+static pthread_mutex_t ended_lock = PTHREAD_MUTEX_INITIALIZER;
+static pthread_cond_t ended_signal = PTHREAD_COND_INITIALIZER;
+static Ended *ended;
+static int reaper_started;
 static char start_error[2048];
 static wchar_t *home_wide;
 
@@ -62,7 +75,8 @@ static const Symbol SYMBOLS[] = {
     SYMBOL(Py_IsInitialized), SYMBOL(_PyConfig_InitCompatConfig), SYMBOL(Py_InitializeFromConfig),
     SYMBOL(PyConfig_Clear), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale), SYMBOL(Py_GetVersion),
     SYMBOL(PyEval_SaveThread), SYMBOL(PyEval_RestoreThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
-    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_DeleteCurrent),
+    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyInterpreterState_Main), SYMBOL(PyThreadState_New),
+    SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_Delete),
     SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString), SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str),
     SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8), SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong),
     SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble), SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong),
@@ -216,23 +230,82 @@ static int try_library(const char *path, const char *home, const char *what) {
     }
     char label[PATH_MAX + 64];
     snprintf(label, sizeof label, "%s %s", what, path);
-    if (adopt(library, home, label) != 0 || !dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) {
+    if (adopt(library, home, label) != 0) {
         if (!start_attempted) dlclose(library);
+        return -1;
+    }
+    if (!dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) {
+        append(start_error, sizeof start_error, "%s: its symbols cannot be made global: %s; ", label, dlerror());
         return -1;
     }
     return 0;
 }
 
-/* At the exit of a host thread that has a thread state of this binary's: delete it. */
-static void forget_thread(void *state) {
-    if (!py.Py_IsInitialized()) return;
-    py.PyEval_RestoreThread(state);
-    py.PyThreadState_Clear(state);
-    py.PyThreadState_DeleteCurrent();
+/* Delete the thread states in `list` (their threads have ended) and free the list; `own`: the
+   reaper's thread state, made on first use. The reaper never uses PyGILState: since 3.12, deleting
+   another thread's state unbinds the deleting thread's own. */
+static void delete_ended(Ended *list, PyThreadState **own) {
+    if (py.Py_IsInitialized()) {
+        if (!*own) *own = py.PyThreadState_New(py.PyInterpreterState_Main());
+        py.PyEval_RestoreThread(*own);
+        for (Ended *e = list; e; e = e->next) {
+            py.PyThreadState_Clear(e->state);
+            py.PyThreadState_Delete(e->state);
+        }
+        py.PyEval_SaveThread();
+    }
+    while (list) {
+        Ended *next = list->next;
+        free(list);
+        list = next;
+    }
 }
 
-/* The binary unloaded: thread states of threads still running are left to them, never to a
-   destructor that is gone. */
+static void *reap(void *unused) {
+    PyThreadState *own = NULL;
+    pthread_mutex_lock(&ended_lock);
+    for (;;) {
+        while (!ended) pthread_cond_wait(&ended_signal, &ended_lock);
+        Ended *list = ended;
+        ended = NULL;
+        pthread_mutex_unlock(&ended_lock);
+        delete_ended(list, &own);
+        pthread_mutex_lock(&ended_lock);
+    }
+    return NULL;
+}
+
+/* Start the reaper, detached, and keep this binary loaded for as long as the process lives: the
+   reaper runs its code. Called with ended_lock held. */
+static void start_reaper(void) {
+    Dl_info self;
+    pthread_t thread;
+    pthread_attr_t attributes;
+    pthread_attr_init(&attributes);
+    pthread_attr_setdetachstate(&attributes, PTHREAD_CREATE_DETACHED);
+    if (dladdr((void *)reap, &self) && self.dli_fname && dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE) &&
+        pthread_create(&thread, &attributes, reap, NULL) == 0) {
+        reaper_started = 1;
+    }
+    pthread_attr_destroy(&attributes);
+}
+
+/* At the end of a host thread that has a thread state of this binary's: hand it to the reaper
+   (without the GIL; if the reaper cannot start, the thread state is left). */
+static void forget_thread(void *state) {
+    Ended *entry = malloc(sizeof *entry);
+    if (!entry) return;
+    entry->state = state;
+    pthread_mutex_lock(&ended_lock);
+    if (!reaper_started) start_reaper();
+    entry->next = ended;
+    ended = entry;
+    pthread_cond_signal(&ended_signal);
+    pthread_mutex_unlock(&ended_lock);
+}
+
+/* The binary unloaded (never once the reaper runs): thread states of threads still running are left
+   to them, never to a destructor that is gone. */
 __attribute__((destructor)) static void unload(void) {
     if (thread_key_made) pthread_key_delete(thread_key);
 }

@@ -14,6 +14,7 @@ typedef struct _object PyObject;
 typedef ssize_t Py_ssize_t;
 typedef int PyGILState_STATE;
 typedef struct _ts PyThreadState;
+typedef struct _is PyInterpreterState;
 
 /* What Py_InitializeFromConfig returns (the same layout in every CPython since 3.8). */
 typedef struct {
@@ -36,8 +37,10 @@ typedef struct {
     PyGILState_STATE (*PyGILState_Ensure)(void);
     void (*PyGILState_Release)(PyGILState_STATE);
     PyThreadState *(*PyGILState_GetThisThreadState)(void);
+    PyInterpreterState *(*PyInterpreterState_Main)(void);
+    PyThreadState *(*PyThreadState_New)(PyInterpreterState *);
     void (*PyThreadState_Clear)(PyThreadState *);
-    void (*PyThreadState_DeleteCurrent)(void);
+    void (*PyThreadState_Delete)(PyThreadState *);
     PyObject *(*PyImport_ImportModule)(const char *);
     PyObject *(*PyObject_GetAttrString)(PyObject *, const char *);
     PyObject *(*PyObject_CallObject)(PyObject *, PyObject *);
@@ -85,7 +88,7 @@ extern PyApi py;
 int pyhost_start(char *error, size_t size);
 
 /* Take the GIL from any thread, known to Python or not. A thread Python does not know gets a thread
-   state that it keeps until it ends, when the state is deleted. */
+   state that it keeps until it ends; then the state is deleted. */
 PyGILState_STATE pyhost_enter(void);
 void pyhost_leave(PyGILState_STATE state);
 

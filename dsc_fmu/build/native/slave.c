@@ -18,6 +18,7 @@
 #error DSC_ENTRY_FILE (the resources file that names the bridge, slave and token) must be defined
 #endif
 #define MAX_VALUE_REFERENCE 100000
+#define MAX_VARIABLES 1024
 
 const char *slave_category(int status) {
     switch (status) {
@@ -82,7 +83,8 @@ static void exception_text(char *text, size_t size) {
     const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
     PyObject *str = value ? py.PyObject_Str(value) : NULL;
     const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
-    snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
+    if (type) snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
+    else snprintf(text, size, "no Python exception was raised");
     py.PyErr_Clear();
     clear(&str);
     clear(&type_name);
@@ -97,17 +99,14 @@ static void log_exception(Slave *s, int status, const char *doing) {
     say(s, status, "%s: %s failed: %s", s->instance_name, doing, text);
 }
 
-/* A tuple of `n` new references, which it steals; NULL items become None. NULL on failure. */
+/* A tuple of `n` new references, which it steals; NULL (the exception set) if any is NULL. */
 static PyObject *pack(int n, PyObject **items) {
-    PyObject *tuple = py.PyTuple_New(n);
+    int complete = 1;
+    for (int i = 0; i < n; i++) complete = complete && items[i];
+    PyObject *tuple = complete ? py.PyTuple_New(n) : NULL;
     for (int i = 0; i < n; i++) {
-        PyObject *item = items[i];
-        if (!item) {
-            py.Py_IncRef(py.None);
-            item = py.None;
-        }
-        if (tuple) py.PyTuple_SetItem(tuple, i, item);
-        else py.Py_DecRef(item);
+        if (tuple) py.PyTuple_SetItem(tuple, i, items[i]);
+        else if (items[i]) py.Py_DecRef(items[i]);
     }
     return tuple;
 }
@@ -117,9 +116,10 @@ static PyObject *borrowed(PyObject *object) {
     return object;
 }
 
-/* Call `function` (a new reference, which it steals) with `args` (stolen; NULL for none). */
+/* Call `function` (a new reference, which it steals) with `args` (stolen; NULL for none, unless an
+   exception is set: then the arguments failed and nothing is called). */
 static PyObject *call(PyObject *function, PyObject *args) {
-    PyObject *result = function ? py.PyObject_CallObject(function, args) : NULL;
+    PyObject *result = function && (args || !py.PyErr_Occurred()) ? py.PyObject_CallObject(function, args) : NULL;
     if (function) py.Py_DecRef(function);
     if (args) py.Py_DecRef(args);
     return result;
@@ -179,54 +179,63 @@ static int read_entry(Slave *s, char *bridge, size_t size) {
     return 0;
 }
 
-/* Import the build's private package from the resources by its location, leaving sys.path alone;
-   nothing if this process has it already (another instance of the same build). */
-static int import_package(Slave *s) {
-    PyObject *modules = py.PySys_GetObject("modules");
-    if (!modules) return -1;
-    if (py.PyDict_GetItemString(modules, s->package)) return 0;
-    char init[sizeof s->resources + sizeof s->package + 16];
-    snprintf(init, sizeof init, "%s/%s/__init__.py", s->resources, s->package);
-    PyObject *util = py.PyImport_ImportModule("importlib.util");
-    PyObject *spec = NULL, *module = NULL, *loader = NULL, *done = NULL;
-    if (util) {
-        PyObject *items[] = {py.PyUnicode_FromString(s->package), py.PyUnicode_FromString(init)};
-        spec = call(py.PyObject_GetAttrString(util, "spec_from_file_location"), pack(2, items));
-    }
-    if (spec) {
-        PyObject *items[] = {borrowed(spec)};
-        module = call(py.PyObject_GetAttrString(util, "module_from_spec"), pack(1, items));
-        loader = py.PyObject_GetAttrString(spec, "loader");
-    }
-    if (module && loader && py.PyDict_SetItemString(modules, s->package, module) == 0) {
-        PyObject *items[] = {borrowed(module)};
-        done = call(py.PyObject_GetAttrString(loader, "exec_module"), pack(1, items));
-        if (!done) {
-            PyObject *type, *value, *traceback;
-            py.PyErr_Fetch(&type, &value, &traceback);
-            py.PyDict_DelItemString(modules, s->package);
-            py.PyErr_Restore(type, value, traceback);
-        }
-    }
+/* Hold (`hold` 1) or release (0) the import system's lock, under which the instances of a build are
+   created and freed: threads creating and freeing instances of one build at once see its modules
+   whole. 0, or -1 with the exception set. */
+static int import_lock(int hold) {
+    PyObject *imp = py.PyImport_ImportModule("_imp");
+    PyObject *done = imp ? call(py.PyObject_GetAttrString(imp, hold ? "acquire_lock" : "release_lock"), NULL) : NULL;
     int result = done ? 0 : -1;
     clear(&done);
-    clear(&loader);
-    clear(&module);
-    clear(&spec);
-    clear(&util);
+    clear(&imp);
     return result;
 }
 
-/* The bridge of the build's package, counted as one more user of the package (see native_bridge.release). */
-static int import_bridge(Slave *s, const char *bridge) {
-    if (import_package(s) != 0) {
-        log_exception(s, STATUS_ERROR, "importing the FMU's package");
-        return -1;
+/* The module `name` from the file `path`, registered in sys.modules (and removed if it fails). */
+static PyObject *load_file(const char *name, const char *path) {
+    PyObject *modules = py.PySys_GetObject("modules");
+    PyObject *util = py.PyImport_ImportModule("importlib.util");
+    PyObject *items[] = {py.PyUnicode_FromString(name), py.PyUnicode_FromString(path)};
+    PyObject *spec = util ? call(py.PyObject_GetAttrString(util, "spec_from_file_location"), pack(2, items)) : NULL;
+    PyObject *from_spec[] = {spec ? borrowed(spec) : NULL};
+    PyObject *module = spec ? call(py.PyObject_GetAttrString(util, "module_from_spec"), pack(1, from_spec)) : NULL;
+    PyObject *loader = module ? py.PyObject_GetAttrString(spec, "loader") : NULL;
+    PyObject *done = NULL;
+    if (loader && modules && py.PyDict_SetItemString(modules, name, module) == 0) {
+        PyObject *run[] = {borrowed(module)};
+        done = call(py.PyObject_GetAttrString(loader, "exec_module"), pack(1, run));
+        if (!done) {
+            PyObject *type, *value, *traceback;
+            py.PyErr_Fetch(&type, &value, &traceback);
+            py.PyDict_DelItemString(modules, name);
+            py.PyErr_Restore(type, value, traceback);
+        }
     }
-    s->bridge = py.PyImport_ImportModule(bridge);
-    PyObject *counted = s->bridge ? bridge_call(s, "acquire", NULL) : NULL;
+    if (!done) clear(&module);
+    clear(&done);
+    clear(&loader);
+    clear(&spec);
+    clear(&util);
+    return module;
+}
+
+/* The build's bridge module, from sys.modules or from its file in the resources (sys.path is left
+   alone), counted as one more user of the build's package (native_bridge.acquire imports it).
+   The import lock is held. */
+static int import_bridge(Slave *s, const char *bridge) {
+    PyObject *modules = py.PySys_GetObject("modules");
+    PyObject *known = modules ? py.PyDict_GetItemString(modules, bridge) : NULL;
+    char path[sizeof s->resources + 256];
+    int written = snprintf(path, sizeof path, "%s/", s->resources);
+    for (const char *p = bridge; *p && written + 4 < (int)sizeof path; p++) path[written++] = *p == '.' ? '/' : *p;
+    snprintf(path + written, sizeof path - written, ".py");
+    s->bridge = known ? borrowed(known) : load_file(bridge, path);
+    PyObject *items[] = {py.PyUnicode_FromString(s->resources)};
+    PyObject *counted = s->bridge ? bridge_call(s, "acquire", pack(1, items)) : NULL;
     if (!counted) {
-        log_exception(s, STATUS_ERROR, "importing the FMU's bridge module");
+        log_exception(s, STATUS_ERROR, "importing the FMU's package");
+        if (s->bridge && !known) py.PyDict_DelItemString(modules, bridge);
+        py.PyErr_Clear();
         clear(&s->bridge);
         return -1;
     }
@@ -277,17 +286,18 @@ static int read_variables(Slave *s) {
     PyObject *items[] = {borrowed(s->slave)};
     PyObject *table = bridge_call(s, "variables", pack(1, items));
     Py_ssize_t n = table ? py.PySequence_Size(table) : -1;
-    long rows[4 * 1024];
-    if (n < 0 || n > 1024) {
+    long rows[4 * MAX_VARIABLES];
+    if (n < 0 || n > MAX_VARIABLES) {
         clear(&table);
-        log_exception(s, STATUS_ERROR, "reading the variable table");
+        if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
+        else say(s, STATUS_ERROR, "%s: the slave has %zd variables; allowed: at most %d", s->instance_name, n, MAX_VARIABLES);
         return -1;
     }
     long largest = -1;
-    for (Py_ssize_t i = 0; i < n; i++) {
+    for (Py_ssize_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
         PyObject *row = py.PySequence_GetItem(table, i);
-        for (int k = 0; k < 4; k++) {
-            PyObject *cell = row ? py.PySequence_GetItem(row, k) : NULL;
+        for (int k = 0; k < 4 && row && !py.PyErr_Occurred(); k++) {
+            PyObject *cell = py.PySequence_GetItem(row, k);
             rows[4 * i + k] = cell ? py.PyLong_AsLong(cell) : -1;
             clear(&cell);
         }
@@ -304,7 +314,10 @@ static int read_variables(Slave *s) {
     s->type = malloc(s->size ? s->size : 1);
     s->causality = malloc(s->size ? s->size : 1);
     s->variability = malloc(s->size ? s->size : 1);
-    if (!s->type || !s->causality || !s->variability) return -1;
+    if (!s->type || !s->causality || !s->variability) {
+        say(s, STATUS_ERROR, "%s: out of memory for the variable table", s->instance_name);
+        return -1;
+    }
     memset(s->type, NO_VARIABLE, s->size);
     for (Py_ssize_t i = 0; i < n; i++) {
         if (rows[4 * i] < 0) continue;
@@ -313,6 +326,27 @@ static int read_variables(Slave *s) {
         s->variability[rows[4 * i]] = (signed char)rows[4 * i + 3];
     }
     return 0;
+}
+
+/* Count one user less of the build's package; the last forgets its modules (native_bridge.release).
+   The import lock is held. */
+static void release_bridge(Slave *s) {
+    if (!s->bridge) return;
+    PyObject *result = bridge_call(s, "release", NULL);
+    if (!result) log_exception(s, STATUS_WARNING, "releasing the FMU's package");
+    clear(&result);
+    clear(&s->bridge);
+}
+
+/* Whether the import lock is now held (if not, logged). */
+static int lock_imports(Slave *s) {
+    if (import_lock(1) == 0) return 1;
+    log_exception(s, STATUS_ERROR, "taking the import lock");
+    return 0;
+}
+
+static void unlock_imports(Slave *s) {
+    if (import_lock(0) != 0) log_exception(s, STATUS_WARNING, "releasing the import lock");
 }
 
 int slave_create(Slave *s, const char *resources, const char *token, const char *instance_name, int visible,
@@ -340,12 +374,15 @@ int slave_create(Slave *s, const char *resources, const char *token, const char 
     }
     if (result == 0) {
         PyGILState_STATE gil = pyhost_enter();
-        result = import_bridge(s, bridge);
+        int locked = lock_imports(s);
+        result = locked ? import_bridge(s, bridge) : -1;
         if (result == 0) {
             PyObject *slave = new_slave(s);
             if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
             result = slave && adopt_slave(s, slave) == 0 ? read_variables(s) : -1;
         }
+        if (result != 0) release_bridge(s);
+        if (locked) unlock_imports(s);
         drain_log(s);
         pyhost_leave(gil);
     }
@@ -354,20 +391,15 @@ int slave_create(Slave *s, const char *resources, const char *token, const char 
     return result;
 }
 
-/* Count one user less of the build's package; the last forgets its modules (native_bridge.release). */
-static void release_bridge(Slave *s) {
-    PyObject *items[] = {py.PyUnicode_FromString(s->resources)};
-    PyObject *result = bridge_call(s, "release", pack(1, items));
-    if (!result) log_exception(s, STATUS_WARNING, "releasing the FMU's package");
-    clear(&result);
-    clear(&s->bridge);
-}
-
 void slave_free(Slave *s) {
     if (s->bridge || s->slave || s->log_queue) {
         PyGILState_STATE gil = pyhost_enter();
         clear_slave(s);
-        if (s->bridge) release_bridge(s);
+        if (s->bridge) {
+            int locked = lock_imports(s);
+            release_bridge(s);
+            if (locked) unlock_imports(s);
+        }
         leave(s, gil);
     }
     free(s->type);
@@ -428,22 +460,20 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
     PyGILState_STATE gil = pyhost_enter();
     PyObject *items[] = {references(vr, n)};
     PyObject *result = call(borrowed(s->bound[type]), pack(1, items));
-    int status = STATUS_OK;
-    if (!result || py.PySequence_Size(result) != (Py_ssize_t)n) {
-        if (result) say(s, STATUS_ERROR, "%s: %s returned a wrong number of values", s->instance_name, s->names->get[type]);
-        else log_exception(s, STATUS_ERROR, s->names->get[type]);
-        status = STATUS_ERROR;
-    } else {
-        for (size_t i = 0; i < n; i++) {
+    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
+    int status = STATUS_ERROR;
+    if (size >= 0 && size != (Py_ssize_t)n) {
+        say(s, STATUS_ERROR, "%s: %s returned %zd values for %zu value references", s->instance_name,
+            s->names->get[type], size, n);
+    } else if (size >= 0) {
+        for (size_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
             PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
             if (item) from_python(item, values, i, ctype);
             clear(&item);
         }
-        if (py.PyErr_Occurred()) {
-            log_exception(s, STATUS_ERROR, s->names->get[type]);
-            status = STATUS_ERROR;
-        }
+        if (!py.PyErr_Occurred()) status = STATUS_OK;
     }
+    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, s->names->get[type]);
     clear(&result);
     drain_log(s);
     leave(s, gil);
@@ -493,7 +523,7 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
 static PyObject *doubles(int n, const double *values, const int *defined) {
     PyObject *items[8] = {NULL};
     for (int i = 0; i < n && i < 8; i++) {
-        if (!defined || defined[i]) items[i] = py.PyFloat_FromDouble(values[i]);
+        items[i] = !defined || defined[i] ? py.PyFloat_FromDouble(values[i]) : borrowed(py.None);
     }
     return pack(n < 8 ? n : 8, items);
 }
@@ -578,6 +608,8 @@ int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
         memcpy(*bytes, buffer, (size_t)length);
         *size = (size_t)length;
         status = STATUS_OK;
+    } else {
+        say(s, STATUS_ERROR, "%s: out of memory for the serialized FMU state", s->instance_name);
     }
     clear(&data);
     drain_log(s);
