@@ -161,7 +161,8 @@ int main(int argc, char **argv) {
             fprintf(stderr, "cannot load %s\n", dlerror());
             return 1;
         }
-        int started = version == 3 ? start3(&fmus[f], dirs[f], model, guids[f]) : start2(&fmus[f], dirs[f], model, guids[f]);
+        int started = version == 3 ? start3(&fmus[f], dirs[f], model, guids[f])
+                                   : start2(&fmus[f], dirs[f], model, guids[f]);
         if (started != 0) return started;
     }
     for (int k = 0; k <= steps; k++) {

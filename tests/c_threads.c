@@ -283,8 +283,8 @@ static void *create_and_free(void *argument) {
             ? ((fmi2InstantiateTYPE *)symbol(fmu, "fmi2Instantiate"))("creator", fmi2CoSimulation, fmu->token,
                                                                     fmu->resources, &quiet2, fmi2False, fmi2False)
             : ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu, "fmi3InstantiateCoSimulation"))(
-                  "creator", fmu->token, fmu->resources, fmi3False, fmi3False, fmi3False, fmi3False, NULL, 0, NULL, NULL,
-                  NULL);
+                  "creator", fmu->token, fmu->resources, fmi3False, fmi3False, fmi3False, fmi3False, NULL, 0, NULL,
+                  NULL, NULL);
         if (!c) {
             creator->failures++;
             continue;
@@ -403,7 +403,9 @@ int main(int argc, char **argv) {
     if (strcmp(argv[1], "threads") == 0 && argc == 7) return run_churn(&fmu, atoi(argv[6]));
     if (strcmp(argv[1], "join") == 0) return run_join(&fmu);
     if (strcmp(argv[1], "create") == 0 && argc == 8) return run_creators(&fmu, atoi(argv[6]), atoi(argv[7]));
-    if (strcmp(argv[1], "steps") == 0 && argc == 9) return run_steppers(&fmu, atoi(argv[6]), atoi(argv[7]), atoi(argv[8]));
+    if (strcmp(argv[1], "steps") == 0 && argc == 9) {
+        return run_steppers(&fmu, atoi(argv[6]), atoi(argv[7]), atoi(argv[8]));
+    }
     fail("unknown mode %s or wrong arguments", argv[1]);
     return 1;
 }

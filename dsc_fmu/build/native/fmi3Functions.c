@@ -91,11 +91,13 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
     }
     Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, &FMI3);
     if (!instance) {
-        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, "fmi3InstantiateCoSimulation: out of memory");
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
+                                    "fmi3InstantiateCoSimulation: out of memory");
     }
     instance->environment = instanceEnvironment;
     instance->logMessage = logMessage;
-    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken, visible) != 0) {
+    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken,
+                       visible) != 0) {
         instance_free(&instance->base);
         return NULL;
     }
@@ -130,7 +132,9 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefi
     instance->stop_time = stopTimeDefined ? stopTime : INFINITY;
     double start[] = {startTime};
     int status = instance_call(instance, "setup_experiment", 1, start, NULL, Instantiated);
-    if (status == fmi3OK) status = instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+    if (status == fmi3OK) {
+        status = instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode);
+    }
     END(status);
 }
 

@@ -131,8 +131,8 @@ int instance_do_step(Instance *instance, const char *function, double time, doub
         return STATUS_ERROR;
     }
     if (time + step > instance->stop_time + 1e-9 * fmax(1.0, fabs(instance->stop_time))) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the step from t = %.17g s by %g s ends after the stop time %.17g s "
-                     "of the experiment", instance->name, function, time, step, instance->stop_time);
+        instance_log(instance, STATUS_ERROR, "%s: %s: the step from t = %.17g s by %g s ends after the stop time "
+                     "%.17g s of the experiment", instance->name, function, time, step, instance->stop_time);
         return STATUS_ERROR;
     }
     int accepted = 0;
@@ -338,7 +338,8 @@ int instance_given(Instance *instance, const char *function, const void *pointer
 int instance_serialized_size(Instance *instance, const char *function, void *pointer, size_t *size) {
     State *state = valid_state(instance, function, pointer);
     char *bytes = NULL;
-    if (!state || !instance_given(instance, function, size, "place for the size") || serialize(instance, state, &bytes, size) != 0) {
+    if (!state || !instance_given(instance, function, size, "place for the size") ||
+        serialize(instance, state, &bytes, size) != 0) {
         return STATUS_ERROR;
     }
     free(bytes);
@@ -349,7 +350,8 @@ int instance_serialize(Instance *instance, const char *function, void *pointer, 
     State *state = valid_state(instance, function, pointer);
     char *bytes = NULL;
     size_t needed = 0;
-    if (!state || !instance_given(instance, function, buffer, "buffer") || serialize(instance, state, &bytes, &needed) != 0) {
+    if (!state || !instance_given(instance, function, buffer, "buffer") ||
+        serialize(instance, state, &bytes, &needed) != 0) {
         return STATUS_ERROR;
     }
     int status = STATUS_OK;

@@ -283,7 +283,8 @@ static void start_reaper(void) {
     pthread_attr_t attributes;
     pthread_attr_init(&attributes);
     pthread_attr_setdetachstate(&attributes, PTHREAD_CREATE_DETACHED);
-    if (dladdr((void *)reap, &self) && self.dli_fname && dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE) &&
+    if (dladdr((void *)reap, &self) && self.dli_fname &&
+        dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE) &&
         pthread_create(&thread, &attributes, reap, NULL) == 0) {
         reaper_started = 1;
     }

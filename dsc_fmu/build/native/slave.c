@@ -290,7 +290,8 @@ static int read_variables(Slave *s) {
     if (n < 0 || n > MAX_VARIABLES) {
         clear(&table);
         if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
-        else say(s, STATUS_ERROR, "%s: the slave has %zd variables; allowed: at most %d", s->instance_name, n, MAX_VARIABLES);
+        else say(s, STATUS_ERROR, "%s: the slave has %zd variables; allowed: at most %d", s->instance_name, n,
+                 MAX_VARIABLES);
         return -1;
     }
     long largest = -1;
