@@ -19,18 +19,21 @@ PACKAGE = Path(dsc_fmu.__file__).parent
 ALLOWED = {
     "errors": set(),
     "files": set(),
+    "identity": set(),
     "models": set(),
     "fmu": {"models"},
     "registry": {"models", "errors"},
     "scenario": {"registry", "models", "errors"},
-    "build": {"registry", "models", "errors", "files"},
-    "cosim": {"build", "registry", "scenario", "models", "errors", "files"},
-    "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files"},
-    "interop": {"cosim", "build", "registry", "scenario", "models", "errors", "files"},
-    "cli": {"study", "interop", "cosim", "build", "registry", "scenario", "models", "errors", "files"},
+    "build": {"registry", "models", "errors", "files", "identity"},
+    "cosim": {"build", "registry", "scenario", "models", "errors", "files", "identity"},
+    "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
+    "interop": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
+    "cli": {"study", "interop", "cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
     "__main__": {"cli"},
     "__init__": set(),
 }
+# Above the builder, only these build FMUs; the rest tell FMU builds apart through ``identity``.
+BUILDERS = {"dsc_fmu.cosim.run", "dsc_fmu.study.sweep", "dsc_fmu.cli"}
 
 
 def _module_name(path: Path) -> str:
@@ -136,3 +139,10 @@ def test_the_package_exports_resolve(name):
     """``from dsc_fmu import <name>`` gives the object of the module that defines it."""
     module = __import__(dsc_fmu._EXPORTS[name], fromlist=[name])
     assert getattr(dsc_fmu, name) is getattr(module, name)
+
+
+def test_only_the_modules_that_build_fmus_import_the_builder():
+    """Identifying an FMU build needs ``identity``, not the builder (and with it pythonfmu)."""
+    above = {module for module in MODULES if _part(module) in ("cosim", "study", "interop", "cli")}
+    importers = {module for module in above if any(_part(m) == "build" for m in GRAPH[module])}
+    assert importers <= BUILDERS, sorted(importers - BUILDERS)

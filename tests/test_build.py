@@ -8,7 +8,8 @@ import zipfile
 import pytest
 
 from dsc_fmu.build import fmus as build
-from dsc_fmu.build.fmus import BUILD_ID_FILE, ensure_fmus, fmu_build_id, source_hash
+from dsc_fmu.build.fmus import ensure_fmus, source_hash
+from dsc_fmu.identity import BUILD_ID_FILE, fmu_build_id
 from dsc_fmu.registry import FMUS
 
 

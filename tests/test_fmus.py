@@ -27,7 +27,7 @@ from fmpy.fmi2 import (
 )
 from fmpy.validation import validate_fmu
 
-from dsc_fmu.build.fmus import fmu_build_id
+from dsc_fmu.identity import fmu_build_id
 from dsc_fmu.registry import FMUS
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters

@@ -20,6 +20,7 @@ from pythonfmu import FmuBuilder
 
 from .. import __version__
 from ..files import atomic_write
+from ..identity import BUILD_ID_FILE, fmu_build_id
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import BinaryBuildError, binary_folder, binary_sources, build_python, compile_binary
@@ -27,14 +28,13 @@ from .model_description import complete_model_description, complete_model_descri
 
 __all__ = [
     "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmu", "build_fmus", "ensure_fmus", "current_fmus",
-    "source_hash", "fmu_build_id", "default_fmu_dir",
+    "source_hash", "default_fmu_dir",
 ]
 
 PACKAGE_DIR = Path(__file__).parents[1]
 DEFAULT_FMU_DIR = Path("build") / "fmus"
 DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
 FMI_VERSIONS = (2, 3)
-BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue
@@ -95,15 +95,6 @@ def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
-
-
-def fmu_build_id(fmu: Path) -> str | None:
-    """The source hash an FMU was built from, or None if it is not one of ours."""
-    try:
-        with zipfile.ZipFile(fmu) as archive:
-            return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return None
 
 
 def _stage(spec: FmuSpec, stage: Path, digest: str, fmi_version: int = 2) -> tuple[Path, Path]:

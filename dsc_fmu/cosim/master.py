@@ -13,7 +13,7 @@ from pathlib import Path
 import numpy as np
 from fmpy.fmi1 import FMICallException
 
-from ..build.fmus import fmu_build_id
+from ..identity import fmu_build_id
 from ..errors import CosimulationError
 from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
 from ..scenario import Scenario, ScenarioError

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..build.fmus import fmu_build_id
+from ..identity import fmu_build_id
 from ..files import atomic_write
 from ..registry import fmu_files
 from ..scenario import TABLES, Scenario

@@ -1,0 +1,21 @@
+"""What identifies an FMU build: the record its builder writes into it, read without the builder."""
+
+from __future__ import annotations
+
+import json
+import zipfile
+from pathlib import Path
+
+__all__ = ["BUILD_ID_FILE", "fmu_build_id"]
+
+# Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``.
+BUILD_ID_FILE = "resources/dsc_fmu_build.json"
+
+
+def fmu_build_id(fmu: Path) -> str | None:
+    """The source hash an FMU was built from, or None if it is not one of ours."""
+    try:
+        with zipfile.ZipFile(fmu) as archive:
+            return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]
+    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
