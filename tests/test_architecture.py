@@ -24,7 +24,7 @@ ALLOWED = {
     "fmu": {"models"},
     "registry": {"models", "errors"},
     "scenario": {"registry", "models", "errors"},
-    "build": {"registry", "models", "errors", "files", "identity"},
+    "build": {"registry", "fmu", "models", "errors", "files", "identity"},
     "cosim": {"build", "registry", "scenario", "models", "errors", "files", "identity"},
     "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
     "interop": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},

@@ -22,6 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from ..errors import DscFmuError
+from ..fmu.native_bridge import CAUSALITIES, TYPES, VARIABILITIES
 
 __all__ = [
     "BinaryBuildError", "PythonRuntime", "build_python", "compile_binary", "binary_sources", "binary_folder",
@@ -92,6 +93,13 @@ def _c_string(text: str) -> str:
     return json.dumps(text)
 
 
+def _contract() -> list[str]:
+    """The codes of ``fmu/native_bridge.py``, their owner, as the defines ``slave.h`` takes them."""
+    tables = {"TYPE": TYPES, "CAUSALITY": CAUSALITIES, "VARIABILITY": VARIABILITIES}
+    return [f"-DDSC_{kind}_{name.upper()}={code}" for kind, table in tables.items() for name, code in table.items()
+            if not (kind == "TYPE" and name in ("Float64", "Int32"))]
+
+
 def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str]:
     return [
         sys.executable, "-m", "ziglang", "cc", "-target", f"x86_64-linux-gnu.{GLIBC}", "-shared", "-fPIC", "-O2",
@@ -102,6 +110,7 @@ def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
         f"-DDSC_PYTHON_SONAME={_c_string(runtime.system_library)}",
         f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
+        *_contract(),
         *(str(NATIVE_DIR / name) for name in _SOURCES[fmi_version]),
         "-o", str(output), "-ldl", "-lpthread", "-lm",
     ]
@@ -118,7 +127,7 @@ def _compiler_environment() -> dict:
 def compile_binary(fmi_version: int, runtime: PythonRuntime | None = None) -> bytes:
     """The shared library of the FMI ``fmi_version`` layer for ``runtime`` (default: ``build_python()``)."""
     runtime = runtime or build_python()
-    digest = hashlib.sha256(repr((fmi_version, runtime)).encode())
+    digest = hashlib.sha256(repr((fmi_version, runtime, _contract())).encode())
     for path in binary_sources(fmi_version):
         digest.update(path.read_bytes())
     return _compile(fmi_version, runtime, digest.hexdigest())

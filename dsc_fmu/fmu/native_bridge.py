@@ -20,7 +20,7 @@ __all__ = [
     "acquire", "release", "instantiate", "variables", "drain_log", "state_to_bytes", "state_from_bytes", "TYPES",
 ]
 
-# Codes shared with native/slave.h.
+# Codes the binary uses too: the build passes them to native/slave.h (binary._contract).
 TYPES = {"Real": 0, "Float64": 0, "Integer": 1, "Int32": 1, "Boolean": 2, "String": 3}
 CAUSALITIES = {"parameter": 0, "input": 1, "output": 2, "independent": 3}
 VARIABILITIES = {"constant": 0, "fixed": 1, "tunable": 2, "discrete": 3, "continuous": 4}

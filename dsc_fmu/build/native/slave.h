@@ -15,13 +15,21 @@
 /* Statuses, the same numbers in FMI 2.0 and 3.0. */
 enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, STATUS_FATAL = 4 };
 
-/* Codes of native_bridge.py. */
-enum { TYPE_REAL = 0, TYPE_INTEGER = 1, TYPE_BOOLEAN = 2, TYPE_STRING = 3, TYPES = 3, NO_VARIABLE = -1 };
+/* The codes of native_bridge.py, which owns them: the build passes them as DSC_<KIND>_<NAME>. */
+#if !defined(DSC_TYPE_REAL) || !defined(DSC_CAUSALITY_PARAMETER) || !defined(DSC_VARIABILITY_CONSTANT)
+#error the codes of native_bridge.py (DSC_TYPE_REAL, ...) must be defined
+#endif
+enum { TYPE_REAL = DSC_TYPE_REAL, TYPE_INTEGER = DSC_TYPE_INTEGER, TYPE_BOOLEAN = DSC_TYPE_BOOLEAN,
+       TYPE_STRING = DSC_TYPE_STRING, TYPES = 3, NO_VARIABLE = -1 };
+_Static_assert(TYPE_REAL == 0 && TYPE_INTEGER == 1 && TYPE_BOOLEAN == 2 && TYPE_STRING == TYPES,
+               "the type codes index the get and set methods: Real, Integer, Boolean, then String");
 
 /* Bound methods kept for every step: get by type, set by type, do_step. */
 enum { BOUND_METHODS = 2 * TYPES + 1 };
-enum { CAUSALITY_PARAMETER = 0, CAUSALITY_INPUT = 1, CAUSALITY_OUTPUT = 2, CAUSALITY_INDEPENDENT = 3 };
-enum { VARIABILITY_CONSTANT = 0, VARIABILITY_FIXED = 1, VARIABILITY_TUNABLE = 2 };
+enum { CAUSALITY_PARAMETER = DSC_CAUSALITY_PARAMETER, CAUSALITY_INPUT = DSC_CAUSALITY_INPUT,
+       CAUSALITY_OUTPUT = DSC_CAUSALITY_OUTPUT };
+enum { VARIABILITY_CONSTANT = DSC_VARIABILITY_CONSTANT, VARIABILITY_FIXED = DSC_VARIABILITY_FIXED,
+       VARIABILITY_TUNABLE = DSC_VARIABILITY_TUNABLE };
 
 /* How values sit in the caller's array. */
 typedef enum { C_DOUBLE, C_INT, C_INT32, C_BOOL_INT, C_BOOL_BYTE } CType;
