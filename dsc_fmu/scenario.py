@@ -10,7 +10,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import DscFmuError
-from .models.parameters import COUPLINGS as FMU_COUPLINGS
+from .models.parameters import INPUT_COUPLINGS
 from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
@@ -95,9 +95,9 @@ class Simulation:
         if fmu == REFERENCE:
             return None
         if self.coupling == "hold":
-            return FMU_COUPLINGS.index("hold")
+            return INPUT_COUPLINGS.index("hold")
         ends = fmu == CONTROLLER and self.order == "gauss-seidel"  # its inputs set for the step's end
-        return FMU_COUPLINGS.index("interpolate" if ends else "extrapolate")
+        return INPUT_COUPLINGS.index("interpolate" if ends else "extrapolate")
 
 
 @dataclass(frozen=True)
@@ -120,7 +120,7 @@ class Scenario:
         coupling = self.simulation.fmu_coupling(fmu)
         if coupling is None:
             return getattr(self, table)
-        return {**getattr(self, table), "coupling": FMU_COUPLINGS.index("hold") if slopes_from_master else coupling}
+        return {**getattr(self, table), "coupling": INPUT_COUPLINGS.index("hold") if slopes_from_master else coupling}
 
     def with_simulation(self, **settings) -> Scenario:
         """This scenario with some simulation settings replaced (None leaves a setting as it is)."""

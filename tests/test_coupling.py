@@ -130,8 +130,8 @@ def test_the_coupling_parameters_are_fixed_integers_with_named_choices():
     for table, count in ((P.PLANT_PARAMETERS, 2), (P.CONTROLLER_PARAMETERS, 3)):
         coupling = {v.name: v for v in table}["coupling"]
         assert coupling.integer and not coupling.tunable and coupling.start == HOLD
-        assert coupling.choices == P.COUPLINGS[:count] and coupling.maximum == count - 1
-    assert np.array_equal(P.COUPLINGS, ("hold", "extrapolate", "interpolate"))
+        assert coupling.choices == P.INPUT_COUPLINGS[:count] and coupling.maximum == count - 1
+    assert np.array_equal(P.INPUT_COUPLINGS, ("hold", "extrapolate", "interpolate"))
 
 
 # --- the standard route: canInterpolateInputs and fmi2SetRealInputDerivatives ---------------------

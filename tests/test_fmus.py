@@ -252,8 +252,8 @@ def test_types_and_variability_follow_the_tables(md, name):
 
 @pytest.mark.parametrize("name, variable, choices", [
     ("ReferenceRobot", "profile", P.PROFILES), ("DSCController", "discretization", P.DISCRETIZATIONS),
-    ("DSCController", "start_on", P.START_ON), ("DSCController", "coupling", P.COUPLINGS),
-    ("MobileRobot", "coupling", P.COUPLINGS[:2]),
+    ("DSCController", "start_on", P.START_ON), ("DSCController", "coupling", P.INPUT_COUPLINGS),
+    ("MobileRobot", "coupling", P.INPUT_COUPLINGS[:2]),
 ])
 def test_choices_are_fixed_integer_parameters_with_their_range(md, name, variable, choices):
     scalar_ = scalar(md[name], variable)

@@ -55,11 +55,11 @@ def test_initial_state(name):
     state = rs.initial_closed_loop_state(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     p, ref = scenario.plant, scenario.reference
-    assert state[rs.PLANT] == [p["x0"], p["y0"], p["theta0"], 0.0, 0.0, 0.0, 0.0]
-    assert state[rs.REFERENCE] == [ref["x0"], ref["y0"], ref["theta0"]]
-    xc = state[rs.CONTROLLER]
+    assert state[rs.PLANT_STATES] == [p["x0"], p["y0"], p["theta0"], 0.0, 0.0, 0.0, 0.0]
+    assert state[rs.REFERENCE_STATES] == [ref["x0"], ref["y0"], ref["theta0"]]
+    xc = state[rs.CONTROLLER_STATES]
     assert xc[:2] == [0.0, 0.0] and xc[4:12] == [0.0] * 8 and xc[14:20] == [0.0] * 6
-    law = control_law(g, xc, rs.measurements(k, ref, 0.0, state[rs.PLANT], state[rs.REFERENCE]))
+    law = control_law(g, xc, rs.measurements(k, ref, 0.0, state[rs.PLANT_STATES], state[rs.REFERENCE_STATES]))
     assert law.derivative[2:4] == [0.0, 0.0]
     assert law.derivative[12:14] == [0.0, 0.0]
 
@@ -73,16 +73,16 @@ def test_closed_loop_derivatives_are_the_three_models(name, seed):
     rng = np.random.default_rng(seed)
     state = list(rng.uniform(-2, 2, 30))
     t = rng.uniform(0, 30)
-    x, y, theta, v1, v2, i1, i2 = state[rs.PLANT]
-    xr, yr, thetar = state[rs.REFERENCE]
+    x, y, theta, v1, v2, i1, i2 = state[rs.PLANT_STATES]
+    xr, yr, thetar = state[rs.REFERENCE_STATES]
     vr, wr, vr_dot = velocity(ref, t)
     m = [x, y, theta, 0.5 * k.r / k.R * (v1 - v2), v1, v2, i1, i2, xr, yr, thetar, vr, wr, vr_dot]
-    assert rs.measurements(k, ref, t, state[rs.PLANT], state[rs.REFERENCE]) == m
-    law = control_law(g, state[rs.CONTROLLER], m)
-    expected = [*plant_derivatives(k, state[rs.PLANT], law.u1, law.u2), *law.derivative,
+    assert rs.measurements(k, ref, t, state[rs.PLANT_STATES], state[rs.REFERENCE_STATES]) == m
+    law = control_law(g, state[rs.CONTROLLER_STATES], m)
+    expected = [*plant_derivatives(k, state[rs.PLANT_STATES], law.u1, law.u2), *law.derivative,
                 vr * math.cos(thetar), vr * math.sin(thetar), wr]
     assert rs.closed_loop_derivatives(t, np.array(state), k, g, ref) == pytest.approx(expected, rel=1e-15)
-    assert expected[27:] == reference_derivatives(ref, t, state[rs.REFERENCE])
+    assert expected[27:] == reference_derivatives(ref, t, state[rs.REFERENCE_STATES])
 
 
 def test_reference_columns_are_the_circle(paper):

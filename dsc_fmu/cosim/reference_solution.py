@@ -15,9 +15,9 @@ from .. import registry
 from ..scenario import Scenario
 
 __all__ = [
-    "PLANT",
-    "CONTROLLER",
-    "REFERENCE",
+    "PLANT_STATES",
+    "CONTROLLER_STATES",
+    "REFERENCE_STATES",
     "output_times",
     "measurements",
     "closed_loop_derivatives",
@@ -25,9 +25,9 @@ __all__ = [
     "reference_solution",
 ]
 
-PLANT = slice(0, 7)
-CONTROLLER = slice(7, 27)
-REFERENCE = slice(27, 30)
+PLANT_STATES = slice(0, 7)
+CONTROLLER_STATES = slice(7, 27)
+REFERENCE_STATES = slice(27, 30)
 
 
 def _norm(values) -> float:
@@ -56,8 +56,8 @@ def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref
     """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by u of (26),
     controller (15)-(27) fed the current measurements, reference robot (9)."""
     state = list(state)
-    plant, reference = state[PLANT], state[REFERENCE]
-    law = control_law(g, state[CONTROLLER], measurements(k, ref_params, t, plant, reference))
+    plant, reference = state[PLANT_STATES], state[REFERENCE_STATES]
+    law = control_law(g, state[CONTROLLER_STATES], measurements(k, ref_params, t, plant, reference))
     return [
         *plant_derivatives(k, plant, law.u1, law.u2),
         *law.derivative,
@@ -97,8 +97,8 @@ def reference_solution(
     guard_count = 0
     for t, state in zip(solution.t, solution.y.T):
         state = list(state)
-        xc = state[CONTROLLER]
-        m = measurements(k, ref, t, state[PLANT], state[REFERENCE])
+        xc = state[CONTROLLER_STATES]
+        m = measurements(k, ref, t, state[PLANT_STATES], state[REFERENCE_STATES])
         law = control_law(g, xc, m)
         guard_count += law.guarded
         W1_hat, W2_hat = xc[W1_SLICE], xc[W2_SLICE]

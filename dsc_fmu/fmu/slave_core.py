@@ -8,12 +8,12 @@ put it on their slave base classes and supply the hooks ``_register``, ``log_err
 
 import math
 
-from ..models.parameters import COUPLINGS
+from ..models.parameters import INPUT_COUPLINGS
 from ..models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
 
 __all__ = ["SlaveCore"]
 
-HOLD, INTERPOLATE = COUPLINGS.index("hold"), COUPLINGS.index("interpolate")
+HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
 
 
 class SlaveCore:

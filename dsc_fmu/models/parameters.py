@@ -16,7 +16,7 @@ __all__ = [
     "PROFILES",
     "DISCRETIZATIONS",
     "START_ON",
-    "COUPLINGS",
+    "INPUT_COUPLINGS",
     "defaults",
 ]
 
@@ -88,7 +88,7 @@ def _per_wheel(name, value, unit, what, bound=POSITIVE):
 # How inputs vary over a communication step (the ``coupling`` parameter): 0 = hold, 1 = extrapolate
 # (linearly from the inputs of the previous communication point to those set for this step's start),
 # 2 = interpolate (the inputs set are those of the step's end, the previous ones those of its start).
-COUPLINGS = ("hold", "extrapolate", "interpolate")
+INPUT_COUPLINGS = ("hold", "extrapolate", "interpolate")
 
 MAX_STEP = Variable(
     "max_step", 1e-3, "s",
@@ -124,7 +124,7 @@ PLANT_PARAMETERS = (
         "How u1, u2 vary over a communication step (docs/model.md §5.10): 0 = hold (constant: zero-order "
         "hold), 1 = extrapolate (linearly from the values of the previous communication point through "
         "those of this one; the first step holds)",
-        NONNEGATIVE, integer=True, maximum=1, choices=COUPLINGS[:2],
+        NONNEGATIVE, integer=True, maximum=1, choices=INPUT_COUPLINGS[:2],
     ),
     MAX_STEP,
 )
@@ -226,7 +226,7 @@ CONTROLLER_PARAMETERS = (
         "them: extrapolated linearly from those of the previous communication point), 2 = interpolate "
         "(they are those of its end, as a Gauss-Seidel master sets them: interpolated linearly from those "
         "of the previous step); the first step holds",
-        NONNEGATIVE, integer=True, maximum=len(COUPLINGS) - 1, choices=COUPLINGS,
+        NONNEGATIVE, integer=True, maximum=len(INPUT_COUPLINGS) - 1, choices=INPUT_COUPLINGS,
     ),
     Variable(
         "beta_min", 0.05, "1",
