@@ -6,7 +6,6 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-import traceback
 from dataclasses import dataclass
 from pathlib import Path
 from zipfile import BadZipFile
@@ -20,7 +19,7 @@ from fmpy.model_description import ValidationError
 
 from ..errors import CosimulationError
 
-__all__ = ["LogMessage", "LoadedFmu", "logging_callbacks", "type_name", "failing_fmu"]
+__all__ = ["LogMessage", "LoadedFmu", "logging_callbacks", "type_name"]
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
@@ -51,9 +50,28 @@ def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
     return callbacks
 
 
-class _Fmi3Slave(FMU3Slave):
+class _Named:
+    """An fmpy slave whose failing FMI calls name their FMU: the FMICallException gets ``fmu``."""
+
+    fmu = "an FMU"
+
+    def _call(self, fname: str, *args):
+        try:
+            return super()._call(fname, *args)
+        except FMICallException as error:
+            error.fmu = self.fmu
+            raise
+
+
+class FMU2SlaveNamed(_Named, FMU2Slave):
+    """fmpy's FMU2Slave, naming its FMU in a failing call (fmpy reads the FMI version from the class
+    name's start)."""
+
+
+class FMU3SlaveNamed(_Named, FMU3Slave):
     """fmpy's FMU3Slave under the FMI 2.0 names the master calls: Real is Float64, Integer is Int32;
-    ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``."""
+    ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``; a failing
+    call names its FMU. (fmpy reads the FMI version from the class name's start.)"""
 
     getReal = FMU3Slave.getFloat64
     setReal = FMU3Slave.setFloat64
@@ -119,13 +137,14 @@ class LoadedFmu:
         """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used); an FMI 3.0
         FMU logs through its own callback instead, into the same log."""
         if self.fmi_version == 3:
-            slave = _Fmi3Slave(guid=self.guid, unzipDirectory=self.folder,
-                               modelIdentifier=self.model_identifier, instanceName=self.name)
+            slave = FMU3SlaveNamed(guid=self.guid, unzipDirectory=self.folder,
+                                   modelIdentifier=self.model_identifier, instanceName=self.name)
             slave.instantiate(loggingOn=True, logMessage=_fmi3_logger(self.log, self.name))
         else:
-            slave = FMU2Slave(guid=self.guid, unzipDirectory=self.folder,
-                              modelIdentifier=self.model_identifier, instanceName=self.name)
+            slave = FMU2SlaveNamed(guid=self.guid, unzipDirectory=self.folder,
+                                   modelIdentifier=self.model_identifier, instanceName=self.name)
             slave.instantiate(callbacks=callbacks, loggingOn=True)
+        slave.fmu = self.name
         self.slave = slave  # only an instantiated slave is freed
         self.used = False
 
@@ -210,13 +229,3 @@ class LoadedFmu:
             self.free()
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
-
-
-def failing_fmu(error: FMICallException, fmus: list[LoadedFmu]) -> str:
-    """Name of the FMU whose call raised ``error``: the ``self`` of fmpy's frame that raised it."""
-    slaves = {id(fmu.slave): fmu.name for fmu in fmus}
-    for frame, _ in traceback.walk_tb(error.__traceback__):
-        name = slaves.get(id(frame.f_locals.get("self")))
-        if name is not None:
-            return name
-    return "an FMU"

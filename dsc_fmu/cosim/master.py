@@ -18,7 +18,7 @@ from ..errors import CosimulationError
 from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
 from ..scenario import Scenario, ScenarioError
 from . import signals
-from .instance import LoadedFmu, LogMessage, failing_fmu, logging_callbacks, type_name
+from .instance import LoadedFmu, LogMessage, logging_callbacks, type_name
 from .derivatives import InputRamps
 from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
 
@@ -62,7 +62,8 @@ class Cosimulator:
     ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances
     are reset (``fmi2Reset`` / ``fmi3Reset``) instead of extracted again, and an instance that cannot be reset is
     freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every instance and
-    removes the extracted folders. One Cosimulator serves one thread at a time.
+    removes the extracted folders. One Cosimulator serves one thread at a time; what a run needs
+    beyond the loaded FMUs and their wiring lives in that run's own object.
     """
 
     def __init__(self, fmu_paths: dict[str, Path], workdir: Path | None = None):
@@ -70,7 +71,6 @@ class Cosimulator:
         self.paths = paths
         self.fmus = {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()}
         self.runs = 0
-        self._ramps = None
         self.log: list[LogMessage] = []
         self._callbacks = logging_callbacks(self.log)
         self._loaded: list[LoadedFmu] = []
@@ -79,30 +79,10 @@ class Cosimulator:
             for name in ORDER:
                 self._loaded.append(LoadedFmu(name, workdir, self.log))
                 self._loaded[-1].load(paths[name], self._callbacks)
-            self._wire()
+            self._wiring = _Wiring({fmu.name: fmu for fmu in self._loaded})
         except BaseException:
             self.close()
             raise
-
-    def _wire(self) -> None:
-        """Look up, once, the value references the exchange and the recording use."""
-        for fmu in self._loaded:  # each FMU has the outputs recorded from it: a wrong file fails here
-            fmu.refs(signals.RECORDED[fmu.name])
-        ref, plant, ctl = self._loaded
-        self.measured_plant = [name for name in ctl.inputs if name in plant.outputs]
-        self.measured_ref = [name for name in ctl.inputs if name not in plant.outputs]
-        self.plant_out, self.ref_out = plant.refs(self.measured_plant), ref.refs(self.measured_ref)
-        self.ctl_in = ctl.refs(self.measured_plant + self.measured_ref)
-        self.ctl_u, self.plant_u = ctl.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
-        self.checked = [f"{PLANT}.{s}" for s in self.measured_plant] + [f"{REFERENCE}.{s}" for s in self.measured_ref]
-        self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
-        self.readers, offset = [], 1  # (FMU index, kind, value references, table columns) of every recorded output
-        for index, fmu in enumerate(self._loaded):
-            names = signals.RECORDED[fmu.name]
-            for kind in ("Real", "Integer"):
-                chosen = [i for i, name in enumerate(names) if type_name(fmu.variable(name)) == kind]
-                self.readers.append((index, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
-            offset += len(names)
 
     def __enter__(self) -> Cosimulator:
         return self
@@ -130,120 +110,176 @@ class Cosimulator:
         scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                             output_interval=output_interval, coupling=coupling, tolerance=tolerance,
                                             input_derivatives=input_derivatives)
-        settings = scenario.simulation
-        n = step_count(settings.stop_time, settings.step_size)
-        every = max(1, round(settings.output_interval / settings.step_size))
         started = clock.perf_counter()
         self._prepare()
         self.runs += 1
         self.log.clear()
-        recorder = _Recorder(self, n // every + 1 + (n % every != 0))
-        self._at = (0, 0.0)
-        self._ramps = self._input_ramps(scenario) if settings.input_derivatives else None
-        controlled = None
-        try:
-            for fmu in self._loaded:
-                fmu.initialise(settings.stop_time,
-                               scenario.parameters(fmu.name, slopes_from_master=settings.input_derivatives))
-            if settings.tolerance is None:
-                self._steps(settings, n, every, recorder)
-            else:
-                controlled = self._controlled(settings, recorder)
-        except CosimulationError as error:
-            error.result, error.steps = recorder.result(), self._at[0]
-            raise
-        except FMICallException as error:
-            raise self._failure(error, recorder) from None
-        finally:
-            for fmu in reversed(self._loaded):
-                fmu.terminate()
+        run = _Run(scenario, self._wiring, self.log)
+        run.execute(self._loaded)
         return CosimulationResult(
-            result=recorder.result(),
-            steps=n if controlled is None else len(controlled.times),
+            result=run.recorder.result(),
+            steps=run.steps(),
             wall_time=clock.perf_counter() - started,
-            settings={"scenario": scenario.name, "step_size": settings.step_size, "order": settings.order,
-                      "coupling": settings.coupling, "stop_time": settings.stop_time,
-                      "output_interval": settings.output_interval, "tolerance": settings.tolerance,
-                      "input_derivatives": settings.input_derivatives},
+            settings=run.settings_record(),
             log=list(self.log),
             fmus={name: dict(entry) for name, entry in self.fmus.items()},
-            fmu_steps=3 * n if controlled is None else controlled.fmu_steps,
-            rejected=0 if controlled is None else controlled.rejected,
-            step_sizes=None if controlled is None else controlled.table(),
+            fmu_steps=run.fmu_steps(),
+            rejected=0 if run.controlled is None else run.controlled.rejected,
+            step_sizes=None if run.controlled is None else run.controlled.table(),
         )
 
-    def _steps(self, settings, n: int, every: int, recorder: _Recorder) -> None:
-        """The exchanges and steps of one run, as ``cosimulate`` describes them; ``self._at`` follows
+
+class _Wiring:
+    """The three loaded FMUs by role and the value references of the exchange and the recording,
+    looked up once per load."""
+
+    def __init__(self, fmus: dict[str, LoadedFmu]):
+        for fmu in fmus.values():  # each FMU has the outputs recorded from it: a wrong file fails here
+            fmu.refs(signals.RECORDED[fmu.name])
+        self.fmus = fmus
+        reference, plant, controller = fmus[REFERENCE], fmus[PLANT], fmus[CONTROLLER]
+        measured_plant = [name for name in controller.inputs if name in plant.outputs]
+        measured_reference = [name for name in controller.inputs if name not in plant.outputs]
+        self.plant_out, self.reference_out = plant.refs(measured_plant), reference.refs(measured_reference)
+        self.controller_in = controller.refs(measured_plant + measured_reference)
+        self.controller_u, self.plant_u = controller.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
+        self.checked = [f"{PLANT}.{s}" for s in measured_plant] + [f"{REFERENCE}.{s}" for s in measured_reference]
+        self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
+        self.readers, offset = [], 1  # (FMU, kind, value references, table columns) of every recorded output
+        for name, names in signals.RECORDED.items():
+            fmu = fmus[name]
+            for kind in ("Real", "Integer"):
+                chosen = [i for i, output in enumerate(names) if type_name(fmu.variable(output)) == kind]
+                self.readers.append((fmu, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
+            offset += len(names)
+
+
+class _Run:
+    """One run: its scenario and settings (validated where they entered), the FMUs by role, the
+    recorder, the voltages of the last exchange, the master's input ramps, the error-controlled
+    steps, and where the run is (for the message of a failure)."""
+
+    def __init__(self, scenario: Scenario, wiring: _Wiring, log: list[LogMessage]):
+        self.scenario, self.settings, self.wiring, self.log = scenario, scenario.simulation, wiring, log
+        fmus = wiring.fmus
+        self.reference, self.plant, self.controller = (fmus[name].slave for name in (REFERENCE, PLANT, CONTROLLER))
+        settings = self.settings
+        self.n = step_count(settings.stop_time, settings.step_size)
+        self.every = max(1, round(settings.output_interval / settings.step_size))
+        self.recorder = _Recorder(wiring, self.n // self.every + 1 + (self.n % self.every != 0))
+        self.at = (0, 0.0)
+        self.u = None
+        self.ramps = self._input_ramps() if settings.input_derivatives else None
+        self.controlled = None
+
+    def execute(self, fmus: list[LoadedFmu]) -> None:
+        """Initialise the FMUs (in ``fmus``' order) and run; every FMU is terminated at the end."""
+        settings = self.settings
+        try:
+            for fmu in fmus:
+                fmu.initialise(settings.stop_time,
+                               self.scenario.parameters(fmu.name, slopes_from_master=settings.input_derivatives))
+            if settings.tolerance is None:
+                self._steps()
+            else:
+                self.controlled = self._controlled()
+        except CosimulationError as error:
+            error.result, error.steps = self.recorder.result(), self.at[0]
+            raise
+        except FMICallException as error:
+            raise self._failure(error) from None
+        finally:
+            for fmu in reversed(fmus):
+                fmu.terminate()
+
+    def steps(self) -> int:
+        """The communication steps taken (accepted ones, for an error-controlled run)."""
+        return self.n if self.controlled is None else len(self.controlled.times)
+
+    def fmu_steps(self) -> int:
+        return 3 * self.n if self.controlled is None else self.controlled.fmu_steps
+
+    def settings_record(self) -> dict:
+        settings = self.settings
+        return {"scenario": self.scenario.name, "step_size": settings.step_size, "order": settings.order,
+                "coupling": settings.coupling, "stop_time": settings.stop_time,
+                "output_interval": settings.output_interval, "tolerance": settings.tolerance,
+                "input_derivatives": settings.input_derivatives}
+
+    def _steps(self) -> None:
+        """The exchanges and steps of a fixed-step run, as ``cosimulate`` describes them; ``at`` follows
         (steps completed, time) for the messages of a failure."""
-        h, stop = settings.step_size, settings.stop_time
-        self._start(settings, recorder)
+        h, stop, n, every = self.settings.step_size, self.settings.stop_time, self.n, self.every
+        self._start()
         for k in range(n):
             t = k * h
-            self._at = (k, t)
+            self.at = (k, t)
             end = stop if k == n - 1 else (k + 1) * h
-            self._advance(t, end - t if k == n - 1 else h, end, settings)
+            self._advance(t, end - t if k == n - 1 else h, end)
             if (k + 1) % every == 0 or k == n - 1:
-                recorder.record(end)
+                self.recorder.record(end)
 
-    def _start(self, settings, recorder: _Recorder) -> None:
+    def _start(self) -> None:
         """The measurements at t = 0 (checked), the exchange there and its row."""
-        ref, plant = self._loaded[0].slave, self._loaded[1].slave
-        measurements = plant.getReal(self.plant_out) + ref.getReal(self.ref_out)
-        _check(measurements, self.checked, 0.0, settings.bound)
-        self._exchange(0.0, measurements, True, settings.bound)
-        recorder.record(0.0)
+        wiring = self.wiring
+        measurements = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
+        _check(measurements, wiring.checked, 0.0, self.settings.bound)
+        self._exchange(0.0, measurements, True)
+        self.recorder.record(0.0)
 
-    def _advance(self, t: float, step: float, end: float, settings) -> list:
+    def _advance(self, t: float, step: float, end: float) -> list:
         """One communication step of ``step`` from ``t`` and the exchange at its ``end``: the reference
         and the plant step, then (Gauss-Seidel) the controller's inputs are set from their new outputs,
         the controller steps, and its ``u`` goes to the plant. Returns the measurements at ``end``."""
-        ref, plant, ctl = (fmu.slave for fmu in self._loaded)
-        jacobi, bound, ramps = settings.order == "jacobi", settings.bound, self._ramps
+        wiring, ramps = self.wiring, self.ramps
+        jacobi = self.settings.order == "jacobi"
         if ramps is not None:
             ramps.before_plant()
-        ref.doStep(t, step)
-        plant.doStep(t, step)
-        measured = plant.getReal(self.plant_out) + ref.getReal(self.ref_out)
-        _check(measured, self.checked, end, bound)
+        self.reference.doStep(t, step)
+        self.plant.doStep(t, step)
+        measured = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
+        _check(measured, wiring.checked, end, self.settings.bound)
         if ramps is not None:
             ramps.before_controller(step, measured)
         elif not jacobi:
-            ctl.setReal(self.ctl_in, measured)
-        ctl.doStep(t, step)
-        self._at = (self._at[0] + 1, end)
-        self._exchange(end, measured, jacobi or ramps is not None, bound)
+            self.controller.setReal(wiring.controller_in, measured)
+        self.controller.doStep(t, step)
+        self.at = (self.at[0] + 1, end)
+        self._exchange(end, measured, jacobi or ramps is not None)
         return measured
 
-    def _input_ramps(self, scenario: Scenario) -> InputRamps:
+    def _input_ramps(self) -> InputRamps:
         """The master's input derivatives for the linear coupling; ScenarioError with FMI 3.0 FMUs."""
-        if any(fmu.fmi_version != 2 for fmu in self._loaded):
-            raise ScenarioError(f"{scenario.source}: [simulation] input_derivatives = true needs FMI 2.0 FMUs (FMI 3.0 "
-                                "has no fmi3SetInputDerivatives); allowed: FMI 2.0 FMUs, or the coupling parameters "
-                                "(input_derivatives = false)")
-        plant, ctl = self._loaded[1].slave, self._loaded[2].slave
-        return InputRamps(plant, self.plant_u, ctl, self.ctl_in, scenario.simulation.order == "jacobi")
+        if any(fmu.fmi_version != 2 for fmu in self.wiring.fmus.values()):
+            raise ScenarioError(f"{self.scenario.source}: [simulation] input_derivatives = true needs FMI 2.0 FMUs "
+                                "(FMI 3.0 has no fmi3SetInputDerivatives); allowed: FMI 2.0 FMUs, or the coupling "
+                                "parameters (input_derivatives = false)")
+        wiring = self.wiring
+        return InputRamps(self.plant, wiring.plant_u, self.controller, wiring.controller_in,
+                          self.settings.order == "jacobi")
 
-    def _controlled(self, settings, recorder: _Recorder) -> ControlledSteps:
+    def _controlled(self) -> ControlledSteps:
         """An error-controlled run (``step_control``): each step's position error estimated from the
         defect of ``u`` at its end; a step that misses the tolerance is taken again, smaller, from the
         FMU states saved before it."""
+        settings = self.settings
         tolerance, order, gain = settings.tolerance, COUPLING_ORDER[settings.coupling], settings.error_gain
         h_min, h_max, stop = settings.h_min, settings.h_max, settings.stop_time
-        slaves = [fmu.slave for fmu in self._loaded]
+        slaves = [self.reference, self.plant, self.controller]
         done = ControlledSteps()
-        self._start(settings, recorder)
-        u, u_before, h_before = self._u, None, None
+        self._start()
+        u, u_before, h_before = self.u, None, None
         t, h = 0.0, min(h_max, max(h_min, settings.step_size))
         while t < stop:
             h = min(h, stop - t)
             end = stop if stop - t - h < h_min * (1 - 1e-9) else t + h  # no last step shorter than h_min
             taken = end - t
-            self._at = (len(done.times), t)
+            self.at = (len(done.times), t)
             saved = [slave.getFMUState() for slave in slaves]
             try:
                 try:
-                    self._advance(t, taken, end, settings)
-                    error = gain * defect(u, self._u, u_before if order == 2 else None, taken, h_before)
+                    self._advance(t, taken, end)
+                    error = gain * defect(u, self.u, u_before if order == 2 else None, taken, h_before)
                 except (CosimulationError, FMICallException):
                     if taken <= h_min:
                         raise
@@ -253,8 +289,8 @@ class Cosimulator:
                     done.times.append(t)
                     done.sizes.append(taken)
                     done.errors.append(error)
-                    t, u, u_before, h_before = end, self._u, u, taken
-                    recorder.record(t)
+                    t, u, u_before, h_before = end, self.u, u, taken
+                    self.recorder.record(t)
                 elif taken <= h_min:
                     raise CosimulationError(
                         f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
@@ -262,36 +298,34 @@ class Cosimulator:
                         "h_min or a larger tolerance", t)
                 else:
                     done.rejected += 1
-                    self._restore(saved)
+                    for slave, state in zip(slaves, saved):
+                        slave.setFMUState(state)
             finally:
                 for slave, state in zip(slaves, saved):
                     slave.freeFMUState(state)
             h = next_step(taken, error, tolerance, order, h_min, h_max)
         return done
 
-    def _restore(self, saved: list) -> None:
-        for fmu, state in zip(self._loaded, saved):
-            fmu.slave.setFMUState(state)
-
-    def _exchange(self, at: float, measurements: list, set_inputs: bool, bound: float) -> None:
+    def _exchange(self, at: float, measurements: list, set_inputs: bool) -> None:
         """The exchange at a communication point: the controller's inputs (if ``set_inputs``), then
         its ``u`` (checked) to the plant."""
-        ctl, plant = self._loaded[2].slave, self._loaded[1].slave
+        wiring = self.wiring
         if set_inputs:
-            ctl.setReal(self.ctl_in, measurements)
-        u = ctl.getReal(self.ctl_u)
-        _check(u, _U_NAMES, at, bound)
-        plant.setReal(self.plant_u, u)
-        self._u = u
-        if self._ramps is not None:
-            self._ramps.exchanged(at, u, measurements)
+            self.controller.setReal(wiring.controller_in, measurements)
+        u = self.controller.getReal(wiring.controller_u)
+        _check(u, _U_NAMES, at, self.settings.bound)
+        self.plant.setReal(wiring.plant_u, u)
+        self.u = u
+        if self.ramps is not None:
+            self.ramps.exchanged(at, u, measurements)
 
-    def _failure(self, error: FMICallException, recorder: _Recorder) -> CosimulationError:
-        """The CosimulationError of a failing FMI call: the FMU, the time and its last log messages."""
-        (k, t), name = self._at, failing_fmu(error, self._loaded)
+    def _failure(self, error: FMICallException) -> CosimulationError:
+        """The CosimulationError of a failing FMI call: the FMU that the call named, the time and that
+        FMU's last log messages."""
+        (k, t), name = self.at, getattr(error, "fmu", "an FMU")
         messages = "; ".join([f"[{m.status}] {m.message}" for m in self.log if m.fmu == name][-3:]) or "none"
         failure = CosimulationError(f"{name} failed at t = {t:.6g} s: {error} Its last log messages: {messages}", t)
-        failure.result, failure.steps, failure.fmu = recorder.result(), k, name
+        failure.result, failure.steps, failure.fmu = self.recorder.result(), k, name
         return failure
 
 
@@ -310,13 +344,12 @@ def _check(values, names, at: float, bound: float) -> None:
 class _Recorder:
     """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``."""
 
-    def __init__(self, simulator: Cosimulator, rows: int):
-        self.columns = simulator.columns
+    def __init__(self, wiring: _Wiring, rows: int):
+        self.columns = wiring.columns
         self.table = np.full((rows, len(self.columns)), np.nan)
         self.rows = 0
-        fmus = simulator._loaded
-        self.readers = [((fmus[i].slave.getReal if kind == "Real" else fmus[i].slave.getInteger), refs, cols)
-                        for i, kind, refs, cols in simulator.readers if refs]
+        self.readers = [((fmu.slave.getReal if kind == "Real" else fmu.slave.getInteger), refs, cols)
+                        for fmu, kind, refs, cols in wiring.readers if refs]
 
     def record(self, at: float) -> None:
         if self.rows == len(self.table):  # an error-controlled run: as many rows as accepted steps
@@ -386,12 +419,11 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     shrinks with the estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every
     accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
     """
-    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance,
-                                        input_derivatives=input_derivatives)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
-        run = simulator.run(scenario)
+        run = simulator.run(scenario, step_size=step_size, stop_time=stop_time, order=order,
+                            output_interval=output_interval, coupling=coupling, tolerance=tolerance,
+                            input_derivatives=input_derivatives)
     run.wall_time = clock.perf_counter() - started
     return run
 
