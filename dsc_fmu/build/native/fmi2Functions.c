@@ -245,33 +245,5 @@ fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boo
 
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 
-fmi2Status fmi2GetFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    BEGIN(fmi2GetFMUstate);
-    END(instance_get_state(instance, "fmi2GetFMUstate", FMUstate));
-}
-
-fmi2Status fmi2SetFMUstate(fmi2Component c, fmi2FMUstate FMUstate) {
-    BEGIN(fmi2SetFMUstate);
-    END(instance_set_state(instance, "fmi2SetFMUstate", FMUstate));
-}
-
-fmi2Status fmi2FreeFMUstate(fmi2Component c, fmi2FMUstate *FMUstate) {
-    BEGIN(fmi2FreeFMUstate);
-    END(instance_free_state(instance, "fmi2FreeFMUstate", FMUstate));
-}
-
-fmi2Status fmi2SerializedFMUstateSize(fmi2Component c, fmi2FMUstate FMUstate, size_t *size) {
-    BEGIN(fmi2SerializedFMUstateSize);
-    END(instance_serialized_size(instance, "fmi2SerializedFMUstateSize", FMUstate, size));
-}
-
-fmi2Status fmi2SerializeFMUstate(fmi2Component c, fmi2FMUstate FMUstate, fmi2Byte serializedState[], size_t size) {
-    BEGIN(fmi2SerializeFMUstate);
-    END(instance_serialize(instance, "fmi2SerializeFMUstate", FMUstate, serializedState, size));
-}
-
-fmi2Status fmi2DeSerializeFMUstate(fmi2Component c, const fmi2Byte serializedState[], size_t size,
-                                   fmi2FMUstate *FMUstate) {
-    BEGIN(fmi2DeSerializeFMUstate);
-    END(instance_deserialize(instance, "fmi2DeSerializeFMUstate", serializedState, size, FMUstate));
-}
+FMU_STATE_FUNCTIONS(fmi2Status, fmi2Component, fmi2FMUstate, fmi2Byte, fmi2GetFMUstate, fmi2SetFMUstate,
+                    fmi2FreeFMUstate, fmi2SerializedFMUstateSize, fmi2SerializeFMUstate, fmi2DeSerializeFMUstate)

@@ -223,36 +223,8 @@ ABSENT(fmi3SetClock, CLOCKS, "Clock", const fmi3Clock values[])
 
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 
-fmi3Status fmi3GetFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
-    BEGIN(fmi3GetFMUState);
-    END(instance_get_state(instance, "fmi3GetFMUState", FMUState));
-}
-
-fmi3Status fmi3SetFMUState(fmi3Instance c, fmi3FMUState FMUState) {
-    BEGIN(fmi3SetFMUState);
-    END(instance_set_state(instance, "fmi3SetFMUState", FMUState));
-}
-
-fmi3Status fmi3FreeFMUState(fmi3Instance c, fmi3FMUState *FMUState) {
-    BEGIN(fmi3FreeFMUState);
-    END(instance_free_state(instance, "fmi3FreeFMUState", FMUState));
-}
-
-fmi3Status fmi3SerializedFMUStateSize(fmi3Instance c, fmi3FMUState FMUState, size_t *size) {
-    BEGIN(fmi3SerializedFMUStateSize);
-    END(instance_serialized_size(instance, "fmi3SerializedFMUStateSize", FMUState, size));
-}
-
-fmi3Status fmi3SerializeFMUState(fmi3Instance c, fmi3FMUState FMUState, fmi3Byte serializedState[], size_t size) {
-    BEGIN(fmi3SerializeFMUState);
-    END(instance_serialize(instance, "fmi3SerializeFMUState", FMUState, (char *)serializedState, size));
-}
-
-fmi3Status fmi3DeserializeFMUState(fmi3Instance c, const fmi3Byte serializedState[], size_t size, fmi3FMUState *FMUState) {
-    BEGIN(fmi3DeserializeFMUState);
-    END(instance_deserialize(instance, "fmi3DeserializeFMUState", (const char *)serializedState, size,
-                                            FMUState));
-}
+FMU_STATE_FUNCTIONS(fmi3Status, fmi3Instance, fmi3FMUState, fmi3Byte, fmi3GetFMUState, fmi3SetFMUState,
+                    fmi3FreeFMUState, fmi3SerializedFMUStateSize, fmi3SerializeFMUState, fmi3DeserializeFMUState)
 
 /* --- what these FMUs do not offer ------------------------------------------------------------------------- */
 

@@ -100,4 +100,33 @@ int instance_serialized_size(Instance *instance, const char *function, void *sta
 int instance_serialize(Instance *instance, const char *function, void *state, char *buffer, size_t size);
 int instance_deserialize(Instance *instance, const char *function, const char *buffer, size_t size, void **state);
 
+/* For the adapters: the six FMU-state functions of one FMI version under its names and types, each
+   guarded by the adapter's BEGIN (its mask MASK_<name>) and ended by its END. */
+#define FMU_STATE_FUNCTIONS(Status, Component, FMUState, Byte, Get, Set, Free, SerializedSize, Serialize,        \
+                            Deserialize)                                                                       \
+    Status Get(Component c, FMUState *state) {                                                                 \
+        BEGIN(Get);                                                                                            \
+        END(instance_get_state(instance, #Get, state));                                                        \
+    }                                                                                                          \
+    Status Set(Component c, FMUState state) {                                                                  \
+        BEGIN(Set);                                                                                            \
+        END(instance_set_state(instance, #Set, state));                                                        \
+    }                                                                                                          \
+    Status Free(Component c, FMUState *state) {                                                                \
+        BEGIN(Free);                                                                                           \
+        END(instance_free_state(instance, #Free, state));                                                      \
+    }                                                                                                          \
+    Status SerializedSize(Component c, FMUState state, size_t *size) {                                         \
+        BEGIN(SerializedSize);                                                                                 \
+        END(instance_serialized_size(instance, #SerializedSize, state, size));                                 \
+    }                                                                                                          \
+    Status Serialize(Component c, FMUState state, Byte serialized[], size_t size) {                            \
+        BEGIN(Serialize);                                                                                      \
+        END(instance_serialize(instance, #Serialize, state, (char *)serialized, size));                        \
+    }                                                                                                          \
+    Status Deserialize(Component c, const Byte serialized[], size_t size, FMUState *state) {                   \
+        BEGIN(Deserialize);                                                                                    \
+        END(instance_deserialize(instance, #Deserialize, (const char *)serialized, size, state));              \
+    }
+
 #endif
