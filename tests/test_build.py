@@ -8,6 +8,7 @@ import zipfile
 import pytest
 
 from dsc_fmu.build import fmus as build
+from dsc_fmu.build.binary import BinaryBuildError
 from dsc_fmu.build.fmus import ensure_fmus, source_hash
 from dsc_fmu.identity import BUILD_ID_FILE, fmu_build_id
 from dsc_fmu.registry import FMUS
@@ -81,3 +82,10 @@ def test_fmus_are_written_with_the_users_usual_permissions(tmp_path, umask):
         os.umask(old)
     assert stat.S_IMODE(path.stat().st_mode) == 0o666 & ~umask
     assert [p.name for p in tmp_path.iterdir()] == ["ReferenceRobot.fmu"]  # no partial file left
+
+
+def test_a_public_import_of_the_fmi_library_fails_the_build(patched_mobile_robot):
+    """Every bundled import of pythonfmu must be one the build can make private; any other form would
+    load whatever pythonfmu the importing process has."""
+    with pytest.raises(BinaryBuildError, match=r"imports pythonfmu by its public name \(import pythonfmu\)"):
+        patched_mobile_robot("from dsc_fmu.fmu.fmi2 import DscSlave", "\nimport pythonfmu\n", "public")
