@@ -123,11 +123,9 @@ class Scenario:
         return {**getattr(self, table), "coupling": INPUT_COUPLINGS.index("hold") if slopes_from_master else coupling}
 
     def with_simulation(self, **settings) -> Scenario:
-        """This scenario with some simulation settings replaced and checked (None leaves a setting as it
-        is; with nothing replaced, this scenario, checked when it was made)."""
+        """This scenario with some simulation settings replaced (None leaves a setting as it is), all of
+        them checked."""
         changed = {k: v for k, v in settings.items() if v is not None}
-        if not changed:
-            return self
         unknown = set(changed) - {f.name for f in dataclasses.fields(Simulation)}
         if unknown:
             raise ScenarioError(f"{self.source}: unknown simulation setting {sorted(unknown)[0]}")

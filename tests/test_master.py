@@ -158,8 +158,15 @@ def test_failing_fmi_call_names_the_fmu_and_its_log(paper, fmu_paths):
     with pytest.raises(CosimulationError, match=r"MobileRobot failed at t = .* s: fmi2DoStep .*not finite") as info:
         cosimulate(paper.with_simulation(bound=1e300), fmu_paths, step_size=0.1, stop_time=10.0)
     error = info.value
-    assert error.signal is None and len(error.result) > 0
+    assert error.signal is None and len(error.result) > 0 and error.fmu == "MobileRobot"
     assert np.all(error.result["time"] <= error.time)
+    assert error.steps == round(error.time / 0.1)  # the steps completed before the failing one
+
+
+def test_a_failing_fmi3_call_names_its_fmu_too(paper, fmu3_paths):
+    with pytest.raises(CosimulationError, match=r"MobileRobot failed at t = .* s: fmi3DoStep ") as info:
+        cosimulate(paper.with_simulation(bound=1e300), fmu3_paths, step_size=0.1, stop_time=10.0)
+    assert info.value.fmu == "MobileRobot"
 
 
 @pytest.mark.parametrize("setting", [

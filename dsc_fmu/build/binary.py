@@ -96,8 +96,8 @@ def _c_string(text: str) -> str:
 def _contract() -> list[str]:
     """The codes of ``fmu/native_bridge.py``, their owner, as the defines ``slave.h`` takes them."""
     tables = {"TYPE": TYPES, "CAUSALITY": CAUSALITIES, "VARIABILITY": VARIABILITIES}
-    return [f"-DDSC_{kind}_{name.upper()}={code}" for kind, table in tables.items() for name, code in table.items()
-            if not (kind == "TYPE" and name in ("Float64", "Int32"))]
+    named = {(kind, code): name for kind, table in tables.items() for name, code in reversed(table.items())}
+    return [f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()]
 
 
 def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str]:

@@ -126,7 +126,8 @@ def _private(name: str, data: bytes, package: str, library: str) -> tuple[str, b
         name = f"resources/{package}/{library}/{name[len(public):]}"
     if name.startswith("resources/") and name.endswith(".py"):
         text = re.sub(rf"^(\s*from\s+){library}\b", rf"\g<1>{package}.{library}", data.decode("utf-8"), flags=re.M)
-        public = re.search(rf"^\s*import\s+{library}\b|import_module\(\s*['\"]{library}\b", text, flags=re.M)
+        public = re.search(rf"\bimport\s+(?:[\w.]+\s*,\s*)*{library}\b"
+                           rf"|(?:import_module|__import__)\(\s*['\"]{library}\b", text)
         if public:
             raise BinaryBuildError(f"{name} imports {library} by its public name ({public.group().strip()}); "
                                    f"allowed: 'from {library}... import ...', which the build makes private")

@@ -107,9 +107,13 @@ class Cosimulator:
             tolerance: float | None = None, input_derivatives: bool | None = None) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
         ``wall_time`` counts this run only (not loading the FMUs)."""
-        scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                            output_interval=output_interval, coupling=coupling, tolerance=tolerance,
-                                            input_derivatives=input_derivatives)
+        return self._run(scenario.with_simulation(
+            step_size=step_size, stop_time=stop_time, order=order, output_interval=output_interval,
+            coupling=coupling, tolerance=tolerance, input_derivatives=input_derivatives))
+
+    def _run(self, scenario: Scenario) -> CosimulationResult:
+        """``run`` of a scenario whose settings are checked already."""
+        _check_interfaces(scenario, self._loaded)
         started = clock.perf_counter()
         self._prepare()
         self.runs += 1
@@ -249,11 +253,7 @@ class _Run:
         return measured
 
     def _input_ramps(self) -> InputRamps:
-        """The master's input derivatives for the linear coupling; ScenarioError with FMI 3.0 FMUs."""
-        if any(fmu.fmi_version != 2 for fmu in self.wiring.fmus.values()):
-            raise ScenarioError(f"{self.scenario.source}: [simulation] input_derivatives = true needs FMI 2.0 FMUs "
-                                "(FMI 3.0 has no fmi3SetInputDerivatives); allowed: FMI 2.0 FMUs, or the coupling "
-                                "parameters (input_derivatives = false)")
+        """The master's input derivatives for the linear coupling (FMI 2.0 FMUs: ``_check_interfaces``)."""
         wiring = self.wiring
         return InputRamps(self.plant, wiring.plant_u, self.controller, wiring.controller_in,
                           self.settings.order == "jacobi")
@@ -330,6 +330,14 @@ class _Run:
 
 
 _U_NAMES = (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2")
+
+
+def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
+    """ScenarioError if the scenario asks the FMUs for what their FMI version lacks (before any FMU is touched)."""
+    if scenario.simulation.input_derivatives and any(fmu.fmi_version != 2 for fmu in fmus):
+        raise ScenarioError(f"{scenario.source}: [simulation] input_derivatives = true needs FMI 2.0 FMUs "
+                            "(FMI 3.0 has no fmi3SetInputDerivatives); allowed: FMI 2.0 FMUs, or the coupling "
+                            "parameters (input_derivatives = false)")
 
 
 def _check(values, names, at: float, bound: float) -> None:
@@ -419,11 +427,12 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     shrinks with the estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every
     accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
     """
+    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
+                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance,
+                                        input_derivatives=input_derivatives)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
-        run = simulator.run(scenario, step_size=step_size, stop_time=stop_time, order=order,
-                            output_interval=output_interval, coupling=coupling, tolerance=tolerance,
-                            input_derivatives=input_derivatives)
+        run = simulator._run(scenario)
     run.wall_time = clock.perf_counter() - started
     return run
 

@@ -61,7 +61,9 @@ typedef struct Ended {
 static pthread_mutex_t ended_lock = PTHREAD_MUTEX_INITIALIZER;
 static pthread_cond_t ended_signal = PTHREAD_COND_INITIALIZER;
 static Ended *ended;
-static int reaper_started;
+static int reaper_started; /* one reaper for each loaded copy of this binary (each FMU's file) */
+static PyInterpreterState *interpreter; /* the one whose thread states this binary makes */
+static int (*is_finalizing)(void);      /* Py_IsFinalizing (3.13) or _Py_IsFinalizing, where exported */
 static char start_error[2048];
 static wchar_t *home_wide;
 
@@ -76,7 +78,7 @@ static const Symbol SYMBOLS[] = {
     SYMBOL(PyConfig_Clear), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale), SYMBOL(Py_GetVersion),
     SYMBOL(PyEval_SaveThread), SYMBOL(PyEval_RestoreThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
     SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyInterpreterState_Main), SYMBOL(PyThreadState_New),
-    SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_Delete),
+    SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_Delete), SYMBOL(PyThreadState_DeleteCurrent),
     SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString), SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str),
     SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8), SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong),
     SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble), SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong),
@@ -198,6 +200,9 @@ static int adopt(void *library, const char *home, const char *what) {
         append(start_error, sizeof start_error, "%s: no symbol %s; ", what, missing);
         return -1;
     }
+    void *finalizing = dlsym(library, "Py_IsFinalizing");
+    if (!finalizing) finalizing = dlsym(library, "_Py_IsFinalizing");
+    memcpy(&is_finalizing, &finalizing, sizeof finalizing);
     const char *version = py.Py_GetVersion();
     if (!right_version(version)) {
         append(start_error, sizeof start_error, "%s: Python %.20s, not %s; ", what, version, DSC_PYTHON_VERSION);
@@ -241,18 +246,21 @@ static int try_library(const char *path, const char *home, const char *what) {
     return 0;
 }
 
-/* Delete the thread states in `list` (their threads have ended) and free the list; `own`: the
-   reaper's thread state, made on first use. The reaper never uses PyGILState: since 3.12, deleting
-   another thread's state unbinds the deleting thread's own. */
-static void delete_ended(Ended *list, PyThreadState **own) {
-    if (py.Py_IsInitialized()) {
-        if (!*own) *own = py.PyThreadState_New(py.PyInterpreterState_Main());
-        py.PyEval_RestoreThread(*own);
-        for (Ended *e = list; e; e = e->next) {
-            py.PyThreadState_Clear(e->state);
-            py.PyThreadState_Delete(e->state);
-        }
-        py.PyEval_SaveThread();
+/* Delete the thread states in `list` (their threads have ended) and free the list. The reaper takes
+   the GIL with a thread state of its own for the batch and never uses PyGILState: since 3.12,
+   deleting another thread's state unbinds the deleting thread's own, so every state is cleared
+   (which may run Python code) before any is deleted. Nothing is touched while Python finalizes or
+   after it was started anew (the states belong to an interpreter that is gone). */
+static void delete_ended(Ended *list) {
+    int alive = py.Py_IsInitialized() && !(is_finalizing && is_finalizing()) &&
+                py.PyInterpreterState_Main() == interpreter;
+    PyThreadState *own = alive ? py.PyThreadState_New(interpreter) : NULL;
+    if (own) {
+        py.PyEval_RestoreThread(own);
+        for (Ended *e = list; e; e = e->next) py.PyThreadState_Clear(e->state);
+        py.PyThreadState_Clear(own);
+        for (Ended *e = list; e; e = e->next) py.PyThreadState_Delete(e->state);
+        py.PyThreadState_DeleteCurrent();
     }
     while (list) {
         Ended *next = list->next;
@@ -262,14 +270,13 @@ static void delete_ended(Ended *list, PyThreadState **own) {
 }
 
 static void *reap(void *unused) {
-    PyThreadState *own = NULL;
     pthread_mutex_lock(&ended_lock);
     for (;;) {
         while (!ended) pthread_cond_wait(&ended_signal, &ended_lock);
         Ended *list = ended;
         ended = NULL;
         pthread_mutex_unlock(&ended_lock);
-        delete_ended(list, &own);
+        delete_ended(list);
         pthread_mutex_lock(&ended_lock);
     }
     return NULL;
@@ -324,10 +331,35 @@ static int find_and_start(void) {
     return try_library(DSC_PYTHON_SONAME, NULL, "the system's");
 }
 
+static void before_fork(void) {
+    pthread_mutex_lock(&ended_lock);
+}
+
+static void after_fork_in_parent(void) {
+    pthread_mutex_unlock(&ended_lock);
+}
+
+/* In a forked child the reaper is gone and the ended threads' states are not its to delete: start afresh. */
+static void after_fork_in_child(void) {
+    Ended *list = ended;
+    ended = NULL;
+    reaper_started = 0;
+    pthread_mutex_init(&ended_lock, NULL);
+    pthread_cond_init(&ended_signal, NULL);
+    while (list) {
+        Ended *next = list->next;
+        free(list);
+        list = next;
+    }
+}
+
 static void start_once(void) {
     start_error[0] = '\0';
     start_result = find_and_start();
-    if (start_result == 0) thread_key_made = pthread_key_create(&thread_key, forget_thread) == 0;
+    if (start_result != 0) return;
+    interpreter = py.PyInterpreterState_Main();
+    thread_key_made = pthread_key_create(&thread_key, forget_thread) == 0 &&
+                      pthread_atfork(before_fork, after_fork_in_parent, after_fork_in_child) == 0;
 }
 
 int pyhost_start(char *error, size_t size) {

@@ -41,6 +41,7 @@ typedef struct {
     PyThreadState *(*PyThreadState_New)(PyInterpreterState *);
     void (*PyThreadState_Clear)(PyThreadState *);
     void (*PyThreadState_Delete)(PyThreadState *);
+    void (*PyThreadState_DeleteCurrent)(void);
     PyObject *(*PyImport_ImportModule)(const char *);
     PyObject *(*PyObject_GetAttrString)(PyObject *, const char *);
     PyObject *(*PyObject_CallObject)(PyObject *, PyObject *);

@@ -16,7 +16,10 @@
 enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, STATUS_FATAL = 4 };
 
 /* The codes of native_bridge.py, which owns them: the build passes them as DSC_<KIND>_<NAME>. */
-#if !defined(DSC_TYPE_REAL) || !defined(DSC_CAUSALITY_PARAMETER) || !defined(DSC_VARIABILITY_CONSTANT)
+#if !defined(DSC_TYPE_REAL) || !defined(DSC_TYPE_INTEGER) || !defined(DSC_TYPE_BOOLEAN) ||                  \
+    !defined(DSC_TYPE_STRING) || !defined(DSC_CAUSALITY_PARAMETER) || !defined(DSC_CAUSALITY_INPUT) ||          \
+    !defined(DSC_CAUSALITY_OUTPUT) || !defined(DSC_VARIABILITY_CONSTANT) || !defined(DSC_VARIABILITY_FIXED) ||  \
+    !defined(DSC_VARIABILITY_TUNABLE)
 #error the codes of native_bridge.py (DSC_TYPE_REAL, ...) must be defined
 #endif
 enum { TYPE_REAL = DSC_TYPE_REAL, TYPE_INTEGER = DSC_TYPE_INTEGER, TYPE_BOOLEAN = DSC_TYPE_BOOLEAN,
