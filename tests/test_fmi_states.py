@@ -95,15 +95,17 @@ class Walk:
         assert self.raw(name, self.saved, buffer, size) == 0
         return buffer
 
-    def enter(self, state: str) -> None:
+    def enter(self, state: str, stop: float | None = None) -> None:
+        """Drive the instance from instantiated into ``state``, in an experiment stopping at ``stop``."""
         v = self.version
         if state == "E":
             self.raw("fmi2CancelStep")
             return
         if state in "NSFT":
             if v == 2:
-                assert self.raw("fmi2SetupExperiment", c_int(0), c_double(0), c_double(0), c_int(0), c_double(0)) == 0
-            assert self.raw(f"fmi{v}EnterInitializationMode", *self._experiment()) == 0
+                assert self.raw("fmi2SetupExperiment", c_int(0), c_double(0), c_double(0), c_int(stop is not None),
+                                c_double(stop or 0)) == 0
+            assert self.raw(f"fmi{v}EnterInitializationMode", *self._experiment(stop)) == 0
         if state in "SFT":
             assert self.raw(f"fmi{v}ExitInitializationMode") == 0
         if state == "F":
@@ -112,8 +114,11 @@ class Walk:
             assert self.raw(f"fmi{v}Terminate") == 0
         self.fmu.messages.clear()
 
-    def _experiment(self):
-        return (c_bool(False), c_double(0), c_double(0), c_bool(False), c_double(0)) if self.version == 3 else ()
+    def _experiment(self, stop: float | None = None):
+        """The arguments of fmi3EnterInitializationMode (FMI 2.0: none)."""
+        if self.version == 2:
+            return ()
+        return c_bool(False), c_double(0), c_double(0), c_bool(stop is not None), c_double(stop or 0)
 
     def step(self, h: float = 1e-3) -> int:
         if self.version == 2:
@@ -323,31 +328,13 @@ def test_input_derivatives_set_before_initialisation_shape_the_first_step(fmu_pa
     assert all(math.isfinite(v) for v in rows[0])
 
 
-def _initialised_until(folder: Path, version: int, stop: float) -> Walk:
-    """A walk in step mode of an experiment that stops at ``stop``."""
-    walk = Walk(folder, version, "I")
-    if version == 2:
-        assert walk.raw("fmi2SetupExperiment", c_int(0), c_double(0), c_double(0), c_int(1), c_double(stop)) == 0
-        assert walk.raw("fmi2EnterInitializationMode") == 0
-    else:
-        assert walk.raw("fmi3EnterInitializationMode", c_bool(False), c_double(0), c_double(0), c_bool(True),
-                        c_double(stop)) == 0
-    assert walk.raw(f"fmi{version}ExitInitializationMode") == 0
-    return walk
-
-
 @pytest.mark.parametrize("version", (2, 3))
 @pytest.mark.parametrize("end,status", [(1.0 + 1e-10, 0), (1.0 + 1e-8, ERROR)], ids=("rounding", "past"))
 def test_no_step_may_end_after_the_stop_time(folders, version, end, status):
     """Both standards: computing past the stop time set up for the experiment is fmiError; a step
     that ends on it give or take rounding (1e-9 of the stop time) is not."""
-    walk = _initialised_until(folders[version], version, 1.0)
-    if version == 2:
-        result = walk.raw("fmi2DoStep", c_double(0), c_double(end), c_int(1))
-    else:
-        flags = [c_bool() for _ in range(3)]
-        result = walk.raw("fmi3DoStep", c_double(0), c_double(end), c_bool(True), *map(byref, flags),
-                          byref(c_double()))
-    assert result == status
+    walk = Walk(folders[version], version, "I")
+    walk.enter("S", stop=1.0)
+    assert walk.step(end) == status
     assert any("ends after the stop time" in m for m in walk.messages()) == (status == ERROR)
     walk.close()

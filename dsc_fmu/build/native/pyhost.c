@@ -246,6 +246,14 @@ static int try_library(const char *path, const char *home, const char *what) {
     return 0;
 }
 
+static void free_ended(Ended *list) {
+    while (list) {
+        Ended *next = list->next;
+        free(list);
+        list = next;
+    }
+}
+
 /* Delete the thread states in `list` (their threads have ended) and free the list. The reaper takes
    the GIL with a thread state of its own for the batch and never uses PyGILState: since 3.12,
    deleting another thread's state unbinds the deleting thread's own, so every state is cleared
@@ -262,11 +270,7 @@ static void delete_ended(Ended *list) {
         for (Ended *e = list; e; e = e->next) py.PyThreadState_Delete(e->state);
         py.PyThreadState_DeleteCurrent();
     }
-    while (list) {
-        Ended *next = list->next;
-        free(list);
-        list = next;
-    }
+    free_ended(list);
 }
 
 static void *reap(void *unused) {
@@ -346,11 +350,7 @@ static void after_fork_in_child(void) {
     reaper_started = 0;
     pthread_mutex_init(&ended_lock, NULL);
     pthread_cond_init(&ended_signal, NULL);
-    while (list) {
-        Ended *next = list->next;
-        free(list);
-        list = next;
-    }
+    free_ended(list);
 }
 
 static void start_once(void) {

@@ -159,7 +159,7 @@ static void drain_log(Slave *s) {
 
 /* The entry file: the bridge module (its top level the build's private package), the slave's
    module and class, and the token; read before Python is started. */
-static int read_entry(Slave *s, char *bridge, size_t size) {
+static int read_entry(Slave *s, char bridge[256]) {
     char path[sizeof s->resources + 32];
     snprintf(path, sizeof path, "%s/%s", s->resources, DSC_ENTRY_FILE);
     FILE *file = fopen(path, "r");
@@ -169,13 +169,10 @@ static int read_entry(Slave *s, char *bridge, size_t size) {
     }
     int found = fscanf(file, "%255s %255s %127s %127s", bridge, s->module, s->class_name, s->token);
     fclose(file);
-    size_t package = strcspn(bridge, ".");
-    if (found != 4 || package == 0 || package >= sizeof s->package || package >= size) {
+    if (found != 4 || !strchr(bridge, '.')) {
         say(s, STATUS_ERROR, "%s: %s does not name the bridge, module, class and token", s->instance_name, path);
         return -1;
     }
-    memcpy(s->package, bridge, package);
-    s->package[package] = '\0';
     return 0;
 }
 
@@ -363,7 +360,7 @@ int slave_create(Slave *s, const char *resources, const char *token, const char 
     size_t length = strlen(s->resources);
     while (length > 1 && s->resources[length - 1] == '/') s->resources[--length] = '\0';
     char bridge[256] = "", error[3072];
-    int result = read_entry(s, bridge, sizeof bridge);
+    int result = read_entry(s, bridge);
     if (result == 0 && (!token || strcmp(token, s->token) != 0)) {
         say(s, STATUS_ERROR, "%s: the token %s does not match this FMU's %s", s->instance_name,
             token ? token : "(null)", s->token);

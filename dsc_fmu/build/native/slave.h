@@ -55,7 +55,6 @@ typedef struct {
 
 typedef struct {
     PyObject *bridge;
-    char package[128];          /* the FMU build's private package, the bridge's top level */
     PyObject *slave;
     PyObject *log_queue;
     PyObject *bound[BOUND_METHODS];
