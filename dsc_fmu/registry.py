@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import FmuNotFoundError
+from .models.states import CONTROLLER_STATES, EVENT_INDICATORS, FILTER_STATES, PLANT_STATES, REFERENCE_STATES
 from .models.parameters import (
     CONTROLLER_INPUTS,
     CONTROLLER_OUTPUTS,
@@ -38,13 +39,18 @@ _ALL_CONTROLLER_INPUTS = tuple(v.name for v in CONTROLLER_INPUTS)
 @dataclass(frozen=True)
 class FmuSpec:
     """One FMU: its slave script in ``fmu_sources`` (FMI 2.0; ``<stem>_fmi3.py`` for FMI 3.0), its
-    variable tables and, for each output, the inputs it depends on (ModelStructure)."""
+    variable tables, for each discrete output the inputs it depends on (ModelStructure), and for model
+    exchange its continuous states (``models.states``), the states' variables that are not outputs
+    and its event indicators."""
 
     name: str
     script: str
     parameters: tuple
     inputs: tuple
     outputs: tuple
+    states: tuple
+    state_locals: tuple = ()
+    indicators: tuple = ()
     depends: dict = field(default_factory=dict)
 
     def script_for(self, fmi_version: int) -> str:
@@ -52,25 +58,26 @@ class FmuSpec:
         return f"{Path(self.script).stem}_fmi3.py" if fmi_version == 3 else self.script
 
     @property
+    def locals(self) -> tuple:
+        """The local variables, in the order the slave registers them: the states that are not outputs,
+        the derivatives of the states, the event indicators."""
+        return (*self.state_locals, *(s.derivative for s in self.states), *self.indicators)
+
+    @property
     def variables(self) -> dict:
-        """Every table variable by name: parameters, inputs, outputs."""
-        return {v.name: v for v in (*self.parameters, *self.inputs, *self.outputs)}
+        """Every table variable by name: parameters, inputs, outputs, locals."""
+        return {v.name: v for v in (*self.parameters, *self.inputs, *self.outputs, *self.locals)}
 
 
 FMUS = {
     spec.name: spec
     for spec in (
-        FmuSpec(REFERENCE, "reference_robot.py", REFERENCE_PARAMETERS, (), REFERENCE_OUTPUTS),
-        FmuSpec(PLANT, "mobile_robot.py", PLANT_PARAMETERS, PLANT_INPUTS, PLANT_OUTPUTS),
+        FmuSpec(REFERENCE, "reference_robot.py", REFERENCE_PARAMETERS, (), REFERENCE_OUTPUTS, REFERENCE_STATES),
+        FmuSpec(PLANT, "mobile_robot.py", PLANT_PARAMETERS, PLANT_INPUTS, PLANT_OUTPUTS, PLANT_STATES),
         FmuSpec(
             CONTROLLER, "dsc_controller.py", CONTROLLER_PARAMETERS, CONTROLLER_INPUTS, CONTROLLER_OUTPUTS,
+            CONTROLLER_STATES, FILTER_STATES, EVENT_INDICATORS,
             depends={
-                "u1": _ALL_CONTROLLER_INPUTS,
-                "u2": _ALL_CONTROLLER_INPUTS,
-                "S11": _POSE,
-                "S12": _POSE,
-                "S13": (*_POSE, "theta_r", "v_r"),
-                "beta": (*_POSE, "v_r"),
                 "beta_guard_active": (*_POSE, "v_r"),
                 "started": _ALL_CONTROLLER_INPUTS,
             },

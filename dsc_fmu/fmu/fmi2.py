@@ -43,7 +43,7 @@ class DscSlave(SlaveCore, Fmi2Slave):
             ))
         else:
             self.register_variable(Real(
-                v.name, causality=Fmi2Causality.output, variability=Fmi2Variability.continuous,
+                v.name, causality=Fmi2Causality[causality], variability=Fmi2Variability.continuous,
                 initial=Fmi2Initial.calculated, description=v.description, getter=getter,
             ))
 

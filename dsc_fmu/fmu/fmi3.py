@@ -48,7 +48,7 @@ class DscSlave(SlaveCore, Fmi3Slave):
             ))
         else:
             self.register_variable(Float64(
-                v.name, causality=Fmi3Causality.output, variability=Fmi3Variability.continuous,
+                v.name, causality=Fmi3Causality[causality], variability=Fmi3Variability.continuous,
                 initial=Fmi3Initial.calculated, description=v.description, getter=getter,
                 setter=lambda value: None,
             ))

@@ -4,8 +4,8 @@ Bundled into every FMU beside the slave code; imports only the standard library.
 loads this module from its file in the FMU's resources (sys.path is never touched), counts the
 users of the build's private package (``acquire`` imports it by its location; the last
 ``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
-table once (``variables``) to guard every get and set by value reference, type, causality and
-variability, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
+table and the model's sizes once (``variables``, ``dimensions``) to guard every get and set by value
+reference, type, causality and variability, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
 back (``state_to_bytes``, ``state_from_bytes``) with a checksum and the identity of the build
 that made them.
 """
@@ -17,12 +17,13 @@ import os
 import sys
 
 __all__ = [
-    "acquire", "release", "instantiate", "variables", "drain_log", "state_to_bytes", "state_from_bytes", "TYPES",
+    "acquire", "release", "instantiate", "variables", "dimensions", "drain_log", "state_to_bytes", "state_from_bytes",
+    "TYPES",
 ]
 
 # Codes the binary uses too: the build passes them to native/slave.h (binary._contract).
 TYPES = {"Real": 0, "Float64": 0, "Integer": 1, "Int32": 1, "Boolean": 2, "String": 3}
-CAUSALITIES = {"parameter": 0, "input": 1, "output": 2, "independent": 3}
+CAUSALITIES = {"parameter": 0, "input": 1, "output": 2, "independent": 3, "local": 4}
 VARIABILITIES = {"constant": 0, "fixed": 1, "tunable": 2, "discrete": 3, "continuous": 4}
 OTHER = 9
 MAGIC = b"dsc-fmu FMU state 1\n"
@@ -85,6 +86,11 @@ def instantiate(slave_module: str, class_name: str, instance_name: str, resource
     """A new slave of ``class_name`` in ``slave_module`` (the slave script in the FMU's resources)."""
     cls = getattr(_slave_module(slave_module, resources), class_name)
     return cls(instance_name=instance_name, resources=resources, visible=visible)
+
+
+def dimensions(slave) -> tuple:
+    """``(continuous states, event indicators)`` of the slave's model, for model exchange."""
+    return len(slave.STATES), len(slave.INDICATORS)
 
 
 def _code(table: dict, value) -> int:

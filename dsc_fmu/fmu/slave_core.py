@@ -36,6 +36,9 @@ class SlaveCore:
     PARAMETERS: tuple = ()
     INPUTS: tuple = ()
     OUTPUTS: tuple = ()
+    STATES: tuple = ()  # models.states.ContinuousState of each entry of the state vector
+    LOCALS: tuple = ()  # the states' variables that are not outputs
+    INDICATORS: tuple = ()  # the variables of ``event_indicators``
 
     def _init_core(self) -> None:
         """Set up the values and register every variable of the tables (call from ``__init__``)."""
@@ -59,9 +62,17 @@ class SlaveCore:
                            setter=lambda value, i=index, v=v: self._set_input(i, v, value))
         for index, v in enumerate(self.OUTPUTS):
             self._register(v, "output", getter=lambda i=index: self.output_values()[i])
+        positions = {s.variable.name: i for i, s in enumerate(self.STATES)}
+        for v in self.LOCALS:
+            self._register(v, "local", getter=lambda i=positions[v.name]: self.current_state()[i])
+        for index, s in enumerate(self.STATES):
+            self._register(s.derivative, "local", getter=lambda i=index: self.get_derivatives()[i])
+        for index, v in enumerate(self.INDICATORS):
+            self._register(v, "local", getter=lambda i=index: self.get_event_indicators()[i])
 
     def _register(self, v, causality: str, getter, setter=None) -> None:
-        """Hook: register the table variable ``v`` with the FMI library."""
+        """Hook: register the table variable ``v`` with the FMI library as a ``causality`` ("parameter",
+        "input", "output" or "local") variable."""
         raise NotImplementedError
 
     def log_error(self, message: str) -> None:
@@ -213,6 +224,47 @@ class SlaveCore:
         self.derivatives_given = {}
         self.time = end_time
         self._cache = None
+
+    # --- model exchange: the importer integrates the state; the switches change only at events ---
+
+    def set_time(self, t: float) -> None:
+        self.time = t
+        self._cache = None
+
+    def get_continuous_states(self) -> list:
+        return list(self.current_state())
+
+    def set_continuous_states(self, values: list) -> None:
+        self.state = list(values)
+        self._cache = None
+
+    def get_derivatives(self) -> list:
+        """The state's time derivative at the current time, inputs and state; RuntimeError (discard)
+        while values are refused."""
+        if self.rejected:
+            raise RuntimeError(f"no derivatives while values are refused: {'; '.join(self.rejected.values())}")
+        return self.derivatives(self.time, self.current_state())
+
+    def get_event_indicators(self) -> list:
+        return self.event_indicators(self.current_state())
+
+    def get_nominals(self) -> list:
+        return [s.nominal for s in self.STATES]
+
+    def start_continuous_time(self) -> None:
+        """The end of initialization in model exchange: the state no longer follows the inputs, and
+        the switches are chosen for the first continuous stretch."""
+        if self.state is None:
+            self.state = self.initial_state()
+        self.update_discrete_states()
+
+    def update_discrete_states(self) -> None:
+        """Event mode: choose the switches held until the next event."""
+        self._cache = None
+
+    def event_indicators(self, x: list) -> list:
+        """Hook: the event indicators at state ``x`` (none by default)."""
+        return []
 
     def _get_fmu_state(self):
         return {

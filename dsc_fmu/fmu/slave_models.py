@@ -5,7 +5,9 @@ FMI glue class (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
 ``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
 """
 
-from ..models.controller import W1_SLICE, W2_SLICE, control_law, gains, initial_controller_state, start_filters
+from ..models.controller import (
+    W1_SLICE, W2_SLICE, Switches, control_law, event_indicators, gains, initial_controller_state, start_filters, switches,
+)
 from ..models.parameters import (
     CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS, PLANT_INPUTS, PLANT_OUTPUTS,
     PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS, START_ON,
@@ -13,6 +15,7 @@ from ..models.parameters import (
 from ..models.plant import initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
 from ..models.rk4 import euler_step
+from ..models.states import CONTROLLER_STATES, EVENT_INDICATORS, FILTER_STATES, PLANT_STATES, REFERENCE_STATES
 
 __all__ = ["MobileRobotModel", "ReferenceRobotModel", "DSCControllerModel"]
 
@@ -33,6 +36,7 @@ class MobileRobotModel:
     PARAMETERS = PLANT_PARAMETERS
     INPUTS = PLANT_INPUTS
     OUTPUTS = PLANT_OUTPUTS
+    STATES = PLANT_STATES
 
     def derive(self, p):
         return plant_coefficients(p)
@@ -55,6 +59,7 @@ class ReferenceRobotModel:
     description = "Reference robot of the tracking problem (equation 9): constant or figure-eight profile"
     PARAMETERS = REFERENCE_PARAMETERS
     OUTPUTS = REFERENCE_OUTPUTS
+    STATES = REFERENCE_STATES
 
     def initial_state(self):
         return initial_reference_state(self.p)
@@ -87,8 +92,12 @@ class DSCControllerModel:
     PARAMETERS = CONTROLLER_PARAMETERS
     INPUTS = CONTROLLER_INPUTS
     OUTPUTS = CONTROLLER_OUTPUTS
+    STATES = CONTROLLER_STATES
+    LOCALS = FILTER_STATES
+    INDICATORS = EVENT_INDICATORS
 
     def _init_core(self):
+        self.held = None  # model exchange: the switches held since the last event; None: chosen at each evaluation
         self.beta_guard_count = 0
         self.waited_steps = 0
         self._guarded_last_step = False
@@ -112,7 +121,7 @@ class DSCControllerModel:
         return gains(p)
 
     def law(self):
-        return control_law(self.constants, self.current_state(), self.u)
+        return control_law(self.constants, self.current_state(), self.u, self.held)
 
     def started(self):
         """Whether the filter states have started (at the first step with every input valid)."""
@@ -140,7 +149,7 @@ class DSCControllerModel:
         return start_filters(self.constants, initial_controller_state(self.p), self.u)
 
     def derivatives(self, t, x):
-        law = control_law(self.constants, x, self.inputs(t))
+        law = control_law(self.constants, x, self.inputs(t), self.held)
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative
@@ -186,14 +195,31 @@ class DSCControllerModel:
         estimates = [x[0], x[1], _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat]
         if self.waiting():
             return [*_WAITING_LAW_OUTPUTS, *estimates]
-        law = control_law(self.constants, x, self.u)
+        law = control_law(self.constants, x, self.u, self.held)
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
+
+    def event_indicators(self, x):
+        return event_indicators(self.constants, self.u)
+
+    def update_discrete_states(self):
+        """Model exchange, event mode: the switches of the current inputs, held until the next event;
+        an engaging guard is counted and logged as in co-simulation."""
+        held = switches(self.constants, self.u)
+        if held.guarded and not (self.held and self.held.guarded):
+            self.beta_guard_count += 1
+            self.log_warning(
+                f"{self.instance_name}: beta = {control_law(self.constants, self.state, self.u).beta:.6g} < beta_min = "
+                f"{self.p['beta_min']:g} at t = {self.time:.6g} s: h2 divides by beta_min (outside the region of Remark 3)"
+            )
+        self.held = held
+        super().update_discrete_states()
 
     def extra_state(self):
         return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step,
-                "waited_steps": self.waited_steps}
+                "waited_steps": self.waited_steps, "held": self.held}
 
     def set_extra_state(self, extra):
         self.beta_guard_count = extra["beta_guard_count"]
         self._guarded_last_step = extra["guarded_last_step"]
         self.waited_steps = extra["waited_steps"]
+        self.held = None if extra["held"] is None else Switches(*extra["held"])

@@ -19,6 +19,9 @@ __all__ = [
     "start_filters",
     "wrap",
     "alpha2",
+    "Switches",
+    "switches",
+    "event_indicators",
     "W1_SLICE",
     "W2_SLICE",
 ]
@@ -73,6 +76,14 @@ class ControlLaw(NamedTuple):
     x3bar: tuple
 
 
+class Switches(NamedTuple):
+    """The discrete choices of the law (docs/model.md §5.13), held between events in model exchange:
+    ``S13bar = (thetar - theta) - 2 pi turns`` and whether ``h2`` divides by ``beta_min``."""
+
+    turns: int
+    guarded: bool
+
+
 def wrap(angle: float) -> float:
     """``angle`` wrapped to (-pi, pi] (docs/model.md §5)."""
     wrapped = math.remainder(angle, 2.0 * math.pi)
@@ -98,9 +109,36 @@ def initial_controller_state(p: dict) -> list:
     ]
 
 
-def control_law(g: Gains, xc: list, m: list) -> ControlLaw:
-    """Evaluate the three DSC steps for controller state ``xc`` and measurements ``m``."""
-    x, y, theta, theta_dot, v1, v2, i1, i2, xr, yr, thetar, vr, wr, vr_dot = m
+def _surfaces(k1: float, m: list) -> tuple:
+    """``(S11, S12, p, den, beta)`` of step 1 for measurements ``m``: (10), ``p = k1 S12 vr`` of (12),
+    ``den = 1 + p^2`` and ``beta`` of (13)."""
+    x, y, theta, xr, yr, vr = m[0], m[1], m[2], m[8], m[9], m[11]
+    ex, ey = xr - x, yr - y
+    cos_t, sin_t = math.cos(theta), math.sin(theta)
+    S11 = cos_t * ex + sin_t * ey
+    S12 = -sin_t * ex + cos_t * ey
+    p = k1 * S12 * vr
+    den = 1.0 + p * p
+    return S11, S12, p, den, 1.0 + k1 * vr * S11 / den
+
+
+def switches(g: Gains, m: list) -> Switches:
+    """The switches as the law chooses them at measurements ``m``: the wrap of (5.4), the guard of (5.6)."""
+    heading = m[10] - m[2]
+    beta = _surfaces(g.k1, m)[4]
+    return Switches(round((heading - wrap(heading)) / (2.0 * math.pi)), beta < g.beta_min)
+
+
+def event_indicators(g: Gains, m: list) -> list:
+    """``[cos((thetar - theta) / 2), beta - beta_min]``: each changes sign exactly where a switch of
+    ``switches`` changes (docs/model.md §5.13)."""
+    return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min]
+
+
+def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> ControlLaw:
+    """Evaluate the three DSC steps for controller state ``xc`` and measurements ``m``; the switches
+    are chosen at ``m`` unless ``held`` gives them (model exchange between events)."""
+    _, _, theta, theta_dot, v1, v2, i1, i2, _, _, thetar, vr, wr, vr_dot = m
     a1_hat, a2_hat, x2f1, x2f2 = xc[0], xc[1], xc[2], xc[3]
     W1_hat = xc[W1_SLICE]
     x3f1, x3f2 = xc[12], xc[13]
@@ -108,20 +146,18 @@ def control_law(g: Gains, xc: list, m: list) -> ControlLaw:
     k1 = g.k1
 
     # Step 1, kinematics: (10), (12), (14)-(16).
-    ex, ey = xr - x, yr - y
-    cos_t, sin_t = math.cos(theta), math.sin(theta)
-    S11 = cos_t * ex + sin_t * ey
-    S12 = -sin_t * ex + cos_t * ey
-    S13bar = wrap(thetar - theta)
-    p = k1 * S12 * vr
+    S11, S12, p, den, beta = _surfaces(k1, m)
+    if held is None:
+        S13bar = wrap(thetar - theta)
+        guarded = beta < g.beta_min
+    else:
+        S13bar = (thetar - theta) - 2.0 * math.pi * held.turns
+        guarded = held.guarded
     a = math.atan(p)
     S13 = S13bar + a
-    den = 1.0 + p * p
     sin_e, cos_e = math.sin(S13bar), math.cos(S13bar)
     alpha1 = (k1 * vr * vr * sin_e + k1 * S12 * vr_dot) / den
     al2 = alpha2(S13, a)
-    beta = 1.0 + k1 * vr * S11 / den
-    guarded = beta < g.beta_min
     kv = k1 * vr
     h1 = a1_hat * vr * cos_e + g.k2 * S11 + 0.5 * kv * kv * kv * kv * S11 * S11 * S11
     h2 = (a1_hat * al2 * vr * S12 + a2_hat * (wr + alpha1) + g.k3 * S13 + 0.5 * S13 * S13 * S13) / (

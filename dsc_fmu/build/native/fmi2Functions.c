@@ -1,35 +1,37 @@
-/* The FMI 2.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states the standard's
-   state table (FMI 2.0.4, section 4.2.4) allows it in, then handed to instance.c; every fmi2Error
-   moves the instance to the error state. Nothing returns fmi2Fatal. */
+/* The FMI 2.0 API of every dsc-fmu FMU, co-simulation and model exchange: each call guarded by the
+   interface and the states the standard's state tables (FMI 2.0.4, sections 3.2.3 and 4.2.4) allow it
+   in, then handed to instance.c; every fmi2Error moves the instance to the error state. Nothing
+   returns fmi2Fatal. */
 
 #include <math.h>
 
 #include "fmi2Functions.h"
 #include "instance.h"
 
-/* The states each function is allowed in (no stepInProgress, stepCanceled: fmi2DoStep is synchronous). */
+/* The interface and states each function is allowed in (no stepInProgress, stepCanceled: fmi2DoStep is
+   synchronous). */
 #define MASK_fmi2SetDebugLogging ANY_STATE
 #define MASK_fmi2SetupExperiment Instantiated
 #define MASK_fmi2EnterInitializationMode Instantiated
 #define MASK_fmi2ExitInitializationMode InitializationMode
-#define MASK_fmi2Terminate (StepMode | StepFailed)
+#define MASK_fmi2Terminate (StepMode | StepFailed | EventMode | ContinuousTimeMode)
 #define MASK_fmi2Reset ANY_STATE
-#define MASK_fmi2DoStep StepMode
-#define MASK_fmi2CancelStep 0
-#define MASK_GET (InitializationMode | StepMode | StepFailed | Terminated | Error)
-#define MASK_SET (Instantiated | InitializationMode | StepMode)
+#define MASK_fmi2DoStep (CS_ONLY | StepMode)
+#define MASK_fmi2CancelStep CS_ONLY
+#define MASK_GET (InitializationMode | StepMode | StepFailed | EventMode | ContinuousTimeMode | Terminated | Error)
+#define MASK_SET (Instantiated | InitializationMode | StepMode | EventMode)
 #define MASK_fmi2GetReal MASK_GET
 #define MASK_fmi2GetInteger MASK_GET
 #define MASK_fmi2GetBoolean MASK_GET
 #define MASK_fmi2GetString MASK_GET
-#define MASK_fmi2SetReal MASK_SET
+#define MASK_fmi2SetReal (MASK_SET | ContinuousTimeMode)
 #define MASK_fmi2SetInteger MASK_SET
 #define MASK_fmi2SetBoolean MASK_SET
 #define MASK_fmi2SetString MASK_SET
 #define MASK_fmi2GetDirectionalDerivative MASK_GET
-#define MASK_fmi2SetRealInputDerivatives MASK_SET
-#define MASK_fmi2GetRealOutputDerivatives (StepMode | StepFailed | Terminated | Error)
-#define MASK_STATUS (StepMode | StepFailed | Terminated)
+#define MASK_fmi2SetRealInputDerivatives (CS_ONLY | Instantiated | InitializationMode | StepMode)
+#define MASK_fmi2GetRealOutputDerivatives (CS_ONLY | StepMode | StepFailed | Terminated | Error)
+#define MASK_STATUS (CS_ONLY | StepMode | StepFailed | Terminated)
 #define MASK_fmi2GetStatus MASK_STATUS
 #define MASK_fmi2GetRealStatus MASK_STATUS
 #define MASK_fmi2GetIntegerStatus MASK_STATUS
@@ -41,6 +43,17 @@
 #define MASK_fmi2SerializedFMUstateSize ANY_STATE
 #define MASK_fmi2SerializeFMUstate ANY_STATE
 #define MASK_fmi2DeSerializeFMUstate ANY_STATE
+#define MASK_fmi2EnterEventMode (ME_ONLY | EventMode | ContinuousTimeMode)
+#define MASK_fmi2NewDiscreteStates (ME_ONLY | EventMode)
+#define MASK_fmi2EnterContinuousTimeMode (ME_ONLY | EventMode)
+#define MASK_fmi2CompletedIntegratorStep (ME_ONLY | ContinuousTimeMode)
+#define MASK_fmi2SetTime (ME_ONLY | EventMode | ContinuousTimeMode)
+#define MASK_fmi2SetContinuousStates (ME_ONLY | ContinuousTimeMode)
+#define MASK_ME_GET (ME_ONLY | InitializationMode | EventMode | ContinuousTimeMode | Terminated | Error)
+#define MASK_fmi2GetDerivatives MASK_ME_GET
+#define MASK_fmi2GetEventIndicators MASK_ME_GET
+#define MASK_fmi2GetContinuousStates MASK_ME_GET
+#define MASK_fmi2GetNominalsOfContinuousStates (MASK_ME_GET | Instantiated)
 
 typedef struct {
     Instance base;
@@ -103,10 +116,12 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
     if (!instanceName || !*instanceName) {
         return refuse_instantiation(functions, instanceName, "fmi2Instantiate: the instance name is missing or empty");
     }
-    if (fmuType != fmi2CoSimulation) {
-        return refuse_instantiation(functions, instanceName, "fmi2Instantiate: only fmi2CoSimulation is supported");
+    if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
+        return refuse_instantiation(functions, instanceName, "fmi2Instantiate: the FMU type is neither fmi2ModelExchange "
+                                    "nor fmi2CoSimulation");
     }
-    Fmi2Instance *instance = (Fmi2Instance *)instance_alloc(sizeof(Fmi2Instance), instanceName, loggingOn, &FMI2);
+    Fmi2Instance *instance = (Fmi2Instance *)instance_alloc(sizeof(Fmi2Instance), instanceName, loggingOn,
+                                                            fmuType == fmi2ModelExchange, &FMI2);
     if (!instance) return refuse_instantiation(functions, instanceName, "fmi2Instantiate: out of memory");
     if (functions) instance->functions = *functions;
     if (instance_start(&instance->base, "fmi2Instantiate", fmuResourceLocation, fmuGUID, visible) != 0) {
@@ -136,7 +151,7 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
 
 fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
     BEGIN(fmi2ExitInitializationMode);
-    END(instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode));
+    END(instance_exit_initialization(instance));
 }
 
 fmi2Status fmi2Terminate(fmi2Component c) {
@@ -160,6 +175,65 @@ fmi2Status fmi2CancelStep(fmi2Component c) {
     instance_refused((Instance *)c, "fmi2CancelStep", MASK_fmi2CancelStep);
     return fmi2Error;
 }
+
+/* --- model exchange ------------------------------------------------------------------------------------ */
+
+fmi2Status fmi2EnterEventMode(fmi2Component c) {
+    BEGIN(fmi2EnterEventMode);
+    END(instance_enter(instance, EventMode));
+}
+
+fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
+    BEGIN(fmi2NewDiscreteStates);
+    if (!instance_given(instance, "fmi2NewDiscreteStates", eventInfo, "event info")) END(STATUS_ERROR);
+    int status = instance_update_discrete_states(instance);
+    eventInfo->newDiscreteStatesNeeded = fmi2False;
+    eventInfo->terminateSimulation = fmi2False;
+    eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
+    eventInfo->valuesOfContinuousStatesChanged = fmi2False;
+    eventInfo->nextEventTimeDefined = fmi2False;
+    eventInfo->nextEventTime = 0.0;
+    END(status);
+}
+
+fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
+    BEGIN(fmi2EnterContinuousTimeMode);
+    END(instance_enter(instance, ContinuousTimeMode));
+}
+
+/* The switches change only at state events, which the event indicators show: no step needs an event. */
+fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
+    BEGIN(fmi2CompletedIntegratorStep);
+    if (!instance_given(instance, "fmi2CompletedIntegratorStep", enterEventMode, "place for enterEventMode") ||
+        !instance_given(instance, "fmi2CompletedIntegratorStep", terminateSimulation, "place for terminateSimulation")) {
+        END(STATUS_ERROR);
+    }
+    *enterEventMode = fmi2False;
+    *terminateSimulation = fmi2False;
+    END(STATUS_OK);
+}
+
+fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
+    BEGIN(fmi2SetTime);
+    END(instance_set_time(instance, "fmi2SetTime", time));
+}
+
+fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
+    BEGIN(fmi2SetContinuousStates);
+    END(instance_set_states(instance, "fmi2SetContinuousStates", x, nx));
+}
+
+#define VECTOR_GETTER(function, which, argument)                                                                      \
+    fmi2Status function(fmi2Component c, fmi2Real argument[], size_t n) {                                            \
+        BEGIN(function);                                                                                             \
+        END(instance_get_vector(instance, #function, which, argument, n));                                           \
+    }
+
+VECTOR_GETTER(fmi2GetDerivatives, VECTOR_DERIVATIVES, derivatives)
+VECTOR_GETTER(fmi2GetEventIndicators, VECTOR_INDICATORS, eventIndicators)
+VECTOR_GETTER(fmi2GetContinuousStates, VECTOR_STATES, x)
+VECTOR_GETTER(fmi2GetNominalsOfContinuousStates, VECTOR_NOMINALS, x_nominal)
 
 /* --- values ------------------------------------------------------------------------------------------- */
 

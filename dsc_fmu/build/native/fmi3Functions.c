@@ -1,9 +1,10 @@
-/* The FMI 3.0 co-simulation API of every dsc-fmu FMU: each call guarded by the states FMI 3.0.2
-   (sections 2.3 and 4.2) allows it in, then handed to instance.c; every fmi3Error moves the
-   instance to Terminated. No event mode, no model exchange, no scheduled execution, no clocks:
-   those functions refuse with a message. Nothing returns fmi3Fatal. */
+/* The FMI 3.0 API of every dsc-fmu FMU, co-simulation and model exchange: each call guarded by the
+   interface and the states FMI 3.0.2 (sections 2.3, 3.2 and 4.2) allows it in, then handed to
+   instance.c; every fmi3Error moves the instance to Terminated. No event mode in co-simulation, no
+   scheduled execution, no clocks: those functions refuse with a message. Nothing returns fmi3Fatal. */
 
 #include <math.h>
+#include <stdio.h>
 
 #include "fmi3Functions.h"
 #include "instance.h"
@@ -13,10 +14,11 @@
 #define MASK_fmi3Reset ANY_STATE
 #define MASK_fmi3EnterInitializationMode Instantiated
 #define MASK_fmi3ExitInitializationMode InitializationMode
-#define MASK_fmi3Terminate StepMode
-#define MASK_fmi3DoStep StepMode
-#define MASK_GET (Instantiated | InitializationMode | StepMode | Terminated)
-#define MASK_SET (Instantiated | InitializationMode | StepMode)
+#define MASK_fmi3Terminate (StepMode | EventMode | ContinuousTimeMode)
+#define MASK_fmi3DoStep (CS_ONLY | StepMode)
+#define MASK_GET (Instantiated | InitializationMode | StepMode | EventMode | ContinuousTimeMode | Terminated)
+#define MASK_SET (Instantiated | InitializationMode | StepMode | EventMode)
+#define MASK_SET_FLOAT (MASK_SET | ContinuousTimeMode)
 #define CLOCKS 0 /* clocks are read and set in event mode, which these FMUs do not have */
 #define MASK_fmi3GetFMUState ANY_STATE
 #define MASK_fmi3SetFMUState ANY_STATE
@@ -24,6 +26,19 @@
 #define MASK_fmi3SerializedFMUStateSize ANY_STATE
 #define MASK_fmi3SerializeFMUState ANY_STATE
 #define MASK_fmi3DeserializeFMUState ANY_STATE
+#define MASK_fmi3EnterEventMode (ME_ONLY | ContinuousTimeMode)
+#define MASK_fmi3UpdateDiscreteStates (ME_ONLY | EventMode)
+#define MASK_fmi3EnterContinuousTimeMode (ME_ONLY | EventMode)
+#define MASK_fmi3CompletedIntegratorStep (ME_ONLY | ContinuousTimeMode)
+#define MASK_fmi3SetTime (ME_ONLY | ContinuousTimeMode)
+#define MASK_fmi3SetContinuousStates (ME_ONLY | ContinuousTimeMode)
+#define MASK_ME_GET (ME_ONLY | InitializationMode | EventMode | ContinuousTimeMode | Terminated)
+#define MASK_fmi3GetContinuousStateDerivatives MASK_ME_GET
+#define MASK_fmi3GetEventIndicators MASK_ME_GET
+#define MASK_fmi3GetContinuousStates MASK_ME_GET
+#define MASK_fmi3GetNominalsOfContinuousStates MASK_ME_GET
+#define MASK_fmi3GetNumberOfContinuousStates (ME_ONLY | ANY_STATE)
+#define MASK_fmi3GetNumberOfEventIndicators (ME_ONLY | ANY_STATE)
 
 typedef struct {
     Instance base;
@@ -69,6 +84,31 @@ static fmi3Instance refuse_instantiation(fmi3InstanceEnvironment environment, fm
     return NULL;
 }
 
+/* An instance of either interface, named `function` in messages; NULL after logging why. */
+static fmi3Instance instantiate(const char *function, int model_exchange, fmi3String instanceName,
+                                fmi3String instantiationToken, fmi3String resourcePath, fmi3Boolean visible,
+                                fmi3Boolean loggingOn, fmi3InstanceEnvironment instanceEnvironment,
+                                fmi3LogMessageCallback logMessage) {
+    char why[256];
+    if (!instanceName || !*instanceName) {
+        snprintf(why, sizeof why, "%s: the instance name is missing or empty", function);
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, why);
+    }
+    Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn,
+                                                            model_exchange, &FMI3);
+    if (!instance) {
+        snprintf(why, sizeof why, "%s: out of memory", function);
+        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, why);
+    }
+    instance->environment = instanceEnvironment;
+    instance->logMessage = logMessage;
+    if (instance_start(&instance->base, function, resourcePath, instantiationToken, visible) != 0) {
+        instance_free(&instance->base);
+        return NULL;
+    }
+    return instance;
+}
+
 fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String instantiationToken,
                                          fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
                                          fmi3Boolean eventModeUsed, fmi3Boolean earlyReturnAllowed,
@@ -77,10 +117,6 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
                                          fmi3InstanceEnvironment instanceEnvironment,
                                          fmi3LogMessageCallback logMessage,
                                          fmi3IntermediateUpdateCallback intermediateUpdate) {
-    if (!instanceName || !*instanceName) {
-        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
-                                    "fmi3InstantiateCoSimulation: the instance name is missing or empty");
-    }
     if (eventModeUsed) {
         return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                     "fmi3InstantiateCoSimulation: eventModeUsed is not supported (hasEventMode is false)");
@@ -89,27 +125,16 @@ fmi3Instance fmi3InstantiateCoSimulation(fmi3String instanceName, fmi3String ins
         return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
                                     "fmi3InstantiateCoSimulation: these FMUs provide no intermediate variables");
     }
-    Fmi3Instance *instance = (Fmi3Instance *)instance_alloc(sizeof(Fmi3Instance), instanceName, loggingOn, &FMI3);
-    if (!instance) {
-        return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
-                                    "fmi3InstantiateCoSimulation: out of memory");
-    }
-    instance->environment = instanceEnvironment;
-    instance->logMessage = logMessage;
-    if (instance_start(&instance->base, "fmi3InstantiateCoSimulation", resourcePath, instantiationToken,
-                       visible) != 0) {
-        instance_free(&instance->base);
-        return NULL;
-    }
-    return instance;
+    return instantiate("fmi3InstantiateCoSimulation", 0, instanceName, instantiationToken, resourcePath, visible,
+                       loggingOn, instanceEnvironment, logMessage);
 }
 
 fmi3Instance fmi3InstantiateModelExchange(fmi3String instanceName, fmi3String instantiationToken,
                                           fmi3String resourcePath, fmi3Boolean visible, fmi3Boolean loggingOn,
                                           fmi3InstanceEnvironment instanceEnvironment,
                                           fmi3LogMessageCallback logMessage) {
-    return refuse_instantiation(instanceEnvironment, logMessage, loggingOn,
-                                "fmi3InstantiateModelExchange: these FMUs are co-simulation FMUs only");
+    return instantiate("fmi3InstantiateModelExchange", 1, instanceName, instantiationToken, resourcePath, visible,
+                       loggingOn, instanceEnvironment, logMessage);
 }
 
 fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3String instantiationToken,
@@ -140,7 +165,7 @@ fmi3Status fmi3EnterInitializationMode(fmi3Instance c, fmi3Boolean toleranceDefi
 
 fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
     BEGIN(fmi3ExitInitializationMode);
-    END(instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode));
+    END(instance_exit_initialization(instance));
 }
 
 fmi3Status fmi3Terminate(fmi3Instance c) {
@@ -177,10 +202,10 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
         END(instance_get(instance, #function, type, vr, nvr, values, nValues, ctype));                               \
     }
 
-#define SETTER(function, type, ctype, cvalue)                                                                          \
+#define SETTER(function, type, ctype, cvalue, mask)                                                                    \
     fmi3Status function(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const cvalue values[],            \
                         size_t nValues) {                                                                            \
-        BEGIN_MASK(function, MASK_SET);                                                                              \
+        BEGIN_MASK(function, mask);                                                                                  \
         END(instance_set(instance, #function, type, vr, nvr, values, nValues, ctype));                               \
     }
 
@@ -194,9 +219,9 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
 GETTER(fmi3GetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
 GETTER(fmi3GetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
 GETTER(fmi3GetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
-SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
-SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
-SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
+SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64, MASK_SET_FLOAT)
+SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32, MASK_SET)
+SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean, MASK_SET)
 
 ABSENT(fmi3GetFloat32, MASK_GET, "Float32", fmi3Float32 values[], size_t nValues)
 ABSENT(fmi3GetInt8, MASK_GET, "Int8", fmi3Int8 values[], size_t nValues)
@@ -209,7 +234,7 @@ ABSENT(fmi3GetUInt64, MASK_GET, "UInt64", fmi3UInt64 values[], size_t nValues)
 ABSENT(fmi3GetString, MASK_GET, "String", fmi3String values[], size_t nValues)
 ABSENT(fmi3GetBinary, MASK_GET, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
 ABSENT(fmi3GetClock, CLOCKS, "Clock", fmi3Clock values[])
-ABSENT(fmi3SetFloat32, MASK_SET, "Float32", const fmi3Float32 values[], size_t nValues)
+ABSENT(fmi3SetFloat32, MASK_SET_FLOAT, "Float32", const fmi3Float32 values[], size_t nValues)
 ABSENT(fmi3SetInt8, MASK_SET, "Int8", const fmi3Int8 values[], size_t nValues)
 ABSENT(fmi3SetUInt8, MASK_SET, "UInt8", const fmi3UInt8 values[], size_t nValues)
 ABSENT(fmi3SetInt16, MASK_SET, "Int16", const fmi3Int16 values[], size_t nValues)
@@ -237,12 +262,84 @@ FMU_STATE_FUNCTIONS(fmi3Status, fmi3Instance, fmi3FMUState, fmi3Byte, fmi3GetFMU
 
 #define NO_EVENT_MODE "hasEventMode is false"
 #define NO_CLOCKS "these FMUs have no clocks"
-#define ME_ONLY "a function of model exchange; these FMUs are co-simulation FMUs"
+
+/* --- model exchange ------------------------------------------------------------------------------------ */
 
 fmi3Status fmi3EnterEventMode(fmi3Instance c) {
-    BEGIN_MASK(fmi3EnterEventMode, ANY_STATE);
-    END(instance_unsupported(instance, "fmi3EnterEventMode", NO_EVENT_MODE));
+    BEGIN(fmi3EnterEventMode);
+    END(instance_enter(instance, EventMode));
 }
+
+fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *discreteStatesNeedUpdate,
+                                    fmi3Boolean *terminateSimulation, fmi3Boolean *nominalsOfContinuousStatesChanged,
+                                    fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined,
+                                    fmi3Float64 *nextEventTime) {
+    BEGIN(fmi3UpdateDiscreteStates);
+    if (!discreteStatesNeedUpdate || !terminateSimulation || !nominalsOfContinuousStatesChanged ||
+        !valuesOfContinuousStatesChanged || !nextEventTimeDefined || !nextEventTime) {
+        instance_log(instance, STATUS_ERROR, "%s: fmi3UpdateDiscreteStates: an output argument is NULL", instance->name);
+        END(STATUS_ERROR);
+    }
+    int status = instance_update_discrete_states(instance);
+    *discreteStatesNeedUpdate = fmi3False;
+    *terminateSimulation = fmi3False;
+    *nominalsOfContinuousStatesChanged = fmi3False;
+    *valuesOfContinuousStatesChanged = fmi3False;
+    *nextEventTimeDefined = fmi3False;
+    *nextEventTime = 0.0;
+    END(status);
+}
+
+fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
+    BEGIN(fmi3EnterContinuousTimeMode);
+    END(instance_enter(instance, ContinuousTimeMode));
+}
+
+/* The switches change only at state events, which the event indicators show: no step needs an event. */
+fmi3Status fmi3CompletedIntegratorStep(fmi3Instance c, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
+                                       fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation) {
+    BEGIN(fmi3CompletedIntegratorStep);
+    if (!instance_given(instance, "fmi3CompletedIntegratorStep", enterEventMode, "place for enterEventMode") ||
+        !instance_given(instance, "fmi3CompletedIntegratorStep", terminateSimulation, "place for terminateSimulation")) {
+        END(STATUS_ERROR);
+    }
+    *enterEventMode = fmi3False;
+    *terminateSimulation = fmi3False;
+    END(STATUS_OK);
+}
+
+fmi3Status fmi3SetTime(fmi3Instance c, fmi3Float64 time) {
+    BEGIN(fmi3SetTime);
+    END(instance_set_time(instance, "fmi3SetTime", time));
+}
+
+fmi3Status fmi3SetContinuousStates(fmi3Instance c, const fmi3Float64 continuousStates[], size_t nContinuousStates) {
+    BEGIN(fmi3SetContinuousStates);
+    END(instance_set_states(instance, "fmi3SetContinuousStates", continuousStates, nContinuousStates));
+}
+
+#define VECTOR_GETTER(function, which)                                                                                \
+    fmi3Status function(fmi3Instance c, fmi3Float64 values[], size_t n) {                                            \
+        BEGIN(function);                                                                                             \
+        END(instance_get_vector(instance, #function, which, values, n));                                             \
+    }
+
+VECTOR_GETTER(fmi3GetContinuousStateDerivatives, VECTOR_DERIVATIVES)
+VECTOR_GETTER(fmi3GetEventIndicators, VECTOR_INDICATORS)
+VECTOR_GETTER(fmi3GetContinuousStates, VECTOR_STATES)
+VECTOR_GETTER(fmi3GetNominalsOfContinuousStates, VECTOR_NOMINALS)
+
+fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates) {
+    BEGIN(fmi3GetNumberOfContinuousStates);
+    END(instance_count(instance, "fmi3GetNumberOfContinuousStates", nContinuousStates, instance->slave.nx));
+}
+
+fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicators) {
+    BEGIN(fmi3GetNumberOfEventIndicators);
+    END(instance_count(instance, "fmi3GetNumberOfEventIndicators", nEventIndicators, instance->slave.nz));
+}
+
+/* --- co-simulation with event mode, configuration ------------------------------------------------------------ */
 
 fmi3Status fmi3EnterStepMode(fmi3Instance c) {
     BEGIN_MASK(fmi3EnterStepMode, ANY_STATE);
@@ -264,10 +361,6 @@ fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance c) {
     END(instance_unsupported(instance, "fmi3EvaluateDiscreteStates", NO_EVENT_MODE));
 }
 
-fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
-    BEGIN_MASK(fmi3EnterContinuousTimeMode, ANY_STATE);
-    END(instance_unsupported(instance, "fmi3EnterContinuousTimeMode", ME_ONLY));
-}
 
 UNSUPPORTED(fmi3GetNumberOfVariableDependencies, "providesPerElementDependencies is false; see ModelStructure",
             fmi3ValueReference valueReference, size_t *nDependencies)
@@ -298,18 +391,5 @@ UNSUPPORTED(fmi3SetShiftDecimal, NO_CLOCKS, const fmi3ValueReference valueRefere
             const fmi3Float64 shifts[])
 UNSUPPORTED(fmi3SetShiftFraction, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
             const fmi3UInt64 counters[], const fmi3UInt64 resolutions[])
-UNSUPPORTED(fmi3UpdateDiscreteStates, NO_EVENT_MODE, fmi3Boolean *discreteStatesNeedUpdate,
-            fmi3Boolean *terminateSimulation, fmi3Boolean *nominalsOfContinuousStatesChanged,
-            fmi3Boolean *valuesOfContinuousStatesChanged, fmi3Boolean *nextEventTimeDefined, fmi3Float64 *nextEventTime)
-UNSUPPORTED(fmi3CompletedIntegratorStep, ME_ONLY, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
-            fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation)
-UNSUPPORTED(fmi3SetTime, ME_ONLY, fmi3Float64 time)
-UNSUPPORTED(fmi3SetContinuousStates, ME_ONLY, const fmi3Float64 continuousStates[], size_t nContinuousStates)
-UNSUPPORTED(fmi3GetContinuousStateDerivatives, ME_ONLY, fmi3Float64 derivatives[], size_t nContinuousStates)
-UNSUPPORTED(fmi3GetEventIndicators, ME_ONLY, fmi3Float64 eventIndicators[], size_t nEventIndicators)
-UNSUPPORTED(fmi3GetContinuousStates, ME_ONLY, fmi3Float64 continuousStates[], size_t nContinuousStates)
-UNSUPPORTED(fmi3GetNominalsOfContinuousStates, ME_ONLY, fmi3Float64 nominals[], size_t nContinuousStates)
-UNSUPPORTED(fmi3GetNumberOfEventIndicators, ME_ONLY, size_t *nEventIndicators)
-UNSUPPORTED(fmi3GetNumberOfContinuousStates, ME_ONLY, size_t *nContinuousStates)
-UNSUPPORTED(fmi3ActivateModelPartition, "a function of scheduled execution; these FMUs are co-simulation FMUs",
+UNSUPPORTED(fmi3ActivateModelPartition, "a function of scheduled execution; these FMUs do not offer it",
             fmi3ValueReference clockReference, fmi3Float64 activationTime)

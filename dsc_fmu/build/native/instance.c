@@ -35,6 +35,8 @@ static const char *state_name(ModelState state) {
     case InitializationMode: return "initialization mode";
     case StepMode: return "step mode";
     case StepFailed: return "step failed";
+    case EventMode: return "event mode";
+    case ContinuousTimeMode: return "continuous-time mode";
     case Terminated: return "terminated";
     case Error: return "error";
     }
@@ -67,10 +69,11 @@ void instance_log(Instance *instance, int status, const char *format, ...) {
     forward(instance, status, slave_category(status), message);
 }
 
-Instance *instance_alloc(size_t size, const char *name, int logging_on, const Standard *standard) {
+Instance *instance_alloc(size_t size, const char *name, int logging_on, int model_exchange, const Standard *standard) {
     Instance *instance = calloc(1, size);
     if (!instance) return NULL;
     instance->magic = INSTANCE_MAGIC;
+    instance->model_exchange = model_exchange;
     instance->state = Instantiated;
     instance->stop_time = INFINITY;
     instance->categories = logging_on ? ALL_CATEGORIES : 0;
@@ -102,11 +105,22 @@ int instance_status(Instance *instance, int status) {
     return status;
 }
 
+static const char *interface_name(int model_exchange) {
+    return model_exchange ? "model exchange" : "co-simulation";
+}
+
 int instance_refused(Instance *instance, const char *function, int mask) {
     if (!instance || instance->magic != INSTANCE_MAGIC) return 1;
-    if (instance->state & mask) return 0;
-    instance_log(instance, STATUS_ERROR, "%s: %s is not allowed in state %s", instance->name, function,
-                 state_name(instance->state));
+    int wrong_interface = (mask & CS_ONLY && instance->model_exchange) || (mask & ME_ONLY && !instance->model_exchange);
+    if (!wrong_interface && instance->state & mask) return 0;
+    if (wrong_interface) {
+        instance_log(instance, STATUS_ERROR, "%s: %s is a function of %s; this instance was instantiated for %s",
+                     instance->name, function, interface_name(!instance->model_exchange),
+                     interface_name(instance->model_exchange));
+    } else {
+        instance_log(instance, STATUS_ERROR, "%s: %s is not allowed in state %s", instance->name, function,
+                     state_name(instance->state));
+    }
     instance_status(instance, STATUS_ERROR);
     return 1;
 }
@@ -122,6 +136,13 @@ int instance_call(Instance *instance, const char *method, int n, const double *v
 
 int instance_reset(Instance *instance) {
     return settle(instance, slave_reset(&instance->slave), Instantiated);
+}
+
+int instance_exit_initialization(Instance *instance) {
+    if (!instance->model_exchange) return instance_call(instance, "exit_initialization_mode", 0, NULL, NULL, StepMode);
+    int status = slave_call(&instance->slave, "exit_initialization_mode", 0, NULL, NULL);
+    if (status == STATUS_OK) status = slave_call(&instance->slave, "start_continuous_time", 0, NULL, NULL);
+    return settle(instance, status, EventMode);
 }
 
 int instance_do_step(Instance *instance, const char *function, double time, double step) {
@@ -186,7 +207,10 @@ static const char *not_settable(const Instance *instance, unsigned int vr) {
     if (s->causality[vr] == CAUSALITY_OUTPUT) return "is an output: it cannot be set";
     if (s->causality[vr] != CAUSALITY_PARAMETER && s->causality[vr] != CAUSALITY_INPUT) return "cannot be set";
     if (s->variability[vr] == VARIABILITY_CONSTANT) return "is a constant: it cannot be set";
-    if (instance->state == StepMode && s->causality[vr] == CAUSALITY_PARAMETER &&
+    if (s->causality[vr] == CAUSALITY_PARAMETER && instance->state == ContinuousTimeMode) {
+        return "is a parameter: in continuous-time mode only inputs can be set (tunable parameters in event mode)";
+    }
+    if ((instance->state == StepMode || instance->state == EventMode) && s->causality[vr] == CAUSALITY_PARAMETER &&
         s->variability[vr] != VARIABILITY_TUNABLE) {
         return "is a fixed parameter: it can be set only before initialization mode ends";
     }
@@ -251,6 +275,75 @@ int instance_set_input_derivatives(Instance *instance, const char *function, con
         }
     }
     return slave_set_input_derivatives(&instance->slave, vr, nvr, order, value);
+}
+
+/* --- model exchange --------------------------------------------------------------------------------------- */
+
+int instance_set_time(Instance *instance, const char *function, double time) {
+    if (!isfinite(time)) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: time %g; allowed: a finite time", instance->name, function, time);
+        return STATUS_ERROR;
+    }
+    return slave_set_time(&instance->slave, time);
+}
+
+/* Whether `values` is given with `n` entries, the length of the vector (if not, logged). */
+static int vector_given(Instance *instance, const char *function, const void *values, size_t n, size_t length) {
+    if (n != length) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: %zu values; allowed: %zu, this model's number", instance->name,
+                     function, n, length);
+        return 0;
+    }
+    return n == 0 || instance_given(instance, function, values, "array");
+}
+
+/* The index of the first value of `values` that is not finite, or -1. */
+static long first_not_finite(const double values[], size_t n) {
+    for (size_t i = 0; i < n; i++) {
+        if (!isfinite(values[i])) return (long)i;
+    }
+    return -1;
+}
+
+int instance_set_states(Instance *instance, const char *function, const double x[], size_t nx) {
+    if (!vector_given(instance, function, x, nx, instance->slave.nx)) return STATUS_ERROR;
+    long bad = first_not_finite(x, nx);
+    if (bad >= 0) {
+        instance_log(instance, STATUS_DISCARD, "%s: %s: state %ld is %g; allowed: finite; the states are refused",
+                     instance->name, function, bad, x[bad]);
+        return STATUS_DISCARD;
+    }
+    return nx ? slave_set_states(&instance->slave, x, nx) : STATUS_OK;
+}
+
+int instance_get_vector(Instance *instance, const char *function, Vector which, double values[], size_t n) {
+    size_t length = which == VECTOR_INDICATORS ? instance->slave.nz : instance->slave.nx;
+    if (!vector_given(instance, function, values, n, length)) return STATUS_ERROR;
+    if (n == 0) return STATUS_OK;
+    int model = which == VECTOR_DERIVATIVES || which == VECTOR_INDICATORS;
+    int status = slave_get_vector(&instance->slave, which, values, n, model ? STATUS_DISCARD : STATUS_ERROR);
+    long bad = status == STATUS_OK && model ? first_not_finite(values, n) : -1;
+    if (bad >= 0) {
+        instance_log(instance, STATUS_DISCARD, "%s: %s: value %ld is %g; the model is not defined at this time, state "
+                     "and inputs", instance->name, function, bad, values[bad]);
+        status = STATUS_DISCARD;
+    }
+    return status;
+}
+
+int instance_update_discrete_states(Instance *instance) {
+    return slave_call(&instance->slave, "update_discrete_states", 0, NULL, NULL);
+}
+
+int instance_enter(Instance *instance, ModelState next) {
+    instance->state = next;
+    return STATUS_OK;
+}
+
+int instance_count(Instance *instance, const char *function, size_t *count, size_t value) {
+    if (!instance_given(instance, function, count, "place for the number")) return STATUS_ERROR;
+    *count = value;
+    return STATUS_OK;
 }
 
 int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],

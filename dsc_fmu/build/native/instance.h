@@ -10,18 +10,25 @@
 
 #include "slave.h"
 
-/* The states of the standards' state machines that these FMUs reach (no event mode, no
-   asynchronous step, no configuration mode). */
+/* The states of the standards' state machines that these FMUs reach (no asynchronous step, no
+   configuration mode, no event mode in co-simulation). */
 typedef enum {
     Instantiated = 1 << 0,
     InitializationMode = 1 << 1,
-    StepMode = 1 << 2,   /* FMI 2.0 stepComplete; FMI 3.0 Step Mode */
-    StepFailed = 1 << 3, /* FMI 2.0 stepFailed: fmi2DoStep returned fmi2Discard */
-    Terminated = 1 << 4,
-    Error = 1 << 5,      /* FMI 2.0 error: a call returned fmi2Error (FMI 3.0 enters Terminated instead) */
+    StepMode = 1 << 2,           /* co-simulation: FMI 2.0 stepComplete; FMI 3.0 Step Mode */
+    StepFailed = 1 << 3,         /* co-simulation: FMI 2.0 stepFailed, fmi2DoStep returned fmi2Discard */
+    EventMode = 1 << 4,          /* model exchange */
+    ContinuousTimeMode = 1 << 5, /* model exchange */
+    Terminated = 1 << 6,
+    Error = 1 << 7,              /* FMI 2.0 error: a call returned fmi2Error (FMI 3.0 enters Terminated instead) */
 } ModelState;
 
-#define ANY_STATE (Instantiated | InitializationMode | StepMode | StepFailed | Terminated | Error)
+#define ANY_STATE (Instantiated | InitializationMode | StepMode | StepFailed | EventMode | ContinuousTimeMode | \
+                   Terminated | Error)
+
+/* In a mask: the function belongs to one interface only, and an instance of the other refuses it. */
+#define CS_ONLY (1 << 8)
+#define ME_ONLY (1 << 9)
 
 typedef struct Instance Instance;
 
@@ -45,11 +52,12 @@ struct Instance {
     char name[256];
     int categories; /* the log categories enabled, bit i for CATEGORIES[i] of instance.c */
     double stop_time; /* of the experiment (INFINITY: none); no step may end after it */
+    int model_exchange; /* instantiated for model exchange, else co-simulation */
     const Standard *standard;
 };
 
 /* A zeroed instance of `size` bytes (at least sizeof(Instance)) named `name`, or NULL. */
-Instance *instance_alloc(size_t size, const char *name, int logging_on, const Standard *standard);
+Instance *instance_alloc(size_t size, const char *name, int logging_on, int model_exchange, const Standard *standard);
 
 /* Create the slave (resources: a path or file URI; token: the GUID or instantiation token the
    importer passed). 0, or -1 after logging why; the caller then frees the instance. */
@@ -72,6 +80,9 @@ int instance_status(Instance *instance, int status);
 /* setup, enter, exit, terminate: call `method` with `n` floats; on success the state becomes `next`. */
 int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next);
 int instance_reset(Instance *instance);
+/* exit_initialization_mode; in model exchange the state then stops following the inputs and the
+   instance enters event mode, in co-simulation step mode. */
+int instance_exit_initialization(Instance *instance);
 int instance_do_step(Instance *instance, const char *function, double time, double step);
 int instance_set_logging(Instance *instance, const char *function, int logging_on, size_t n, const char *const categories[]);
 
@@ -84,6 +95,19 @@ int instance_set(Instance *instance, const char *function, int type, const unsig
    set_input_derivatives). The caller checks the state. */
 int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
                                    const int order[], const double value[]);
+
+/* Model exchange. The caller checks the state. */
+int instance_set_time(Instance *instance, const char *function, double time);
+int instance_set_states(Instance *instance, const char *function, const double x[], size_t nx);
+/* The vector `which` into `values` (`n` must be its length). Derivatives and event indicators that fail
+   or are not finite are STATUS_DISCARD (the model's trouble); anything else STATUS_ERROR. */
+int instance_get_vector(Instance *instance, const char *function, Vector which, double values[], size_t n);
+/* Event mode: the slave's update_discrete_states. */
+int instance_update_discrete_states(Instance *instance);
+/* Move to `next` (EventMode, ContinuousTimeMode). */
+int instance_enter(Instance *instance, ModelState next);
+/* A size the importer asks for (NULL: an error). */
+int instance_count(Instance *instance, const char *function, size_t *count, size_t value);
 
 /* For the types these FMUs have no variables of: STATUS_OK for no value references, else STATUS_ERROR
    naming the type of the first. */

@@ -255,14 +255,23 @@ static void clear_slave(Slave *s) {
     clear(&s->slave);
 }
 
-/* Take `slave` (a new reference) with its log queue and the bound methods of every step. */
+static const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_event_indicators",
+                                                     "get_continuous_states", "get_nominals"};
+
+static const char *bound_name(const Slave *s, int i) {
+    if (i < TYPES) return s->names->get[i];
+    if (i < 2 * TYPES) return s->names->set[i - TYPES];
+    if (i >= BOUND_VECTORS && i < BOUND_SET_STATES) return VECTOR_METHODS[i - BOUND_VECTORS];
+    return i == BOUND_DO_STEP ? "do_step" : i == BOUND_SET_STATES ? "set_continuous_states" : "set_time";
+}
+
+/* Take `slave` (a new reference) with its log queue and the bound methods of every call. */
 static int adopt_slave(Slave *s, PyObject *slave) {
     PyObject *queue = py.PyObject_GetAttrString(slave, "log_queue");
     PyObject *bound[BOUND_METHODS] = {NULL};
     int complete = queue != NULL;
     for (int i = 0; complete && i < BOUND_METHODS; i++) {
-        const char *name = i < TYPES ? s->names->get[i] : i < 2 * TYPES ? s->names->set[i - TYPES] : "do_step";
-        bound[i] = py.PyObject_GetAttrString(slave, name);
+        bound[i] = py.PyObject_GetAttrString(slave, bound_name(s, i));
         complete = bound[i] != NULL;
     }
     if (!complete) {
@@ -276,6 +285,25 @@ static int adopt_slave(Slave *s, PyObject *slave) {
     s->slave = slave;
     s->log_queue = queue;
     memcpy(s->bound, bound, sizeof bound);
+    return 0;
+}
+
+/* The numbers of continuous states and event indicators (native_bridge.dimensions). */
+static int read_dimensions(Slave *s) {
+    PyObject *items[] = {borrowed(s->slave)};
+    PyObject *sizes = bridge_call(s, "dimensions", pack(1, items));
+    PyObject *nx = sizes ? py.PySequence_GetItem(sizes, 0) : NULL;
+    PyObject *nz = sizes ? py.PySequence_GetItem(sizes, 1) : NULL;
+    long states = nx ? py.PyLong_AsLong(nx) : -1, indicators = nz ? py.PyLong_AsLong(nz) : -1;
+    clear(&nz);
+    clear(&nx);
+    clear(&sizes);
+    if (py.PyErr_Occurred() || states < 0 || indicators < 0 || states > MAX_VARIABLES || indicators > MAX_VARIABLES) {
+        log_exception(s, STATUS_ERROR, "reading the numbers of states and event indicators");
+        return -1;
+    }
+    s->nx = (size_t)states;
+    s->nz = (size_t)indicators;
     return 0;
 }
 
@@ -308,6 +336,7 @@ static int read_variables(Slave *s) {
         say(s, STATUS_ERROR, "%s: the variable table of the slave is not valid", s->instance_name);
         return -1;
     }
+    if (read_dimensions(s) != 0) return -1;
     s->size = (unsigned int)(largest + 1);
     s->type = malloc(s->size ? s->size : 1);
     s->causality = malloc(s->size ? s->size : 1);
@@ -547,7 +576,45 @@ int slave_call(Slave *s, const char *method, int n, const double *values, const 
 
 int slave_step(Slave *s, double time, double step, int *accepted) {
     double values[] = {time, step};
-    return call_logged(s, "do_step", s->bound[2 * TYPES], 2, values, NULL, STATUS_DISCARD, accepted);
+    return call_logged(s, "do_step", s->bound[BOUND_DO_STEP], 2, values, NULL, STATUS_DISCARD, accepted);
+}
+
+int slave_set_time(Slave *s, double time) {
+    return call_logged(s, "set_time", s->bound[BOUND_SET_TIME], 1, &time, NULL, STATUS_ERROR, NULL);
+}
+
+int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure) {
+    PyGILState_STATE gil = pyhost_enter();
+    const char *method = VECTOR_METHODS[which];
+    PyObject *result = call(borrowed(s->bound[BOUND_VECTORS + which]), NULL);
+    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
+    if (size >= 0 && size != (Py_ssize_t)n) {
+        say(s, STATUS_ERROR, "%s: %s returned %zd values; expected %zu", s->instance_name, method, size, n);
+        failure = STATUS_ERROR;
+    }
+    for (Py_ssize_t i = 0; size == (Py_ssize_t)n && i < size && !py.PyErr_Occurred(); i++) {
+        PyObject *item = py.PySequence_GetItem(result, i);
+        if (item) values[i] = py.PyFloat_AsDouble(item);
+        clear(&item);
+    }
+    int status = result && size == (Py_ssize_t)n && !py.PyErr_Occurred() ? STATUS_OK : failure;
+    if (status != STATUS_OK && py.PyErr_Occurred()) log_exception(s, failure, method);
+    py.PyErr_Clear();
+    clear(&result);
+    drain_log(s);
+    leave(s, gil);
+    return status;
+}
+
+int slave_set_states(Slave *s, const double *values, size_t n) {
+    PyGILState_STATE gil = pyhost_enter();
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
+    PyObject *items[] = {list};
+    PyObject *result = call(borrowed(s->bound[BOUND_SET_STATES]), pack(1, items));
+    int status = finished(s, result, STATUS_ERROR, "set_continuous_states");
+    leave(s, gil);
+    return status;
 }
 
 int slave_get_double(Slave *s, const char *attribute, double *value) {

@@ -27,8 +27,13 @@ enum { TYPE_REAL = DSC_TYPE_REAL, TYPE_INTEGER = DSC_TYPE_INTEGER, TYPE_BOOLEAN 
 _Static_assert(TYPE_REAL == 0 && TYPE_INTEGER == 1 && TYPE_BOOLEAN == 2 && TYPE_STRING == TYPES,
                "the type codes index the get and set methods: Real, Integer, Boolean, then String");
 
-/* Bound methods kept for every step: get by type, set by type, do_step. */
-enum { BOUND_METHODS = 2 * TYPES + 1 };
+/* Model exchange: the vectors of the slave's model, each read by one method of the slave. */
+typedef enum { VECTOR_DERIVATIVES, VECTOR_INDICATORS, VECTOR_STATES, VECTOR_NOMINALS, VECTORS } Vector;
+
+/* Bound methods kept for every call: get by type, set by type, do_step, the vectors, set_continuous_states,
+   set_time. */
+enum { BOUND_DO_STEP = 2 * TYPES, BOUND_VECTORS, BOUND_SET_STATES = BOUND_VECTORS + VECTORS, BOUND_SET_TIME,
+       BOUND_METHODS };
 enum { CAUSALITY_PARAMETER = DSC_CAUSALITY_PARAMETER, CAUSALITY_INPUT = DSC_CAUSALITY_INPUT,
        CAUSALITY_OUTPUT = DSC_CAUSALITY_OUTPUT };
 enum { VARIABILITY_CONSTANT = DSC_VARIABILITY_CONSTANT, VARIABILITY_FIXED = DSC_VARIABILITY_FIXED,
@@ -65,6 +70,8 @@ typedef struct {
     char instance_name[256];
     int visible;
     const MethodNames *names;
+    size_t nx;                  /* continuous states (model exchange) */
+    size_t nz;                  /* event indicators */
     unsigned int size;          /* largest value reference + 1 */
     signed char *type;          /* by value reference; NO_VARIABLE where there is none */
     signed char *causality;
@@ -101,6 +108,14 @@ int slave_call(Slave *s, const char *method, int n, const double *values, const 
 /* do_step(time, step): STATUS_OK with `accepted` the slave's answer, or STATUS_DISCARD after logging
    the exception. */
 int slave_step(Slave *s, double time, double step, int *accepted);
+
+/* The `n` values of the vector `which` (n must be its length); STATUS_OK, or `failure` after logging
+   the exception. */
+int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure);
+
+/* set_continuous_states(values), set_time(time): STATUS_OK or STATUS_ERROR (logged). */
+int slave_set_states(Slave *s, const double *values, size_t n);
+int slave_set_time(Slave *s, double time);
 
 /* A float attribute of the slave (such as its time). */
 int slave_get_double(Slave *s, const char *attribute, double *value);
