@@ -10,7 +10,7 @@ from pathlib import Path
 from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .scenario import COUPLINGS, ORDERS, STABILITIES, load_scenario, scenario_names
+from .scenario import COUPLINGS, INTERFACES, ORDERS, STABILITIES, ScenarioError, load_scenario, scenario_names
 
 __all__ = ["main"]
 
@@ -52,8 +52,12 @@ def _parser() -> argparse.ArgumentParser:
                           "(the standard route, FMI 2.0) instead of the FMUs' coupling parameters (default: the "
                           "scenario's)")
     run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
-    run.add_argument("--tolerance", type=float, metavar="TOL", help="error-controlled step: the estimated position "
-                     "error (m) each step may add; the step then varies within [--h-min, --h-max] from --step-size")
+    run.add_argument("--interface", choices=INTERFACES, default="co-simulation",
+                     help="co-simulation: this project's master steps the three FMUs; model-exchange: the three FMUs "
+                          "as one ODE, integrated by SciPy's DOP853 with their event indicators (default: %(default)s)")
+    run.add_argument("--tolerance", type=float, metavar="TOL", help="co-simulation: error-controlled step, the "
+                     "estimated position error (m) each step may add, the step varying within [--h-min, --h-max] "
+                     "from --step-size; model exchange: the solver's relative tolerance (default 1e-6)")
     run.add_argument("--h-min", type=float, help="smallest error-controlled step in s (default: the scenario's, 1e-5)")
     run.add_argument("--h-max", type=float, help="largest error-controlled step in s (default: the scenario's, 0.02)")
     run.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
@@ -164,16 +168,24 @@ def _scenarios(args) -> None:
         print(f"{name}: {load_scenario(name).description}")
 
 
+_COSIMULATION_ONLY = ("step_size", "order", "coupling", "input_derivatives", "h_min", "h_max")
+
+
 def _run(args) -> None:
     from .cosim.run import run_scenario
 
+    given = [name for name in _COSIMULATION_ONLY if getattr(args, name) is not None]
+    if args.interface == "model-exchange" and given:
+        option = "--" + given[0].replace("_", "-")
+        raise ScenarioError(f"{option} is a co-simulation setting; allowed with --interface model-exchange: "
+                            "--tolerance, --stop-time, --output-interval")
     scenario = load_scenario(args.scenario).with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
         coupling=args.coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
         input_derivatives=args.input_derivatives,
     )
     print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
-                       plots=not args.no_plots))
+                       plots=not args.no_plots, interface=args.interface))
 
 
 COMMANDS = {"build": _build, "export-ssp": _export, "export-fmu": _export, "sweep": _sweep, "crosscheck": _crosscheck,

@@ -15,8 +15,8 @@ from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
-    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "load_scenario", "scenario_names",
-    "SCENARIO_DIR",
+    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "INTERFACES", "load_scenario",
+    "scenario_names", "SCENARIO_DIR",
 ]
 
 ORDERS = ("gauss-seidel", "jacobi")
@@ -29,6 +29,9 @@ STABILITIES = ("settled", "local")
 the run ends up; "local", for a scenario that starts in steady tracking, also asks that the run stay
 with the reference solution from its start (the stability of steady tracking, what the linearised
 prediction predicts)."""
+INTERFACES = ("co-simulation", "model-exchange")
+"""How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange."""
+
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
 

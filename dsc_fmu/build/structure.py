@@ -95,7 +95,7 @@ def _continuous(probe) -> dict:
     x = probe.state
     values = dict(zip((v.name for v in probe.OUTPUTS), probe.outputs(x)))
     values.update(zip((s.derivative.name for s in probe.STATES), probe.derivatives(probe.time, x)))
-    values.update(zip((v.name for v in probe.INDICATORS), probe.event_indicators(x)))
+    values.update(zip((v.name for v in probe.INDICATORS), probe.indicator_values(x)))
     return values
 
 

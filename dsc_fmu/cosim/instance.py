@@ -1,5 +1,5 @@
-"""One FMU loaded for a master (FMI 2.0 or 3.0, on fmpy): extracted, instantiated, its variables by name,
-its log messages collected."""
+"""One FMU loaded for a master (FMI 2.0 or 3.0, co-simulation or model exchange, on fmpy): extracted,
+instantiated, its variables by name, its log messages collected."""
 
 from __future__ import annotations
 
@@ -12,9 +12,9 @@ from zipfile import BadZipFile
 
 from fmpy import calloc, extract, free, read_model_description
 from fmpy.fmi1 import FMICallException
-from fmpy.fmi2 import FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
+from fmpy.fmi2 import FMU2Model, FMU2Slave, fmi2CallbackFunctions, fmi2CallbackLoggerTYPE
 from fmpy.fmi2 import fmi2CallbackAllocateMemoryTYPE, fmi2CallbackFreeMemoryTYPE
-from fmpy.fmi3 import FMU3Slave
+from fmpy.fmi3 import FMU3Model, FMU3Slave
 from fmpy.model_description import ValidationError
 
 from ..errors import CosimulationError
@@ -68,16 +68,24 @@ class FMU2SlaveNamed(_Named, FMU2Slave):
     name's start)."""
 
 
-class FMU3SlaveNamed(_Named, FMU3Slave):
-    """fmpy's FMU3Slave under the FMI 2.0 names the master calls: Real is Float64, Integer is Int32;
-    ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``; a failing
-    call names its FMU. (fmpy reads the FMI version from the class name's start.)"""
+class _Fmi2Names(_Named):
+    """An fmpy FMI 3.0 instance under the FMI 2.0 names the masters call: Real is Float64, Integer is
+    Int32; ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``; a
+    failing call names its FMU."""
 
-    getReal = FMU3Slave.getFloat64
-    setReal = FMU3Slave.setFloat64
-    getInteger = FMU3Slave.getInt32
-    setInteger = FMU3Slave.setInt32
     _experiment = (0.0, None)
+
+    def getReal(self, vr):
+        return self.getFloat64(vr)
+
+    def setReal(self, vr, values):
+        self.setFloat64(vr, values)
+
+    def getInteger(self, vr):
+        return self.getInt32(vr)
+
+    def setInteger(self, vr, values):
+        self.setInt32(vr, values)
 
     def setupExperiment(self, startTime: float = 0.0, stopTime: float | None = None) -> None:
         self._experiment = (startTime, stopTime)
@@ -86,8 +94,26 @@ class FMU3SlaveNamed(_Named, FMU3Slave):
         start, stop = self._experiment
         super().enterInitializationMode(startTime=start, stopTime=stop)
 
+
+class FMU3SlaveNamed(_Fmi2Names, FMU3Slave):
+    """fmpy's FMU3Slave under the FMI 2.0 names (fmpy reads the FMI version from the class name's start)."""
+
     def doStep(self, currentCommunicationPoint: float, communicationStepSize: float) -> None:
         super().doStep(currentCommunicationPoint, communicationStepSize)
+
+
+class FMU2ModelNamed(_Named, FMU2Model):
+    """fmpy's FMU2Model (model exchange), naming its FMU in a failing call."""
+
+
+class FMU3ModelNamed(_Fmi2Names, FMU3Model):
+    """fmpy's FMU3Model under the FMI 2.0 names, model exchange's included."""
+
+    def getDerivatives(self, dx, nx):
+        self.getContinuousStateDerivatives(dx, nx)
+
+    def newDiscreteStates(self):
+        return self.updateDiscreteStates()
 
 
 _KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 2.0 names
@@ -108,11 +134,18 @@ def _fmi3_logger(log: list[LogMessage], name: str):
     return logger
 
 
-class LoadedFmu:
-    """One loaded FMU (FMI 2.0 or 3.0): its instance and the value references and types of its variables by name."""
+_CLASSES = {(2, False): FMU2SlaveNamed, (3, False): FMU3SlaveNamed, (2, True): FMU2ModelNamed,
+            (3, True): FMU3ModelNamed}
 
-    def __init__(self, name: str, workdir: Path | None, log: list[LogMessage] | None = None):
+
+class LoadedFmu:
+    """One loaded FMU (FMI 2.0 or 3.0; co-simulation, or with ``model_exchange`` model exchange): its instance
+    and the value references and types of its variables by name."""
+
+    def __init__(self, name: str, workdir: Path | None, log: list[LogMessage] | None = None, *,
+                 model_exchange: bool = False):
         self.name = name
+        self.model_exchange = model_exchange
         self.log = log if log is not None else []
         self.initialised = False
         self.slave = None
@@ -126,7 +159,13 @@ class LoadedFmu:
         except (ValidationError, BadZipFile) as error:
             raise CosimulationError(f"{path}: not a valid FMU for {self.name}: {error}", 0.0) from None
         extract(str(path), unzipdir=self.folder)
-        self.guid, self.model_identifier = md.guid, md.coSimulation.modelIdentifier
+        interface = md.modelExchange if self.model_exchange else md.coSimulation
+        if interface is None:
+            kind = "model exchange" if self.model_exchange else "co-simulation"
+            raise CosimulationError(f"{path}: {self.name} does not offer {kind}; build it with `dsc-fmu build`", 0.0)
+        self.guid, self.model_identifier = md.guid, interface.modelIdentifier
+        self.states = len(md.derivatives)
+        self.indicators = md.numberOfEventIndicators or 0
         self.fmi_version = 3 if md.fmiVersion.startswith("3") else 2
         self.variables = {v.name: v for v in md.modelVariables}
         self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
@@ -136,13 +175,12 @@ class LoadedFmu:
     def instantiate(self, callbacks) -> None:
         """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used); an FMI 3.0
         FMU logs through its own callback instead, into the same log."""
+        kind = _CLASSES[self.fmi_version, self.model_exchange]
+        slave = kind(guid=self.guid, unzipDirectory=self.folder, modelIdentifier=self.model_identifier,
+                     instanceName=self.name)
         if self.fmi_version == 3:
-            slave = FMU3SlaveNamed(guid=self.guid, unzipDirectory=self.folder,
-                                   modelIdentifier=self.model_identifier, instanceName=self.name)
             slave.instantiate(loggingOn=True, logMessage=_fmi3_logger(self.log, self.name))
         else:
-            slave = FMU2SlaveNamed(guid=self.guid, unzipDirectory=self.folder,
-                                   modelIdentifier=self.model_identifier, instanceName=self.name)
             slave.instantiate(callbacks=callbacks, loggingOn=True)
         slave.fmu = self.name
         self.slave = slave  # only an instantiated slave is freed

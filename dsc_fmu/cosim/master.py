@@ -22,7 +22,10 @@ from .instance import LoadedFmu, LogMessage, logging_callbacks, type_name
 from .derivatives import InputRamps
 from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
 
-__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "cosimulate", "step_count"]
+__all__ = [
+    "CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "Recorder", "Wiring", "check_values",
+    "close_all", "cosimulate", "step_count",
+]
 
 
 @dataclass
@@ -74,12 +77,12 @@ class Cosimulator:
         self.log: list[LogMessage] = []
         self._callbacks = logging_callbacks(self.log)
         self._loaded: list[LoadedFmu] = []
-        self._finalizer = weakref.finalize(self, _close_all, self._loaded)
+        self._finalizer = weakref.finalize(self, close_all, self._loaded)
         try:
             for name in ORDER:
                 self._loaded.append(LoadedFmu(name, workdir, self.log))
                 self._loaded[-1].load(paths[name], self._callbacks)
-            self._wiring = _Wiring({fmu.name: fmu for fmu in self._loaded})
+            self._wiring = Wiring({fmu.name: fmu for fmu in self._loaded})
         except BaseException:
             self.close()
             raise
@@ -133,7 +136,7 @@ class Cosimulator:
         )
 
 
-class _Wiring:
+class Wiring:
     """The three loaded FMUs by role and the value references of the exchange and the recording,
     looked up once per load."""
 
@@ -148,6 +151,7 @@ class _Wiring:
         self.controller_in = controller.refs(measured_plant + measured_reference)
         self.controller_u, self.plant_u = controller.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
         self.checked = [f"{PLANT}.{s}" for s in measured_plant] + [f"{REFERENCE}.{s}" for s in measured_reference]
+        self.u_names = (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2")
         self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
         self.readers, offset = [], 1  # (FMU, kind, value references, table columns) of every recorded output
         for name, names in signals.RECORDED.items():
@@ -163,14 +167,14 @@ class _Run:
     recorder, the voltages of the last exchange, the master's input ramps, the error-controlled
     steps, and where the run is (for the message of a failure)."""
 
-    def __init__(self, scenario: Scenario, wiring: _Wiring, log: list[LogMessage]):
+    def __init__(self, scenario: Scenario, wiring: Wiring, log: list[LogMessage]):
         self.scenario, self.settings, self.wiring, self.log = scenario, scenario.simulation, wiring, log
         fmus = wiring.fmus
         self.reference, self.plant, self.controller = (fmus[name].slave for name in (REFERENCE, PLANT, CONTROLLER))
         settings = self.settings
         self.n = step_count(settings.stop_time, settings.step_size)
         self.every = max(1, round(settings.output_interval / settings.step_size))
-        self.recorder = _Recorder(wiring, self.n // self.every + 1 + (self.n % self.every != 0))
+        self.recorder = Recorder(wiring, self.n // self.every + 1 + (self.n % self.every != 0))
         self.at = (0, 0.0)
         self.u = None
         self.ramps = self._input_ramps() if settings.input_derivatives else None
@@ -205,7 +209,8 @@ class _Run:
 
     def settings_record(self) -> dict:
         settings = self.settings
-        return {"scenario": self.scenario.name, "step_size": settings.step_size, "order": settings.order,
+        return {"scenario": self.scenario.name, "interface": "co-simulation", "step_size": settings.step_size,
+                "order": settings.order,
                 "coupling": settings.coupling, "stop_time": settings.stop_time,
                 "output_interval": settings.output_interval, "tolerance": settings.tolerance,
                 "input_derivatives": settings.input_derivatives}
@@ -227,7 +232,7 @@ class _Run:
         """The measurements at t = 0 (checked), the exchange there and its row."""
         wiring = self.wiring
         measurements = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
-        _check(measurements, wiring.checked, 0.0, self.settings.bound)
+        check_values(measurements, wiring.checked, 0.0, self.settings.bound)
         self._exchange(0.0, measurements, True)
         self.recorder.record(0.0)
 
@@ -242,7 +247,7 @@ class _Run:
         self.reference.doStep(t, step)
         self.plant.doStep(t, step)
         measured = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
-        _check(measured, wiring.checked, end, self.settings.bound)
+        check_values(measured, wiring.checked, end, self.settings.bound)
         if ramps is not None:
             ramps.before_controller(step, measured)
         elif not jacobi:
@@ -313,7 +318,7 @@ class _Run:
         if set_inputs:
             self.controller.setReal(wiring.controller_in, measurements)
         u = self.controller.getReal(wiring.controller_u)
-        _check(u, _U_NAMES, at, self.settings.bound)
+        check_values(u, wiring.u_names, at, self.settings.bound)
         self.plant.setReal(wiring.plant_u, u)
         self.u = u
         if self.ramps is not None:
@@ -329,9 +334,6 @@ class _Run:
         return failure
 
 
-_U_NAMES = (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2")
-
-
 def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
     """ScenarioError if the scenario asks the FMUs for what their FMI version lacks (before any FMU is touched)."""
     if scenario.simulation.input_derivatives and any(fmu.fmi_version != 2 for fmu in fmus):
@@ -340,7 +342,7 @@ def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
                             "parameters (input_derivatives = false)")
 
 
-def _check(values, names, at: float, bound: float) -> None:
+def check_values(values, names, at: float, bound: float) -> None:
     """CosimulationError at the first of ``values`` (named by ``names``) that is not finite or
     exceeds ``bound`` in magnitude."""
     for name, value in zip(names, values):
@@ -349,10 +351,10 @@ def _check(values, names, at: float, bound: float) -> None:
             raise CosimulationError(f"diverged at t = {at:.6g} s: {name} = {value:.6g} {reason}", at, name, value)
 
 
-class _Recorder:
+class Recorder:
     """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``."""
 
-    def __init__(self, wiring: _Wiring, rows: int):
+    def __init__(self, wiring: Wiring, rows: int):
         self.columns = wiring.columns
         self.table = np.full((rows, len(self.columns)), np.nan)
         self.rows = 0
@@ -373,7 +375,7 @@ class _Recorder:
         return _result(self.table[: self.rows], self.columns)
 
 
-def _close_all(fmus: list[LoadedFmu]) -> None:
+def close_all(fmus: list[LoadedFmu]) -> None:
     """Close every FMU of ``fmus`` (last loaded first), removing all folders even if one fails."""
     try:
         while fmus:

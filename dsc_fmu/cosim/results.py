@@ -15,18 +15,13 @@ __all__ = ["write_results", "summary", "format_summary"]
 
 
 def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
-    """What ``summary.json`` holds: scenario, settings, metrics, units of the CSV columns, FMU build ids."""
+    """What ``summary.json`` holds: scenario, settings (the interface first; for model exchange ``steps``
+    counts derivative evaluations), metrics, units of the CSV columns, FMU build ids."""
     return {
         "scenario": scenario.name,
         "scenario_source": scenario.source,
         "settings": {
-            "step_size": run.settings["step_size"],
-            "order": run.settings["order"],
-            "coupling": run.settings["coupling"],
-            "input_derivatives": run.settings["input_derivatives"],
-            "stop_time": run.settings["stop_time"],
-            "output_interval": run.settings["output_interval"],
-            "tolerance": run.settings["tolerance"],
+            **{key: value for key, value in run.settings.items() if key != "scenario"},
             "steps": run.steps,
             "steps_rejected": run.rejected,
             "fmu_steps": run.fmu_steps,
@@ -60,17 +55,26 @@ def _number(value, unit: str) -> str:
 def format_summary(run: CosimulationResult, metrics: dict) -> str:
     """A short multi-line text of the run's settings, cost and metrics, for the command line."""
     s = run.settings
+    guard = f"beta guard acted in {metrics['beta_guard_count']} steps"
+    if s["interface"] == "model-exchange":
+        guard = f"beta guard engaged {metrics['beta_guard_count']} times"
+        how = [f"scenario {s['scenario']}: model exchange, {s['method']} at relative tolerance {s['tolerance']:g}, "
+               f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
+               f"  {run.steps} derivative evaluations and {s['events']} events in {run.wall_time:.2f} s wall time"]
+    else:
+        how = [f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
+               f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
+               f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
+               f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
+                   "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} "
+                   f"steps taken again, step {run.step_sizes['step_size'].min():.3g} s to "
+                   f"{run.step_sizes['step_size'].max():.3g} s)")]
     return "\n".join([
-        f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
-        f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
-        f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
-        f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
-            "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} steps "
-            f"taken again, step {run.step_sizes['step_size'].min():.3g} s to {run.step_sizes['step_size'].max():.3g} s)"),
+        *how,
         f"  position error over [{metrics['window_start_s']:g}, {metrics['window_end_s']:g}] s: "
         f"final {_number(metrics['final_position_error_m'], 'm')}, "
         f"RMS {_number(metrics['rms_position_error_m'], 'm')}, max {_number(metrics['max_position_error_m'], 'm')}",
         f"  max |thetae| over the same window: {_number(metrics['max_abs_thetae_rad'], 'rad')}",
         f"  position error below 0.1 m from: {_number(metrics['settling_time_0p1_s'], 's')}",
-        f"  max |u|: {_number(metrics['max_abs_u_V'], 'V')}; beta guard acted in {metrics['beta_guard_count']} steps",
+        f"  max |u|: {_number(metrics['max_abs_u_V'], 'V')}; {guard}",
     ])

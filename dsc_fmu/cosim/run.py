@@ -5,23 +5,29 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
-from ..scenario import Scenario
+from ..scenario import INTERFACES, Scenario, ScenarioError
 from .master import cosimulate
 from .metrics import tracking_metrics
+from .model_exchange import simulate_model_exchange
 from .results import format_summary, write_results
 
 __all__ = ["run_scenario"]
 
+_SIMULATE = dict(zip(INTERFACES, (cosimulate, simulate_model_exchange)))
+
 
 def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = DEFAULT_FMU_DIR,
-                 plots: bool = True) -> str:
-    """Co-simulate ``scenario`` through the FMUs and write ``results.csv``, ``summary.json`` and,
+                 plots: bool = True, interface: str = "co-simulation") -> str:
+    """Simulate ``scenario`` through the FMUs and write ``results.csv``, ``summary.json`` and,
     with ``plots``, ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2) into ``out_dir``; an
-    error-controlled run (``scenario.simulation.tolerance``) adds ``step_sizes.csv`` and ``step_sizes.png``.
+    error-controlled co-simulation (``scenario.simulation.tolerance``) adds ``step_sizes.csv`` and
+    ``step_sizes.png``. ``interface`` is one of ``INTERFACES``.
 
     Returns the printed summary. Nothing is written when the run fails.
     """
-    run = cosimulate(scenario, ensure_fmus(fmu_dir))
+    if interface not in INTERFACES:
+        raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")
+    run = _SIMULATE[interface](scenario, ensure_fmus(fmu_dir))
     metrics = tracking_metrics(run.result, scenario.simulation.stop_time)
     out_dir = Path(out_dir)
     paths = write_results(out_dir, run, scenario, metrics)

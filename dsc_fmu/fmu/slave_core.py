@@ -38,7 +38,7 @@ class SlaveCore:
     OUTPUTS: tuple = ()
     STATES: tuple = ()  # models.states.ContinuousState of each entry of the state vector
     LOCALS: tuple = ()  # the states' variables that are not outputs
-    INDICATORS: tuple = ()  # the variables of ``event_indicators``
+    INDICATORS: tuple = ()  # the variables of ``indicator_values``
 
     def _init_core(self) -> None:
         """Set up the values and register every variable of the tables (call from ``__init__``)."""
@@ -246,7 +246,7 @@ class SlaveCore:
         return self.derivatives(self.time, self.current_state())
 
     def get_event_indicators(self) -> list:
-        return self.event_indicators(self.current_state())
+        return self.indicator_values(self.current_state())
 
     def get_nominals(self) -> list:
         return [s.nominal for s in self.STATES]
@@ -262,7 +262,7 @@ class SlaveCore:
         """Event mode: choose the switches held until the next event."""
         self._cache = None
 
-    def event_indicators(self, x: list) -> list:
+    def indicator_values(self, x: list) -> list:
         """Hook: the event indicators at state ``x`` (none by default)."""
         return []
 

@@ -198,7 +198,7 @@ class DSCControllerModel:
         law = control_law(self.constants, x, self.u, self.held)
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
-    def event_indicators(self, x):
+    def indicator_values(self, x):
         return event_indicators(self.constants, self.u)
 
     def update_discrete_states(self):
@@ -208,8 +208,8 @@ class DSCControllerModel:
         if held.guarded and not (self.held and self.held.guarded):
             self.beta_guard_count += 1
             self.log_warning(
-                f"{self.instance_name}: beta = {control_law(self.constants, self.state, self.u).beta:.6g} < beta_min = "
-                f"{self.p['beta_min']:g} at t = {self.time:.6g} s: h2 divides by beta_min (outside the region of Remark 3)"
+                f"{self.instance_name}: beta < beta_min = {self.p['beta_min']:g} from t = {self.time:.6g} s: h2 "
+                "divides by beta_min (outside the region of Remark 3)"
             )
         self.held = held
         super().update_discrete_states()

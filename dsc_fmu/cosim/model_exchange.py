@@ -1,0 +1,222 @@
+"""The three FMUs as one ODE through model exchange (FMI 2.0 or 3.0): the closed loop with no coupling
+error, integrated by SciPy's ``solve_ivp`` with the FMUs' event indicators as its events."""
+
+from __future__ import annotations
+
+import ctypes
+import time as clock
+
+import numpy as np
+from fmpy.fmi1 import FMICallException
+from scipy.integrate import solve_ivp
+
+from ..errors import CosimulationError
+from ..identity import fmu_build_id
+from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..scenario import Scenario
+from .instance import LoadedFmu, LogMessage, logging_callbacks
+from .master import CosimulationResult, Wiring, Recorder, check_values, close_all
+from .reference_solution import output_times
+
+__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
+
+METHOD = "DOP853"
+"""The integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
+monolithic reference solution uses."""
+
+DEFAULT_TOLERANCE = 1e-6
+"""The relative tolerance when the scenario gives none; each state's absolute tolerance is this times its nominal."""
+
+_PAST_EVENT = 1e-9  # s: an event is handled this far past the root the solver found, on the step's interpolant
+
+
+class _Loop:
+    """The loaded FMUs as one ODE: the state vector is the reference's, the plant's and the controller's
+    continuous states in that order; each evaluation sets the time and states, passes outputs to inputs
+    in dependency order (reference and plant, then the controller, then the plant's voltages) and reads
+    the derivatives or the event indicators."""
+
+    def __init__(self, fmus: dict[str, LoadedFmu], wiring: Wiring, bound: float):
+        self.fmus, self.wiring, self.bound = fmus, wiring, bound
+        self.models = [fmus[name].slave for name in ORDER]
+        self.sizes = [fmus[name].states for name in ORDER]
+        self.offsets = np.cumsum([0, *self.sizes])
+        self.buffers = [(ctypes.c_double * n)() for n in self.sizes]
+        controller = fmus[CONTROLLER]
+        self.indicators = (ctypes.c_double * controller.indicators)()
+        self.evaluated = None
+        self.at = 0.0
+        self.evaluations = 0
+
+    def exchange(self) -> None:
+        """Outputs to inputs at the current time and states (checked against the bound)."""
+        wiring, fmus = self.wiring, self.fmus
+        measured = fmus[PLANT].slave.getReal(wiring.plant_out) + fmus[REFERENCE].slave.getReal(wiring.reference_out)
+        check_values(measured, wiring.checked, self.at, self.bound)
+        fmus[CONTROLLER].slave.setReal(wiring.controller_in, measured)
+        u = fmus[CONTROLLER].slave.getReal(wiring.controller_u)
+        check_values(u, wiring.u_names, self.at, self.bound)
+        fmus[PLANT].slave.setReal(wiring.plant_u, u)
+
+    def load(self, t: float, y: np.ndarray) -> None:
+        """The FMUs at time ``t`` and states ``y``, their inputs exchanged (once per distinct point)."""
+        key = (t, y.tobytes())
+        if key == self.evaluated:
+            return
+        self.at = t
+        for model, buffer, start, n in zip(self.models, self.buffers, self.offsets, self.sizes):
+            model.setTime(t)
+            buffer[:] = y[start:start + n]
+            model.setContinuousStates(buffer, n)
+        self.exchange()
+        self.evaluated = key
+
+    def states(self) -> np.ndarray:
+        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
+            model.getContinuousStates(buffer, n)
+        return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
+
+    def nominals(self) -> np.ndarray:
+        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
+            model.getNominalsOfContinuousStates(buffer, n)
+        return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
+
+    def derivatives(self, t: float, y: np.ndarray) -> np.ndarray:
+        self.evaluations += 1
+        self.load(t, y)
+        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
+            model.getDerivatives(buffer, n)
+        return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
+
+    def indicator(self, index: int):
+        """The solver's event function of the controller's event indicator ``index``."""
+
+        def event(t: float, y: np.ndarray) -> float:
+            self.load(t, y)
+            self.fmus[CONTROLLER].slave.getEventIndicators(self.indicators, len(self.indicators))
+            return self.indicators[index]
+
+        event.terminal = True
+        return event
+
+    def event(self) -> None:
+        """Event mode at the loaded point: every FMU updates its discrete states until none needs more."""
+        for model in self.models:
+            model.enterEventMode()
+        for model in self.models:
+            while model.newDiscreteStates()[0]:
+                pass
+            model.enterContinuousTimeMode()
+        self.evaluated = None
+
+
+def _start(fmus: dict[str, LoadedFmu], loop: _Loop, scenario: Scenario) -> None:
+    """Initialization: parameters, the exchange at t = 0 (the controller's filters start from it), the
+    first event iteration, continuous-time mode."""
+    stop = scenario.simulation.stop_time
+    for name in ORDER:
+        fmus[name].enter_initialization(stop, scenario.parameters(name))
+    loop.exchange()
+    for name in ORDER:
+        fmus[name].slave.exitInitializationMode()
+    for model in loop.models:
+        while model.newDiscreteStates()[0]:
+            pass
+        model.enterContinuousTimeMode()
+
+
+def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float) -> int:
+    """Integrate from the FMUs' states at 0 to ``times[-1]``, recording a row at each of ``times``;
+    stop at every event, handle it just past the root and go on. Returns the events handled."""
+    y = loop.states()
+    atol = tolerance * loop.nominals()
+    events = [loop.indicator(i) for i in range(len(loop.indicators))]
+    t, stop, handled = 0.0, times[-1], 0
+    loop.load(t, y)
+    recorder.record(t)
+    pending = times[1:]
+    while t < stop:
+        solution = solve_ivp(loop.derivatives, (t, stop), y, method=METHOD, rtol=tolerance, atol=atol, events=events,
+                             t_eval=pending, dense_output=True)
+        if solution.status < 0:
+            raise CosimulationError(f"the solver failed at t = {solution.t[-1]:.6g} s: {solution.message}",
+                                    float(solution.t[-1]))
+        for k, at in enumerate(solution.t):
+            loop.load(at, solution.y[:, k])
+            recorder.record(at)
+        pending = pending[len(solution.t):]
+        if solution.status == 0:
+            break
+        found = min(float(ts[0]) for ts in solution.t_events if len(ts))
+        t = min(found + _PAST_EVENT, stop)
+        y = solution.sol(t)
+        loop.load(t, y)
+        loop.event()
+        handled += 1
+    return handled
+
+
+def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: float | None = None,
+                            output_interval: float | None = None, tolerance: float | None = None,
+                            workdir=None) -> CosimulationResult:
+    """Simulate ``scenario`` through the model-exchange interface of the FMUs in ``fmu_paths`` (by name).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario; its parameters go to the FMUs, its ``stop_time``, ``output_interval`` and
+        ``bound`` apply.
+    fmu_paths : dict
+        The three FMU files by name (FMI 2.0 or 3.0, each with ``ModelExchange``).
+    stop_time, output_interval : float, optional
+        s; None takes the scenario's.
+    tolerance : float, optional
+        The solver's relative tolerance (each state's absolute tolerance is this times its nominal);
+        None takes the scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``.
+    workdir : path, optional
+        Where the FMUs are extracted (a temporary folder by default).
+
+    Returns
+    -------
+    CosimulationResult
+        ``result`` has a row at every output time (the same columns as co-simulation); ``steps`` counts
+        the derivative evaluations, ``settings`` names the interface and the tolerance.
+
+    Raises
+    ------
+    CosimulationError
+        A failing FMI call (naming its FMU), a signal beyond ``bound`` or the solver giving up.
+    """
+    scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval, tolerance=tolerance)
+    settings = scenario.simulation
+    rtol = settings.tolerance or DEFAULT_TOLERANCE
+    paths = fmu_files(fmu_paths)
+    started = clock.perf_counter()
+    log: list[LogMessage] = []
+    callbacks = logging_callbacks(log)
+    loaded: list[LoadedFmu] = []
+    times = output_times(settings.stop_time, settings.output_interval)
+    try:
+        for name in ORDER:
+            loaded.append(LoadedFmu(name, workdir, log, model_exchange=True))
+            loaded[-1].load(paths[name], callbacks)
+        fmus = {fmu.name: fmu for fmu in loaded}
+        wiring = Wiring(fmus)
+        recorder = Recorder(wiring, len(times))
+        loop = _Loop(fmus, wiring, settings.bound)
+        try:
+            _start(fmus, loop, scenario)
+            events = _integrate(loop, recorder, times, rtol)
+        except FMICallException as error:
+            name = getattr(error, "fmu", "an FMU")
+            messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
+            raise CosimulationError(f"{name} failed at t = {loop.at:.6g} s: {error} Its last log messages: {messages}",
+                                    loop.at) from None
+    finally:
+        close_all(loaded)
+    return CosimulationResult(
+        result=recorder.result(), steps=loop.evaluations, wall_time=clock.perf_counter() - started,
+        settings={"scenario": scenario.name, "interface": "model-exchange", "method": METHOD, "tolerance": rtol,
+                  "stop_time": settings.stop_time, "output_interval": settings.output_interval, "events": events},
+        log=list(log), fmus={name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()},
+    )
