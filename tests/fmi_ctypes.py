@@ -1,4 +1,4 @@
-"""A minimal FMI 2.0 and FMI 3.0 co-simulation driver on ctypes and the standard library only.
+"""A minimal FMI 2.0 and FMI 3.0 driver (co-simulation; model exchange instantiated, its calls raw) on ctypes and the standard library only.
 
 The isolation tests load it by file path inside a subprocess in which numpy, fmpy, scipy and
 dsc_fmu cannot be imported (see ``isolation.py``), so it imports nothing outside the standard
@@ -146,7 +146,7 @@ class _Slave:
 
 # --- FMI 2.0 ----------------------------------------------------------------------------------------
 
-FMI2_CO_SIMULATION = 1  # fmi2Type
+FMI2_MODEL_EXCHANGE, FMI2_CO_SIMULATION = 0, 1  # fmi2Type
 # The logger is variadic in C; ctypes cannot receive the varargs, so they are ignored (the message
 # is kept as its format string, which is what pythonfmu passes: a complete message without arguments).
 LoggerType = CFUNCTYPE(None, c_void_p, c_char_p, c_int, c_char_p, c_char_p)
@@ -166,7 +166,7 @@ class CallbackFunctions(Structure):
 
 
 class Fmi2Slave(_Slave):
-    """One instance of an extracted FMI 2.0 co-simulation FMU.
+    """One instance of an extracted FMI 2.0 FMU (co-simulation, or model exchange with ``instantiate``'s flag).
 
     ``messages`` collects ``(instance_name, status, category, message)`` from the FMU's logger.
     """
@@ -226,11 +226,12 @@ class Fmi2Slave(_Slave):
     def _free_memory(self, pointer):
         self._c_runtime().free(pointer)
 
-    def instantiate(self, logging_on: bool = True, visible: bool = False):
+    def instantiate(self, logging_on: bool = True, visible: bool = False, model_exchange: bool = False):
         resources = (self.unzipped / "resources").as_uri()
         self._instantiate(
-            "fmi2Instantiate", self.instance_name.encode(), FMI2_CO_SIMULATION, self.description.get("guid").encode(),
-            resources.encode(), byref(self._callbacks), int(visible), int(logging_on),
+            "fmi2Instantiate", self.instance_name.encode(), FMI2_MODEL_EXCHANGE if model_exchange else FMI2_CO_SIMULATION,
+            self.description.get("guid").encode(), resources.encode(), byref(self._callbacks), int(visible),
+            int(logging_on),
         )
 
     def setup_experiment(self, start_time: float = 0.0, stop_time: float | None = None):
@@ -268,7 +269,7 @@ IntermediateUpdateType = CFUNCTYPE(
 
 
 class Fmi3Slave(_Slave):
-    """One instance of an extracted FMI 3.0 co-simulation FMU.
+    """One instance of an extracted FMI 3.0 FMU (co-simulation, or model exchange with ``instantiate``'s flag).
 
     ``messages`` collects ``(status, category, message)`` from the FMU's logMessage callback.
     """
@@ -281,6 +282,9 @@ class Fmi3Slave(_Slave):
         "fmi3InstantiateCoSimulation": (c_void_p, [
             c_char_p, c_char_p, c_char_p, c_bool, c_bool, c_bool, c_bool, ValueReferences, c_size_t, c_void_p,
             LogMessageType, IntermediateUpdateType,
+        ]),
+        "fmi3InstantiateModelExchange": (c_void_p, [
+            c_char_p, c_char_p, c_char_p, c_bool, c_bool, c_void_p, LogMessageType,
         ]),
         "fmi3FreeInstance": (None, [c_void_p]),
         "fmi3EnterInitializationMode": (c_int, [c_void_p, c_bool, c_double, c_double, c_bool, c_double]),
@@ -312,13 +316,14 @@ class Fmi3Slave(_Slave):
     def _log(self, environment, status, category, message):
         self.messages.append((status, _decode(category), _decode(message)))
 
-    def instantiate(self, logging_on: bool = True, visible: bool = False):
+    def instantiate(self, logging_on: bool = True, visible: bool = False, model_exchange: bool = False):
         resources = str(self.unzipped / "resources") + os.sep
-        self._instantiate(
-            "fmi3InstantiateCoSimulation", self.instance_name.encode(),
-            self.description.get("instantiationToken").encode(), resources.encode(),
-            visible, logging_on, False, False, None, 0, None, self._log_message, IntermediateUpdateType(),
-        )
+        names = (self.instance_name.encode(), self.description.get("instantiationToken").encode(), resources.encode())
+        if model_exchange:
+            self._instantiate("fmi3InstantiateModelExchange", *names, visible, logging_on, None, self._log_message)
+        else:
+            self._instantiate("fmi3InstantiateCoSimulation", *names, visible, logging_on, False, False, None, 0, None,
+                              self._log_message, IntermediateUpdateType())
 
     def enter_initialization_mode(self, start_time: float = 0.0, stop_time: float | None = None,
                                   tolerance: float | None = None):

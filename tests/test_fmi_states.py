@@ -2,13 +2,14 @@
 state these FMUs reach, allowed exactly where the standard's state tables allow it; and the rules that
 come with them (logging, discarded steps, start values, input derivatives before initialisation).
 
-The tables below are the standards' (FMI 2.0.4, section 4.2.4, the co-simulation state table; FMI
-3.0.2, sections 2.3 and 4.2, the allowed calls of each state), written out for the states these FMUs
-reach: instantiated (I), initialization mode (N), step mode / stepComplete (S), FMI 2.0 stepFailed
-(F), terminated (T) and FMI 2.0 error (E). A call the standard does not allow returns fmiError, logs
-why, and leaves the instance in the error state (FMI 2.0 error, FMI 3.0 terminated). A function
-these FMUs do not offer (model exchange, events, clocks, derivatives) is fmiError in every state.
-The walk runs the FMUs' binary through ctypes, in this process (a Python host).
+The tables below are the standards' (FMI 2.0.4, sections 3.2.3 and 4.2.4, the model-exchange and
+co-simulation state tables; FMI 3.0.2, sections 2.3, 3.2 and 4.2, the allowed calls of each state),
+written out for the states these FMUs reach: instantiated (I), initialization mode (N), step mode /
+stepComplete (S), FMI 2.0 stepFailed (F), event mode (V), continuous-time mode (C), terminated (T) and
+FMI 2.0 error (E). A call the standard does not allow, or a function of the other interface, returns
+fmiError, logs why, and leaves the instance in the error state (FMI 2.0 error, FMI 3.0 terminated). A
+function these FMUs do not offer (co-simulation's event mode, clocks, derivatives) is fmiError in every
+state. The walk runs the FMUs' binary through ctypes, in this process (a Python host).
 """
 
 import ctypes
@@ -25,8 +26,11 @@ from fmi_ctypes import Fmi2Slave, Fmi3Slave, FmiCallError
 ERROR, DISCARD = 3, 2
 FMI2_STATES = "INSFTE"
 FMI3_STATES = "INST"
+FMI2_ME_STATES = "INVCTE"
+FMI3_ME_STATES = "INVCT"
 STATE_NAMES = {"I": "instantiated", "N": "initialization mode", "S": "step mode", "F": "step failed",
-               "T": "terminated", "E": "error"}
+               "V": "event mode", "C": "continuous-time mode", "T": "terminated", "E": "error"}
+
 
 # FMI 2.0.4, co-simulation (section 4.2.4): the states each function is allowed in.
 FMI2_ALLOWED = {
@@ -40,6 +44,19 @@ FMI2_ALLOWED = {
     "fmi2GetRealOutputDerivatives": "SFTE", "fmi2DoStep": "S", "fmi2CancelStep": "",
     **{f"fmi2Get{t}Status": "SFT" for t in ("", "Real", "Integer", "Boolean", "String")},
 }
+# FMI 2.0.4, model exchange (section 3.2.3); the co-simulation functions are allowed nowhere.
+FMI2_ME_ALLOWED = {
+    "fmi2SetDebugLogging": "INVCTE", "fmi2SetupExperiment": "I", "fmi2EnterInitializationMode": "I",
+    "fmi2ExitInitializationMode": "N", "fmi2Terminate": "VC", "fmi2Reset": "INVCTE",
+    **{f"fmi2Get{t}": "NVCTE" for t in ("Real", "Integer", "Boolean", "String")},
+    "fmi2SetReal": "INVC", **{f"fmi2Set{t}": "INV" for t in ("Integer", "Boolean", "String")},
+    **{f: "INVCTE" for f in ("fmi2GetFMUstate", "fmi2SetFMUstate", "fmi2FreeFMUstate", "fmi2SerializedFMUstateSize",
+                             "fmi2SerializeFMUstate", "fmi2DeSerializeFMUstate")},
+    "fmi2GetDirectionalDerivative": "NVCTE", "fmi2EnterEventMode": "VC", "fmi2NewDiscreteStates": "V",
+    "fmi2EnterContinuousTimeMode": "V", "fmi2CompletedIntegratorStep": "C", "fmi2SetTime": "VC",
+    "fmi2SetContinuousStates": "C", "fmi2GetDerivatives": "NVCTE", "fmi2GetEventIndicators": "NVCTE",
+    "fmi2GetContinuousStates": "NVCTE", "fmi2GetNominalsOfContinuousStates": "INVCTE",
+}
 # FMI 3.0.2, co-simulation without event mode (sections 2.3, 4.2): every function not named here
 # belongs to a capability these FMUs do not declare and is allowed in none of these states.
 FMI3_TYPES = ("Float32", "Float64", "Int8", "UInt8", "Int16", "UInt16", "Int32", "UInt32", "Int64", "UInt64",
@@ -51,6 +68,22 @@ FMI3_ALLOWED = {
     **{f: "INST" for f in ("fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState", "fmi3SerializedFMUStateSize",
                            "fmi3SerializeFMUState", "fmi3DeserializeFMUState")},
 }
+# FMI 3.0.2, model exchange (sections 2.3, 3.2).
+FMI3_ME_ALLOWED = {
+    "fmi3SetDebugLogging": "INVCT", "fmi3Reset": "INVCT", "fmi3EnterInitializationMode": "I",
+    "fmi3ExitInitializationMode": "N", "fmi3Terminate": "VC",
+    **{f"fmi3Get{t}": "INVCT" for t in FMI3_TYPES},
+    **{f"fmi3Set{t}": "INVC" if t in ("Float32", "Float64") else "INV" for t in FMI3_TYPES},
+    **{f: "INVCT" for f in ("fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState", "fmi3SerializedFMUStateSize",
+                            "fmi3SerializeFMUState", "fmi3DeserializeFMUState", "fmi3GetNumberOfContinuousStates",
+                            "fmi3GetNumberOfEventIndicators")},
+    "fmi3EnterEventMode": "C", "fmi3UpdateDiscreteStates": "V", "fmi3EnterContinuousTimeMode": "V",
+    "fmi3CompletedIntegratorStep": "C", "fmi3SetTime": "C", "fmi3SetContinuousStates": "C",
+    **{f: "NVCT" for f in ("fmi3GetContinuousStateDerivatives", "fmi3GetEventIndicators", "fmi3GetContinuousStates",
+                           "fmi3GetNominalsOfContinuousStates")},
+}
+TABLES = {(2, False): (FMI2_ALLOWED, FMI2_STATES), (3, False): (FMI3_ALLOWED, FMI3_STATES),
+          (2, True): (FMI2_ME_ALLOWED, FMI2_ME_STATES), (3, True): (FMI3_ME_ALLOWED, FMI3_ME_STATES)}
 # What an allowed call with valid arguments returns where it is not fmiOK: these FMUs provide no
 # derivatives, and have no status to give but the last successful time and "not terminated".
 ANSWERS = {"fmi2GetDirectionalDerivative": ERROR, "fmi2GetRealOutputDerivatives": ERROR,
@@ -70,12 +103,15 @@ def api(version: int) -> list[str]:
 
 
 class Walk:
-    """One instance of ReferenceRobot (FMI 2.0 or 3.0), driven into a state, and its raw calls."""
+    """One instance of ReferenceRobot (FMI 2.0 or 3.0, co-simulation or model exchange), driven into a
+    state, and its raw calls."""
 
-    def __init__(self, folder: Path, version: int, state: str, logging_on: bool = True):
-        self.version = version
+    STATES = (2.0, 2.0, 0.0)  # ReferenceRobot's initial state
+
+    def __init__(self, folder: Path, version: int, state: str, logging_on: bool = True, model_exchange: bool = False):
+        self.version, self.model_exchange = version, model_exchange
         self.fmu = (Fmi3Slave if version == 3 else Fmi2Slave)(folder, f"walk_{state}")
-        self.fmu.instantiate(logging_on=logging_on)
+        self.fmu.instantiate(logging_on=logging_on, model_exchange=model_exchange)
         self.saved = c_void_p()
         self.raw(f"fmi{version}GetFMUState" if version == 3 else "fmi2GetFMUstate", byref(self.saved))
         self.bytes = self._serialized()
@@ -101,13 +137,15 @@ class Walk:
         if state == "E":
             self.raw("fmi2CancelStep")
             return
-        if state in "NSFT":
+        if state in "NSFTVC":
             if v == 2:
                 assert self.raw("fmi2SetupExperiment", c_int(0), c_double(0), c_double(0), c_int(stop is not None),
                                 c_double(stop or 0)) == 0
             assert self.raw(f"fmi{v}EnterInitializationMode", *self._experiment(stop)) == 0
-        if state in "SFT":
+        if state in "SFTVC":
             assert self.raw(f"fmi{v}ExitInitializationMode") == 0
+        if state == "C":
+            assert self.raw(f"fmi{v}EnterContinuousTimeMode") == 0
         if state == "F":
             assert self.step(1e9) == DISCARD  # more sub-steps than a step may take
         if state == "T":
@@ -128,8 +166,22 @@ class Walk:
 
     def call(self, name: str) -> int:
         """``name`` with valid arguments (no variables, the state saved at instantiation)."""
-        none, zero = c_void_p(), c_size_t(0)
+        none, zero, n = c_void_p(), c_size_t(0), c_size_t(len(self.STATES))
+        vector = (c_double * len(self.STATES))(*self.STATES)
+        flags = [byref(c_bool()) for _ in range(5)]
         special = {
+            "fmi2NewDiscreteStates": (ctypes.create_string_buffer(64),),
+            "fmi2CompletedIntegratorStep": (c_int(1), byref(c_int()), byref(c_int())),
+            "fmi3UpdateDiscreteStates": (*flags, byref(c_double())),
+            "fmi3CompletedIntegratorStep": (c_bool(True), *flags[:2]),
+            "fmi2SetTime": (c_double(0),), "fmi3SetTime": (c_double(0),),
+            **{f: (vector, n) for f in ("fmi2SetContinuousStates", "fmi2GetDerivatives", "fmi2GetContinuousStates",
+                                        "fmi2GetNominalsOfContinuousStates", "fmi3SetContinuousStates",
+                                        "fmi3GetContinuousStateDerivatives", "fmi3GetContinuousStates",
+                                        "fmi3GetNominalsOfContinuousStates")},
+            "fmi2GetEventIndicators": (none, zero), "fmi3GetEventIndicators": (none, zero),
+            "fmi3GetNumberOfContinuousStates": (byref(c_size_t()),),
+            "fmi3GetNumberOfEventIndicators": (byref(c_size_t()),),
             "fmi2SetDebugLogging": (c_int(1), zero, none), "fmi3SetDebugLogging": (c_bool(True), zero, none),
             "fmi2SetupExperiment": (c_int(0), c_double(0), c_double(0), c_int(0), c_double(0)),
             "fmi3EnterInitializationMode": self._experiment(), "fmi2SetRealInputDerivatives": (none, zero, none, none),
@@ -156,7 +208,7 @@ class Walk:
             return self.raw(name, none, zero, none, none, zero)
         if name.startswith(("fmi3Get", "fmi3Set")) and name[7:] in FMI3_TYPES:
             return self.raw(name, none, zero, none, zero)
-        return self.raw(name)  # a function these FMUs do not offer reads none of its arguments
+        return self.raw(name)  # a function these FMUs do not offer, or refused, reads none of its arguments
 
     def refusals(self, name: str) -> list[str]:
         return [m for m in self.messages() if f"{name} is not allowed in state" in m]
@@ -166,7 +218,8 @@ class Walk:
 
     def in_error_state(self) -> bool:
         """Whether the instance is in the standard's error state (FMI 2.0 error, FMI 3.0 terminated)."""
-        probe = "fmi2CancelStep" if self.version == 2 else "fmi3EnterInitializationMode"
+        probe = "fmi3EnterInitializationMode" if self.version == 3 else (
+            "fmi2EnterEventMode" if self.model_exchange else "fmi2CancelStep")
         before = len(self.fmu.messages)
         self.call(probe)
         expected = "error" if self.version == 2 else "terminated"
@@ -184,27 +237,27 @@ def folders(fmu_paths, fmu3_paths, tmp_path_factory):
 
 
 def test_the_tables_name_every_function_the_binary_exports(folders):
-    """The walk covers the whole API: every function of the standard's header is exported (FMI 2.0:
-    but model exchange's), and the tables name only functions of the header."""
-    model_exchange = {"fmi2EnterEventMode", "fmi2NewDiscreteStates", "fmi2EnterContinuousTimeMode",
-                      "fmi2CompletedIntegratorStep", "fmi2SetTime", "fmi2SetContinuousStates", "fmi2GetDerivatives",
-                      "fmi2GetEventIndicators", "fmi2GetContinuousStates", "fmi2GetNominalsOfContinuousStates"}
-    for version, table in ((2, FMI2_ALLOWED), (3, FMI3_ALLOWED)):
+    """The walk covers the whole API: every function of the standard's header is exported, and the
+    tables name only functions of the header (FMI 2.0: every one, in one interface or the other)."""
+    for version in (2, 3):
         library = ctypes.CDLL(str(next((folders[version] / "binaries").glob("*/ReferenceRobot.so"))))
-        names = set(api(version)) - model_exchange
+        names = set(api(version))
         assert [name for name in sorted(names) if not hasattr(library, name)] == []
-        assert set(table) <= names
+        cosimulation, model_exchange = TABLES[version, False][0], TABLES[version, True][0]
+        assert set(cosimulation) | set(model_exchange) <= names
         if version == 2:
-            assert set(table) == names
+            assert set(cosimulation) | set(model_exchange) == names
 
 
+@pytest.mark.parametrize("model_exchange", (False, True), ids=("co-simulation", "model-exchange"))
 @pytest.mark.parametrize("version", (2, 3))
-def test_every_function_in_every_state_is_allowed_exactly_where_the_standard_allows_it(folders, version):
-    table, states = (FMI2_ALLOWED, FMI2_STATES) if version == 2 else (FMI3_ALLOWED, FMI3_STATES)
+def test_every_function_in_every_state_is_allowed_exactly_where_the_standard_allows_it(folders, version,
+                                                                                       model_exchange):
+    table, states = TABLES[version, model_exchange]
     wrong = []
-    for name in (n for n in api(version) if version == 3 or n in table):
+    for name in api(version):
         for state in states:
-            walk = Walk(folders[version], version, state)
+            walk = Walk(folders[version], version, state, model_exchange=model_exchange)
             try:
                 status = walk.call(name)
                 if state in table.get(name, ""):
