@@ -2,7 +2,8 @@
 
 Every call is drawn at random with arguments good and bad (unknown value references, wrong types,
 NaN, infinite, zero and negative step sizes, huge values, damaged serialized states, a '%' in the
-instance name, input derivatives of any order) in any order, but for what the standard leaves
+instance name, input derivatives of any order, states and times of model exchange, vectors of any
+length) in any order, on instances of either interface (co-simulation or model exchange), but for what the standard leaves
 undefined (using a freed instance or a freed FMU state). No process may die of a signal and no call
 may return fmi2Fatal. The figures of one run of the full seed range are in the README.
 """
@@ -41,12 +42,17 @@ for name in ("fmi2SetupExperiment", "fmi2EnterInitializationMode", "fmi2ExitInit
              "fmi2SetReal", "fmi2SetInteger", "fmi2SetBoolean", "fmi2SetString", "fmi2GetFMUstate", "fmi2SetFMUstate",
              "fmi2FreeFMUstate", "fmi2SerializedFMUstateSize", "fmi2SerializeFMUstate", "fmi2DeSerializeFMUstate",
              "fmi2SetDebugLogging", "fmi2CancelStep", "fmi2GetRealStatus", "fmi2GetBooleanStatus", "fmi2GetStatus",
-             "fmi2SetRealInputDerivatives", "fmi2GetRealOutputDerivatives"):
+             "fmi2SetRealInputDerivatives", "fmi2GetRealOutputDerivatives", "fmi2SetTime", "fmi2SetContinuousStates",
+             "fmi2GetDerivatives", "fmi2GetEventIndicators", "fmi2GetContinuousStates",
+             "fmi2GetNominalsOfContinuousStates", "fmi2EnterEventMode", "fmi2NewDiscreteStates",
+             "fmi2EnterContinuousTimeMode", "fmi2CompletedIntegratorStep"):
     getattr(lib, name).restype = c_int
 lib.fmi2FreeInstance.argtypes = [c_void_p]
 lib.fmi2DoStep.argtypes = [c_void_p, c_double, c_double, c_int]
 lib.fmi2SetupExperiment.argtypes = [c_void_p, c_int, c_double, c_double, c_int, c_double]
-for name in ("fmi2EnterInitializationMode", "fmi2ExitInitializationMode", "fmi2Terminate", "fmi2Reset", "fmi2CancelStep"):
+lib.fmi2SetTime.argtypes = [c_void_p, c_double]
+for name in ("fmi2EnterInitializationMode", "fmi2ExitInitializationMode", "fmi2Terminate", "fmi2Reset", "fmi2CancelStep",
+             "fmi2EnterEventMode", "fmi2EnterContinuousTimeMode"):
     getattr(lib, name).argtypes = [c_void_p]
 NUMBERS = [0.0, 1.0, -1.0, 1e-3, 1e-12, 1e6, 1e300, -1e300, 1e-320, float("nan"), float("inf"), float("-inf"), 2.5]
 resources = f"file://{folder}/resources".encode()
@@ -56,7 +62,26 @@ statuses = {}
 
 def new():
     name = rng.choice([model, "a%sb%n", "%%%d", "x" * 300])
-    return lib.fmi2Instantiate(name.encode(), 1, guid.encode(), resources, byref(callbacks), 0, rng.random() < 0.5)
+    kind = rng.choice([0, 1])  # fmi2ModelExchange, fmi2CoSimulation
+    return lib.fmi2Instantiate(name.encode(), kind, guid.encode(), resources, byref(callbacks), 0, rng.random() < 0.5)
+
+def model_exchange(c, action):
+    n = c_size_t(rng.choice([0, 1, 3, 7, 20, 21, 2**40]))
+    vector = (c_double * 32)(*[rng.choice(NUMBERS) for _ in range(32)])
+    if action == 21:
+        return lib.fmi2SetTime(c, rng.choice(NUMBERS))
+    if action == 22:
+        return lib.fmi2SetContinuousStates(c, rng.choice([vector, None]), n)
+    if action == 23:
+        getter = rng.choice([lib.fmi2GetDerivatives, lib.fmi2GetEventIndicators, lib.fmi2GetContinuousStates,
+                             lib.fmi2GetNominalsOfContinuousStates])
+        return getter(c, rng.choice([vector, vector, None]), n)
+    if action == 24:
+        return rng.choice([lib.fmi2EnterEventMode, lib.fmi2EnterContinuousTimeMode])(c)
+    if action == 25:
+        return lib.fmi2NewDiscreteStates(c, rng.choice([ctypes.create_string_buffer(64), None]))
+    flags = [byref(c_int()), None]
+    return lib.fmi2CompletedIntegratorStep(c, 1, rng.choice(flags), rng.choice(flags))
 
 def refs():
     n = rng.choice([0, 1, 2, 3])
@@ -64,7 +89,7 @@ def refs():
 
 def call():
     global component
-    action = rng.randrange(21)
+    action = rng.randrange(27)
     c = c_void_p(component)
     if action == 0:
         return lib.fmi2SetupExperiment(c, rng.random() < 0.5, rng.choice(NUMBERS), rng.choice(NUMBERS), rng.random() < 0.5, rng.choice(NUMBERS))
@@ -135,6 +160,8 @@ def call():
         derivatives = rng.choice([lib.fmi2SetRealInputDerivatives, lib.fmi2SetRealInputDerivatives,
                                   lib.fmi2GetRealOutputDerivatives])
         return derivatives(c, vr, c_size_t(n), orders, values)
+    if 21 <= action <= 26:
+        return model_exchange(c, action)
     for state in states:
         lib.fmi2FreeFMUstate(c, byref(c_void_p(state)))
     states.clear()

@@ -1,0 +1,326 @@
+"""Model exchange: each FMU as an ODE through fmpy (FMI 2.0 and 3.0), against its own co-simulation,
+the equations, its declared dependencies and the reference solution; the switches held between events."""
+
+import ctypes
+import math
+
+import numpy as np
+import pytest
+from fmpy import extract, read_model_description, simulate_fmu
+from fmpy.fmi1 import FMICallException
+
+from dsc_fmu.cosim.instance import FMU2ModelNamed, FMU3ModelNamed
+from dsc_fmu.cosim.model_exchange import simulate_model_exchange
+from dsc_fmu.cosim.reference_solution import reference_solution
+from dsc_fmu.models import parameters as P
+from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
+from dsc_fmu.registry import FMUS
+from dsc_fmu.scenario import load_scenario
+
+NAMES = tuple(FMUS)
+CONTROLLER_START = {v.name: v.start for v in P.CONTROLLER_INPUTS}
+
+
+def _inputs(name: str, stop: float) -> np.ndarray | None:
+    """Constant inputs for ``name`` alone over [0, stop] (fmpy's model-exchange route applies inputs at
+    output points and in its root function, not in its right-hand side: only constant inputs mean the
+    same to both routes): voltages that drive the plant forward and turning, a robot beside a moving
+    reference for the controller."""
+    if name == "MobileRobot":
+        signal = np.zeros(2, dtype=[("time", float), ("u1", float), ("u2", float)])
+        signal["u1"], signal["u2"] = 50.0, 40.0
+    elif name == "DSCController":
+        signal = np.zeros(2, dtype=[("time", float), *((v.name, float) for v in P.CONTROLLER_INPUTS)])
+        for v in P.CONTROLLER_INPUTS:
+            signal[v.name] = v.start
+        signal["omega1"], signal["omega2"], signal["i1"] = 3.0, 2.0, 1.5
+    else:
+        return None
+    signal["time"] = (0.0, stop)
+    return signal
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", NAMES)
+def test_each_fmu_as_an_ode_agrees_with_its_co_simulation(fmu_paths, fmu3_paths, name, version):
+    """fmpy's model-exchange route (CVode at 1e-10) against the same FMU's co-simulation (RK4 at 0.1 ms):
+    the same equations through the other interface of the same binary."""
+    path = str((fmu_paths if version == 2 else fmu3_paths)[name])
+    kwargs = dict(stop_time=2.0, output_interval=0.01, input=_inputs(name, 2.0))
+    me = simulate_fmu(path, fmi_type="ModelExchange", relative_tolerance=1e-10, **kwargs)
+    cs = simulate_fmu(path, fmi_type="CoSimulation", step_size=1e-4, start_values={"max_step": 1e-4}, **kwargs)
+    worst = {}
+    for v in FMUS[name].outputs:
+        scale = max(1.0, np.max(np.abs(cs[v.name])))
+        worst[v.name] = np.max(np.abs(me[v.name] - cs[v.name])) / scale
+    assert max(worst.values()) < 1e-7, worst
+
+
+class Model:
+    """One model-exchange instance of an FMU through fmpy, with the FMI 2.0 names."""
+
+    def __init__(self, path, folder, name, log):
+        md = read_model_description(str(path))
+        self.version = 3 if md.fmiVersion.startswith("3") else 2
+        self.refs = {v.name: v.valueReference for v in md.modelVariables}
+        self.nx, self.nz = len(md.derivatives), md.numberOfEventIndicators
+        self.md = md
+        kind = FMU3ModelNamed if self.version == 3 else FMU2ModelNamed
+        self.fmu = kind(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=folder),
+                        modelIdentifier=md.modelExchange.modelIdentifier, instanceName=name)
+        if self.version == 3:
+            self.fmu.instantiate(loggingOn=True, logMessage=lambda env, status, category, message: log.append(
+                (status, message.decode())))
+        else:
+            from dsc_fmu.cosim.instance import LogMessage, logging_callbacks
+
+            entries: list[LogMessage] = []
+            self._callbacks = logging_callbacks(entries)
+            self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
+            self.entries = entries
+        self.fmu.setupExperiment(startTime=0.0)
+        self.fmu.enterInitializationMode()
+
+    def set(self, values: dict):
+        self.fmu.setReal([self.refs[n] for n in values], list(values.values()))
+
+    def get(self, names):
+        return dict(zip(names, self.fmu.getReal([self.refs[n] for n in names])))
+
+    def vector(self, what: str, n: int | None = None):
+        n = self.nx if n is None else n
+        buffer = (ctypes.c_double * max(n, 1))()
+        getattr(self.fmu, what)(buffer, n)
+        return list(buffer[:n])
+
+    def states(self, values):
+        buffer = (ctypes.c_double * len(values))(*values)
+        self.fmu.setContinuousStates(buffer, len(values))
+
+    def start(self):
+        self.fmu.exitInitializationMode()
+        while self.fmu.newDiscreteStates()[0]:
+            pass
+        self.fmu.enterContinuousTimeMode()
+
+    def event(self):
+        self.fmu.enterEventMode()
+        while self.fmu.newDiscreteStates()[0]:
+            pass
+        self.fmu.enterContinuousTimeMode()
+
+    def close(self):
+        self.fmu.terminate()
+        self.free()
+
+    def free(self):
+        if self.fmu is not None:
+            self.fmu.freeInstance()
+            self.fmu = None
+
+
+@pytest.fixture(params=(2, 3), ids=("fmi2", "fmi3"))
+def model(request, fmu_paths, fmu3_paths, tmp_path):
+    """``model(name)``: a model-exchange instance in initialization mode, freed at the end."""
+    made = []
+    paths = fmu_paths if request.param == 2 else fmu3_paths
+
+    def make(name):
+        made.append(Model(paths[name], tmp_path / f"{name}_{len(made)}", name, []))
+        return made[-1]
+
+    yield make
+    for instance in made:
+        instance.free()
+
+
+def _knowns(instance: Model, name: str) -> list:
+    return [v.name for v in FMUS[name].inputs] + [s.variable.name for s in FMUS[name].states]
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_the_declared_dependencies_are_the_ones_the_fmu_has(model, name):
+    """Every output and derivative changes with exactly the inputs and states ModelStructure declares:
+    each known changed in turn at a point away from any special value, through the FMU's binary."""
+    instance = model(name)
+    spec = FMUS[name]
+    inputs = [v.name for v in spec.inputs]
+    instance.set({n: CONTROLLER_START.get(n, 1.0) + 0.3 for n in inputs})
+    instance.start()
+    rng = np.random.default_rng(7)
+    x = list(rng.uniform(0.5, 2.0, instance.nx))
+    u = list(rng.uniform(0.5, 2.0, len(inputs)))
+    outputs = [v.name for v in spec.outputs]
+
+    def evaluate(x, u):
+        instance.fmu.setTime(0.7)
+        instance.states(x)
+        if inputs:
+            instance.set(dict(zip(inputs, u)))
+        return {**instance.get(outputs), **dict(zip((s.derivative.name for s in spec.states), instance.vector(
+            "getDerivatives")))}
+
+    base = evaluate(x, u)
+    found = {unknown: set() for unknown in base}
+    for i, known in enumerate(_knowns(instance, name)):
+        changed_x, changed_u = list(x), list(u)
+        if i < len(inputs):
+            changed_u[i] *= 1.001
+        else:
+            changed_x[i - len(inputs)] *= 1.001
+        after = evaluate(changed_x, changed_u)
+        for unknown in base:
+            if after[unknown] != base[unknown]:
+                found[unknown].add(known)
+    md = instance.md
+    declared = {u.variable.name: {d.name for d in u.dependencies} - {"time"}
+                for u in (*md.outputs, *md.derivatives) if u.variable.name in found}
+    assert found == declared
+    instance.close()
+
+
+def test_the_plant_derivatives_are_equations_6_to_8(model):
+    """Spot checks by hand: der(i1) depends on u1, omega1, i1 only (8); der(x) on theta, omega1, omega2 (6)."""
+    instance = model("MobileRobot")
+    md = instance.md
+    depends = {u.variable.name: sorted(d.name for d in u.dependencies) for u in md.derivatives}
+    assert depends["der(i1)"] == ["i1", "omega1", "u1"]
+    assert depends["der(x)"] == ["omega1", "omega2", "theta"]
+    assert depends["der(omega1)"] == ["i1", "i2", "omega1", "omega2"]
+    instance.free()
+
+
+def test_the_filters_follow_the_inputs_until_initialization_ends(model):
+    """docs/model.md §5.2: in initialization mode x2f = x2bar and x3f = x3bar of the inputs set, whatever
+    was set before; from the end of initialization they are states of their own."""
+    instance = model("DSCController")
+    g = gains({v.name: v.start for v in P.CONTROLLER_PARAMETERS})
+    names = [v.name for v in P.CONTROLLER_INPUTS]
+    for shift in (0.0, 0.4):
+        m = [CONTROLLER_START[n] + (shift if n == "x" else 0.0) for n in names]
+        instance.set(dict(zip(names, m)))
+        expected = start_filters(g, initial_controller_state({v.name: v.start for v in P.CONTROLLER_PARAMETERS}), m)
+        assert instance.vector("getContinuousStates") == pytest.approx(expected, rel=1e-15, abs=1e-15)
+        assert instance.vector("getDerivatives")[2:4] == [0.0, 0.0]  # x2f_dot(0) = 0
+    instance.fmu.exitInitializationMode()
+    frozen = instance.vector("getContinuousStates")
+    instance.set({"x": 9.0})
+    assert instance.vector("getContinuousStates") == frozen
+    instance.free()
+
+
+def _heading(instance: Model, theta: float) -> dict:
+    instance.set({"theta": theta})
+    return {**instance.get(["S13", "wrap_indicator"]), "der(x2f1)": instance.vector("getDerivatives")[2]}
+
+
+def test_the_wrap_is_held_between_events_and_jumps_at_one(model):
+    """docs/model.md §5.13: in continuous-time mode S13bar = thetar - theta - 2 pi turns with turns
+    held, so S13 and the filter's derivative stay continuous as thetar - theta crosses pi while the
+    wrap indicator changes sign; the event then wraps S13bar as the law does (co-simulation's value),
+    a jump of 2 pi."""
+    instance = model("DSCController")
+    instance.start()
+    g = gains({v.name: v.start for v in P.CONTROLLER_PARAMETERS})
+    x = instance.vector("getContinuousStates")
+    before = _heading(instance, -math.pi + 1e-3)  # theta_r = 0: thetar - theta just below pi
+    after = _heading(instance, -math.pi - 1e-3)  # just above pi: the wrap would jump
+    assert before["wrap_indicator"] > 0 > after["wrap_indicator"]
+    assert abs(after["S13"] - before["S13"]) < 1e-2  # continuous: a 2e-3 change of theta, no jump of 2 pi
+    assert after["der(x2f1)"] == pytest.approx(before["der(x2f1)"], rel=0.05)
+    instance.event()
+    jumped = _heading(instance, -math.pi - 1e-3)
+    m = [CONTROLLER_START[n] for n in CONTROLLER_START]
+    m[2] = -math.pi - 1e-3
+    law = control_law(g, x, m)
+    assert jumped["S13"] == pytest.approx(law.S13, rel=1e-12)
+    assert jumped["der(x2f1)"] == pytest.approx(law.derivative[2], rel=1e-12)
+    assert after["S13"] - jumped["S13"] == pytest.approx(2 * math.pi, rel=1e-12)
+    instance.close()
+
+
+def test_the_beta_guard_changes_only_at_events(model):
+    """beta_guard_active and the law's division stay as chosen at the last event while beta crosses
+    beta_min in continuous-time mode; the guard indicator shows the crossing; the event switches and
+    counts it (docs/model.md §5.6, §5.13)."""
+    instance = model("DSCController")
+    instance.start()
+    refs = [instance.refs[n] for n in ("beta_guard_active", "beta_guard_count")]
+    ahead = {"x": 6.0, "y": 2.0, "theta": 0.0}  # the robot ahead of the reference: S11 < 0, beta < 0
+    instance.set(ahead)
+    assert instance.get(["guard_indicator"])["guard_indicator"] < 0
+    assert instance.fmu.getBoolean(refs[:1]) == [False]
+    instance.event()
+    assert instance.fmu.getBoolean(refs[:1]) == [True]
+    assert instance.fmu.getInteger(refs[1:]) == [1]
+    instance.close()
+
+
+def test_model_exchange_refuses_what_is_not_a_state_and_discards_refused_values(model):
+    instance = model("ReferenceRobot")
+    instance.start()
+    with pytest.raises(FMICallException, match="status 2"):  # discard: the solver may try again
+        instance.states([math.nan, 0.0, 0.0])
+    assert instance.vector("getContinuousStates") == [2.0, 2.0, 0.0]
+    instance.free()
+    controller = model("DSCController")
+    controller.set({"v_r": -1.0})  # refused (Assumption 2); the last valid value is kept
+    controller.start()
+    with pytest.raises(FMICallException, match="status 2"):
+        controller.vector("getDerivatives")
+    controller.set({"v_r": 1.0})
+    assert all(math.isfinite(v) for v in controller.vector("getDerivatives"))
+    with pytest.raises(FMICallException, match="status 3"):
+        controller.vector("getDerivatives", 19)
+    controller.free()
+
+
+def test_an_fmu_state_restores_the_held_switches(model):
+    """An FMU state taken before the guard engaged brings back the switches held then."""
+    instance = model("DSCController")
+    instance.start()
+    fmi3 = instance.version == 3
+    state = instance.fmu.getFMUState() if fmi3 else instance.fmu.getFMUstate()
+    active = [instance.refs["beta_guard_active"]]
+    ahead = {"x": 6.0, "y": 2.0, "theta": 0.3}  # beta < beta_min, S13 != 0: the guard changes h2
+    instance.set(ahead)
+    unguarded = instance.vector("getDerivatives")
+    instance.event()
+    guarded = instance.vector("getDerivatives")
+    assert instance.fmu.getBoolean(active) == [True] and guarded != unguarded
+    instance.fmu.setFMUState(state) if fmi3 else instance.fmu.setFMUstate(state)
+    instance.set(ahead)
+    assert instance.fmu.getBoolean(active) == [False]
+    assert instance.vector("getDerivatives") == unguarded
+    instance.close()
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("version", (2, 3))
+def test_the_closed_loop_through_model_exchange_is_the_reference_solution(fmu_paths, fmu3_paths, version):
+    """The three FMUs as one ODE (outputs to inputs at every evaluation): no coupling error, so at a
+    tight tolerance the position is the monolithic reference solution's to 1e-5 m over the paper's 30 s."""
+    paths = fmu_paths if version == 2 else fmu3_paths
+    scenario = load_scenario("paper")
+    run = simulate_model_exchange(scenario, paths, tolerance=1e-8)
+    reference = reference_solution(scenario)
+    assert np.array_equal(run.result["time"], reference["time"])
+    deviation = np.hypot(run.result["x"] - reference["x"], run.result["y"] - reference["y"])
+    assert deviation.max() < 1e-5
+    assert run.settings["interface"] == "model-exchange" and run.settings["events"] == 0
+
+
+@pytest.mark.slow
+def test_the_guard_crossings_of_figure_eight_are_events(fmu_paths):
+    """figure_eight crosses beta = beta_min (docs/model.md §5.13): the solver stops at each crossing, the
+    guard engages as often as the reference solution's beta falls below beta_min, and the run stays
+    with the reference solution."""
+    scenario = load_scenario("figure_eight")
+    run = simulate_model_exchange(scenario, fmu_paths, tolerance=1e-8)
+    reference = reference_solution(scenario)
+    below = reference["beta"] < scenario.parameters("DSCController")["beta_min"]
+    engagements = int(np.sum(below[1:] & ~below[:-1]) + below[0])
+    assert run.result["beta_guard_count"][-1] == engagements > 0
+    assert run.settings["events"] >= 2 * engagements - 1
+    deviation = np.hypot(run.result["x"] - reference["x"], run.result["y"] - reference["y"])
+    assert deviation.max() < 1e-5
