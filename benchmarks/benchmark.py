@@ -5,6 +5,11 @@ The C master (``tests/c_master.c``, compiled with Zig's C compiler) drives the s
 a process without Python, with the same calls in the same order as the fmpy master, as a C importer
 does. The floor is the fmpy master driving three trivial pythonfmu FMUs (pythonfmu's own binary)
 with the same interfaces and no model math: what FMI and pythonfmu cost per step by themselves.
+Then the cost of one model evaluation through each interface, per FMU: a model-exchange derivative
+evaluation (fmi2SetTime, fmi2SetContinuousStates, fmi2GetDerivatives, as a solver calls them) beside a
+co-simulation step that evaluates the model once (fmi2DoStep with one explicit Euler step: the
+controller's ``discretization = euler``; the plant and the reference with ``max_step`` = the step, whose
+RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms.
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
 """
 
@@ -89,6 +94,60 @@ def _c_master_run(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float
         raise RuntimeError(f"the C master failed: {run.stderr[-500:]}")
 
 
+def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> dict[str, tuple]:
+    """Per FMU, the seconds per call of: a derivative evaluation (model exchange), a co-simulation step
+    with one evaluation of the model (the controller's Euler; None for the RK4-only plant and reference),
+    and a co-simulation step of 1 ms (RK4: four evaluations)."""
+    import ctypes
+
+    from fmpy import extract, read_model_description
+    from fmpy.fmi2 import FMU2Model, FMU2Slave
+
+    costs = {}
+    for name, path in fmus.items():
+        md = read_model_description(str(path))
+        folder = extract(str(path), unzipdir=tmp / f"eval_{name}")
+        model = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name)
+        model.instantiate()
+        model.setupExperiment(startTime=0.0)
+        model.enterInitializationMode()
+        model.exitInitializationMode()
+        model.newDiscreteStates()
+        model.enterContinuousTimeMode()
+        n = len(md.derivatives)
+        x, dx = (ctypes.c_double * n)(), (ctypes.c_double * n)()
+        model.getContinuousStates(x, n)
+        start = time.perf_counter()
+        for k in range(calls):
+            model.setTime(k * 1e-4)
+            model.setContinuousStates(x, n)
+            model.getDerivatives(dx, n)
+        derivative = (time.perf_counter() - start) / calls
+        model.terminate()
+        model.freeInstance()
+        steps = []
+        for euler in (True, False):
+            if euler and name != "DSCController":
+                steps.append(None)
+                continue
+            slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name)
+            slave.instantiate()
+            slave.setupExperiment(startTime=0.0)
+            slave.enterInitializationMode()
+            if euler:
+                refs = {v.name: v.valueReference for v in md.modelVariables}
+                slave.setInteger([refs["discretization"]], [1])
+            slave.exitInitializationMode()
+            start = time.perf_counter()
+            for k in range(calls):
+                slave.doStep(k * 1e-3, 1e-3)
+            steps.append((time.perf_counter() - start) / calls)
+            slave.terminate()
+            slave.freeInstance()
+        costs[name] = (derivative, *steps)
+    return costs
+
+
 def _best(function, repeat: int) -> float:
     times = []
     for _ in range(repeat):
@@ -113,6 +172,7 @@ def main() -> None:
         fmus = _best(lambda: cosimulate(scenario, ours), args.repeat)
         c_master = _best(lambda: _c_master_run(tmp, ours, steps, args.step_size), args.repeat)
         floor = _best(lambda: cosimulate(scenario, trivial), args.repeat)
+        costs = _evaluation_costs(ours, tmp)
     monolithic = _best(lambda: reference_solution(scenario), args.repeat)
     print(f"paper scenario, {args.stop_time:g} s at a {args.step_size:g} s step ({steps} steps), best of {args.repeat}")
     print(f"{'route':<42}{'wall time (s)':>15}{'per step (us)':>15}{'ratio':>8}")
@@ -126,6 +186,15 @@ def main() -> None:
         print(f"{label:<42}{seconds:>15.3f}{seconds / steps * 1e6:>15.1f}{seconds / fmus:>8.2f}")
     print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f}   "
           f"C master / fmpy master: {c_master / fmus:.2f} (target <= 1.3)")
+    print()
+    print("one model evaluation per call, FMI 2.0 through fmpy (us per call; ratio: derivative evaluation / step)")
+    print(f"{'FMU':<16}{'derivatives (ME)':>18}{'Euler step (CS)':>17}{'RK4 step (CS)':>15}{'ratio Euler':>13}"
+          f"{'ratio RK4':>11}")
+    for name, (derivative, euler, rk4) in costs.items():
+        euler_text = f"{euler * 1e6:>17.1f}" if euler else f"{'-':>17}"
+        ratio = f"{derivative / euler:>13.2f}" if euler else f"{'-':>13}"
+        print(f"{name:<16}{derivative * 1e6:>18.1f}{euler_text}{rk4 * 1e6:>15.1f}{ratio}{derivative / rk4:>11.2f}")
+    print("(target: derivative evaluation <= the co-simulation step that evaluates the model once)")
 
 
 if __name__ == "__main__":

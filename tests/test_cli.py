@@ -82,6 +82,24 @@ def test_run_takes_the_standard_route_of_the_linear_coupling(tmp_path, fmu_dir):
     assert rows[True] == rows[False]
 
 
+def test_run_through_model_exchange_writes_the_same_files(tmp_path, fmu_dir, capsys):
+    """--interface model-exchange: the three FMUs as one ODE; the same columns, times and metrics as a
+    co-simulation, the summary naming the interface, the solver and its tolerance."""
+    out = tmp_path / "me"
+    assert main(["run", "paper", "--interface", "model-exchange", "--stop-time", "1", "--tolerance", "1e-7",
+                 "--output-interval", "0.1", "--no-plots", "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
+    printed = capsys.readouterr().out
+    assert "scenario paper: model exchange, DOP853 at relative tolerance 1e-07, stop 1 s" in printed
+    with open(out / "results.csv") as f:
+        rows = list(csv.reader(f))
+    assert rows[0] == list(COLUMNS)
+    np.testing.assert_allclose([float(r[0]) for r in rows[1:]], np.arange(11) * 0.1, atol=1e-12)
+    settings = json.loads((out / "summary.json").read_text())["settings"]
+    assert (settings["interface"], settings["method"], settings["tolerance"], settings["events"]) == (
+        "model-exchange", "DOP853", 1e-7, 0)
+    assert settings["steps"] > 0
+
+
 @pytest.mark.parametrize("option, stability", [([], "local"), (["--stability", "settled"], "settled")])
 def test_sweep_judges_by_the_scenarios_stability_unless_told(tmp_path, fmu_dir, option, stability):
     from dsc_fmu.study.rows import stability_definition
@@ -110,6 +128,9 @@ BAD_SCENARIO = "[plant]\nmc = -30.0\n"
         (["run", "{bad}"], "[plant] mc = -30.0 is not allowed: it must be > 0"),
         (["run", "{missing}"], "scenario file not found"),
         (["run", "--input-derivatives"], "input_derivatives = true realises the linear coupling at a fixed step"),
+        (["run", "--interface", "model-exchange", "--step-size", "1e-3"],
+         "--step-size is a co-simulation setting; allowed with --interface model-exchange: --tolerance"),
+        (["run", "--interface", "model-exchange", "--tolerance", "0"], "tolerance = 0.0 is not allowed"),
     ],
 )
 def test_bad_input_gives_one_line_and_writes_nothing(tmp_path, capsys, arguments, message):

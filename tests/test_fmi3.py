@@ -11,6 +11,7 @@ import sys
 import textwrap
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree
 
 import numpy as np
 import pytest
@@ -365,3 +366,22 @@ def test_fmi3_fmu_runs_on_its_own_bundled_code(fmu3_paths, tmp_path, name):
     assert bits(result["rows"]) == bits(rows)
     assert result["steps"] == steps == [[False, False, False, k * h + h] for k in range(n)]
     assert result["rows"][0] != result["rows"][-1]
+
+
+FMI3_MODEL_EXCHANGE_ATTRIBUTES = {
+    "modelIdentifier", "needsExecutionTool", "canBeInstantiatedOnlyOncePerProcess", "canGetAndSetFMUState",
+    "canSerializeFMUState", "providesDirectionalDerivatives", "providesAdjointDerivatives",
+    "providesPerElementDependencies", "providesEvaluateDiscreteStates", "needsCompletedIntegratorStep",
+}
+
+
+@pytest.mark.parametrize("name", NAMES)
+def test_fmi3_model_exchange_is_declared_with_fmi3_names(fmu3_paths, name):
+    """FMI 3.0.2's fmi3ModelExchange attributes only (FMI Library reports any other as an error)."""
+    with zipfile.ZipFile(fmu3_paths[name]) as fmu:
+        root = ElementTree.fromstring(fmu.read("modelDescription.xml"))
+    element = root.find("ModelExchange")
+    assert set(element.attrib) <= FMI3_MODEL_EXCHANGE_ATTRIBUTES
+    assert element.get("needsCompletedIntegratorStep") == "false"
+    assert element.get("modelIdentifier") == root.find("CoSimulation").get("modelIdentifier") == name
+    assert len(root.findall("ModelStructure/EventIndicator")) == len(FMUS[name].indicators)

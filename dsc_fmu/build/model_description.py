@@ -65,12 +65,17 @@ _SHARED_CAPABILITIES = ("needsExecutionTool", "canBeInstantiatedOnlyOncePerProce
                         "canGetAndSetFMUState", "canSerializeFMUState")
 
 
-def _model_exchange(root: ET.Element, cosimulation: ET.Element) -> None:
+# That no step needs fmiCompletedIntegratorStep, under each version's name for it.
+_NO_COMPLETED_STEP = {2: ("completedIntegratorStepNotNeeded", "true"), 3: ("needsCompletedIntegratorStep", "false")}
+
+
+def _model_exchange(root: ET.Element, cosimulation: ET.Element, fmi_version: int) -> None:
     """Declare model exchange beside co-simulation: one binary, the same capabilities, no
     CompletedIntegratorStep needed (the switches change only at state events)."""
     shared = {name: cosimulation.get(name) for name in _SHARED_CAPABILITIES if cosimulation.get(name) is not None}
-    element = ET.Element("ModelExchange", modelIdentifier=cosimulation.get("modelIdentifier"),
-                         completedIntegratorStepNotNeeded="true", **shared)
+    flag, value = _NO_COMPLETED_STEP[fmi_version]
+    element = ET.Element("ModelExchange", {"modelIdentifier": cosimulation.get("modelIdentifier"), flag: value,
+                                           **shared})
     root.insert(list(root).index(cosimulation), element)
 
 
@@ -123,7 +128,7 @@ def complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
     cosimulation = root.find("CoSimulation")
     if spec.inputs:
         cosimulation.set("canInterpolateInputs", "true")
-    _model_exchange(root, cosimulation)
+    _model_exchange(root, cosimulation, 2)
     root.set("numberOfEventIndicators", str(len(spec.indicators)))
     position = list(root).index(cosimulation) + 1
     root.insert(position, _unit_definitions({v.unit for v in tables.values() if not v.integer}))
@@ -159,7 +164,7 @@ def complete_model_description3(xml: bytes, spec: FmuSpec) -> ET.Element:
     cosimulation = root.find("CoSimulation")
     # pythonfmu3 0.3.4 copies the last common option's value into canHandleVariableCommunicationStepSize.
     cosimulation.set("canHandleVariableCommunicationStepSize", "true")
-    _model_exchange(root, cosimulation)
+    _model_exchange(root, cosimulation, 3)
     for old in root.findall("UnitDefinitions"):
         root.remove(old)
     position = list(root).index(cosimulation) + 1

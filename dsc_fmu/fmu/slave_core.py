@@ -227,16 +227,16 @@ class SlaveCore:
 
     # --- model exchange: the importer integrates the state; the switches change only at events ---
 
-    def set_time(self, t: float) -> None:
-        self.time = t
+    def set_point(self, t: float | None, x: list | None) -> None:
+        """The time and (a copy of) the continuous states, each unless None, that the importer set."""
+        if t is not None:
+            self.time = t
+        if x is not None:
+            self.state = list(x)
         self._cache = None
 
     def get_continuous_states(self) -> list:
         return list(self.current_state())
-
-    def set_continuous_states(self, values: list) -> None:
-        self.state = list(values)
-        self._cache = None
 
     def get_derivatives(self) -> list:
         """The state's time derivative at the current time, inputs and state; RuntimeError (discard)

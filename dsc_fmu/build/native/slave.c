@@ -129,6 +129,26 @@ static PyObject *bridge_call(Slave *s, const char *name, PyObject *args) {
     return call(py.PyObject_GetAttrString(s->bridge, name), args);
 }
 
+/* Hand the time and states set since the slave's last call to its set_point (the GIL held). */
+static void apply_pending(Slave *s) {
+    PyObject *states = s->pending & PENDING_STATES ? py.PyList_New((Py_ssize_t)s->nx) : borrowed(py.None);
+    for (size_t i = 0; states && s->pending & PENDING_STATES && i < s->nx; i++) {
+        py.PyList_SetItem(states, (Py_ssize_t)i, py.PyFloat_FromDouble(s->x[i]));
+    }
+    PyObject *items[] = {s->pending & PENDING_TIME ? py.PyFloat_FromDouble(s->time) : borrowed(py.None), states};
+    PyObject *result = call(borrowed(s->bound[BOUND_SET_POINT]), pack(2, items));
+    if (!result) log_exception(s, STATUS_ERROR, "set_point");
+    clear(&result);
+    s->pending = 0;
+}
+
+/* Take the GIL for a call of the slave, which first sees what model exchange set since its last call. */
+static PyGILState_STATE enter(Slave *s) {
+    PyGILState_STATE gil = pyhost_enter();
+    if (s->pending) apply_pending(s);
+    return gil;
+}
+
 /* Queue the messages the slave logged (cheap when there are none). */
 static void drain_log(Slave *s) {
     if (!s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
@@ -261,8 +281,8 @@ static const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_even
 static const char *bound_name(const Slave *s, int i) {
     if (i < TYPES) return s->names->get[i];
     if (i < 2 * TYPES) return s->names->set[i - TYPES];
-    if (i >= BOUND_VECTORS && i < BOUND_SET_STATES) return VECTOR_METHODS[i - BOUND_VECTORS];
-    return i == BOUND_DO_STEP ? "do_step" : i == BOUND_SET_STATES ? "set_continuous_states" : "set_time";
+    if (i >= BOUND_VECTORS && i < BOUND_SET_POINT) return VECTOR_METHODS[i - BOUND_VECTORS];
+    return i == BOUND_DO_STEP ? "do_step" : "set_point";
 }
 
 /* Take `slave` (a new reference) with its log queue and the bound methods of every call. */
@@ -304,7 +324,9 @@ static int read_dimensions(Slave *s) {
     }
     s->nx = (size_t)states;
     s->nz = (size_t)indicators;
-    return 0;
+    s->x = calloc(s->nx ? s->nx : 1, sizeof *s->x);
+    if (!s->x) say(s, STATUS_ERROR, "%s: out of memory for the continuous states", s->instance_name);
+    return s->x ? 0 : -1;
 }
 
 static int read_variables(Slave *s) {
@@ -429,6 +451,8 @@ void slave_free(Slave *s) {
         }
         leave(s, gil);
     }
+    free(s->x);
+    s->x = NULL;
     free(s->type);
     free(s->causality);
     free(s->variability);
@@ -438,6 +462,7 @@ void slave_free(Slave *s) {
 }
 
 int slave_reset(Slave *s) {
+    s->pending = 0;
     PyGILState_STATE gil = pyhost_enter();
     PyObject *slave = new_slave(s);
     int status = STATUS_OK;
@@ -484,7 +509,7 @@ static void from_python(PyObject *item, void *values, size_t i, CType ctype) {
 }
 
 int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *items[] = {references(vr, n)};
     PyObject *result = call(borrowed(s->bound[type]), pack(1, items));
     Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
@@ -521,7 +546,7 @@ static int finished(Slave *s, PyObject *result, int failure, const char *what) {
 }
 
 int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *list = py.PyList_New((Py_ssize_t)n);
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
     PyObject *items[] = {references(vr, n), list};
@@ -532,7 +557,7 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
 }
 
 int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *orders = py.PyList_New((Py_ssize_t)n);
     PyObject *given = py.PyList_New((Py_ssize_t)n);
     for (size_t i = 0; orders && given && i < n; i++) {
@@ -560,7 +585,7 @@ static PyObject *doubles(int n, const double *values, const int *defined) {
    result is true. */
 static int call_logged(Slave *s, const char *method, PyObject *cached, int n, const double *values,
                        const int *defined, int failure, int *truth) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *function = cached ? borrowed(cached) : py.PyObject_GetAttrString(s->slave, method);
     PyObject *args = n ? doubles(n, values, defined) : NULL;
     PyObject *result = call(function, args);
@@ -580,11 +605,13 @@ int slave_step(Slave *s, double time, double step, int *accepted) {
 }
 
 int slave_set_time(Slave *s, double time) {
-    return call_logged(s, "set_time", s->bound[BOUND_SET_TIME], 1, &time, NULL, STATUS_ERROR, NULL);
+    s->time = time;
+    s->pending |= PENDING_TIME;
+    return STATUS_OK;
 }
 
 int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     const char *method = VECTOR_METHODS[which];
     PyObject *result = call(borrowed(s->bound[BOUND_VECTORS + which]), NULL);
     Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
@@ -607,18 +634,13 @@ int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failu
 }
 
 int slave_set_states(Slave *s, const double *values, size_t n) {
-    PyGILState_STATE gil = pyhost_enter();
-    PyObject *list = py.PyList_New((Py_ssize_t)n);
-    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
-    PyObject *items[] = {list};
-    PyObject *result = call(borrowed(s->bound[BOUND_SET_STATES]), pack(1, items));
-    int status = finished(s, result, STATUS_ERROR, "set_continuous_states");
-    leave(s, gil);
-    return status;
+    memcpy(s->x, values, n * sizeof *values);
+    s->pending |= PENDING_STATES;
+    return STATUS_OK;
 }
 
 int slave_get_double(Slave *s, const char *attribute, double *value) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *object = py.PyObject_GetAttrString(s->slave, attribute);
     int status = STATUS_OK;
     if (object) *value = py.PyFloat_AsDouble(object);
@@ -632,7 +654,7 @@ int slave_get_double(Slave *s, const char *attribute, double *value) {
 }
 
 int slave_get_state(Slave *s, PyObject **state) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
     int status = STATUS_OK;
     if (!*state) {
@@ -645,7 +667,7 @@ int slave_get_state(Slave *s, PyObject **state) {
 }
 
 int slave_set_state(Slave *s, PyObject *state) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
     int status = finished(s, result, STATUS_ERROR, "setting the FMU state");
@@ -661,7 +683,7 @@ void slave_release(PyObject *object) {
 }
 
 int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(s->slave), borrowed(state)};
     PyObject *data = bridge_call(s, "state_to_bytes", pack(2, items));
     char *buffer = NULL;
@@ -683,7 +705,7 @@ int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
 }
 
 int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state) {
-    PyGILState_STATE gil = pyhost_enter();
+    PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
     *state = bridge_call(s, "state_from_bytes", pack(2, items));
     int status = STATUS_OK;

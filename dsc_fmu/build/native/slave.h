@@ -30,10 +30,11 @@ _Static_assert(TYPE_REAL == 0 && TYPE_INTEGER == 1 && TYPE_BOOLEAN == 2 && TYPE_
 /* Model exchange: the vectors of the slave's model, each read by one method of the slave. */
 typedef enum { VECTOR_DERIVATIVES, VECTOR_INDICATORS, VECTOR_STATES, VECTOR_NOMINALS, VECTORS } Vector;
 
-/* Bound methods kept for every call: get by type, set by type, do_step, the vectors, set_continuous_states,
-   set_time. */
-enum { BOUND_DO_STEP = 2 * TYPES, BOUND_VECTORS, BOUND_SET_STATES = BOUND_VECTORS + VECTORS, BOUND_SET_TIME,
-       BOUND_METHODS };
+/* Bound methods kept for every call: get by type, set by type, do_step, the vectors, set_point. */
+enum { BOUND_DO_STEP = 2 * TYPES, BOUND_VECTORS, BOUND_SET_POINT = BOUND_VECTORS + VECTORS, BOUND_METHODS };
+
+/* What model exchange has set and the slave has not seen yet. */
+enum { PENDING_TIME = 1, PENDING_STATES = 2 };
 enum { CAUSALITY_PARAMETER = DSC_CAUSALITY_PARAMETER, CAUSALITY_INPUT = DSC_CAUSALITY_INPUT,
        CAUSALITY_OUTPUT = DSC_CAUSALITY_OUTPUT };
 enum { VARIABILITY_CONSTANT = DSC_VARIABILITY_CONSTANT, VARIABILITY_FIXED = DSC_VARIABILITY_FIXED,
@@ -72,6 +73,9 @@ typedef struct {
     const MethodNames *names;
     size_t nx;                  /* continuous states (model exchange) */
     size_t nz;                  /* event indicators */
+    int pending;                /* PENDING_TIME, PENDING_STATES: set here, handed to the slave at its next call */
+    double time;
+    double *x;                  /* nx states */
     unsigned int size;          /* largest value reference + 1 */
     signed char *type;          /* by value reference; NO_VARIABLE where there is none */
     signed char *causality;
@@ -113,7 +117,8 @@ int slave_step(Slave *s, double time, double step, int *accepted);
    the exception. */
 int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure);
 
-/* set_continuous_states(values), set_time(time): STATUS_OK or STATUS_ERROR (logged). */
+/* The time and the `n` (= nx) continuous states, kept here and handed to the slave (set_point) with its
+   next call, so that a solver's SetTime, SetContinuousStates, GetDerivatives enter Python once. */
 int slave_set_states(Slave *s, const double *values, size_t n);
 int slave_set_time(Slave *s, double time);
 
