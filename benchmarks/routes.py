@@ -1,8 +1,9 @@
 """Every route to co-simulate the paper's scenario, side by side with its deviation from the reference solution.
 
 Run: ``python benchmarks/routes.py [--step-size 1e-3] [--stop-time 30]``. Each route runs the same
-closed loop at the same communication step; the deviation is the largest distance (m) between its
-robot position and the reference solution's, over the points where both are recorded.
+closed loop at the same communication step (model exchange has none: the FMUs are one ODE, solved to
+the tolerance given); the deviation is the largest distance between its robot position and the
+reference solution's, over the points where both are recorded.
 """
 
 from __future__ import annotations
@@ -19,6 +20,7 @@ from dsc_fmu.build.fmus import ensure_fmus
 from dsc_fmu.interop.container import export_fmu
 from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
 from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.model_exchange import simulate_model_exchange
 from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.scenario import load_scenario
 from dsc_fmu.interop.libcosim import run_libcosim
@@ -52,6 +54,14 @@ def main() -> None:
             start = time.perf_counter()
             result = cosimulate(scenario, fmus, order=order).result
             rows.append((label, command, deviation(result, reference), time.perf_counter() - start))
+        for label, fmus, tolerance, command in (
+            ("three FMI 2.0 FMUs, model exchange, 1e-6", fmi2, 1e-6, "dsc-fmu run --interface model-exchange"),
+            ("three FMI 2.0 FMUs, model exchange, 1e-9", fmi2, 1e-9, "... --interface model-exchange --tolerance 1e-9"),
+            ("three FMI 3.0 FMUs, model exchange, 1e-6", fmi3, 1e-6, "simulate_model_exchange(scenario, fmus)"),
+        ):
+            start = time.perf_counter()
+            result = simulate_model_exchange(scenario, fmus, tolerance=tolerance).result
+            rows.append((label, command, deviation(result, reference), time.perf_counter() - start))
         ssp = export_ssp(scenario, tmp / "paper.ssp", fmi2)
         start = time.perf_counter()
         result = run_libcosim(ssp, h, stop)
@@ -74,7 +84,7 @@ def main() -> None:
     print(f"paper scenario, {stop:g} s at a {h:g} s communication step")
     print(f"{'route':<48}{'max deviation (mm)':>20}{'wall time (s)':>15}  command")
     for label, command, value, seconds in rows:
-        print(f"{label:<48}{value * 1e3:>20.2f}{seconds:>15.2f}  {command}")
+        print(f"{label:<48}{value * 1e3:>20.3g}{seconds:>15.2f}  {command}")
 
 
 if __name__ == "__main__":

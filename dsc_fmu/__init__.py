@@ -1,8 +1,9 @@
-"""dsc-fmu: the adaptive DSC of an electrically driven mobile robot as FMI co-simulation FMUs.
+"""dsc-fmu: the adaptive DSC of an electrically driven mobile robot as FMI FMUs (co-simulation and model exchange).
 
 The names a user needs, imported when first used (so that ``import dsc_fmu`` and ``dsc-fmu --help``
 stay fast): ``load_scenario``, ``build_fmus``, ``ensure_fmus``, ``cosimulate``, ``Cosimulator``,
-``reference_solution``, ``run_scenario``, ``run_sweep``, ``DscFmuError`` and ``CosimulationError``.
+``simulate_model_exchange``, ``reference_solution``, ``run_scenario``, ``run_sweep``, ``DscFmuError`` and
+``CosimulationError``.
 """
 
 import importlib
@@ -15,6 +16,7 @@ _EXPORTS = {
     "ensure_fmus": "dsc_fmu.build.fmus",
     "cosimulate": "dsc_fmu.cosim.master",
     "Cosimulator": "dsc_fmu.cosim.master",
+    "simulate_model_exchange": "dsc_fmu.cosim.model_exchange",
     "reference_solution": "dsc_fmu.cosim.reference_solution",
     "run_scenario": "dsc_fmu.cosim.run",
     "run_sweep": "dsc_fmu.study.sweep",

@@ -10,7 +10,7 @@ from pathlib import Path
 from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .scenario import COUPLINGS, INTERFACES, ORDERS, STABILITIES, ScenarioError, load_scenario, scenario_names
+from .scenario import COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, ScenarioError, load_scenario, scenario_names
 
 __all__ = ["main"]
 
@@ -87,6 +87,10 @@ def _parser() -> argparse.ArgumentParser:
                        help="what a stable run is: settled (where it ends up) or local (it stays with the reference "
                             "solution from its start: for a scenario starting in steady tracking); "
                             "default: the scenario's")
+    sweep.add_argument("--reference", choices=REFERENCES,
+                       help="what the deviations are measured against: the monolithic ODE of the equations, or the "
+                            "three FMUs as one ODE through model exchange (both DOP853 at 1e-10; default: the "
+                            "scenario's, monolithic)")
     sweep.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
     sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786")
     sweep.add_argument("--no-refine", action="store_true", help="do not bisect the stability boundaries")
@@ -141,7 +145,8 @@ def _sweep(args) -> None:
     from .study.cases import DEFAULT_TOLERANCES, parse_perturb, parse_set
     from .study.sweep import run_sweep
 
-    scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time, stability=args.stability)
+    scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time, stability=args.stability,
+                                                            reference=args.reference)
     if args.jobs is not None and args.jobs < 1:
         raise DscFmuError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
     print(run_sweep(

@@ -15,7 +15,8 @@ from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
-    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "INTERFACES", "load_scenario",
+    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "INTERFACES", "REFERENCES",
+    "load_scenario",
     "scenario_names", "SCENARIO_DIR",
 ]
 
@@ -31,6 +32,10 @@ with the reference solution from its start (the stability of steady tracking, wh
 prediction predicts)."""
 INTERFACES = ("co-simulation", "model-exchange")
 """How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange."""
+REFERENCES = ("monolithic", "model-exchange")
+"""What a step-size study measures its runs against: the monolithic ODE of the equations
+(``cosim.reference_solution``), or the three FMUs as one ODE through model exchange
+(``cosim.model_exchange``), both solved with DOP853 at a relative tolerance of 1e-10."""
 
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
@@ -53,7 +58,8 @@ class Simulation:
     (m/V, see ``cosim.step_control``). ``input_derivatives`` realises the linear coupling through the
     standard route instead of the FMUs' ``coupling`` parameters (``cosim.derivatives``: the master sets
     the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold; FMI 2.0 FMUs, a fixed step).
-    ``stability`` (``STABILITIES``) is how a step-size study judges a run."""
+    ``stability`` (``STABILITIES``) is how a step-size study judges a run, ``reference`` (``REFERENCES``)
+    what it measures the runs' deviations against."""
 
     stop_time: float = 30.0
     step_size: float = 1e-3
@@ -67,6 +73,7 @@ class Simulation:
     error_gain: float = 0.02
     input_derivatives: bool = False
     stability: str = "settled"
+    reference: str = "monolithic"
 
     def check(self, where: str) -> None:
         """Raise ScenarioError naming ``where`` if a setting is out of its range."""
@@ -79,7 +86,8 @@ class Simulation:
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
         if self.h_min > self.h_max:
             raise ScenarioError(f"{where}: [simulation] h_min = {self.h_min!r} is not allowed; allowed: <= h_max = {self.h_max!r}")
-        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS), ("stability", STABILITIES)):
+        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS), ("stability", STABILITIES),
+                             ("reference", REFERENCES)):
             if getattr(self, key) not in allowed:
                 raise ScenarioError(
                     f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"

@@ -100,8 +100,10 @@ def test_run_through_model_exchange_writes_the_same_files(tmp_path, fmu_dir, cap
     assert settings["steps"] > 0
 
 
-@pytest.mark.parametrize("option, stability", [([], "local"), (["--stability", "settled"], "settled")])
-def test_sweep_judges_by_the_scenarios_stability_unless_told(tmp_path, fmu_dir, option, stability):
+@pytest.mark.parametrize("option, stability, reference", [
+    ([], "local", "monolithic"), (["--stability", "settled", "--reference", "model-exchange"], "settled", "model-exchange"),
+])
+def test_sweep_judges_by_the_scenarios_stability_unless_told(tmp_path, fmu_dir, option, stability, reference):
     from dsc_fmu.study.rows import stability_definition
     out = tmp_path / "sweep"
     assert main(["sweep", "on_reference", *option, "--stop-time", "3", "--step-sizes", "0.01", "--orders",
@@ -109,6 +111,7 @@ def test_sweep_judges_by_the_scenarios_stability_unless_told(tmp_path, fmu_dir, 
                  "--out", str(out), "--fmu-dir", str(fmu_dir)]) == 0
     summary = json.loads((out / "sweep.json").read_text())
     assert summary["settings"]["stability"] == stability
+    assert summary["settings"]["reference"] == reference
     assert summary["stability_definition"] == stability_definition(stability)
     with open(out / "sweep.csv") as file:
         assert [(row["stability"], row["stable"]) for row in csv.DictReader(file)] == [(stability, "True")]

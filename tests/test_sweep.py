@@ -16,7 +16,7 @@ from dsc_fmu.study import rows as sweep_rows
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
-from dsc_fmu.scenario import ScenarioError, load_scenario
+from dsc_fmu.scenario import REFERENCES, ScenarioError, load_scenario
 from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
 from dsc_fmu.study.cases import (
     Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
@@ -257,7 +257,8 @@ def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tm
         unit = {"position": "m", "heading": "rad", "u": "V"}[name]
         assert row[f"max_{name}_deviation_{unit}"] == 0.0 and row[f"rms_{name}_deviation_{unit}"] == 0.0
     assert row["key"] == sweep_cache.case_key(short, case, sweep_cache.fmu_identities(fmu_paths))
-    assert row["reference_key"] == sweep_cache.reference_key(short, dataclasses.replace(case, step_size=0.1))
+    assert row["reference_key"] == sweep_cache.reference_key(short, dataclasses.replace(case, step_size=0.1),
+                                                             sweep_cache.fmu_identities(fmu_paths))
 
 
 @pytest.mark.parametrize("order", ORDERS)
@@ -608,7 +609,7 @@ def test_boundary_notes_say_why_a_prediction_is_off():
 
 def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(fmu_paths, tmp_path, monkeypatch):
     scenario = load_scenario("on_reference").with_simulation(stop_time=2.0)
-    monkeypatch.setattr(sweep_exec, "compute_reference", lambda applied: (None, "solver gave up"))
+    monkeypatch.setattr(sweep_exec, "compute_reference", lambda applied, fmu_paths: (None, "solver gave up"))
     with pytest.warns(UserWarning, match=r"reference solution failed \(solver gave up\): deviations are NaN for its "
                                          r"runs; they are judged as settled runs and not cached"):
         row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
@@ -626,3 +627,19 @@ def test_a_local_run_shorter_than_its_seed_window_is_judged_as_settled(fmu_paths
     with Cosimulator(fmu_paths, tmp_path) as simulator:
         row = run_case(scenario, case, simulator, reference)
     assert why is None and (row["stability"], row["stable"]) == ("settled", True)
+
+
+def test_the_reference_through_model_exchange_measures_the_same_deviations(fmu_paths, tmp_path):
+    """reference = "model-exchange": the three FMUs as one ODE at 1e-10 in place of the monolithic ODE;
+    the same equations, so the same deviations to far below the coupling error, under a key of its own
+    that names the FMUs."""
+    scenario = load_scenario("paper").with_simulation(stop_time=2.0)
+    rows = {}
+    for reference in REFERENCES:
+        applied = scenario.with_simulation(reference=reference)
+        rows[reference], = execute(applied, [Case(0.01)], tmp_path / reference, fmu_paths, jobs=1, progress=False).rows
+    monolithic, through_fmus = rows["monolithic"], rows["model-exchange"]
+    assert monolithic["reference_key"] != through_fmus["reference_key"]
+    for key in ("max_position_deviation_m", "rms_position_deviation_m", "max_u_deviation_V"):
+        assert through_fmus[key] == pytest.approx(monolithic[key], rel=1e-4, abs=1e-7), key
+    assert monolithic["max_position_deviation_m"] > 1e-3  # the coupling error the two references agree on

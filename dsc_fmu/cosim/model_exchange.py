@@ -4,6 +4,7 @@ error, integrated by SciPy's ``solve_ivp`` with the FMUs' event indicators as it
 from __future__ import annotations
 
 import ctypes
+import math
 import time as clock
 
 import numpy as np
@@ -13,7 +14,7 @@ from scipy.integrate import solve_ivp
 from ..errors import CosimulationError
 from ..identity import fmu_build_id
 from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
-from ..scenario import Scenario
+from ..scenario import Scenario, ScenarioError
 from .instance import LoadedFmu, LogMessage, logging_callbacks
 from .master import CosimulationResult, Wiring, Recorder, check_values, close_all
 from .reference_solution import output_times
@@ -172,7 +173,8 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         s; None takes the scenario's.
     tolerance : float, optional
         The solver's relative tolerance (each state's absolute tolerance is this times its nominal);
-        None takes the scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``.
+        None takes the scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``. The scenario's co-simulation
+        settings (step, order, coupling) do not apply.
     workdir : path, optional
         Where the FMUs are extracted (a temporary folder by default).
 
@@ -186,10 +188,15 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     ------
     CosimulationError
         A failing FMI call (naming its FMU), a signal beyond ``bound`` or the solver giving up.
+    ScenarioError
+        A setting out of its range.
     """
-    scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval, tolerance=tolerance)
+    scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval)
     settings = scenario.simulation
-    rtol = settings.tolerance or DEFAULT_TOLERANCE
+    rtol = next(value for value in (tolerance, settings.tolerance, DEFAULT_TOLERANCE) if value is not None)
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
+        raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
+                            "relative tolerance)")
     paths = fmu_files(fmu_paths)
     started = clock.perf_counter()
     log: list[LogMessage] = []

@@ -113,13 +113,17 @@ def scenario_content(scenario: Scenario) -> dict:
     return {"simulation": dataclasses.asdict(scenario.simulation), **{t: getattr(scenario, t) for t in TABLES}}
 
 
-def reference_key(scenario: Scenario, case: Case) -> str:
+def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     """Key of the reference solution of ``case`` applied to ``scenario`` (independent of the step,
-    the order and the discretisation)."""
+    the order and the discretisation); through model exchange, of the FMUs' build ids too."""
     content = scenario_content(apply(scenario, case))
+    kind = content["simulation"]["reference"]
     content["simulation"] = {"stop_time": content["simulation"]["stop_time"]}
     content["controller"] = {k: v for k, v in content["controller"].items() if k != "discretization"}
-    return _digest({"reference": content, "grid": REFERENCE_GRID, "solver": REFERENCE_SETTINGS, "code": _code_hash()})
+    key = {"reference": content, "grid": REFERENCE_GRID, "solver": REFERENCE_SETTINGS, "code": _code_hash()}
+    if kind == "model-exchange":
+        key.update({"through": kind, "fmus": dict(sorted(fmu_build_ids.items()))})
+    return _digest(key)
 
 
 def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
@@ -128,7 +132,7 @@ def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
         "scenario": scenario_content(apply(scenario, case)),
         "case": dataclasses.asdict(case),
         "fmus": dict(sorted(fmu_build_ids.items())),
-        "reference": reference_key(scenario, case),
+        "reference": reference_key(scenario, case, fmu_build_ids),
         "row_version": ROW_VERSION,
     })
 

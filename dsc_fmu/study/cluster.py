@@ -122,6 +122,12 @@ def _run_on_worker(fmus: dict[str, bytes], applied) -> dict:
         return simulate(applied, _simulator(fmus))
 
 
+def _reference_on_worker(fmus: dict[str, bytes], applied) -> tuple:
+    """Task: the reference solution of one applied case, with this worker process's FMUs if it needs them."""
+    with _LOCK:
+        return compute_reference(applied, _simulator(fmus).paths)
+
+
 def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
     """Submit the tasks (``(kind, tag, applied scenario)``) and yield ``(kind, tag, result)`` as
     they finish; closing the generator early cancels what has not finished. A task whose workers
@@ -132,10 +138,8 @@ def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
     [fmus] = client.scatter([blobs], broadcast=True)
     pending = {}
     for kind, tag, applied in tasks:
-        if kind == "reference":
-            future = client.submit(compute_reference, applied, pure=False)
-        else:
-            future = client.submit(_run_on_worker, fmus, applied, pure=False)
+        task = _reference_on_worker if kind == "reference" else _run_on_worker
+        future = client.submit(task, fmus, applied, pure=False)
         pending[future] = (kind, tag, applied)
     try:
         for future in distributed.as_completed(list(pending), loop=client.loop):
@@ -144,7 +148,7 @@ def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
                 result = future.result()
             except distributed.KilledWorker as error:
                 reason = f"Dask worker lost {error.allowed_failures + 1} times while running it (killed or crashed)"
-                result = compute_reference(applied) if kind == "reference" else lost_outcome(reason)
+                result = compute_reference(applied, fmu_paths) if kind == "reference" else lost_outcome(reason)
             future.release()
             yield kind, tag, result
     finally:

@@ -155,7 +155,7 @@ def _in_process(tasks, fmu_paths, work: Path):
     try:
         for kind, tag, applied in tasks:
             if kind == "reference":
-                yield kind, tag, compute_reference(applied)
+                yield kind, tag, compute_reference(applied, fmu_paths)
                 continue
             if simulator is None:
                 folder = work / str(os.getpid())
@@ -190,7 +190,8 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
             while queue and len(in_flight) < jobs and not broken:
                 kind, tag, applied = queue[0]
                 try:
-                    future = executor.submit(compute_reference if kind == "reference" else _pool_run, applied)
+                    future = (executor.submit(compute_reference, applied, fmu_paths) if kind == "reference"
+                              else executor.submit(_pool_run, applied))
                 except BrokenProcessPool:
                     broken = True
                 else:
@@ -210,7 +211,7 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
                     if losses[kind, tag] == 1:
                         retry.append(task)
                     elif kind == "reference":
-                        yield kind, tag, compute_reference(applied)
+                        yield kind, tag, compute_reference(applied, fmu_paths)
                     else:
                         yield kind, tag, lost_outcome(LOST_TWICE)
                 queue.extendleft(reversed(retry))
@@ -254,8 +255,8 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     if scheduler is not None:
         parse_scheduler(scheduler)
     identities = fmu_identities(fmu_paths)
-    plans = [(case, apply(scenario, case), case_key(scenario, case, identities), reference_key(scenario, case))
-             for case in cases]
+    plans = [(case, apply(scenario, case), case_key(scenario, case, identities),
+              reference_key(scenario, case, identities)) for case in cases]
     done, todo, unverified = {}, {}, []
     for case, applied, key, ref_key in plans:
         if key in done or key in todo:

@@ -82,15 +82,24 @@ def simulate(applied: Scenario, cosimulator: Cosimulator) -> dict:
             "steps_rejected": run.rejected, "fmu_steps": run.fmu_steps, "wall_time_s": clock.perf_counter() - started}
 
 
-def compute_reference(applied: Scenario) -> tuple[np.ndarray | None, str | None]:
+def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple[np.ndarray | None, str | None]:
     """The reference solution of ``applied`` on a ``REFERENCE_GRID`` grid up to its stop time
-    (``REFERENCE_COLUMNS``), or None and why the solver failed."""
-    from ..cosim.reference_solution import output_times, reference_solution  # scipy: only where references are computed
+    (``REFERENCE_COLUMNS``), or None and why the solver failed: the monolithic ODE, or with
+    ``applied.simulation.reference`` = "model-exchange" the FMUs of ``fmu_paths`` as one ODE."""
+    from ..cosim.model_exchange import simulate_model_exchange  # scipy: only where references are computed
+    from ..cosim.reference_solution import output_times, reference_solution
 
-    times = output_times(applied.simulation.stop_time, REFERENCE_GRID)
+    through_fmus = applied.simulation.reference == "model-exchange"
+    if through_fmus and fmu_paths is None:
+        raise ValueError("a reference solution through model exchange needs the FMUs (fmu_paths)")
     try:
-        solution = reference_solution(applied, times=times, **REFERENCE_SETTINGS)
-    except (RuntimeError, ArithmeticError, ValueError) as error:
+        if through_fmus:
+            solution = simulate_model_exchange(applied, fmu_paths, tolerance=REFERENCE_SETTINGS["rtol"],
+                                               output_interval=REFERENCE_GRID).result
+        else:
+            times = output_times(applied.simulation.stop_time, REFERENCE_GRID)
+            solution = reference_solution(applied, times=times, **REFERENCE_SETTINGS)
+    except (RuntimeError, ArithmeticError, ValueError, CosimulationError) as error:
         return None, " ".join(str(error).split())
     return _columns(solution, REFERENCE_COLUMNS), None
 
@@ -203,6 +212,7 @@ def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference
     of the case's physical scenario (``reference_solution(apply(scenario, case), times=...)``,
     at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN (and judge the run as a
     settled one)."""
-    keys = case_key(scenario, case, fmu_identities(cosimulator.paths)), reference_key(scenario, case)
+    identities = fmu_identities(cosimulator.paths)
+    keys = case_key(scenario, case, identities), reference_key(scenario, case, identities)
     applied = apply(scenario, case)
     return make_row(applied, case, keys, simulate(applied, cosimulator), reference)

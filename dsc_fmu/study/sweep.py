@@ -162,7 +162,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                 "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}), "sets": [list(s) for s in sets],
                 "perturbations": [str(p) for p in perturbations], "samples": samples, "seed": seed,
                 "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval,
-                "stability": scenario.simulation.stability}
+                "stability": scenario.simulation.stability, "reference": scenario.simulation.reference}
     measured = {label: b.h_stable for label, b in boundaries.items()}
     notes += boundary_notes(predictions, boundaries, scenario.simulation.stability)
     summary = summarise(rows, stability_definition=stability_definition(scenario.simulation.stability),
