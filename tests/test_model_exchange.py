@@ -9,7 +9,7 @@ import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 
-from dsc_fmu.cosim.instance import FMU2ModelNamed, FMU3ModelNamed
+from dsc_fmu.cosim.instance import FMU2ModelNamed, FMU3ModelNamed, LogMessage, logging_callbacks
 from dsc_fmu.cosim.model_exchange import simulate_model_exchange
 from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.models import parameters as P
@@ -57,27 +57,24 @@ def test_each_fmu_as_an_ode_agrees_with_its_co_simulation(fmu_paths, fmu3_paths,
 
 
 class Model:
-    """One model-exchange instance of an FMU through fmpy, with the FMI 2.0 names."""
+    """One model-exchange instance of an FMU through fmpy, with the FMI 2.0 names; ``log`` collects its
+    messages as ``LogMessage``s."""
 
     def __init__(self, path, folder, name, log):
         md = read_model_description(str(path))
         self.version = 3 if md.fmiVersion.startswith("3") else 2
         self.refs = {v.name: v.valueReference for v in md.modelVariables}
         self.nx, self.nz = len(md.derivatives), md.numberOfEventIndicators
-        self.md = md
+        self.md, self.log = md, log
         kind = FMU3ModelNamed if self.version == 3 else FMU2ModelNamed
         self.fmu = kind(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=folder),
                         modelIdentifier=md.modelExchange.modelIdentifier, instanceName=name)
         if self.version == 3:
             self.fmu.instantiate(loggingOn=True, logMessage=lambda env, status, category, message: log.append(
-                (status, message.decode())))
+                LogMessage(name, str(status), message.decode())))
         else:
-            from dsc_fmu.cosim.instance import LogMessage, logging_callbacks
-
-            entries: list[LogMessage] = []
-            self._callbacks = logging_callbacks(entries)
+            self._callbacks = logging_callbacks(log)
             self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
-            self.entries = entries
         self.fmu.setupExperiment(startTime=0.0)
         self.fmu.enterInitializationMode()
 
@@ -134,7 +131,7 @@ def model(request, fmu_paths, fmu3_paths, tmp_path):
         instance.free()
 
 
-def _knowns(instance: Model, name: str) -> list:
+def _knowns(name: str) -> list:
     return [v.name for v in FMUS[name].inputs] + [s.variable.name for s in FMUS[name].states]
 
 
@@ -162,7 +159,7 @@ def test_the_declared_dependencies_are_the_ones_the_fmu_has(model, name):
 
     base = evaluate(x, u)
     found = {unknown: set() for unknown in base}
-    for i, known in enumerate(_knowns(instance, name)):
+    for i, known in enumerate(_knowns(name)):
         changed_x, changed_u = list(x), list(u)
         if i < len(inputs):
             changed_u[i] *= 1.001
@@ -324,3 +321,29 @@ def test_the_guard_crossings_of_figure_eight_are_events(fmu_paths):
     assert run.settings["events"] >= 2 * engagements - 1
     deviation = np.hypot(run.result["x"] - reference["x"], run.result["y"] - reference["y"])
     assert deviation.max() < 1e-5
+
+
+def test_a_state_of_the_other_interface_is_refused(fmu_paths, tmp_path):
+    """A serialized FMU state taken in co-simulation's step mode cannot become a model-exchange
+    instance's state (nor the other way): fmi2Error naming both."""
+    from fmpy.fmi2 import FMU2Slave
+
+    path = fmu_paths["ReferenceRobot"]
+    md = read_model_description(str(path))
+    folder = extract(str(path), unzipdir=tmp_path / "fmu")
+    slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier="ReferenceRobot", instanceName="cs")
+    slave.instantiate()
+    slave.setupExperiment(startTime=0.0)
+    slave.enterInitializationMode()
+    slave.exitInitializationMode()
+    data = slave.serializeFMUstate(slave.getFMUstate())
+    slave.terminate()
+    slave.freeInstance()
+    log = []
+    instance = Model(path, tmp_path / "me", "ReferenceRobot", log)
+    state = instance.fmu.deSerializeFMUstate(data)
+    with pytest.raises(FMICallException, match="status 3"):
+        instance.fmu.setFMUstate(state)
+    assert any("the FMU state is one of co-simulation, in state step mode; this instance is for model exchange"
+               in m.message for m in log)
+    instance.free()

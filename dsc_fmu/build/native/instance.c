@@ -390,6 +390,12 @@ int instance_get_state(Instance *instance, const char *function, void **pointer)
 int instance_set_state(Instance *instance, const char *function, void *pointer) {
     State *state = valid_state(instance, function, pointer);
     if (!state) return STATUS_ERROR;
+    if (state->state & (instance->model_exchange ? (StepMode | StepFailed) : (EventMode | ContinuousTimeMode))) {
+        instance_log(instance, STATUS_ERROR, "%s: %s: the FMU state is one of %s, in state %s; this instance is for %s",
+                     instance->name, function, interface_name(!instance->model_exchange), state_name(state->state),
+                     interface_name(instance->model_exchange));
+        return STATUS_ERROR;
+    }
     int status = slave_set_state(&instance->slave, state->object);
     if (status == STATUS_OK) instance->state = state->state;
     return status;
