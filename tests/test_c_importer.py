@@ -1,6 +1,7 @@
-"""The FMUs in C importers without Python: each FMU (FMI 2.0 and 3.0) in ``c_importer.c`` and the paper's
-loop in ``c_master.c``, started with an empty environment from another working directory, against fmpy and
-our master to the last bit; where the binary looks for its Python, and what it says when there is none."""
+"""The FMUs in C importers without Python: each FMU (FMI 2.0 and 3.0) in ``c_importer.c`` (co-simulation)
+and ``c_model_exchange.c`` (model exchange, RK4 in C) and the paper's loop in ``c_master.c``, started with
+an empty environment from another working directory, against fmpy and our master; where the binary looks
+for its Python, and what it says when there is none."""
 
 import sysconfig
 from pathlib import Path
@@ -26,6 +27,11 @@ def importer(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def model_exchange_importer(tmp_path_factory):
+    return compile_c("c_model_exchange.c", tmp_path_factory.mktemp("c") / "c_model_exchange")
+
+
+@pytest.fixture(scope="module")
 def master(tmp_path_factory):
     return compile_c("c_master.c", tmp_path_factory.mktemp("c") / "c_master")
 
@@ -43,7 +49,7 @@ def c_run(importer, version, folder, md, refs, cwd, env=None):
     return run_c([importer, version, folder, md.coSimulation.modelIdentifier, token, STEPS, STEP, *refs], cwd, env)
 
 
-def fmpy_run(version, folder, md, refs):
+def fmpy_run(version, folder, md, refs, max_step=None):
     cls = FMU3Slave if version == 3 else FMU2Slave
     fmu = cls(guid=md.guid, unzipDirectory=str(folder), modelIdentifier=md.coSimulation.modelIdentifier,
               instanceName="fmpy")
@@ -53,6 +59,9 @@ def fmpy_run(version, folder, md, refs):
     else:
         fmu.setupExperiment(startTime=0.0)
         fmu.enterInitializationMode()
+    if max_step is not None:
+        reference = next(v.valueReference for v in md.modelVariables if v.name == "max_step")
+        (fmu.setFloat64 if version == 3 else fmu.setReal)([reference], [max_step])
     fmu.exitInitializationMode()
     get = fmu.getFloat64 if version == 3 else fmu.getReal
     rows = []
@@ -77,6 +86,29 @@ def test_each_fmu_runs_in_a_c_process_without_python_like_in_fmpy(importer, fmu_
     run = c_run(importer, version, folder, md, outputs(md), cwd)
     assert run.returncode == 0, run.stderr
     assert parse_rows(run.stdout) == fmpy_run(version, folder, md, outputs(md))
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", NAMES)
+def test_each_fmu_in_a_c_model_exchange_importer_equals_its_co_simulation(model_exchange_importer, fmu_paths,
+                                                                          fmu3_paths, tmp_path, name, version):
+    """Model exchange from a C process without Python: RK4 at 0.02 s in C on the FMU's derivatives (its
+    inputs held at their start values), against the same FMU's co-simulation with RK4 sub-steps of 0.02 s
+    in the FMU: the same equations and the same arithmetic, so the same values to rounding."""
+    path = (fmu3_paths if version == 3 else fmu_paths)[name]
+    md = read_model_description(str(path))
+    folder = Path(extract(str(path), unzipdir=tmp_path / name))
+    cwd = tmp_path / "elsewhere"
+    cwd.mkdir()
+    token = md.guid if version == 2 else md.instantiationToken
+    run = run_c([model_exchange_importer, version, folder, md.modelExchange.modelIdentifier, token,
+                 len(md.derivatives), md.numberOfEventIndicators, STEPS, STEP, *outputs(md)], cwd)
+    assert run.returncode == 0, run.stderr
+    *rows, events = run.stdout.splitlines()
+    assert events == "events,0"  # the inputs are held: no switch is crossed
+    flat = lambda rows: [value for row in rows for value in row]  # noqa: E731
+    expected = fmpy_run(version, folder, md, outputs(md), max_step=STEP)
+    assert flat(parse_rows("\n".join(rows))) == pytest.approx(flat(expected), rel=1e-13, abs=1e-13)
 
 
 def test_the_override_variable_is_the_only_candidate_when_set(importer, fmu_paths, tmp_path):

@@ -84,8 +84,9 @@ def test_results_and_summary_written(tmp_path):
     result = decaying()
     run = CosimulationResult(
         result=result, steps=30000, wall_time=1.5,
-        settings={"scenario": "paper", "step_size": 1e-3, "order": "jacobi", "coupling": "linear", "stop_time": 30.0,
-                  "output_interval": 0.01, "tolerance": None, "input_derivatives": False},
+        settings={"scenario": "paper", "interface": "co-simulation", "step_size": 1e-3, "order": "jacobi",
+                  "coupling": "linear", "stop_time": 30.0, "output_interval": 0.01, "tolerance": None,
+                  "input_derivatives": False},
         fmu_steps=90000,
         fmus={"MobileRobot": {"path": "MobileRobot.fmu", "build_id": "abc"}},
     )
@@ -96,7 +97,7 @@ def test_results_and_summary_written(tmp_path):
     np.testing.assert_array_equal(back["position_error"], result["position_error"])
     summary = json.loads(paths["summary"].read_text())
     assert summary["scenario"] == "paper" and summary["scenario_source"] == scenario.source
-    assert summary["settings"] == {"step_size": 1e-3, "order": "jacobi", "coupling": "linear",
+    assert summary["settings"] == {"interface": "co-simulation", "step_size": 1e-3, "order": "jacobi", "coupling": "linear",
                                    "input_derivatives": False, "stop_time": 30.0,
                                    "output_interval": 0.01, "tolerance": None, "steps_rejected": 0, "fmu_steps": 90000,
                                    "steps": 30000, "wall_time_s": 1.5}

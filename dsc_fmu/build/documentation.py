@@ -99,8 +99,8 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
         "<body>",
         f"<h1>{escape(name)}</h1>",
         f"<p>{escape(root.get('description', ''))}.</p>",
-        f"<p>FMI {escape(version)} co-simulation FMU built by dsc-fmu ({escape(root.get('generationTool', ''))}). "
-        f"It implements part of {escape(PAPER)}</p>",
+        f"<p>FMI {escape(version)} FMU for {escape(_interfaces(root))}, built by dsc-fmu "
+        f"({escape(root.get('generationTool', ''))}). It implements part of {escape(PAPER)}</p>",
         "<h2>Equations</h2>",
         f"<pre>{escape(EQUATIONS[name])}</pre>",
         "<h2>Variables</h2>",
@@ -117,6 +117,13 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
         "</html>",
         "",
     ])
+
+
+def _interfaces(root: ET.Element) -> str:
+    """The interfaces the model description declares, in words."""
+    names = [words for tag, words in (("ModelExchange", "model exchange"), ("CoSimulation", "co-simulation"))
+             if root.find(tag) is not None]
+    return " and ".join(names)
 
 
 def _variables(root: ET.Element) -> list[ET.Element]:

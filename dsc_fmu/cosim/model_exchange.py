@@ -100,15 +100,25 @@ class _Loop:
         event.terminal = True
         return event
 
-    def event(self) -> None:
-        """Event mode at the loaded point: every FMU updates its discrete states until none needs more."""
+    def event(self) -> bool:
+        """Event mode at the loaded point; whether a state changed there (``iterate``)."""
         for model in self.models:
             model.enterEventMode()
+        return self.iterate()
+
+    def iterate(self) -> bool:
+        """In event mode: every FMU updates its discrete states until none needs more, then all enter
+        continuous-time mode; whether an FMU changed the value of a continuous state."""
+        changed = False
         for model in self.models:
-            while model.newDiscreteStates()[0]:
-                pass
+            while True:
+                needed, _, _, values_changed, _, _ = model.newDiscreteStates()
+                changed = changed or values_changed
+                if not needed:
+                    break
             model.enterContinuousTimeMode()
         self.evaluated = None
+        return changed
 
 
 def _start(fmus: dict[str, LoadedFmu], loop: _Loop, scenario: Scenario) -> None:
@@ -120,10 +130,7 @@ def _start(fmus: dict[str, LoadedFmu], loop: _Loop, scenario: Scenario) -> None:
     loop.exchange()
     for name in ORDER:
         fmus[name].slave.exitInitializationMode()
-    for model in loop.models:
-        while model.newDiscreteStates()[0]:
-            pass
-        model.enterContinuousTimeMode()
+    loop.iterate()
 
 
 def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float) -> int:
@@ -150,9 +157,14 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
             break
         found = min(float(ts[0]) for ts in solution.t_events if len(ts))
         t = min(found + _PAST_EVENT, stop)
+        for at in pending[pending <= t]:  # output times between the root and where the event is handled
+            loop.load(at, solution.sol(at))
+            recorder.record(at)
+        pending = pending[pending > t]
         y = solution.sol(t)
         loop.load(t, y)
-        loop.event()
+        if loop.event():
+            y = loop.states()
         handled += 1
     return handled
 

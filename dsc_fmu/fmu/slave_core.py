@@ -1,4 +1,4 @@
-"""The FMI-version-independent part of the slaves: variables from tables, checks, steps, state.
+"""The FMI-version-independent part of the slaves: variables from tables, checks, steps, model exchange, state.
 
 Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
 ``fmi2.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3.DscSlave`` (FMI 3.0, pythonfmu3)
@@ -17,7 +17,7 @@ HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interp
 
 
 class SlaveCore:
-    """A co-simulation slave whose model is ``x_dot = derivatives(t, x)`` with held inputs.
+    """A slave whose model is ``x_dot = derivatives(t, x)``: co-simulation with held inputs, or model exchange.
 
     Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
     ``initial_state``, ``derivatives`` and ``outputs``. Until the first step, the state is
@@ -31,6 +31,13 @@ class SlaveCore:
     the importer can correct it: the refusal is logged as an error naming the variable and its
     range, the variable keeps its last valid value, and every ``do_step`` returns False
     (fmiDiscard) until a valid value is set.
+
+    The same slave serves model exchange (docs/model-exchange.md): the binary hands it the time and
+    the states the importer sets (``set_point``) and reads the vectors of ``STATES`` (derivatives,
+    states, nominals) and of ``INDICATORS``; from the end of initialization (``start_continuous_time``)
+    the state no longer follows the inputs, and the switches of the model change only in
+    ``update_discrete_states``. The tables ``STATES``, ``LOCALS`` and ``INDICATORS`` register the
+    states that are not outputs, the states' derivatives and the event indicators as local variables.
     """
 
     PARAMETERS: tuple = ()

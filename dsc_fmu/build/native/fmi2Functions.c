@@ -178,10 +178,10 @@ fmi2Status fmi2CancelStep(fmi2Component c) {
 
 /* --- model exchange ------------------------------------------------------------------------------------ */
 
-fmi2Status fmi2EnterEventMode(fmi2Component c) {
-    BEGIN(fmi2EnterEventMode);
-    END(instance_enter(instance, EventMode));
-}
+MODEL_EXCHANGE_FUNCTIONS(fmi2Status, fmi2Component, fmi2Boolean, fmi2Real, fmi2EnterEventMode,
+                         fmi2EnterContinuousTimeMode, fmi2CompletedIntegratorStep, fmi2SetTime, fmi2SetContinuousStates,
+                         fmi2GetDerivatives, fmi2GetEventIndicators, fmi2GetContinuousStates,
+                         fmi2GetNominalsOfContinuousStates)
 
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
     BEGIN(fmi2NewDiscreteStates);
@@ -195,45 +195,6 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
     eventInfo->nextEventTime = 0.0;
     END(status);
 }
-
-fmi2Status fmi2EnterContinuousTimeMode(fmi2Component c) {
-    BEGIN(fmi2EnterContinuousTimeMode);
-    END(instance_enter(instance, ContinuousTimeMode));
-}
-
-/* The switches change only at state events, which the event indicators show: no step needs an event. */
-fmi2Status fmi2CompletedIntegratorStep(fmi2Component c, fmi2Boolean noSetFMUStatePriorToCurrentPoint,
-                                       fmi2Boolean *enterEventMode, fmi2Boolean *terminateSimulation) {
-    BEGIN(fmi2CompletedIntegratorStep);
-    if (!instance_given(instance, "fmi2CompletedIntegratorStep", enterEventMode, "place for enterEventMode") ||
-        !instance_given(instance, "fmi2CompletedIntegratorStep", terminateSimulation, "place for terminateSimulation")) {
-        END(STATUS_ERROR);
-    }
-    *enterEventMode = fmi2False;
-    *terminateSimulation = fmi2False;
-    END(STATUS_OK);
-}
-
-fmi2Status fmi2SetTime(fmi2Component c, fmi2Real time) {
-    BEGIN(fmi2SetTime);
-    END(instance_set_time(instance, "fmi2SetTime", time));
-}
-
-fmi2Status fmi2SetContinuousStates(fmi2Component c, const fmi2Real x[], size_t nx) {
-    BEGIN(fmi2SetContinuousStates);
-    END(instance_set_states(instance, "fmi2SetContinuousStates", x, nx));
-}
-
-#define VECTOR_GETTER(function, which, argument)                                                                      \
-    fmi2Status function(fmi2Component c, fmi2Real argument[], size_t n) {                                            \
-        BEGIN(function);                                                                                             \
-        END(instance_get_vector(instance, #function, which, argument, n));                                           \
-    }
-
-VECTOR_GETTER(fmi2GetDerivatives, VECTOR_DERIVATIVES, derivatives)
-VECTOR_GETTER(fmi2GetEventIndicators, VECTOR_INDICATORS, eventIndicators)
-VECTOR_GETTER(fmi2GetContinuousStates, VECTOR_STATES, x)
-VECTOR_GETTER(fmi2GetNominalsOfContinuousStates, VECTOR_NOMINALS, x_nominal)
 
 /* --- values ------------------------------------------------------------------------------------------- */
 

@@ -265,10 +265,10 @@ FMU_STATE_FUNCTIONS(fmi3Status, fmi3Instance, fmi3FMUState, fmi3Byte, fmi3GetFMU
 
 /* --- model exchange ------------------------------------------------------------------------------------ */
 
-fmi3Status fmi3EnterEventMode(fmi3Instance c) {
-    BEGIN(fmi3EnterEventMode);
-    END(instance_enter(instance, EventMode));
-}
+MODEL_EXCHANGE_FUNCTIONS(fmi3Status, fmi3Instance, fmi3Boolean, fmi3Float64, fmi3EnterEventMode,
+                         fmi3EnterContinuousTimeMode, fmi3CompletedIntegratorStep, fmi3SetTime, fmi3SetContinuousStates,
+                         fmi3GetContinuousStateDerivatives, fmi3GetEventIndicators, fmi3GetContinuousStates,
+                         fmi3GetNominalsOfContinuousStates)
 
 fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *discreteStatesNeedUpdate,
                                     fmi3Boolean *terminateSimulation, fmi3Boolean *nominalsOfContinuousStatesChanged,
@@ -289,45 +289,6 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *discreteStatesN
     *nextEventTime = 0.0;
     END(status);
 }
-
-fmi3Status fmi3EnterContinuousTimeMode(fmi3Instance c) {
-    BEGIN(fmi3EnterContinuousTimeMode);
-    END(instance_enter(instance, ContinuousTimeMode));
-}
-
-/* The switches change only at state events, which the event indicators show: no step needs an event. */
-fmi3Status fmi3CompletedIntegratorStep(fmi3Instance c, fmi3Boolean noSetFMUStatePriorToCurrentPoint,
-                                       fmi3Boolean *enterEventMode, fmi3Boolean *terminateSimulation) {
-    BEGIN(fmi3CompletedIntegratorStep);
-    if (!instance_given(instance, "fmi3CompletedIntegratorStep", enterEventMode, "place for enterEventMode") ||
-        !instance_given(instance, "fmi3CompletedIntegratorStep", terminateSimulation, "place for terminateSimulation")) {
-        END(STATUS_ERROR);
-    }
-    *enterEventMode = fmi3False;
-    *terminateSimulation = fmi3False;
-    END(STATUS_OK);
-}
-
-fmi3Status fmi3SetTime(fmi3Instance c, fmi3Float64 time) {
-    BEGIN(fmi3SetTime);
-    END(instance_set_time(instance, "fmi3SetTime", time));
-}
-
-fmi3Status fmi3SetContinuousStates(fmi3Instance c, const fmi3Float64 continuousStates[], size_t nContinuousStates) {
-    BEGIN(fmi3SetContinuousStates);
-    END(instance_set_states(instance, "fmi3SetContinuousStates", continuousStates, nContinuousStates));
-}
-
-#define VECTOR_GETTER(function, which)                                                                                \
-    fmi3Status function(fmi3Instance c, fmi3Float64 values[], size_t n) {                                            \
-        BEGIN(function);                                                                                             \
-        END(instance_get_vector(instance, #function, which, values, n));                                             \
-    }
-
-VECTOR_GETTER(fmi3GetContinuousStateDerivatives, VECTOR_DERIVATIVES)
-VECTOR_GETTER(fmi3GetEventIndicators, VECTOR_INDICATORS)
-VECTOR_GETTER(fmi3GetContinuousStates, VECTOR_STATES)
-VECTOR_GETTER(fmi3GetNominalsOfContinuousStates, VECTOR_NOMINALS)
 
 fmi3Status fmi3GetNumberOfContinuousStates(fmi3Instance c, size_t *nContinuousStates) {
     BEGIN(fmi3GetNumberOfContinuousStates);

@@ -153,4 +153,51 @@ int instance_deserialize(Instance *instance, const char *function, const char *b
         END(instance_deserialize(instance, #Deserialize, (const char *)serialized, size, state));              \
     }
 
+/* For the adapters: the model-exchange functions that both FMI versions share, under each version's names
+   and types, each guarded by the adapter's BEGIN (its mask MASK_<name>) and ended by its END. The
+   switches change only at state events, which the event indicators show: no integrator step asks for
+   an event. */
+#define MODEL_EXCHANGE_FUNCTIONS(Status, Component, Boolean, Float, EnterEventMode, EnterContinuousTimeMode,     \
+                                 CompletedIntegratorStep, SetTime, SetContinuousStates, GetDerivatives,          \
+                                 GetEventIndicators, GetContinuousStates, GetNominals)                           \
+    Status EnterEventMode(Component c) {                                                                       \
+        BEGIN(EnterEventMode);                                                                                 \
+        END(instance_enter(instance, EventMode));                                                              \
+    }                                                                                                          \
+    Status EnterContinuousTimeMode(Component c) {                                                              \
+        BEGIN(EnterContinuousTimeMode);                                                                        \
+        END(instance_enter(instance, ContinuousTimeMode));                                                     \
+    }                                                                                                          \
+    Status CompletedIntegratorStep(Component c, Boolean noSetFMUStatePriorToCurrentPoint, Boolean *enterEventMode, \
+                                   Boolean *terminateSimulation) {                                             \
+        BEGIN(CompletedIntegratorStep);                                                                        \
+        if (!instance_given(instance, #CompletedIntegratorStep, enterEventMode, "place for enterEventMode") ||  \
+            !instance_given(instance, #CompletedIntegratorStep, terminateSimulation,                           \
+                            "place for terminateSimulation")) {                                                \
+            END(STATUS_ERROR);                                                                                 \
+        }                                                                                                      \
+        *enterEventMode = 0;                                                                                   \
+        *terminateSimulation = 0;                                                                              \
+        END(STATUS_OK);                                                                                        \
+    }                                                                                                          \
+    Status SetTime(Component c, Float time) {                                                                  \
+        BEGIN(SetTime);                                                                                        \
+        END(instance_set_time(instance, #SetTime, time));                                                      \
+    }                                                                                                          \
+    Status SetContinuousStates(Component c, const Float x[], size_t nx) {                                      \
+        BEGIN(SetContinuousStates);                                                                            \
+        END(instance_set_states(instance, #SetContinuousStates, x, nx));                                       \
+    }                                                                                                          \
+    VECTOR_FUNCTION(Status, Component, Float, GetDerivatives, VECTOR_DERIVATIVES)                              \
+    VECTOR_FUNCTION(Status, Component, Float, GetEventIndicators, VECTOR_INDICATORS)                           \
+    VECTOR_FUNCTION(Status, Component, Float, GetContinuousStates, VECTOR_STATES)                              \
+    VECTOR_FUNCTION(Status, Component, Float, GetNominals, VECTOR_NOMINALS)
+
+/* One function reading the model-exchange vector `which` (see MODEL_EXCHANGE_FUNCTIONS). */
+#define VECTOR_FUNCTION(Status, Component, Float, F, which)                                                     \
+    Status F(Component c, Float values[], size_t n) {                                                          \
+        BEGIN(F);                                                                                              \
+        END(instance_get_vector(instance, #F, which, values, n));                                              \
+    }
+
 #endif
