@@ -9,13 +9,11 @@
    message on the first failing call, 2 if an instantiation returns NULL. */
 
 #include <dlfcn.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
-#include "fmi3Functions.h"
+#include "fmi_host.h"
 
 #define MAX_FMUS 8
 
@@ -24,20 +22,6 @@ typedef struct {
     void *instance;
 } Fmu;
 
-static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
-                    fmi2String message, ...) {
-    va_list args;
-    va_start(args, message);
-    fprintf(stderr, "[%s %d] ", instance, status);
-    vfprintf(stderr, message, args);
-    fprintf(stderr, "\n");
-    va_end(args);
-}
-
-static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
-    fprintf(stderr, "[%d] %s\n", status, message);
-}
-
 static void *symbol(void *library, const char *name) {
     void *address = dlsym(library, name);
     if (!address) {
@@ -45,13 +29,6 @@ static void *symbol(void *library, const char *name) {
         exit(1);
     }
     return address;
-}
-
-static void check(int status, const char *call) {
-    if (status > 1) {
-        fprintf(stderr, "%s failed with status %d\n", call, status);
-        exit(1);
-    }
 }
 
 static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid) {

@@ -8,30 +8,14 @@
    then "events,N"; exits 1 with a message on the first failing call, 2 if the instantiation returns NULL. */
 
 #include <dlfcn.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 
-#include "fmi2Functions.h"
-#include "fmi3Functions.h"
+#include "fmi_host.h"
 
 static void *library;
 static void *instance;
 static int version;
-
-static void logger2(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                    fmi2String message, ...) {
-    va_list args;
-    va_start(args, message);
-    fprintf(stderr, "[%s %d] ", name, status);
-    vfprintf(stderr, message, args);
-    fprintf(stderr, "\n");
-    va_end(args);
-}
-
-static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
-    fprintf(stderr, "[%d] %s\n", status, message);
-}
 
 static void *symbol(const char *name) {
     void *address = dlsym(library, name);
@@ -40,13 +24,6 @@ static void *symbol(const char *name) {
         exit(1);
     }
     return address;
-}
-
-static void check(int status, const char *call) {
-    if (status > 1) {
-        fprintf(stderr, "%s failed with status %d\n", call, status);
-        exit(1);
-    }
 }
 
 /* Call the function named by its FMI 2.0 or 3.0 name, of the type given for each, with the same arguments. */

@@ -84,9 +84,10 @@ def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str,
     return {unknown: tuple(sorted(names, key=order.index)) for unknown, names in found.items()}
 
 
-def _set_item(attribute: str, index: int):
+def _setter(attribute: str, key):
+    """A known's setter: item ``key`` of the probe's ``attribute`` (``u``, ``state`` or ``p``)."""
     def put(probe, value):
-        getattr(probe, attribute)[index] = value
+        getattr(probe, attribute)[key] = value
         probe._constants = None
     return put
 
@@ -102,8 +103,8 @@ def _continuous(probe) -> dict:
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
     """The inputs, states and ``TIME`` that each continuous output, state derivative and event indicator
     depends on in continuous-time mode (and at communication points)."""
-    knowns = {v.name: (lambda probe, i=i: probe.u[i], _set_item("u", i)) for i, v in enumerate(spec.inputs)}
-    knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _set_item("state", i))
+    knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
+    knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
                    for i, s in enumerate(spec.states)})
     knowns[TIME] = (lambda probe: probe.time, lambda probe, value: setattr(probe, "time", value))
     return _dependencies(spec, knowns, _continuous)
@@ -118,18 +119,11 @@ def _initial(probe) -> dict:
     return values
 
 
-def _set_parameter(name: str):
-    def put(probe, value):
-        probe.p[name] = value
-        probe._constants = None
-    return put
-
-
 def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
     """The inputs, parameters and ``TIME`` that each continuous output, state and state derivative
     depends on in initialization mode."""
-    knowns = {v.name: (lambda probe, i=i: probe.u[i], _set_item("u", i)) for i, v in enumerate(spec.inputs)}
-    knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _set_parameter(v.name))
+    knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
+    knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name))
                    for v in spec.parameters if not v.integer})
     knowns[TIME] = (lambda probe: probe.time, lambda probe, value: setattr(probe, "time", value))
     return _dependencies(spec, knowns, _initial)

@@ -152,6 +152,7 @@ class Wiring:
         self.controller_u, self.plant_u = controller.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
         self.checked = [f"{PLANT}.{s}" for s in measured_plant] + [f"{REFERENCE}.{s}" for s in measured_reference]
         self.u_names = (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2")
+        self.plant, self.reference, self.controller = plant, reference, controller
         self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
         self.readers, offset = [], 1  # (FMU, kind, value references, table columns) of every recorded output
         for name, names in signals.RECORDED.items():
@@ -160,6 +161,20 @@ class Wiring:
                 chosen = [i for i, output in enumerate(names) if type_name(fmu.variable(output)) == kind]
                 self.readers.append((fmu, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
             offset += len(names)
+
+
+    def measure(self, at: float, bound: float) -> list:
+        """The controller's measurements: the plant's and the reference's outputs, checked against ``bound``."""
+        measured = self.plant.slave.getReal(self.plant_out) + self.reference.slave.getReal(self.reference_out)
+        check_values(measured, self.checked, at, bound)
+        return measured
+
+    def pass_u(self, at: float, bound: float) -> list:
+        """The controller's ``u``, checked against ``bound``, set on the plant; returns it."""
+        u = self.controller.slave.getReal(self.controller_u)
+        check_values(u, self.u_names, at, bound)
+        self.plant.slave.setReal(self.plant_u, u)
+        return u
 
 
 class _Run:
@@ -231,8 +246,7 @@ class _Run:
     def _start(self) -> None:
         """The measurements at t = 0 (checked), the exchange there and its row."""
         wiring = self.wiring
-        measurements = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
-        check_values(measurements, wiring.checked, 0.0, self.settings.bound)
+        measurements = wiring.measure(0.0, self.settings.bound)
         self._exchange(0.0, measurements, True)
         self.recorder.record(0.0)
 
@@ -246,8 +260,7 @@ class _Run:
             ramps.before_plant()
         self.reference.doStep(t, step)
         self.plant.doStep(t, step)
-        measured = self.plant.getReal(wiring.plant_out) + self.reference.getReal(wiring.reference_out)
-        check_values(measured, wiring.checked, end, self.settings.bound)
+        measured = wiring.measure(end, self.settings.bound)
         if ramps is not None:
             ramps.before_controller(step, measured)
         elif not jacobi:
@@ -317,9 +330,7 @@ class _Run:
         wiring = self.wiring
         if set_inputs:
             self.controller.setReal(wiring.controller_in, measurements)
-        u = self.controller.getReal(wiring.controller_u)
-        check_values(u, wiring.u_names, at, self.settings.bound)
-        self.plant.setReal(wiring.plant_u, u)
+        u = wiring.pass_u(at, self.settings.bound)
         self.u = u
         if self.ramps is not None:
             self.ramps.exchanged(at, u, measurements)

@@ -13,10 +13,10 @@ from scipy.integrate import solve_ivp
 
 from ..errors import CosimulationError
 from ..identity import fmu_build_id
-from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
+from ..registry import ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 from .instance import LoadedFmu, LogMessage, logging_callbacks
-from .master import CosimulationResult, Wiring, Recorder, check_values, close_all
+from .master import CosimulationResult, Wiring, Recorder, close_all
 from .reference_solution import output_times
 
 __all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
@@ -37,27 +37,22 @@ class _Loop:
     in dependency order (reference and plant, then the controller, then the plant's voltages) and reads
     the derivatives or the event indicators."""
 
-    def __init__(self, fmus: dict[str, LoadedFmu], wiring: Wiring, bound: float):
-        self.fmus, self.wiring, self.bound = fmus, wiring, bound
-        self.models = [fmus[name].slave for name in ORDER]
-        self.sizes = [fmus[name].states for name in ORDER]
+    def __init__(self, wiring: Wiring, bound: float):
+        self.wiring, self.bound = wiring, bound
+        self.models = [wiring.fmus[name].slave for name in ORDER]
+        self.sizes = [wiring.fmus[name].states for name in ORDER]
         self.offsets = np.cumsum([0, *self.sizes])
         self.buffers = [(ctypes.c_double * n)() for n in self.sizes]
-        controller = fmus[CONTROLLER]
-        self.indicators = (ctypes.c_double * controller.indicators)()
+        self.indicators = (ctypes.c_double * wiring.controller.indicators)()
         self.evaluated = None
         self.at = 0.0
         self.evaluations = 0
 
     def exchange(self) -> None:
         """Outputs to inputs at the current time and states (checked against the bound)."""
-        wiring, fmus = self.wiring, self.fmus
-        measured = fmus[PLANT].slave.getReal(wiring.plant_out) + fmus[REFERENCE].slave.getReal(wiring.reference_out)
-        check_values(measured, wiring.checked, self.at, self.bound)
-        fmus[CONTROLLER].slave.setReal(wiring.controller_in, measured)
-        u = fmus[CONTROLLER].slave.getReal(wiring.controller_u)
-        check_values(u, wiring.u_names, self.at, self.bound)
-        fmus[PLANT].slave.setReal(wiring.plant_u, u)
+        wiring = self.wiring
+        wiring.controller.slave.setReal(wiring.controller_in, wiring.measure(self.at, self.bound))
+        wiring.pass_u(self.at, self.bound)
 
     def load(self, t: float, y: np.ndarray) -> None:
         """The FMUs at time ``t`` and states ``y``, their inputs exchanged (once per distinct point)."""
@@ -72,29 +67,23 @@ class _Loop:
         self.exchange()
         self.evaluated = key
 
-    def states(self) -> np.ndarray:
+    def gather(self, method: str) -> np.ndarray:
+        """One vector of every FMU (``method``: getContinuousStates, getDerivatives, ...), joined in order."""
         for model, buffer, n in zip(self.models, self.buffers, self.sizes):
-            model.getContinuousStates(buffer, n)
-        return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
-
-    def nominals(self) -> np.ndarray:
-        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
-            model.getNominalsOfContinuousStates(buffer, n)
+            getattr(model, method)(buffer, n)
         return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
 
     def derivatives(self, t: float, y: np.ndarray) -> np.ndarray:
         self.evaluations += 1
         self.load(t, y)
-        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
-            model.getDerivatives(buffer, n)
-        return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
+        return self.gather("getDerivatives")
 
     def indicator(self, index: int):
         """The solver's event function of the controller's event indicator ``index``."""
 
         def event(t: float, y: np.ndarray) -> float:
             self.load(t, y)
-            self.fmus[CONTROLLER].slave.getEventIndicators(self.indicators, len(self.indicators))
+            self.wiring.controller.slave.getEventIndicators(self.indicators, len(self.indicators))
             return self.indicators[index]
 
         event.terminal = True
@@ -121,23 +110,23 @@ class _Loop:
         return changed
 
 
-def _start(fmus: dict[str, LoadedFmu], loop: _Loop, scenario: Scenario) -> None:
+def _start(loop: _Loop, scenario: Scenario) -> None:
     """Initialization: parameters, the exchange at t = 0 (the controller's filters start from it), the
     first event iteration, continuous-time mode."""
-    stop = scenario.simulation.stop_time
+    fmus, stop = loop.wiring.fmus, scenario.simulation.stop_time
     for name in ORDER:
         fmus[name].enter_initialization(stop, scenario.parameters(name))
     loop.exchange()
-    for name in ORDER:
-        fmus[name].slave.exitInitializationMode()
+    for model in loop.models:
+        model.exitInitializationMode()
     loop.iterate()
 
 
 def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float) -> int:
     """Integrate from the FMUs' states at 0 to ``times[-1]``, recording a row at each of ``times``;
     stop at every event, handle it just past the root and go on. Returns the events handled."""
-    y = loop.states()
-    atol = tolerance * loop.nominals()
+    y = loop.gather("getContinuousStates")
+    atol = tolerance * loop.gather("getNominalsOfContinuousStates")
     events = [loop.indicator(i) for i in range(len(loop.indicators))]
     t, stop, handled = 0.0, times[-1], 0
     loop.load(t, y)
@@ -164,7 +153,7 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
         y = solution.sol(t)
         loop.load(t, y)
         if loop.event():
-            y = loop.states()
+            y = loop.gather("getContinuousStates")
         handled += 1
     return handled
 
@@ -222,9 +211,9 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         fmus = {fmu.name: fmu for fmu in loaded}
         wiring = Wiring(fmus)
         recorder = Recorder(wiring, len(times))
-        loop = _Loop(fmus, wiring, settings.bound)
+        loop = _Loop(wiring, settings.bound)
         try:
-            _start(fmus, loop, scenario)
+            _start(loop, scenario)
             events = _integrate(loop, recorder, times, rtol)
         except FMICallException as error:
             name = getattr(error, "fmu", "an FMU")
