@@ -15,13 +15,15 @@ HERE = Path(__file__).parent
 EMPTY_ENVIRONMENT = {"PATH": "/usr/bin:/bin"}
 
 
-def compile_c(source: str, output: Path) -> Path:
-    """Compile ``tests/<source>`` into the executable ``output`` (FMI headers as FMPy ships them)."""
+def compile_c(source: str, output: Path, windows: bool = False) -> Path:
+    """Compile ``tests/<source>`` into the executable ``output`` (FMI headers as FMPy ships them), for
+    x86-64 Windows if ``windows``."""
     import fmpy
 
     headers = Path(fmpy.__file__).parent / "c-code"
+    target = ["-target", "x86_64-windows-gnu"] if windows else ["-ldl", "-lpthread"]
     subprocess.run([sys.executable, "-m", "ziglang", "cc", "-O2", "-std=gnu11", f"-I{headers}", "-o", str(output),
-                    str(HERE / source), "-ldl", "-lpthread"], check=True, capture_output=True, timeout=600)
+                    str(HERE / source), *target], check=True, capture_output=True, timeout=600)
     return output
 
 

@@ -3,12 +3,12 @@
    usage: c_importer FMI_VERSION UNZIPPED_DIRS MODEL_IDENTIFIER GUIDS STEPS STEP_SIZE VR [VR ...]
    UNZIPPED_DIRS and GUIDS (or instantiation tokens) name one FMU or several of the same model, comma
    separated; each is loaded from its own binaries/linux64/<MODEL_IDENTIFIER>.so (FMI 2.0) or
-   binaries/x86_64-linux/... (FMI 3.0) into this one process. Instantiates and initialises each, does
+   binaries/x86_64-linux/... (FMI 3.0), on Windows binaries/win64/<MODEL_IDENTIFIER>.dll or
+   binaries/x86_64-windows/..., into this one process. Instantiates and initialises each, does
    STEPS steps of STEP_SIZE with all of them in turn and prints "time,value,..." with the given Real
    (Float64) value references of each FMU in order, at t = 0 and after every step; exits 1 with a
    message on the first failing call, 2 if an instantiation returns NULL. */
 
-#include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,7 +23,7 @@ typedef struct {
 } Fmu;
 
 static void *symbol(void *library, const char *name) {
-    void *address = dlsym(library, name);
+    void *address = host_symbol(library, name);
     if (!address) {
         fprintf(stderr, "missing %s\n", name);
         exit(1);
@@ -33,7 +33,7 @@ static void *symbol(void *library, const char *name) {
 
 static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid) {
     char resources[4096];
-    snprintf(resources, sizeof resources, "file://%s/resources", dir);
+    snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
     void *c = ((fmi2InstantiateTYPE *)symbol(fmu->library, "fmi2Instantiate"))(
         model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
@@ -132,10 +132,10 @@ int main(int argc, char **argv) {
     Fmu fmus[MAX_FMUS];
     for (int f = 0; f < count; f++) {
         char path[4096];
-        snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dirs[f], version == 3 ? "x86_64-linux" : "linux64", model);
-        fmus[f].library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+        snprintf(path, sizeof path, "%s/binaries/%s/%s" HOST_SUFFIX, dirs[f], version == 3 ? HOST_FOLDER3 : HOST_FOLDER2, model);
+        fmus[f].library = host_load(path);
         if (!fmus[f].library) {
-            fprintf(stderr, "cannot load %s\n", dlerror());
+            fprintf(stderr, "cannot load %s\n", host_error());
             return 1;
         }
         int started = version == 3 ? start3(&fmus[f], dirs[f], model, guids[f])

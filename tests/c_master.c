@@ -11,14 +11,12 @@
    (threads Python does not know), the FMUs of one phase at the same time. Exits 1 on any failure. */
 
 #define _GNU_SOURCE
-#include <dlfcn.h>
 #include <pthread.h>
-#include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
+#include "fmi_host.h"
 
 #define MAX_VR 64
 
@@ -51,40 +49,23 @@ typedef struct {
 static Fmu fmus[3];
 static Refs plant_out, ref_out, ctl_in, ctl_u, plant_u, record[3];
 
-static void logger(fmi2ComponentEnvironment env, fmi2String name, fmi2Status status, fmi2String category,
-                   fmi2String message, ...) {
-    va_list args;
-    va_start(args, message);
-    fprintf(stderr, "[%s %d %s] ", name, status, category);
-    vfprintf(stderr, message, args);
-    fprintf(stderr, "\n");
-    va_end(args);
-}
-
 static void fail(const char *what) {
     fprintf(stderr, "c_master: %s\n", what);
     exit(1);
 }
 
-static void check(fmi2Status status, const char *call) {
-    if (status > fmi2Warning) {
-        fprintf(stderr, "c_master: %s returned %d\n", call, status);
-        exit(1);
-    }
-}
-
 static void *symbol(void *library, const char *name) {
-    void *address = dlsym(library, name);
+    void *address = host_symbol(library, name);
     if (!address) fail(name);
     return address;
 }
 
 static void load(Fmu *fmu, const char *dir, const char *model, const char *guid) {
     char path[4096], resources[4096];
-    snprintf(path, sizeof path, "%s/binaries/linux64/%s.so", dir, model);
-    snprintf(resources, sizeof resources, "file://%s/resources", dir);
-    fmu->library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!fmu->library) fail(dlerror());
+    snprintf(path, sizeof path, "%s/binaries/" HOST_FOLDER2 "/%s" HOST_SUFFIX, dir, model);
+    snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
+    fmu->library = host_load(path);
+    if (!fmu->library) fail(host_error());
     fmu->instantiate = symbol(fmu->library, "fmi2Instantiate");
     fmu->setup = symbol(fmu->library, "fmi2SetupExperiment");
     fmu->enter = symbol(fmu->library, "fmi2EnterInitializationMode");
@@ -94,7 +75,7 @@ static void load(Fmu *fmu, const char *dir, const char *model, const char *guid)
     fmu->do_step = symbol(fmu->library, "fmi2DoStep");
     fmu->terminate = symbol(fmu->library, "fmi2Terminate");
     fmu->free_instance = symbol(fmu->library, "fmi2FreeInstance");
-    static fmi2CallbackFunctions callbacks = {logger, calloc, free, NULL, NULL};
+    static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
     fmu->c = fmu->instantiate(model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2False);
     if (!fmu->c) fail("fmi2Instantiate returned NULL");
 }

@@ -7,7 +7,6 @@
    Prints "time,value,..." with the given Real (Float64) value references at t = 0 and after every step,
    then "events,N"; exits 1 with a message on the first failing call, 2 if the instantiation returns NULL. */
 
-#include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
 
@@ -18,7 +17,7 @@ static void *instance;
 static int version;
 
 static void *symbol(const char *name) {
-    void *address = dlsym(library, name);
+    void *address = host_symbol(library, name);
     if (!address) {
         fprintf(stderr, "missing %s\n", name);
         exit(1);
@@ -42,7 +41,7 @@ static int start(const char *dir, const char *model, const char *guid) {
             model, guid, resources, fmi3False, fmi3True, NULL, logger3);
     } else {
         static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
-        snprintf(resources, sizeof resources, "file://%s/resources", dir);
+        snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
         instance = ((fmi2InstantiateTYPE *)symbol("fmi2Instantiate"))(model, fmi2ModelExchange, guid, resources,
                                                                      &callbacks, fmi2False, fmi2True);
     }
@@ -136,10 +135,10 @@ int main(int argc, char **argv) {
     double h = atof(argv[8]);
     size_t n = (size_t)(argc - 9);
     char path[4096];
-    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, version == 3 ? "x86_64-linux" : "linux64", model);
-    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    snprintf(path, sizeof path, "%s/binaries/%s/%s" HOST_SUFFIX, dir, version == 3 ? HOST_FOLDER3 : HOST_FOLDER2, model);
+    library = host_load(path);
     if (!library) {
-        fprintf(stderr, "cannot load %s\n", dlerror());
+        fprintf(stderr, "cannot load %s\n", host_error());
         return 1;
     }
     int started = start(dir, model, guid);

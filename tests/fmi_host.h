@@ -1,4 +1,5 @@
-/* What the project's C importers share: loggers that print to stderr, and a status check that exits. */
+/* What the project's C importers share: loading an FMU's binary on Linux and Windows, its resource
+   URI, loggers that print to stderr, and a status check that exits. */
 
 #ifndef DSC_TESTS_FMI_HOST_H
 #define DSC_TESTS_FMI_HOST_H
@@ -6,6 +7,56 @@
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
+
+#ifdef _WIN32
+#include <windows.h>
+#define HOST_FOLDER2 "win64"
+#define HOST_FOLDER3 "x86_64-windows"
+#define HOST_SUFFIX ".dll"
+/* An unzipped FMU's folder (C:/x or C:\x) as its resources' file URI. */
+#define HOST_RESOURCES_URI "file:///%s/resources"
+
+static void *host_load(const char *path) {
+    char native[4096];
+    snprintf(native, sizeof native, "%s", path);
+    for (char *c = native; *c; c++) {
+        if (*c == '/') *c = '\\';
+    }
+    return (void *)LoadLibraryA(native);
+}
+
+static void *host_symbol(void *library, const char *name) {
+    FARPROC address = GetProcAddress((HMODULE)library, name);
+    void *result;
+    memcpy(&result, &address, sizeof result);
+    return result;
+}
+
+static const char *host_error(void) {
+    static char text[64];
+    snprintf(text, sizeof text, "LoadLibrary failed with error %lu", (unsigned long)GetLastError());
+    return text;
+}
+#else
+#include <dlfcn.h>
+#define HOST_FOLDER2 "linux64"
+#define HOST_FOLDER3 "x86_64-linux"
+#define HOST_SUFFIX ".so"
+#define HOST_RESOURCES_URI "file://%s/resources"
+
+static void *host_load(const char *path) {
+    return dlopen(path, RTLD_NOW | RTLD_LOCAL);
+}
+
+static void *host_symbol(void *library, const char *name) {
+    return dlsym(library, name);
+}
+
+static const char *host_error(void) {
+    return dlerror();
+}
+#endif
 
 #include "fmi2Functions.h"
 #include "fmi3Functions.h"

@@ -12,13 +12,13 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
-from dsc_fmu.build.binary import OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
+from dsc_fmu.build.binary import LINUX, OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import load_scenario
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
 STEPS, STEP = 50, 0.02
-SYSTEM_LIBPYTHON = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "") / build_python().system_library
+SYSTEM_LIBPYTHON = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "") / f"libpython{build_python().version}.so.1.0"
 
 
 @pytest.fixture(scope="module")
@@ -123,7 +123,7 @@ def test_the_override_variable_is_the_only_candidate_when_set(importer, fmu_path
 
 def _with_binary(fmu: Path, folder: Path, runtime: PythonRuntime) -> Path:
     folder = Path(extract(str(fmu), unzipdir=folder))
-    (folder / "binaries" / "linux64" / f"{fmu.stem}.so").write_bytes(compile_binary(2, runtime))
+    (folder / LINUX.file(2, fmu.stem)).write_bytes(compile_binary(2, LINUX, runtime))
     return folder
 
 
@@ -141,14 +141,16 @@ def test_without_the_building_python_the_systems_libpython_serves(importer, fmu_
 
 def test_no_python_found_is_one_message_and_no_instance(importer, fmu_paths, tmp_path):
     built = build_python()
-    runtime = PythonRuntime(built.version, "/nonexistent/lib/libpython.so", "/nonexistent", "libpython-absent.so")
+    runtime = PythonRuntime(built.version, "/nonexistent/lib/libpython.so", "/nonexistent", "libpython-absent-3.%d.so")
     folder = _with_binary(fmu_paths["ReferenceRobot"], tmp_path / "r", runtime)
     md = read_model_description(str(fmu_paths["ReferenceRobot"]))
     run = c_run(importer, 2, folder, md, [10], tmp_path)
     assert run.returncode == 2, run.stderr
     errors = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert len(errors) == 1, run.stderr
-    for looked_at in (f"{OVERRIDE_VARIABLE} not set", "/nonexistent/lib/libpython.so", "libpython-absent.so"):
+    minors = [f"3.{built.version.split('.')[1]}", *(f"3.{minor}" for minor in range(20, 8, -1))]
+    searched = ", ".join(f"libpython-absent-{minor}.so" for minor in dict.fromkeys(minors))
+    for looked_at in (f"{OVERRIDE_VARIABLE} not set", "/nonexistent/lib/libpython.so", f"not found: {searched};"):
         assert looked_at in errors[0]
 
 

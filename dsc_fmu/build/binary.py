@@ -1,10 +1,12 @@
-"""The FMUs' binary layer: ``dsc_fmu/build/native`` compiled with Zig's C compiler (the ``ziglang`` package).
+"""The FMUs' binary layer: ``dsc_fmu/build/native`` compiled with Zig's C compiler (the ``ziglang`` package)
+for x86-64 Linux and Windows, on any OS.
 
-The binary replaces pythonfmu's and pythonfmu3's Linux binaries in every FMU. It links no
-Python: it finds one at run time (``native/pyhost.c``), so the FMUs load in C and C++ importers
-with no set-up. Zig comes from the package index with everything it needs (a C compiler, a
-linker and the glibc stubs), so building needs no system compiler; it targets glibc 2.17, so
-the binary also loads on Linux distributions older than the one that built it.
+The binary replaces pythonfmu's and pythonfmu3's binaries in every FMU. It links no Python: it finds
+one at run time (``native/pyhost.c``), so the FMUs load in C and C++ importers with no set-up, and any
+CPython from 3.9 on runs them. Zig comes from the package index with everything it needs (a C
+compiler, a linker, the glibc stubs and the MinGW-w64 import libraries), so building needs no system
+compiler. The Linux binary targets glibc 2.17, so it also loads on distributions older than the one
+that built it; the Windows binary imports KERNEL32 and the UCRT only.
 """
 
 from __future__ import annotations
@@ -13,7 +15,6 @@ import functools
 import hashlib
 import json
 import os
-import platform
 import subprocess
 import sys
 import sysconfig
@@ -25,8 +26,8 @@ from ..errors import DscFmuError
 from ..fmu.native_bridge import CAUSALITIES, TYPES, VARIABILITIES
 
 __all__ = [
-    "BinaryBuildError", "PythonRuntime", "build_python", "compile_binary", "binary_sources", "binary_folder",
-    "OVERRIDE_VARIABLE", "ENTRY_FILE",
+    "BinaryBuildError", "PythonRuntime", "Target", "TARGETS", "LINUX", "WINDOWS", "build_python", "compile_binary",
+    "binary_sources", "OVERRIDE_VARIABLE", "ENTRY_FILE",
 ]
 
 NATIVE_DIR = Path(__file__).parent / "native"
@@ -35,10 +36,8 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 # "<bridge module> <slave module> <slave class> <GUID or token>"; the bridge's top level is the
 # build's private package.
 ENTRY_FILE = "dsc_fmu_entry.txt"
-GLIBC = "2.17"
-# FMI platform folders of the binary this module builds (x86_64 Linux).
-FOLDERS = {2: "linux64", 3: "x86_64-linux"}
 _SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
+_HEADERS = ("instance.h", "pyhost.h", "slave.h", "platform.h")
 
 
 class BinaryBuildError(DscFmuError, RuntimeError):
@@ -46,40 +45,70 @@ class BinaryBuildError(DscFmuError, RuntimeError):
 
 
 @dataclass(frozen=True)
+class Target:
+    """An OS the binary is built for: Zig's target, the FMI platform folders (FMI 2.0, 3.0), the file
+    suffix, the platform seam's source and what it links."""
+
+    os: str
+    zig_target: str
+    folders: tuple[str, str]
+    suffix: str
+    platform_source: str
+    flags: tuple[str, ...]
+    libraries: tuple[str, ...]
+
+    def folder(self, fmi_version: int) -> str:
+        """The FMI platform folder of the binary of FMI ``fmi_version``."""
+        return self.folders[fmi_version - 2]
+
+    def file(self, fmi_version: int, model_identifier: str) -> str:
+        """The binary's path in an FMU."""
+        return f"binaries/{self.folder(fmi_version)}/{model_identifier}{self.suffix}"
+
+
+LINUX = Target("linux", "x86_64-linux-gnu.2.17", ("linux64", "x86_64-linux"), ".so", "platform_posix.c",
+               ("-fPIC", "-fvisibility=hidden"), ("-ldl", "-lpthread", "-lm"))
+WINDOWS = Target("windows", "x86_64-windows-gnu", ("win64", "x86_64-windows"), ".dll", "platform_windows.c", (), ())
+TARGETS = (LINUX, WINDOWS)
+
+
+@dataclass(frozen=True)
 class PythonRuntime:
-    """The Python the binary looks for: its minor version, the shared library (or "") and home of the
-    Python that built it, and the file name of the system's shared library of that version."""
+    """The Python the binary prefers: its minor version, the shared library (or "") and home of the
+    Python that built it; ``system_name``, if not empty, the file name of the system's CPython
+    libraries with ``%d`` for the minor version (default: ``libpython3.%d.so.1.0``, ``python3%d.dll``)."""
 
     version: str
     library: str
     home: str
-    soname: str = ""
-
-    @property
-    def system_library(self) -> str:
-        return self.soname or f"libpython{self.version}.so.1.0"
+    system_name: str = ""
 
 
 def build_python() -> PythonRuntime:
-    """The running Python: the one that builds the FMUs and that they look for first after the override."""
+    """The running Python: the one that builds the FMUs and that a binary for this OS looks for first
+    after the override."""
     library = ""
-    if sysconfig.get_config_var("Py_ENABLE_SHARED"):
+    if sys.platform == "win32":
+        candidate = Path(sys.base_prefix) / f"python{sys.version_info.major}{sys.version_info.minor}.dll"
+    elif sysconfig.get_config_var("Py_ENABLE_SHARED"):
         candidate = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("INSTSONAME") or "")
-        if candidate.is_file():
-            library = str(candidate.resolve())
+    else:
+        candidate = None
+    if candidate is not None and candidate.is_file():
+        library = str(candidate.resolve())
     return PythonRuntime(f"{sys.version_info.major}.{sys.version_info.minor}", library, sys.base_prefix)
 
 
-def binary_folder(fmi_version: int) -> str | None:
-    """The FMI platform folder this machine's binary goes to, or None where it is not built (not x86_64 Linux)."""
-    if sys.platform != "linux" or platform.machine() != "x86_64":
-        return None
-    return FOLDERS[fmi_version]
+def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
+    """What a binary for ``target`` may know of the building Python: its library only on the same OS."""
+    here = "windows" if sys.platform == "win32" else sys.platform
+    return runtime if target.os == here else PythonRuntime(runtime.version, "", "", runtime.system_name)
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
-    """Every file the binary of ``fmi_version`` is compiled from."""
-    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], "instance.h", "pyhost.h", "slave.h")]
+    """Every file the binaries of ``fmi_version`` are compiled from."""
+    platforms = tuple(target.platform_source for target in TARGETS)
+    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *platforms, *_HEADERS)]
 
 
 def _fmi_headers() -> Path:
@@ -100,19 +129,19 @@ def _contract() -> list[str]:
     return [f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()]
 
 
-def _command(fmi_version: int, runtime: PythonRuntime, output: Path) -> list[str]:
+def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path) -> list[str]:
     return [
-        sys.executable, "-m", "ziglang", "cc", "-target", f"x86_64-linux-gnu.{GLIBC}", "-shared", "-fPIC", "-O2",
-        "-std=c11", "-fvisibility=hidden", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
+        sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, "-O2",
+        "-std=c11", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
         f"-I{NATIVE_DIR}", f"-I{_fmi_headers()}",
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
         f"-DDSC_BUILD_LIBPYTHON={_c_string(runtime.library)}",
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
-        f"-DDSC_PYTHON_SONAME={_c_string(runtime.system_library)}",
         f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
+        *([f"-DDSC_SYSTEM_PYTHON={_c_string(runtime.system_name)}"] if runtime.system_name else []),
         *_contract(),
-        *(str(NATIVE_DIR / name) for name in _SOURCES[fmi_version]),
-        "-o", str(output), "-ldl", "-lpthread", "-lm",
+        *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], target.platform_source)),
+        "-o", str(output), *target.libraries,
     ]
 
 
@@ -124,20 +153,21 @@ def _compiler_environment() -> dict:
     return env
 
 
-def compile_binary(fmi_version: int, runtime: PythonRuntime | None = None) -> bytes:
-    """The shared library of the FMI ``fmi_version`` layer for ``runtime`` (default: ``build_python()``)."""
-    runtime = runtime or build_python()
-    digest = hashlib.sha256(repr((fmi_version, runtime, _contract())).encode())
+def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None) -> bytes:
+    """The shared library of the FMI ``fmi_version`` layer for ``target``, preferring ``runtime``
+    (default: ``build_python()``, whose library a binary for another OS does not know)."""
+    runtime = _runtime_for(target, runtime or build_python())
+    digest = hashlib.sha256(repr((fmi_version, target, runtime, _contract())).encode())
     for path in binary_sources(fmi_version):
         digest.update(path.read_bytes())
-    return _compile(fmi_version, runtime, digest.hexdigest())
+    return _compile(fmi_version, target, runtime, digest.hexdigest())
 
 
-@functools.lru_cache(maxsize=8)
-def _compile(fmi_version: int, runtime: PythonRuntime, digest: str) -> bytes:
+@functools.lru_cache(maxsize=16)
+def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, digest: str) -> bytes:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_binary_") as tmp:
-        output = Path(tmp) / "fmu.so"
-        command = _command(fmi_version, runtime, output)
+        output = Path(tmp) / f"fmu{target.suffix}"
+        command = _command(fmi_version, target, runtime, output)
         try:
             run = subprocess.run(command, capture_output=True, text=True, timeout=600, env=_compiler_environment())
         except (OSError, subprocess.TimeoutExpired) as error:
@@ -145,6 +175,6 @@ def _compile(fmi_version: int, runtime: PythonRuntime, digest: str) -> bytes:
         if run.returncode != 0:
             detail = (run.stderr or run.stdout).strip().splitlines()
             raise BinaryBuildError(
-                f"compiling the FMU binary failed ({' '.join(command[:4])} ...): {' | '.join(detail[-5:])}"
+                f"compiling the FMU binary for {target.os} failed ({' '.join(command[:6])} ...): {' | '.join(detail[-5:])}"
             )
         return output.read_bytes()

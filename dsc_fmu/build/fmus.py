@@ -23,7 +23,7 @@ from ..files import atomic_write
 from ..identity import BUILD_ID_FILE, fmu_build_id
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
-from .binary import BinaryBuildError, binary_folder, binary_sources, build_python, compile_binary
+from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
 from .model_description import complete_model_description, complete_model_description3, documentation
 
 __all__ = [
@@ -183,10 +183,12 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
         raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", fmi_version)
         _forget_staged_modules(package_dir.name, script.stem)
         staged = tmp / f"{spec.name}.fmu"
-        folder = binary_folder(fmi_version)
-        own_binary = f"binaries/{folder}/{spec.name}.so" if folder else None
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
+            for system in TARGETS:
+                dst.writestr(system.file(fmi_version, spec.name), compile_binary(fmi_version, system))
             for item in src.infolist():
+                if item.filename.startswith("binaries/"):
+                    continue
                 data = src.read(item)
                 if item.filename == "modelDescription.xml":
                     root = complete(data, spec)
@@ -194,8 +196,6 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
                     dst.writestr(DOCUMENTATION_FILE, documentation(root, spec))
                     dst.writestr(ENTRY_FILE, _entry(root, script, package_dir, spec))
-                if item.filename == own_binary:
-                    data = compile_binary(fmi_version)
                 if item.filename != DOCUMENTATION_FILE:
                     name, data = _private(item.filename, data, package_dir.name, _LIBRARY[fmi_version])
                     dst.writestr(name, data)

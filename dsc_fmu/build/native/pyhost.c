@@ -1,10 +1,15 @@
 /* The Python runtime that runs the model code: found, loaded and started at run time, never linked.
 
-   Order (README, "Use in other tools"):
-     0. a Python of the right minor version already in the process (fmpy, libcosimpy, PyFMI): used as it is;
-     1. DSC_FMU_PYTHON, the path of a libpython shared library: if set, the only candidate;
-     2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME);
-     3. the system's DSC_PYTHON_SONAME (libpython3.X.so.1.0) by the dynamic loader's search.
+   Any CPython from 3.9 on will do (the bundled Python code is version-neutral, and the binary calls
+   only functions every such CPython exports). Order (README, "Use in other tools"):
+     0. a CPython already in the process (fmpy, libcosimpy, PyFMI): used as it is;
+     1. DSC_FMU_PYTHON, the path of a CPython shared library (libpython3.X.so.1.0, python3X.dll): if
+        set, the only candidate;
+     2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
+        exists;
+     3. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on Windows the
+        installs registered under PEP 514, then the folders on PATH (platform.h).
+   Among the candidates of 2 and 3, those of the minor version that built the FMU come first.
    A Python this binary starts gets its home set explicitly, ignores PYTHON* environment variables,
    imports no site packages, writes no bytecode and installs no signal handlers. It is started as
    Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose status says why it
@@ -17,18 +22,15 @@
    itself: that needs the GIL, and a host that joins its threads while holding the GIL (a Python
    extension's destructor, a thread pool's) would wait for ever. */
 
-#define _GNU_SOURCE
 #include "pyhost.h"
 
 #include <ctype.h>
-#include <dlfcn.h>
-#include <limits.h>
-#include <pthread.h>
 #include <stdarg.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
-#include <sys/stat.h>
+
+#include "platform.h"
 
 #ifndef DSC_PYTHON_VERSION
 #error DSC_PYTHON_VERSION (for example "3.11") must be defined
@@ -39,33 +41,43 @@
 #ifndef DSC_BUILD_PYTHON_HOME
 #define DSC_BUILD_PYTHON_HOME ""
 #endif
-#ifndef DSC_PYTHON_SONAME
-#define DSC_PYTHON_SONAME "libpython" DSC_PYTHON_VERSION ".so.1.0"
-#endif
 
 #define OVERRIDE_VARIABLE "DSC_FMU_PYTHON"
+#define OLDEST_MINOR 9
+#define MAX_CANDIDATES 48
 
 PyApi py;
 
-static pthread_once_t once = PTHREAD_ONCE_INIT;
 static int start_result = -1;
 static int start_attempted; /* a library on which Py_InitializeFromConfig ran stays loaded, whatever it said */
-static pthread_key_t thread_key; /* the thread state this binary made for a host thread */
-static int thread_key_made;
 
 /* Thread states of host threads that ended, for the reaper. */
 typedef struct Ended {
     struct Ended *next;
     PyThreadState *state;
 } Ended;
-static pthread_mutex_t ended_lock = PTHREAD_MUTEX_INITIALIZER;
-static pthread_cond_t ended_signal = PTHREAD_COND_INITIALIZER;
 static Ended *ended;
 static int reaper_started; /* one reaper for each loaded copy of this binary (each FMU's file) */
 static PyInterpreterState *interpreter; /* the one whose thread states this binary makes */
 static int (*is_finalizing)(void);      /* Py_IsFinalizing (3.13) or _Py_IsFinalizing, where exported */
-static char start_error[2048];
+static char start_error[4096];
+static char not_found[1024]; /* the system's candidates that are not there, named once at the end */
 static wchar_t *home_wide;
+
+/* A Python to try: its shared library, its home ("" to look for it), what to call it ("" for one
+   of the system's: named among those not found if it cannot be loaded), its minor version as its
+   name or registration tells it (-1 if they do not). */
+typedef struct {
+    char library[PLATFORM_PATH_MAX];
+    char home[PLATFORM_PATH_MAX];
+    char label[64];
+    int minor;
+} Candidate;
+
+typedef struct {
+    Candidate *items;
+    int count;
+} Candidates;
 
 typedef struct {
     const char *name;
@@ -106,49 +118,20 @@ static void append(char *text, size_t size, const char *format, ...) {
     va_end(args);
 }
 
-/* Fill `py` from `library` (a dlopen handle or RTLD_DEFAULT); the name of a missing symbol, or NULL. */
-static const char *resolve(void *library) {
+/* Fill `py` from `library`; the name of a missing symbol, or NULL. */
+static const char *resolve(Library library) {
     for (size_t i = 0; i < sizeof SYMBOLS / sizeof SYMBOLS[0]; i++) {
-        void *address = dlsym(library, SYMBOLS[i].name);
+        void *address = platform_symbol(library, SYMBOLS[i].name);
         if (!address) return SYMBOLS[i].name;
         memcpy((char *)&py + SYMBOLS[i].offset, &address, sizeof address);
     }
     return NULL;
 }
 
-static int right_version(const char *version) {
-    size_t n = strlen(DSC_PYTHON_VERSION);
-    return strncmp(version, DSC_PYTHON_VERSION, n) == 0 && !isdigit((unsigned char)version[n]);
-}
-
-static int is_file(const char *path) {
-    struct stat info;
-    return stat(path, &info) == 0 && S_ISREG(info.st_mode);
-}
-
-static int has_stdlib(const char *home) {
-    char path[PATH_MAX + 64];
-    snprintf(path, sizeof path, "%s/lib/python%s/os.py", home, DSC_PYTHON_VERSION);
-    if (!is_file(path)) return 0;
-    snprintf(path, sizeof path, "%s/lib/python%s/encodings/__init__.py", home, DSC_PYTHON_VERSION);
-    return is_file(path);
-}
-
-/* The prefix whose lib/python3.X holds the standard library, searched upward from the library's folder. */
-static int home_of_library(char *home, size_t size) {
-    Dl_info info;
-    if (!dladdr((void *)py.Py_IsInitialized, &info) || !info.dli_fname) return -1;
-    char path[PATH_MAX];
-    if (!realpath(info.dli_fname, path)) snprintf(path, sizeof path, "%s", info.dli_fname);
-    char *slash;
-    while ((slash = strrchr(path, '/')) != NULL && slash != path) {
-        *slash = '\0';
-        if (has_stdlib(path)) {
-            snprintf(home, size, "%s", path);
-            return 0;
-        }
-    }
-    return -1;
+/* The minor version of a CPython 3 version string ("3.11.7 (main, ...)"), or -1. */
+static int minor_of(const char *version) {
+    if (strncmp(version, "3.", 2) != 0 || !isdigit((unsigned char)version[2])) return -1;
+    return atoi(version + 2);
 }
 
 /* Py_InitializeEx(0), with the failure returned: -1 with why in start_error. */
@@ -180,7 +163,7 @@ static int start_python(const char *what, const char *home) {
 }
 
 static int initialize(const char *home, const char *what) {
-    home_wide = py.Py_DecodeLocale(home, NULL);
+    home_wide = platform_wide_path(home, py.Py_DecodeLocale);
     if (!home_wide) {
         append(start_error, sizeof start_error, "%s: cannot decode its home %s; ", what, home);
         return -1;
@@ -193,57 +176,109 @@ static int initialize(const char *home, const char *what) {
     return start_python(what, home);
 }
 
-/* Use the Python that `library` holds (initialised already, or started here with `home`). */
-static int adopt(void *library, const char *home, const char *what) {
+/* Use the Python that `library` holds (initialised already, or started here with `home`, found
+   from the library's file if empty). */
+static int adopt(Library library, const char *home, const char *what) {
     const char *missing = resolve(library);
     if (missing) {
         append(start_error, sizeof start_error, "%s: no symbol %s; ", what, missing);
         return -1;
     }
-    void *finalizing = dlsym(library, "Py_IsFinalizing");
-    if (!finalizing) finalizing = dlsym(library, "_Py_IsFinalizing");
+    void *finalizing = platform_symbol(library, "Py_IsFinalizing");
+    if (!finalizing) finalizing = platform_symbol(library, "_Py_IsFinalizing");
     memcpy(&is_finalizing, &finalizing, sizeof finalizing);
     const char *version = py.Py_GetVersion();
-    if (!right_version(version)) {
-        append(start_error, sizeof start_error, "%s: Python %.20s, not %s; ", what, version, DSC_PYTHON_VERSION);
+    int minor = minor_of(version);
+    if (minor < OLDEST_MINOR) {
+        append(start_error, sizeof start_error, "%s: Python %.*s, older than 3.%d; ", what, (int)strcspn(version, " "),
+               version, OLDEST_MINOR);
         return -1;
     }
     if (py.Py_IsInitialized()) return 0;
-    char found[PATH_MAX];
-    if (!home || !*home) {
-        if (home_of_library(found, sizeof found) != 0) {
-            append(start_error, sizeof start_error, "%s: no lib/python%s standard library above the library; ",
-                   what, DSC_PYTHON_VERSION);
-            return -1;
-        }
-        home = found;
-    } else if (!has_stdlib(home)) {
-        append(start_error, sizeof start_error, "%s: no standard library in %s/lib/python%s; ", what, home,
-               DSC_PYTHON_VERSION);
+    char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256] = "";
+    if (platform_library_file((const void *)py.Py_IsInitialized, file, sizeof file) != 0) file[0] = '\0';
+    if (platform_python_home(file, home, minor, found, sizeof found, why, sizeof why) != 0) {
+        append(start_error, sizeof start_error, "%s: %s; ", what, why);
         return -1;
     }
-    return initialize(home, what);
+    return initialize(found, what);
 }
 
-/* Open `path` privately, check it, then make its symbols global (extension modules such as math
-   resolve the C API from the global scope). */
-static int try_library(const char *path, const char *home, const char *what) {
-    void *library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+/* Load, check and start the candidate, then share its symbols (extension modules such as math
+   resolve the C API from the global scope on Linux). */
+static int try_candidate(const Candidate *candidate) {
+    char label[PLATFORM_PATH_MAX + 64], why[512] = "";
+    snprintf(label, sizeof label, "%s %s", *candidate->label ? candidate->label : "the system's", candidate->library);
+    Library library = platform_load(candidate->library, why, sizeof why);
+    if (!library && !*candidate->label) {
+        append(not_found, sizeof not_found, "%s%s", *not_found ? ", " : "", candidate->library);
+        return -1;
+    }
     if (!library) {
-        append(start_error, sizeof start_error, "%s %s: %s; ", what, path, dlerror());
+        append(start_error, sizeof start_error, "%s: %s; ", label, why);
         return -1;
     }
-    char label[PATH_MAX + 64];
-    snprintf(label, sizeof label, "%s %s", what, path);
-    if (adopt(library, home, label) != 0) {
-        if (!start_attempted) dlclose(library);
+    if (adopt(library, candidate->home, label) != 0) {
+        if (!start_attempted) platform_unload(library);
         return -1;
     }
-    if (!dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) {
-        append(start_error, sizeof start_error, "%s: its symbols cannot be made global: %s; ", label, dlerror());
+    if (platform_share_symbols(candidate->library, why, sizeof why) != 0) {
+        append(start_error, sizeof start_error, "%s: its symbols cannot be made global: %s; ", label, why);
         return -1;
     }
     return 0;
+}
+
+static void add_candidate(void *context, const char *library, const char *home, const char *label, int minor) {
+    Candidates *list = context;
+    for (int i = 0; i < list->count; i++) {
+        if (strcmp(list->items[i].library, library) == 0) return;
+    }
+    if (list->count == MAX_CANDIDATES) return;
+    Candidate *c = &list->items[list->count++];
+    snprintf(c->library, sizeof c->library, "%s", library);
+    snprintf(c->home, sizeof c->home, "%s", home ? home : "");
+    snprintf(c->label, sizeof c->label, "%s", label);
+    c->minor = minor;
+}
+
+/* The Python that built the FMU, then the system's, those of the building minor first; the rest in
+   the order found. */
+static void gather(Candidates *list) {
+    if (*DSC_BUILD_LIBPYTHON) {
+        add_candidate(list, DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,",
+                      minor_of(DSC_PYTHON_VERSION));
+    } else {
+        append(start_error, sizeof start_error, "the Python that built the FMU is not on this system; ");
+    }
+    platform_registered_pythons(add_candidate, list, minor_of(DSC_PYTHON_VERSION), OLDEST_MINOR);
+    int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
+    for (int i = 0; i < list->count; i++) {
+        if (list->items[i].minor != preferred) continue;
+        Candidate moved = list->items[i];
+        memmove(&list->items[first + 1], &list->items[first], (size_t)(i - first) * sizeof moved);
+        list->items[first++] = moved;
+    }
+}
+
+static int find_and_start(void) {
+    Library present = platform_loaded_with("Py_IsInitialized");
+    if (present) return adopt(present, NULL, "the Python in this process");
+    static Candidate items[MAX_CANDIDATES];
+    Candidates list = {items, 0};
+    char override[PLATFORM_PATH_MAX];
+    if (platform_getenv(OVERRIDE_VARIABLE, override, sizeof override)) {
+        add_candidate(&list, override, NULL, OVERRIDE_VARIABLE " =", -1);
+        return try_candidate(&items[0]);
+    }
+    append(start_error, sizeof start_error, OVERRIDE_VARIABLE " not set; ");
+    gather(&list);
+    if (list.count == 0) append(start_error, sizeof start_error, "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
+    for (int i = 0; i < list.count && !start_attempted; i++) {
+        if (try_candidate(&items[i]) == 0) return 0;
+    }
+    if (*not_found) append(start_error, sizeof start_error, "the system's, not found: %s; ", not_found);
+    return -1;
 }
 
 static void free_ended(Ended *list) {
@@ -273,33 +308,22 @@ static void delete_ended(Ended *list) {
     free_ended(list);
 }
 
-static void *reap(void *unused) {
-    pthread_mutex_lock(&ended_lock);
+static void reap(void) {
+    platform_lock();
     for (;;) {
-        while (!ended) pthread_cond_wait(&ended_signal, &ended_lock);
+        while (!ended) platform_wait();
         Ended *list = ended;
         ended = NULL;
-        pthread_mutex_unlock(&ended_lock);
+        platform_unlock();
         delete_ended(list);
-        pthread_mutex_lock(&ended_lock);
+        platform_lock();
     }
-    return NULL;
 }
 
-/* Start the reaper, detached, and keep this binary loaded for as long as the process lives: the
-   reaper runs its code. Called with ended_lock held. */
+/* Start the reaper and keep this binary loaded for as long as the process lives: the reaper runs
+   its code. Called with the lock held. */
 static void start_reaper(void) {
-    Dl_info self;
-    pthread_t thread;
-    pthread_attr_t attributes;
-    pthread_attr_init(&attributes);
-    pthread_attr_setdetachstate(&attributes, PTHREAD_CREATE_DETACHED);
-    if (dladdr((void *)reap, &self) && self.dli_fname &&
-        dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE) &&
-        pthread_create(&thread, &attributes, reap, NULL) == 0) {
-        reaper_started = 1;
-    }
-    pthread_attr_destroy(&attributes);
+    if (platform_keep_loaded((const void *)reap) == 0 && platform_start_thread(reap) == 0) reaper_started = 1;
 }
 
 /* At the end of a host thread that has a thread state of this binary's: hand it to the reaper
@@ -308,39 +332,20 @@ static void forget_thread(void *state) {
     Ended *entry = malloc(sizeof *entry);
     if (!entry) return;
     entry->state = state;
-    pthread_mutex_lock(&ended_lock);
+    platform_lock();
     if (!reaper_started) start_reaper();
     entry->next = ended;
     ended = entry;
-    pthread_cond_signal(&ended_signal);
-    pthread_mutex_unlock(&ended_lock);
-}
-
-/* The binary unloaded (never once the reaper runs): thread states of threads still running are left
-   to them, never to a destructor that is gone. */
-__attribute__((destructor)) static void unload(void) {
-    if (thread_key_made) pthread_key_delete(thread_key);
-}
-
-static int find_and_start(void) {
-    if (dlsym(RTLD_DEFAULT, "Py_IsInitialized")) return adopt(RTLD_DEFAULT, NULL, "the Python in this process");
-    const char *override = getenv(OVERRIDE_VARIABLE);
-    if (override && *override) return try_library(override, NULL, OVERRIDE_VARIABLE " =");
-    append(start_error, sizeof start_error, OVERRIDE_VARIABLE " not set; ");
-    if (*DSC_BUILD_LIBPYTHON && try_library(DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,") == 0) {
-        return 0;
-    }
-    if (!*DSC_BUILD_LIBPYTHON) append(start_error, sizeof start_error, "the Python that built the FMU has no shared library; ");
-    if (start_attempted) return -1;
-    return try_library(DSC_PYTHON_SONAME, NULL, "the system's");
+    platform_signal();
+    platform_unlock();
 }
 
 static void before_fork(void) {
-    pthread_mutex_lock(&ended_lock);
+    platform_lock();
 }
 
 static void after_fork_in_parent(void) {
-    pthread_mutex_unlock(&ended_lock);
+    platform_unlock();
 }
 
 /* In a forked child the reaper is gone and the ended threads' states are not its to delete: start afresh. */
@@ -348,8 +353,7 @@ static void after_fork_in_child(void) {
     Ended *list = ended;
     ended = NULL;
     reaper_started = 0;
-    pthread_mutex_init(&ended_lock, NULL);
-    pthread_cond_init(&ended_signal, NULL);
+    platform_reset_lock();
     free_ended(list);
 }
 
@@ -358,15 +362,15 @@ static void start_once(void) {
     start_result = find_and_start();
     if (start_result != 0) return;
     interpreter = py.PyInterpreterState_Main();
-    thread_key_made = pthread_key_create(&thread_key, forget_thread) == 0 &&
-                      pthread_atfork(before_fork, after_fork_in_parent, after_fork_in_child) == 0;
+    if (platform_thread_key(forget_thread) == 0) platform_at_fork(before_fork, after_fork_in_parent, after_fork_in_child);
 }
 
 int pyhost_start(char *error, size_t size) {
-    pthread_once(&once, start_once);
+    platform_once(start_once);
     if (start_result != 0) {
-        snprintf(error, size, "no usable Python %s: %sset " OVERRIDE_VARIABLE " to the path of a libpython%s shared library",
-                 DSC_PYTHON_VERSION, start_error, DSC_PYTHON_VERSION);
+        snprintf(error, size, "no usable Python (CPython 3.%d or newer): %sset " OVERRIDE_VARIABLE
+                 " to the path of a CPython shared library (libpython3.X.so.1.0 on Linux, python3X.dll on Windows)",
+                 OLDEST_MINOR, start_error);
     }
     return start_result;
 }
@@ -374,8 +378,7 @@ int pyhost_start(char *error, size_t size) {
 /* A thread Python does not know: a thread state of its own, kept until the thread ends. */
 static void adopt_thread(void) {
     py.PyGILState_Ensure();
-    PyThreadState *state = py.PyEval_SaveThread();
-    if (thread_key_made) pthread_setspecific(thread_key, state);
+    platform_thread_set(py.PyEval_SaveThread());
 }
 
 PyGILState_STATE pyhost_enter(void) {

@@ -1,17 +1,17 @@
 /* The Python runtime that runs the model code: found, loaded and started at run time, never linked.
 
-   The binary declares the few functions of the Python C API it calls and resolves them with dlsym,
-   so it loads in any process: one that has Python (fmpy) and one that has none (a C importer). */
+   The binary declares the few functions of the Python C API it calls and resolves them at run time
+   (platform.h), so it loads in any process: one that has Python (fmpy) and one that has none (a C importer). */
 
 #ifndef DSC_PYHOST_H
 #define DSC_PYHOST_H
 
 #include <stddef.h>
-#include <sys/types.h>
+#include <stdint.h>
 #include <wchar.h>
 
 typedef struct _object PyObject;
-typedef ssize_t Py_ssize_t;
+typedef intptr_t Py_ssize_t;
 typedef int PyGILState_STATE;
 typedef struct _ts PyThreadState;
 typedef struct _is PyInterpreterState;

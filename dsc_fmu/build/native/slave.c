@@ -7,6 +7,8 @@
 
 #include "slave.h"
 
+#include "platform.h"
+
 #include <stdarg.h>
 #include <stdbool.h>
 #include <stdint.h>
@@ -182,7 +184,7 @@ static void drain_log(Slave *s) {
 static int read_entry(Slave *s, char bridge[256]) {
     char path[sizeof s->resources + 32];
     snprintf(path, sizeof path, "%s/%s", s->resources, DSC_ENTRY_FILE);
-    FILE *file = fopen(path, "r");
+    FILE *file = platform_open_file(path, "r");
     if (!file) {
         say(s, STATUS_ERROR, "%s: cannot read %s: the FMU's resources are incomplete", s->instance_name, path);
         return -1;
@@ -728,12 +730,12 @@ static int hex(char c) {
 int slave_uri_to_path(const char *uri, char *path, size_t size) {
     if (!uri || !*uri) return -1;
     const char *p = uri;
-    int encoded = 1;
-    if (strncmp(p, "file://localhost/", 17) == 0) p += 16;
-    else if (strncmp(p, "file:///", 8) == 0) p += 7;
-    else if (strncmp(p, "file:/", 6) == 0) p += 5;
-    else if (strncmp(p, "file:", 5) == 0 || *p != '/') return -1;
-    else encoded = 0;
+    int encoded = strncmp(p, "file:", 5) == 0;
+    if (encoded) {
+        p += 5;
+        if (strncmp(p, "//localhost/", 12) == 0) p += 11;
+        else if (strncmp(p, "///", 3) == 0) p += 2;
+    }
     size_t k = 0;
     for (; *p && k + 1 < size; p++) {
         if (encoded && *p == '%' && hex(p[1]) >= 0 && hex(p[2]) >= 0) {
@@ -744,5 +746,7 @@ int slave_uri_to_path(const char *uri, char *path, size_t size) {
         }
     }
     path[k] = '\0';
-    return *p ? -1 : 0;
+    if (*p) return -1;
+    platform_native_path(path);
+    return platform_is_absolute(path) ? 0 : -1;
 }

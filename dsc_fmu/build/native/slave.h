@@ -135,7 +135,8 @@ int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state
 /* The log category of a message with `status` (logStatusWarning, ..., logAll for OK). */
 const char *slave_category(int status);
 
-/* The path of a file:// URI (or a plain path) in `path`; 0, or -1 if it is not one. */
+/* The native path of a file URI (file:///C:/x, file:/x, file://localhost/x, file://server/share/x
+   for a share, percent-escapes decoded) or of an absolute path, in `path`; 0, or -1 if it is neither. */
 int slave_uri_to_path(const char *uri, char *path, size_t size);
 
 #endif

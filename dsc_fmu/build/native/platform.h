@@ -1,0 +1,74 @@
+/* What differs between the operating systems the binary runs on: loading libraries, paths and files,
+   the places a Python is installed, threads. One implementation per system: platform_posix.c
+   (Linux) and platform_windows.c; everything else is the same source for both. Paths are UTF-8. */
+
+#ifndef DSC_PLATFORM_H
+#define DSC_PLATFORM_H
+
+#include <stddef.h>
+#include <stdio.h>
+#include <wchar.h>
+
+#define PLATFORM_PATH_MAX 4096
+
+/* A loaded shared library. */
+typedef void *Library;
+
+/* Load `path` without making its symbols visible to others; NULL with why in `error`. */
+Library platform_load(const char *path, char *error, size_t size);
+void platform_unload(Library library);
+void *platform_symbol(Library library, const char *name);
+/* Make the symbols of the loaded library `path` visible to libraries loaded later (Python's
+   extension modules resolve the C API that way on Linux; nothing to do on Windows). */
+int platform_share_symbols(const char *path, char *error, size_t size);
+/* A library already in the process that exports `name`, or NULL. */
+Library platform_loaded_with(const char *name);
+/* The file of the library that holds `address`; 0, or -1. */
+int platform_library_file(const void *address, char *path, size_t size);
+/* Keep the library that holds `address` loaded until the process ends; 0, or -1. */
+int platform_keep_loaded(const void *address);
+
+int platform_is_file(const char *path);
+FILE *platform_open_file(const char *path, const char *mode);
+/* The value of the environment variable `name` in `value` (UTF-8); 1 if set and not empty. */
+int platform_getenv(const char *name, char *value, size_t size);
+int platform_is_absolute(const char *path);
+/* `path` as a native path in place: on Windows "/C:/x" (a file URI's path) becomes "C:/x". */
+void platform_native_path(char *path);
+/* `path` as the wide string Py_SetPythonHome takes (malloc'ed; `decode` is Python's
+   Py_DecodeLocale, which Linux uses); NULL if it cannot be converted. */
+wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *));
+
+/* The CPythons 3.`oldest` and newer this system registers, each as `visit(context, library, home,
+   label, minor)` (label "" where the system only searches for the name): on Linux libpython3.X.so.1.0 for the dynamic loader to search; on Windows the
+   installs under PEP 514 (HKCU, then HKLM, each python3X.dll in its InstallPath), then python3X.dll
+   in the folders on PATH. `preferred` is the minor version to name first where the order is free. */
+void platform_registered_pythons(void (*visit)(void *context, const char *library, const char *home,
+                                               const char *label, int minor),
+                                 void *context, int preferred, int oldest);
+/* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
+   checked; else found from the library's folder. 0, or -1 with why in `why`. */
+int platform_python_home(const char *library, const char *given, int minor, char *home, size_t size, char *why,
+                         size_t why_size);
+
+/* One call of `function` per process, whichever thread comes first. */
+void platform_once(void (*function)(void));
+
+/* A value per host thread, with `on_end(value)` called when a thread that set one ends (never once
+   the binary is unloaded: a binary that has set one stays loaded on Windows, forgets its key on Linux). */
+int platform_thread_key(void (*on_end)(void *value));
+void platform_thread_set(void *value);
+
+/* One lock with one condition, for the thread that deletes ended threads' Python states. */
+void platform_lock(void);
+void platform_unlock(void);
+void platform_wait(void);
+void platform_signal(void);
+/* Start `function` in a detached thread; 0, or -1. */
+int platform_start_thread(void (*function)(void));
+/* `before`, `parent` and `child` around fork() where the system has it. */
+int platform_at_fork(void (*before)(void), void (*parent)(void), void (*child)(void));
+/* The lock and condition anew (in a forked child). */
+void platform_reset_lock(void);
+
+#endif

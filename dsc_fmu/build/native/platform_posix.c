@@ -1,0 +1,193 @@
+/* The platform seam on Linux (see platform.h): dlopen, pthreads, stat. */
+
+#define _GNU_SOURCE
+#include "platform.h"
+
+#include <dlfcn.h>
+#include <limits.h>
+#include <pthread.h>
+#include <stdlib.h>
+#include <string.h>
+#include <sys/stat.h>
+
+/* The newest CPython minor version looked for by name, and the name (the minor version for %d). */
+#define NEWEST_MINOR 20
+#ifndef DSC_SYSTEM_PYTHON
+#define DSC_SYSTEM_PYTHON "libpython3.%d.so.1.0"
+#endif
+
+static pthread_once_t once = PTHREAD_ONCE_INIT;
+static pthread_key_t thread_key;
+static int thread_key_made;
+static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
+static pthread_cond_t signal_ = PTHREAD_COND_INITIALIZER;
+
+Library platform_load(const char *path, char *error, size_t size) {
+    Library library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    if (!library) snprintf(error, size, "%s", dlerror());
+    return library;
+}
+
+void platform_unload(Library library) {
+    dlclose(library);
+}
+
+void *platform_symbol(Library library, const char *name) {
+    return dlsym(library, name);
+}
+
+int platform_share_symbols(const char *path, char *error, size_t size) {
+    if (dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) return 0;
+    snprintf(error, size, "%s", dlerror());
+    return -1;
+}
+
+Library platform_loaded_with(const char *name) {
+    return dlsym(RTLD_DEFAULT, name) ? RTLD_DEFAULT : NULL;
+}
+
+int platform_library_file(const void *address, char *path, size_t size) {
+    Dl_info info;
+    if (!dladdr(address, &info) || !info.dli_fname) return -1;
+    char resolved[PATH_MAX];
+    snprintf(path, size, "%s", realpath(info.dli_fname, resolved) ? resolved : info.dli_fname);
+    return 0;
+}
+
+int platform_keep_loaded(const void *address) {
+    Dl_info self;
+    return dladdr(address, &self) && self.dli_fname && dlopen(self.dli_fname, RTLD_NOW | RTLD_NOLOAD | RTLD_NODELETE)
+               ? 0 : -1;
+}
+
+int platform_is_file(const char *path) {
+    struct stat info;
+    return stat(path, &info) == 0 && S_ISREG(info.st_mode);
+}
+
+FILE *platform_open_file(const char *path, const char *mode) {
+    return fopen(path, mode);
+}
+
+int platform_getenv(const char *name, char *value, size_t size) {
+    const char *found = getenv(name);
+    if (!found || !*found) return 0;
+    snprintf(value, size, "%s", found);
+    return 1;
+}
+
+int platform_is_absolute(const char *path) {
+    return path[0] == '/';
+}
+
+void platform_native_path(char *path) {
+}
+
+wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *)) {
+    return decode(path, NULL);
+}
+
+void platform_registered_pythons(void (*visit)(void *, const char *, const char *, const char *, int), void *context,
+                                 int preferred, int oldest) {
+    char name[64];
+    snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, preferred);
+    visit(context, name, NULL, "", preferred);
+    for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
+        snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
+        visit(context, name, NULL, "", minor);
+    }
+}
+
+static int has_stdlib(const char *home, int minor) {
+    char path[PATH_MAX + 64];
+    snprintf(path, sizeof path, "%s/lib/python3.%d/os.py", home, minor);
+    if (!platform_is_file(path)) return 0;
+    snprintf(path, sizeof path, "%s/lib/python3.%d/encodings/__init__.py", home, minor);
+    return platform_is_file(path);
+}
+
+int platform_python_home(const char *library, const char *given, int minor, char *home, size_t size, char *why,
+                         size_t why_size) {
+    if (given && *given) {
+        if (has_stdlib(given, minor)) {
+            snprintf(home, size, "%s", given);
+            return 0;
+        }
+        snprintf(why, why_size, "no standard library in %s/lib/python3.%d", given, minor);
+        return -1;
+    }
+    char path[PATH_MAX];
+    snprintf(path, sizeof path, "%s", library);
+    char *slash;
+    while ((slash = strrchr(path, '/')) != NULL && slash != path) {
+        *slash = '\0';
+        if (has_stdlib(path, minor)) {
+            snprintf(home, size, "%s", path);
+            return 0;
+        }
+    }
+    snprintf(why, why_size, "no lib/python3.%d standard library above the library", minor);
+    return -1;
+}
+
+void platform_once(void (*function)(void)) {
+    pthread_once(&once, function);
+}
+
+int platform_thread_key(void (*on_end)(void *)) {
+    thread_key_made = pthread_key_create(&thread_key, on_end) == 0;
+    return thread_key_made ? 0 : -1;
+}
+
+void platform_thread_set(void *value) {
+    if (thread_key_made) pthread_setspecific(thread_key, value);
+}
+
+/* The binary unloaded: threads still running keep their values, and no callback that is gone runs. */
+__attribute__((destructor)) static void unload(void) {
+    if (thread_key_made) pthread_key_delete(thread_key);
+}
+
+void platform_lock(void) {
+    pthread_mutex_lock(&lock);
+}
+
+void platform_unlock(void) {
+    pthread_mutex_unlock(&lock);
+}
+
+void platform_wait(void) {
+    pthread_cond_wait(&signal_, &lock);
+}
+
+void platform_signal(void) {
+    pthread_cond_signal(&signal_);
+}
+
+static void *run(void *function) {
+    void (*start)(void);
+    memcpy(&start, &function, sizeof start);
+    start();
+    return NULL;
+}
+
+int platform_start_thread(void (*function)(void)) {
+    pthread_t thread;
+    pthread_attr_t attributes;
+    void *argument;
+    memcpy(&argument, &function, sizeof argument);
+    pthread_attr_init(&attributes);
+    pthread_attr_setdetachstate(&attributes, PTHREAD_CREATE_DETACHED);
+    int result = pthread_create(&thread, &attributes, run, argument) == 0 ? 0 : -1;
+    pthread_attr_destroy(&attributes);
+    return result;
+}
+
+int platform_at_fork(void (*before)(void), void (*parent)(void), void (*child)(void)) {
+    return pthread_atfork(before, parent, child) == 0 ? 0 : -1;
+}
+
+void platform_reset_lock(void) {
+    pthread_mutex_init(&lock, NULL);
+    pthread_cond_init(&signal_, NULL);
+}
