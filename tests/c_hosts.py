@@ -34,12 +34,13 @@ def run_c(command: list, cwd: Path, env: dict | None = None, timeout: float = 60
 
 
 def write_plan(path: Path, unzipped: dict, steps: int, step_size: float, order: str, threads: bool, every: int,
-               record: dict) -> Path:
-    """The plan of ``c_master``: the three unzipped FMUs, their connections, the run, the recorded outputs."""
+               record: dict, locate=str) -> Path:
+    """The plan of ``c_master``: the three unzipped FMUs (each folder as ``locate`` writes it for the
+    host: the path, or its Windows form), their connections, the run, the recorded outputs."""
     md = {name: read_model_description(str(folder)) for name, folder in unzipped.items()}
     vr = {name: {v.name: v.valueReference for v in m.modelVariables} for name, m in md.items()}
     plant, reference, controller = vr["MobileRobot"], vr["ReferenceRobot"], vr["DSCController"]
-    lines = [f"fmu {i} {unzipped[name]} {name} {md[name].guid}"
+    lines = [f"fmu {i} {locate(unzipped[name])} {name} {md[name].guid}"
              for i, name in enumerate(("ReferenceRobot", "MobileRobot", "DSCController"))]
     refs = lambda table, names: " ".join(str(table[n]) for n in names)  # noqa: E731
     lines += [

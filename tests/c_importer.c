@@ -7,7 +7,10 @@
    binaries/x86_64-windows/..., into this one process. Instantiates and initialises each, does
    STEPS steps of STEP_SIZE with all of them in turn and prints "time,value,..." with the given Real
    (Float64) value references of each FMU in order, at t = 0 and after every step; exits 1 with a
-   message on the first failing call, 2 if an instantiation returns NULL. */
+   message on the first failing call, 2 if an instantiation returns NULL.
+   DSC_TEST_RESOURCES, if set, is the resource location given to every instance instead of the
+   folder's file URI (FMI 2.0) or path (FMI 3.0). DSC_TEST_ROUNDS (default 1) repeats the whole run,
+   each round with the binaries unloaded (dlclose, FreeLibrary) and loaded again. */
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -31,9 +34,16 @@ static void *symbol(void *library, const char *name) {
     return address;
 }
 
+/* The resource location of the FMU unzipped in `dir`: DSC_TEST_RESOURCES if set, else `format` with `dir`. */
+static void resources_of(char *resources, size_t size, const char *format, const char *dir) {
+    const char *given = getenv("DSC_TEST_RESOURCES");
+    if (given) snprintf(resources, size, "%s", given);
+    else snprintf(resources, size, format, dir);
+}
+
 static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid) {
     char resources[4096];
-    snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
+    resources_of(resources, sizeof resources, HOST_RESOURCES_URI, dir);
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
     void *c = ((fmi2InstantiateTYPE *)symbol(fmu->library, "fmi2Instantiate"))(
         model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
@@ -53,7 +63,7 @@ static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid
 
 static int start3(Fmu *fmu, const char *dir, const char *model, const char *token) {
     char resources[4096];
-    snprintf(resources, sizeof resources, "%s/resources/", dir);
+    resources_of(resources, sizeof resources, "%s/resources/", dir);
     void *c = ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu->library, "fmi3InstantiateCoSimulation"))(
         model, token, resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
     if (!c) {
@@ -108,27 +118,10 @@ static int split(char *list, char **items) {
     return n;
 }
 
-int main(int argc, char **argv) {
-    if (argc < 8) {
-        fprintf(stderr, "usage: %s FMI_VERSION UNZIPPED_DIRS MODEL_IDENTIFIER GUIDS STEPS STEP_SIZE VR [VR ...]\n",
-                argv[0]);
-        return 2;
-    }
-    int version = atoi(argv[1]);
-    char *dirs[MAX_FMUS], *guids[MAX_FMUS];
-    int count = split(argv[2], dirs);
-    const char *model = argv[3];
-    if (count < 1 || split(argv[4], guids) != count) {
-        fprintf(stderr, "1 to %d UNZIPPED_DIRS and as many GUIDS are needed\n", MAX_FMUS);
-        return 2;
-    }
-    int steps = atoi(argv[5]);
-    double h = atof(argv[6]);
-    size_t n = (size_t)(argc - 7);
-    unsigned int *vr = calloc(n, sizeof *vr);
-    double *values = calloc(n, sizeof *values);
-    for (size_t i = 0; i < n; i++) vr[i] = (unsigned int)strtoul(argv[7 + i], NULL, 10);
-
+/* One round: load, instantiate and initialise every FMU, step them, print, free and unload; 0, or
+   the exit status. */
+static int run(int version, int count, char **dirs, const char *model, char **guids, int steps, double h,
+               const unsigned int *vr, double *values, size_t n) {
     Fmu fmus[MAX_FMUS];
     for (int f = 0; f < count; f++) {
         char path[4096];
@@ -152,6 +145,37 @@ int main(int argc, char **argv) {
         for (int f = 0; k < steps && f < count; f++) step(version, &fmus[f], k * h, h);
     }
     for (int f = 0; f < count; f++) finish(version, &fmus[f]);
+    for (int f = 0; f < count; f++) host_unload(fmus[f].library);
+    return 0;
+}
+
+int main(int argc, char **argv) {
+    if (argc < 8) {
+        fprintf(stderr, "usage: %s FMI_VERSION UNZIPPED_DIRS MODEL_IDENTIFIER GUIDS STEPS STEP_SIZE VR [VR ...]\n",
+                argv[0]);
+        return 2;
+    }
+    int version = atoi(argv[1]);
+    char *dirs[MAX_FMUS], *guids[MAX_FMUS];
+    int count = split(argv[2], dirs);
+    const char *model = argv[3];
+    if (count < 1 || split(argv[4], guids) != count) {
+        fprintf(stderr, "1 to %d UNZIPPED_DIRS and as many GUIDS are needed\n", MAX_FMUS);
+        return 2;
+    }
+    int steps = atoi(argv[5]);
+    double h = atof(argv[6]);
+    size_t n = (size_t)(argc - 7);
+    unsigned int *vr = calloc(n, sizeof *vr);
+    double *values = calloc(n, sizeof *values);
+    for (size_t i = 0; i < n; i++) vr[i] = (unsigned int)strtoul(argv[7 + i], NULL, 10);
+
+    const char *rounds_text = getenv("DSC_TEST_ROUNDS");
+    int rounds = rounds_text ? atoi(rounds_text) : 1;
+    for (int round = 0; round < rounds; round++) {
+        int status = run(version, count, dirs, model, guids, steps, h, vr, values, n);
+        if (status != 0) return status;
+    }
     free(vr);
     free(values);
     return 0;

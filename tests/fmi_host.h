@@ -33,6 +33,10 @@ static void *host_symbol(void *library, const char *name) {
     return result;
 }
 
+static void host_unload(void *library) {
+    FreeLibrary((HMODULE)library);
+}
+
 static const char *host_error(void) {
     static char text[64];
     snprintf(text, sizeof text, "LoadLibrary failed with error %lu", (unsigned long)GetLastError());
@@ -51,6 +55,10 @@ static void *host_load(const char *path) {
 
 static void *host_symbol(void *library, const char *name) {
     return dlsym(library, name);
+}
+
+static void host_unload(void *library) {
+    dlclose(library);
 }
 
 static const char *host_error(void) {

@@ -12,11 +12,13 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
+from wine import required
 from dsc_fmu.build.binary import LINUX, OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import load_scenario
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
+OTHER_MINORS = (9, 12)  # the oldest CPython the FMUs take, and a newer one
 STEPS, STEP = 50, 0.02
 SYSTEM_LIBPYTHON = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "") / f"libpython{build_python().version}.so.1.0"
 
@@ -119,6 +121,41 @@ def test_the_override_variable_is_the_only_candidate_when_set(importer, fmu_path
     assert run.returncode == 2
     errors = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert len(errors) == 1 and f"{OVERRIDE_VARIABLE} = /nonexistent/libpython.so" in errors[0], run.stderr
+
+
+def shared_cpython(minor: int) -> Path:
+    """A shared library of CPython 3.``minor`` on this machine (pyenv's, the system's), or a skip (a
+    failure under CI)."""
+    places = (Path.home() / ".pyenv" / "versions", Path("/usr/lib"), Path("/usr/local/lib"))
+    for place in places:
+        for library in sorted(place.glob(f"**/libpython3.{minor}.so.1.0")):
+            return library
+    required(f"no shared CPython 3.{minor} (libpython3.{minor}.so.1.0) under {', '.join(map(str, places))}")
+
+
+@pytest.mark.parametrize("minor", OTHER_MINORS, ids=lambda minor: f"3.{minor}")
+@pytest.mark.parametrize("version", (2, 3))
+def test_any_cpython_from_3_9_on_serves(importer, fmu_paths, fmu3_paths, tmp_path, minor, version):
+    """Another minor version than the one that built the FMU, named by the override: the same rows as
+    the building one gives (the same C library, so the same bits)."""
+    path = (fmu3_paths if version == 3 else fmu_paths)["DSCController"]
+    md = read_model_description(str(path))
+    folder = Path(extract(str(path), unzipdir=tmp_path / "c"))
+    built = c_run(importer, version, folder, md, outputs(md), tmp_path)
+    other = c_run(importer, version, folder, md, outputs(md), tmp_path,
+                  {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(shared_cpython(minor))})
+    assert built.returncode == 0 and other.returncode == 0, other.stderr
+    assert parse_rows(other.stdout) == parse_rows(built.stdout)
+
+
+def test_a_cpython_older_than_3_9_is_refused_by_name(importer, fmu_paths, tmp_path):
+    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
+    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
+    library = shared_cpython(8)
+    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(library)})
+    assert run.returncode == 2
+    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert f"{OVERRIDE_VARIABLE} = {library}: Python 3.8." in message and "older than 3.9" in message
 
 
 def _with_binary(fmu: Path, folder: Path, runtime: PythonRuntime) -> Path:

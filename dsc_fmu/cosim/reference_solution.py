@@ -8,7 +8,9 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from . import signals
-from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
+from ..models.controller import (
+    W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters, weight_norm,
+)
 from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
 from .. import registry
@@ -28,11 +30,6 @@ __all__ = [
 PLANT_STATES = slice(0, 7)
 CONTROLLER_STATES = slice(7, 27)
 REFERENCE_STATES = slice(27, 30)
-
-
-def _norm(values) -> float:
-    """Euclidean norm, as the controller FMU computes it."""
-    return sum(v * v for v in values) ** 0.5
 
 
 def output_times(stop_time: float, output_interval: float) -> np.ndarray:
@@ -104,7 +101,7 @@ def reference_solution(
         W1_hat, W2_hat = xc[W1_SLICE], xc[W2_SLICE]
         controller = [  # as the controller FMU's outputs()
             law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, xc[0], xc[1],
-            _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat, guard_count,
+            weight_norm(W1_hat), weight_norm(W2_hat), *W1_hat, *W2_hat, guard_count,
         ]
         rows.append({
             "time": t,

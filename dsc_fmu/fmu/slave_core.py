@@ -6,6 +6,8 @@ put it on their slave base classes and supply the hooks ``_register``, ``log_err
 ``log_discard`` and ``log_warning``.
 """
 
+from __future__ import annotations
+
 import math
 
 from ..models.parameters import INPUT_COUPLINGS

@@ -7,6 +7,7 @@ FMI glue class (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
 
 from ..models.controller import (
     W1_SLICE, W2_SLICE, Switches, control_law, event_indicators, gains, initial_controller_state, start_filters, switches,
+    weight_norm,
 )
 from ..models.parameters import (
     CONTROLLER_INPUTS, CONTROLLER_OUTPUTS, CONTROLLER_PARAMETERS, DISCRETIZATIONS, PLANT_INPUTS, PLANT_OUTPUTS,
@@ -23,10 +24,6 @@ EULER = DISCRETIZATIONS.index("euler")
 VALID_INPUTS = START_ON.index("valid_inputs")
 _INPUT_NAMES = frozenset(v.name for v in CONTROLLER_INPUTS)
 _WAITING_LAW_OUTPUTS = [v.start for v in CONTROLLER_OUTPUTS[:6]]  # u1, u2, S11, S12, S13, beta
-
-
-def _norm(values):
-    return sum(v * v for v in values) ** 0.5
 
 
 class MobileRobotModel:
@@ -192,7 +189,7 @@ class DSCControllerModel:
 
     def outputs(self, x):
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
-        estimates = [x[0], x[1], _norm(W1_hat), _norm(W2_hat), *W1_hat, *W2_hat]
+        estimates = [x[0], x[1], weight_norm(W1_hat), weight_norm(W2_hat), *W1_hat, *W2_hat]
         if self.waiting():
             return [*_WAITING_LAW_OUTPUTS, *estimates]
         law = control_law(self.constants, x, self.u, self.held)

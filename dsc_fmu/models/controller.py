@@ -6,11 +6,14 @@ Measurements ``m`` (14 entries, the controller FMU's inputs in order):
 ``[x, y, theta, theta_dot, omega1, omega2, i1, i2, x_r, y_r, theta_r, v_r, omega_r, v_r_dot]``.
 """
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
 __all__ = [
+    "weight_norm",
     "Gains",
     "gains",
     "ControlLaw",
@@ -25,6 +28,13 @@ __all__ = [
     "W1_SLICE",
     "W2_SLICE",
 ]
+
+
+def weight_norm(values) -> float:
+    """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27), its sum
+    of squares exactly rounded (``math.fsum``): every CPython gives the same bits (``sum`` of floats
+    rounds differently from 3.12 on)."""
+    return math.sqrt(math.fsum(v * v for v in values))
 
 W1_SLICE = slice(4, 12)
 W2_SLICE = slice(14, 20)

@@ -1,5 +1,7 @@
 """The FMUs' variables with the paper's values (Section IV): the one source of truth for defaults."""
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass, replace
 

@@ -47,7 +47,10 @@ void platform_registered_pythons(void (*visit)(void *context, const char *librar
                                                const char *label, int minor),
                                  void *context, int preferred, int oldest);
 /* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
-   checked; else found from the library's folder. 0, or -1 with why in `why`. */
+   checked; else found from the library's folder. HOME_TO_SET; HOME_FIXED where the installation
+   fixes its paths itself (Windows' embeddable CPython: a python3X._pth file beside the library,
+   which setting a home would override); or -1 with why in `why`. */
+enum { HOME_TO_SET = 0, HOME_FIXED = 1 };
 int platform_python_home(const char *library, const char *given, int minor, char *home, size_t size, char *why,
                          size_t why_size);
 

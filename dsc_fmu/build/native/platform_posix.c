@@ -111,7 +111,7 @@ int platform_python_home(const char *library, const char *given, int minor, char
     if (given && *given) {
         if (has_stdlib(given, minor)) {
             snprintf(home, size, "%s", given);
-            return 0;
+            return HOME_TO_SET;
         }
         snprintf(why, why_size, "no standard library in %s/lib/python3.%d", given, minor);
         return -1;
@@ -123,7 +123,7 @@ int platform_python_home(const char *library, const char *given, int minor, char
         *slash = '\0';
         if (has_stdlib(path, minor)) {
             snprintf(home, size, "%s", path);
-            return 0;
+            return HOME_TO_SET;
         }
     }
     snprintf(why, why_size, "no lib/python3.%d standard library above the library", minor);

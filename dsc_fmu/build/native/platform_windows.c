@@ -281,8 +281,10 @@ int platform_python_home(const char *library, const char *given, int minor, char
         if (slash) *slash = '\0';
     }
     if (has_stdlib(folder, minor)) {
+        char paths[PLATFORM_PATH_MAX + 32];
         snprintf(home, size, "%s", folder);
-        return 0;
+        snprintf(paths, sizeof paths, "%s\\python3%d._pth", folder, minor);
+        return !(given && *given) && platform_is_file(paths) ? HOME_FIXED : HOME_TO_SET;
     }
     snprintf(why, why_size, "no standard library in %s (neither Lib\\os.py nor python3%d.zip)", folder, minor);
     return -1;

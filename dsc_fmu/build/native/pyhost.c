@@ -162,13 +162,15 @@ static int start_python(const char *what, const char *home) {
     return 0;
 }
 
-static int initialize(const char *home, const char *what) {
-    home_wide = platform_wide_path(home, py.Py_DecodeLocale);
-    if (!home_wide) {
+/* Start Python with `home`, or (`set_home` 0) with the paths its installation's ._pth file fixes,
+   which a home set here would override. */
+static int initialize(const char *home, int set_home, const char *what) {
+    home_wide = set_home ? platform_wide_path(home, py.Py_DecodeLocale) : NULL;
+    if (set_home && !home_wide) {
         append(start_error, sizeof start_error, "%s: cannot decode its home %s; ", what, home);
         return -1;
     }
-    py.Py_SetPythonHome(home_wide);
+    if (set_home) py.Py_SetPythonHome(home_wide);
     *py.Py_IgnoreEnvironmentFlag = 1;
     *py.Py_NoSiteFlag = 1;
     *py.Py_NoUserSiteDirectory = 1;
@@ -197,11 +199,12 @@ static int adopt(Library library, const char *home, const char *what) {
     if (py.Py_IsInitialized()) return 0;
     char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256] = "";
     if (platform_library_file((const void *)py.Py_IsInitialized, file, sizeof file) != 0) file[0] = '\0';
-    if (platform_python_home(file, home, minor, found, sizeof found, why, sizeof why) != 0) {
+    int layout = platform_python_home(file, home, minor, found, sizeof found, why, sizeof why);
+    if (layout < 0) {
         append(start_error, sizeof start_error, "%s: %s; ", what, why);
         return -1;
     }
-    return initialize(found, what);
+    return initialize(found, layout == HOME_TO_SET, what);
 }
 
 /* Load, check and start the candidate, then share its symbols (extension modules such as math
