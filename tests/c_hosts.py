@@ -21,7 +21,7 @@ def compile_c(source: str, output: Path, windows: bool = False) -> Path:
     import fmpy
 
     headers = Path(fmpy.__file__).parent / "c-code"
-    target = ["-target", "x86_64-windows-gnu"] if windows else ["-ldl", "-lpthread"]
+    target = ["-target", "x86_64-windows-gnu"] if windows else ["-D_GNU_SOURCE", "-ldl", "-lpthread"]
     subprocess.run([sys.executable, "-m", "ziglang", "cc", "-O2", "-std=gnu11", f"-I{headers}", "-o", str(output),
                     str(HERE / source), *target], check=True, capture_output=True, timeout=600)
     return output

@@ -10,7 +10,6 @@
    every EVERY steps and at the end. With THREADS = 1 every doStep runs on a worker thread of its FMU
    (threads Python does not know), the FMUs of one phase at the same time. Exits 1 on any failure. */
 
-#define _GNU_SOURCE
 #include <pthread.h>
 #include <stdio.h>
 #include <stdlib.h>

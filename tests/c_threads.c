@@ -19,10 +19,8 @@
      steps N STEPS THREADED  N instances, each doing STEPS steps of 1 ms: one after another on this
                              thread (THREADED 0), or each on a thread of its own at once (1). Prints
                              "seconds=S", the wall time of the steps.
-   Exits 1 with a message on any failing call. */
+   Exits 1 with a message on any failing call. Builds for Linux and Windows (pthreads: MinGW-w64's). */
 
-#define _GNU_SOURCE
-#include <dlfcn.h>
 #include <errno.h>
 #include <pthread.h>
 #include <stdarg.h>
@@ -32,8 +30,7 @@
 #include <time.h>
 #include <unistd.h>
 
-#include "fmi2Functions.h"
-#include "fmi3Functions.h"
+#include "fmi_host.h"
 
 typedef struct {
     int version;
@@ -58,13 +55,9 @@ static void fail(const char *format, ...) {
 }
 
 static void *symbol(Fmu *fmu, const char *name) {
-    void *address = dlsym(fmu->library, name);
+    void *address = host_symbol(fmu->library, name);
     if (!address) fail("missing %s", name);
     return address;
-}
-
-static void check(int status, const char *call) {
-    if (status > 1) fail("%s failed with status %d", call, status);
 }
 
 /* The blocking logger of instance A: wait (without a busy loop) until B has done its steps. */
@@ -82,12 +75,12 @@ static void block(void) {
     pthread_mutex_unlock(&shared.lock);
 }
 
-static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
-                    fmi2String message, ...) {
+static void blocking2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
+                      fmi2String message, ...) {
     if (env) block();
 }
 
-static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
+static void blocking3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
     if (env) block();
 }
 
@@ -99,14 +92,14 @@ static fmi2CallbackFunctions quiet2 = {silent2, calloc, free, NULL, NULL};
 static void *instantiate(Fmu *fmu, const char *name, int blocking) {
     void *c;
     if (fmu->version == 2) {
-        static fmi2CallbackFunctions plain = {logger2, calloc, free, NULL, NULL};
-        static fmi2CallbackFunctions waiting = {logger2, calloc, free, NULL, &shared};
+        static fmi2CallbackFunctions plain = {blocking2, calloc, free, NULL, NULL};
+        static fmi2CallbackFunctions waiting = {blocking2, calloc, free, NULL, &shared};
         c = ((fmi2InstantiateTYPE *)symbol(fmu, "fmi2Instantiate"))(
             name, fmi2CoSimulation, fmu->token, fmu->resources, blocking ? &waiting : &plain, fmi2False, fmi2True);
     } else {
         c = ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu, "fmi3InstantiateCoSimulation"))(
             name, fmu->token, fmu->resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0,
-            blocking ? &shared : NULL, logger3, NULL);
+            blocking ? &shared : NULL, blocking3, NULL);
     }
     if (!c) fail("instantiating %s returned NULL", name);
     return c;
@@ -208,24 +201,13 @@ static void run_threads(Fmu *fmu, void *c, int from, int count) {
     }
 }
 
-static long resident_kb(void) {
-    FILE *file = fopen("/proc/self/status", "r");
-    char line[256];
-    long kb = -1;
-    while (file && fgets(line, sizeof line, file)) {
-        if (strncmp(line, "VmRSS:", 6) == 0) kb = atol(line + 6);
-    }
-    if (file) fclose(file);
-    return kb;
-}
-
 /* The thread states of the main interpreter, counted under the GIL through the Python in this process. */
 static int thread_states(void) {
-    int (*ensure)(void) = dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
-    void (*release_gil)(int) = dlsym(RTLD_DEFAULT, "PyGILState_Release");
-    void *(*main_interpreter)(void) = dlsym(RTLD_DEFAULT, "PyInterpreterState_Main");
-    void *(*head)(void *) = dlsym(RTLD_DEFAULT, "PyInterpreterState_ThreadHead");
-    void *(*next)(void *) = dlsym(RTLD_DEFAULT, "PyThreadState_Next");
+    int (*ensure)(void) = host_python_symbol("PyGILState_Ensure");
+    void (*release_gil)(int) = host_python_symbol("PyGILState_Release");
+    void *(*main_interpreter)(void) = host_python_symbol("PyInterpreterState_Main");
+    void *(*head)(void *) = host_python_symbol("PyInterpreterState_ThreadHead");
+    void *(*next)(void *) = host_python_symbol("PyThreadState_Next");
     if (!ensure || !release_gil || !main_interpreter || !head || !next) fail("no Python in this process");
     int gil = ensure(), n = 0;
     for (void *state = head(main_interpreter()); state; state = next(state)) n++;
@@ -249,10 +231,10 @@ static int run_churn(Fmu *fmu, int count) {
     initialize(fmu, c);
     run_threads(fmu, c, 0, 100);
     int states_before = settled_thread_states(1, 5.0); /* this thread's alone */
-    long before = resident_kb();
+    long before = host_resident_kb();
     run_threads(fmu, c, 100, count);
     int states_after = settled_thread_states(states_before, 5.0);
-    printf("rss_kb=%ld,%ld thread_states=%d,%d\n", before, resident_kb(), states_before, states_after);
+    printf("rss_kb=%ld,%ld thread_states=%d,%d\n", before, host_resident_kb(), states_before, states_after);
     release(fmu, c);
     return 0;
 }
@@ -325,6 +307,19 @@ static void *step_once(void *argument) {
     return NULL;
 }
 
+/* Join `thread` if it ends within `seconds`: 1, else 0. */
+static int join_within(pthread_t thread, int seconds) {
+#ifdef _WIN32
+    return WaitForSingleObject(pthread_gethandle(thread), (DWORD)seconds * 1000) == WAIT_OBJECT_0 &&
+           pthread_join(thread, NULL) == 0;
+#else
+    struct timespec until;
+    clock_gettime(CLOCK_REALTIME, &until);
+    until.tv_sec += seconds;
+    return pthread_timedjoin_np(thread, NULL, &until) == 0;
+#endif
+}
+
 static int run_join(Fmu *fmu) {
     void *c = instantiate(fmu, "join", 0);
     initialize(fmu, c);
@@ -334,14 +329,11 @@ static int run_join(Fmu *fmu) {
     pthread_mutex_lock(&shared.lock);
     while (!shared.steps) pthread_cond_wait(&shared.changed, &shared.lock);
     pthread_mutex_unlock(&shared.lock);
-    int (*ensure)(void) = dlsym(RTLD_DEFAULT, "PyGILState_Ensure");
-    void (*release_gil)(int) = dlsym(RTLD_DEFAULT, "PyGILState_Release");
+    int (*ensure)(void) = host_python_symbol("PyGILState_Ensure");
+    void (*release_gil)(int) = host_python_symbol("PyGILState_Release");
     if (!ensure || !release_gil) fail("no Python in this process");
     int gil = ensure();
-    struct timespec until;
-    clock_gettime(CLOCK_REALTIME, &until);
-    until.tv_sec += 20;
-    int joined = pthread_timedjoin_np(thread, NULL, &until) == 0;
+    int joined = join_within(thread, 20);
     release_gil(gil);
     printf("joined=%d\n", joined);
     if (!joined) _exit(0); /* the worker cannot end: leave without waiting for it */
@@ -393,10 +385,11 @@ int main(int argc, char **argv) {
     Fmu fmu = {atoi(argv[2]), NULL, "", argv[4], argv[5]};
     const char *dir = argv[3];
     char path[4096];
-    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", dir, fmu.version == 3 ? "x86_64-linux" : "linux64", fmu.model);
-    snprintf(fmu.resources, sizeof fmu.resources, fmu.version == 3 ? "%s/resources/" : "file://%s/resources", dir);
-    fmu.library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
-    if (!fmu.library) fail("cannot load %s", dlerror());
+    snprintf(path, sizeof path, "%s/binaries/%s/%s" HOST_SUFFIX, dir, fmu.version == 3 ? HOST_FOLDER3 : HOST_FOLDER2,
+             fmu.model);
+    snprintf(fmu.resources, sizeof fmu.resources, fmu.version == 3 ? "%s/resources/" : HOST_RESOURCES_URI, dir);
+    fmu.library = host_load(path);
+    if (!fmu.library) fail("cannot load %s", host_error());
     if (strcmp(argv[1], "logger") == 0 && argc == 9) {
         return run_logger(&fmu, (unsigned int)strtoul(argv[6], NULL, 10), atof(argv[7]), atoi(argv[8]));
     }

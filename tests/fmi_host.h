@@ -11,6 +11,7 @@
 
 #ifdef _WIN32
 #include <windows.h>
+#include <psapi.h>
 #define HOST_FOLDER2 "win64"
 #define HOST_FOLDER3 "x86_64-windows"
 #define HOST_SUFFIX ".dll"
@@ -42,6 +43,24 @@ static const char *host_error(void) {
     snprintf(text, sizeof text, "LoadLibrary failed with error %lu", (unsigned long)GetLastError());
     return text;
 }
+
+/* A function of the CPython in this process (the FMU's binary loaded or found it). */
+static void *host_python_symbol(const char *name) {
+    HMODULE modules[1024];
+    DWORD needed = 0;
+    if (!K32EnumProcessModules(GetCurrentProcess(), modules, sizeof modules, &needed)) return NULL;
+    for (DWORD i = 0; i < needed / sizeof modules[0] && i < 1024; i++) {
+        if (GetProcAddress(modules[i], "Py_InitializeFromConfig")) return host_symbol(modules[i], name);
+    }
+    return NULL;
+}
+
+/* The process's working set in kB. */
+static long host_resident_kb(void) {
+    PROCESS_MEMORY_COUNTERS counters;
+    return K32GetProcessMemoryInfo(GetCurrentProcess(), &counters, sizeof counters)
+               ? (long)(counters.WorkingSetSize / 1024) : -1;
+}
 #else
 #include <dlfcn.h>
 #define HOST_FOLDER2 "linux64"
@@ -63,6 +82,23 @@ static void host_unload(void *library) {
 
 static const char *host_error(void) {
     return dlerror();
+}
+
+/* A function of the CPython in this process (the FMU's binary loaded or found it). */
+static void *host_python_symbol(const char *name) {
+    return dlsym(RTLD_DEFAULT, name);
+}
+
+/* The process's resident memory in kB. */
+static long host_resident_kb(void) {
+    FILE *file = fopen("/proc/self/status", "r");
+    char line[256];
+    long kb = -1;
+    while (file && fgets(line, sizeof line, file)) {
+        if (strncmp(line, "VmRSS:", 6) == 0) kb = atol(line + 6);
+    }
+    if (file) fclose(file);
+    return kb;
 }
 #endif
 

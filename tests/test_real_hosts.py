@@ -1,8 +1,11 @@
 """The binary layer in hosts that do what real tools do: a logger that blocks, thread pools, a Python
 that cannot start, a wrong token, FMUs whose bundled pythonfmu differ, a host with a pythonfmu of its
-own, and hosts that free the FMUs and delete their folders. C hosts run with an empty environment."""
+own, hosts that free the FMUs and delete their folders, and hosts whose standard streams are files or
+closed. C hosts run with an empty environment."""
 
+import os
 import shutil
+import subprocess
 import sys
 import sysconfig
 import zipfile
@@ -216,3 +219,26 @@ def test_one_build_extracted_twice_is_forgotten_in_both_folders(fmu_paths, tmp_p
     instances[1].freeInstance()
     assert set(sys.modules) - modules_before == set()
     assert not any(str(tmp_path) in str(key) for key in sys.path_importer_cache)
+
+
+@pytest.mark.parametrize("streams", ("file", "closed"))
+def test_hosts_whose_standard_streams_are_files_or_absent(importer, fmu_paths, tmp_path, streams):
+    """A C host whose standard output is a regular file gets the rows a pipe gets; one started with
+    standard input, output and error closed (a daemon, a GUI tool) runs every call successfully."""
+    folder, md, token = unzipped(fmu_paths["DSCController"], tmp_path / "c")
+    refs = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+    command = [str(c) for c in (importer, 2, folder, "DSCController", token, 20, 0.01, *refs)]
+    piped = run_c(command, tmp_path)
+    assert piped.returncode == 0, piped.stderr
+    output = tmp_path / "stdout.txt"
+    with open(output, "w") as target:
+        if streams == "file":
+            run = subprocess.run(command, cwd=tmp_path, env=EMPTY_ENVIRONMENT, stdout=target, stderr=subprocess.PIPE,
+                                 text=True, timeout=120)
+        else:
+            run = subprocess.run(command, cwd=tmp_path, env=EMPTY_ENVIRONMENT, stdin=subprocess.DEVNULL,
+                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=120,
+                                 preexec_fn=lambda: [os.close(fd) for fd in (0, 1, 2)])
+    assert run.returncode == 0
+    if streams == "file":
+        assert parse_rows(output.read_text()) == parse_rows(piped.stdout)

@@ -1,4 +1,4 @@
-"""Build the three FMUs (FMI 2.0 with pythonfmu, FMI 3.0 with pythonfmu3): stage, build, complete, replace the binary."""
+"""Build the three FMUs (FMI 2.0 with pythonfmu, FMI 3.0 with pythonfmu3): stage, build, complete, put in our binaries."""
 
 from __future__ import annotations
 
