@@ -265,7 +265,8 @@ static void gather(Candidates *list) {
 }
 
 static int find_and_start(void) {
-    Library present = platform_loaded_with("Py_IsInitialized");
+    /* A function outside the stable ABI: Windows' python3.dll, which forwards that ABI, does not count. */
+    Library present = platform_loaded_with("Py_InitializeFromConfig");
     if (present) return adopt(present, NULL, "the Python in this process");
     static Candidate items[MAX_CANDIDATES];
     Candidates list = {items, 0};
