@@ -113,13 +113,13 @@ def test_every_fmu_carries_our_binaries_for_linux_and_windows_and_no_other(fmu_p
 @pytest.mark.parametrize("name", NAMES)
 def test_each_fmu_in_a_windows_c_importer_equals_linux(importers, wine, pythons, fmu_paths, fmu3_paths, tmp_path,
                                                        name, version):
-    """The embeddable CPython of the building minor on the Windows PATH, the environment's PYTHON*
-    variables pointing elsewhere (ignored): the same rows as on Linux."""
+    """The embeddable CPython of the building minor at the end of a Windows PATH of over 7,000 characters,
+    the environment's PYTHON* variables pointing elsewhere (ignored): the same rows as on Linux."""
     path = (fmu3_paths if version == 3 else fmu_paths)[name]
     md = read_model_description(str(path))
     folder = Path(extract(str(path), unzipdir=tmp_path / name))
-    env = {"WINEPATH": windows_path(pythons(BUILD_MINOR)), **MISLEADING}
-    linux, windows = runs(importers, wine, version, folder, md, env)
+    crowded = ";".join([r"Z:\nonexistent\tool\bin"] * 300 + [windows_path(pythons(BUILD_MINOR))])
+    linux, windows = runs(importers, wine, version, folder, md, {"WINEPATH": crowded, **MISLEADING})
     assert windows.returncode == 0, windows.stderr
     assert_like_linux(parse_rows(windows.stdout), linux)
 

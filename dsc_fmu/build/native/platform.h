@@ -40,9 +40,10 @@ void platform_native_path(char *path);
 wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *));
 
 /* The CPythons 3.`oldest` and newer this system registers, each as `visit(context, library, home,
-   label, minor)` (label "" where the system only searches for the name): on Linux libpython3.X.so.1.0 for the dynamic loader to search; on Windows the
-   installs under PEP 514 (HKCU, then HKLM, each python3X.dll in its InstallPath), then python3X.dll
-   in the folders on PATH. `preferred` is the minor version to name first where the order is free. */
+   label, minor)`: on Linux libpython3.X.so.1.0 for the dynamic loader to search (label ""); on
+   Windows the installs under PEP 514 (HKCU, then HKLM, each python3X.dll in its InstallPath), then
+   python3X.dll in the folders on PATH. `preferred` is the minor version to name first where the
+   order is free. */
 void platform_registered_pythons(void (*visit)(void *context, const char *library, const char *home,
                                                const char *label, int minor),
                                  void *context, int preferred, int oldest);

@@ -150,10 +150,13 @@ FILE *platform_open_file(const char *path, const char *mode) {
 }
 
 int platform_getenv(const char *name, char *value, size_t size) {
-    wchar_t *key = wide(name), found[PLATFORM_PATH_MAX];
-    DWORD n = key ? GetEnvironmentVariableW(key, found, PLATFORM_PATH_MAX) : 0;
+    wchar_t *key = wide(name);
+    DWORD length = key ? GetEnvironmentVariableW(key, NULL, 0) : 0; /* with the terminating zero */
+    wchar_t *found = length > 1 ? malloc(length * sizeof *found) : NULL;
+    int result = found && GetEnvironmentVariableW(key, found, length) == length - 1 && narrow(found, value, size) == 0;
+    free(found);
     free(key);
-    return n > 0 && n < PLATFORM_PATH_MAX && narrow(found, value, size) == 0;
+    return result;
 }
 
 void platform_native_path(char *path) {
@@ -242,7 +245,7 @@ static void registered_under(const Registry *r, HKEY root, const char *label, Vi
 
 /* python3X.dll in the folders on PATH, newest first in each. */
 static void on_path(Visit visit, void *context, int oldest) {
-    static char path[32768];
+    static char path[3 * 32768]; /* the longest environment variable, in UTF-8 */
     if (!platform_getenv("PATH", path, sizeof path)) return;
     for (char *folder = strtok(path, ";"); folder; folder = strtok(NULL, ";")) {
         for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
