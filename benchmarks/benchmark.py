@@ -23,7 +23,7 @@ from pathlib import Path
 
 from pythonfmu import FmuBuilder
 
-from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import ensure_fmus
 from dsc_fmu.registry import FMUS
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.cosim.reference_solution import reference_solution

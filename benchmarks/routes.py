@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 from fmpy import simulate_fmu
 
-from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import ensure_fmus
 from dsc_fmu.interop.container import export_fmu
 from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
 from dsc_fmu.cosim.master import cosimulate

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import psutil
 
-from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import ensure_fmus
 from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import ORDERS, load_scenario
 from dsc_fmu.study.cases import Case, apply, build_cases

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from fmpy import extract, read_model_description
 
-from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import ensure_fmus
 
 sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 from c_hosts import EMPTY_ENVIRONMENT, compile_c  # noqa: E402

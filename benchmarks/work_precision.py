@@ -16,7 +16,7 @@ import dataclasses
 
 import numpy as np
 
-from dsc_fmu.build.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import ensure_fmus
 from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.cosim.model_exchange import simulate_model_exchange
 from dsc_fmu.cosim.reference_solution import output_times, reference_solution

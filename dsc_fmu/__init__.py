@@ -12,8 +12,8 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     "load_scenario": "dsc_fmu.scenario",
-    "build_fmus": "dsc_fmu.build.fmus",
-    "ensure_fmus": "dsc_fmu.build.fmus",
+    "build_fmus": "dsc_fmu.fmubuild.fmus",
+    "ensure_fmus": "dsc_fmu.fmubuild.fmus",
     "cosimulate": "dsc_fmu.cosim.master",
     "Cosimulator": "dsc_fmu.cosim.master",
     "simulate_model_exchange": "dsc_fmu.cosim.model_exchange",

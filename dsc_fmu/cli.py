@@ -7,7 +7,7 @@ import sys
 import warnings
 from pathlib import Path
 
-from .build.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
+from .fmubuild.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
 from .scenario import COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, ScenarioError, load_scenario, scenario_names
@@ -124,14 +124,14 @@ def _names(text: str) -> list[str]:
 
 
 def _build(args) -> None:
-    from .build.fmus import build_fmus
+    from .fmubuild.fmus import build_fmus
 
     for path in build_fmus(args.out, fmi_version=args.fmi_version).values():
         print(path)
 
 
 def _export(args) -> None:
-    from .build.fmus import current_fmus
+    from .fmubuild.fmus import current_fmus
     from .interop.container import export_fmu
     from .interop.ssp import export_ssp
 
@@ -159,7 +159,7 @@ def _sweep(args) -> None:
 
 
 def _crosscheck(args) -> None:
-    from .build.fmus import current_fmus
+    from .fmubuild.fmus import current_fmus
     from .interop.crosscheck import write_crosscheck
 
     with current_fmus(args.fmu_dir) as fmus:

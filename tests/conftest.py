@@ -4,8 +4,8 @@ import shutil
 
 import pytest
 
-import dsc_fmu.build.fmus as build_module
-from dsc_fmu.build.fmus import build_fmu, build_fmus
+import dsc_fmu.fmubuild.fmus as build_module
+from dsc_fmu.fmubuild.fmus import build_fmu, build_fmus
 from dsc_fmu.registry import FMUS
 
 

@@ -24,11 +24,11 @@ ALLOWED = {
     "fmu": {"models"},
     "registry": {"models", "errors"},
     "scenario": {"registry", "models", "errors"},
-    "build": {"registry", "fmu", "models", "errors", "files", "identity"},
-    "cosim": {"build", "registry", "scenario", "models", "errors", "files", "identity"},
-    "study": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
-    "interop": {"cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
-    "cli": {"study", "interop", "cosim", "build", "registry", "scenario", "models", "errors", "files", "identity"},
+    "fmubuild": {"registry", "fmu", "models", "errors", "files", "identity"},
+    "cosim": {"fmubuild", "registry", "scenario", "models", "errors", "files", "identity"},
+    "study": {"cosim", "fmubuild", "registry", "scenario", "models", "errors", "files", "identity"},
+    "interop": {"cosim", "fmubuild", "registry", "scenario", "models", "errors", "files", "identity"},
+    "cli": {"study", "interop", "cosim", "fmubuild", "registry", "scenario", "models", "errors", "files", "identity"},
     "__main__": {"cli"},
     "__init__": set(),
 }
@@ -155,5 +155,5 @@ def test_only_the_modules_that_build_fmus_import_the_builder():
     """Identifying an FMU build needs ``identity``, not the builder (and with it pythonfmu): no module
     above the builder reaches it, directly or through others, but those that build FMUs."""
     above = {module for module in MODULES if _part(module) in ("cosim", "study", "interop", "cli")}
-    reaching = {module for module in above - BUILDERS if any(_part(m) == "build" for m in _reachable(module))}
+    reaching = {module for module in above - BUILDERS if any(_part(m) == "fmubuild" for m in _reachable(module))}
     assert reaching == set(), sorted(reaching)

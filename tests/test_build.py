@@ -7,9 +7,9 @@ import zipfile
 
 import pytest
 
-from dsc_fmu.build import fmus as build
-from dsc_fmu.build.binary import BinaryBuildError
-from dsc_fmu.build.fmus import ensure_fmus, source_hash
+from dsc_fmu.fmubuild import fmus as build
+from dsc_fmu.fmubuild.binary import BinaryBuildError
+from dsc_fmu.fmubuild.fmus import ensure_fmus, source_hash
 from dsc_fmu.identity import BUILD_ID_FILE, fmu_build_id
 from dsc_fmu.registry import FMUS
 

@@ -13,7 +13,7 @@ from fmpy.fmi3 import FMU3Slave
 
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
 from wine import required
-from dsc_fmu.build.binary import LINUX, OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
+from dsc_fmu.fmubuild.binary import LINUX, OVERRIDE_VARIABLE, PythonRuntime, build_python, compile_binary
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import load_scenario
 

@@ -20,10 +20,10 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
-from dsc_fmu.build.fmus import (
+from dsc_fmu.fmubuild.fmus import (
     DEFAULT_FMU_DIR, build_fmus, default_fmu_dir, ensure_fmus, source_hash,
 )
-from dsc_fmu.build.model_description import UNITS
+from dsc_fmu.fmubuild.model_description import UNITS
 from dsc_fmu.identity import BUILD_ID_FILE, fmu_build_id
 from dsc_fmu.registry import FMUS
 from dsc_fmu.cosim.master import Cosimulator, cosimulate

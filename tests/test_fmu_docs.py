@@ -7,9 +7,9 @@ from xml.etree import ElementTree as ET
 import pytest
 from fmpy import read_model_description
 
-from dsc_fmu.build.fmus import DOCUMENTATION_FILE
+from dsc_fmu.fmubuild.fmus import DOCUMENTATION_FILE
 from dsc_fmu.registry import FMUS
-from dsc_fmu.build.documentation import EQUATIONS
+from dsc_fmu.fmubuild.documentation import EQUATIONS
 
 VOID = {"meta", "br", "hr", "img", "link", "input"}
 # Units the model description cannot carry (FMI Integer / Int32 and Boolean have none): from the tables.

@@ -16,11 +16,11 @@ import pythonfmu
 from fmpy import extract, read_model_description
 from fmpy.fmi2 import FMU2Slave
 
-import dsc_fmu.build.fmus as fmus_module
+import dsc_fmu.fmubuild.fmus as fmus_module
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c
 from test_c_importer import importer  # noqa: F401 (fixture)
-from dsc_fmu.build.binary import OVERRIDE_VARIABLE, build_python
-from dsc_fmu.build.fmus import build_fmu
+from dsc_fmu.fmubuild.binary import OVERRIDE_VARIABLE, build_python
+from dsc_fmu.fmubuild.fmus import build_fmu
 from dsc_fmu.registry import FMUS
 
 STEPS = 200

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
+from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from ..scenario import INTERFACES, Scenario, ScenarioError
 from .master import cosimulate
 from .metrics import tracking_metrics

@@ -1,4 +1,4 @@
-"""What the project's FMU binary (``dsc_fmu/build/native``) calls besides the slave's own FMI methods.
+"""What the project's FMU binary (``dsc_fmu/fmubuild/native``) calls besides the slave's own FMI methods.
 
 Bundled into every FMU beside the slave code; imports only the standard library. The binary
 loads this module from its file in the FMU's resources (sys.path is never touched), counts the

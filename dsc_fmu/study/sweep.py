@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..build.fmus import DEFAULT_FMU_DIR, ensure_fmus
+from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
 from ..scenario import COUPLINGS, ORDERS, Scenario
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json

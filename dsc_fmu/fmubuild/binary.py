@@ -1,4 +1,4 @@
-"""The FMUs' binary layer: ``dsc_fmu/build/native`` compiled with Zig's C compiler (the ``ziglang`` package)
+"""The FMUs' binary layer: ``dsc_fmu/fmubuild/native`` compiled with Zig's C compiler (the ``ziglang`` package)
 for x86-64 Linux and Windows, on any OS.
 
 The binary replaces pythonfmu's and pythonfmu3's binaries in every FMU. It links no Python: it finds
