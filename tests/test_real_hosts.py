@@ -242,3 +242,32 @@ def test_hosts_whose_standard_streams_are_files_or_absent(importer, fmu_paths, t
     assert run.returncode == 0
     if streams == "file":
         assert parse_rows(output.read_text()) == parse_rows(piped.stdout)
+
+
+FORK_AFTER_UNLOAD = r"""
+import os, sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+md = read_model_description(sys.argv[1])
+fmu = FMU2Slave(guid=md.guid, unzipDirectory=extract(sys.argv[1]), modelIdentifier="ReferenceRobot")
+fmu.instantiate()
+fmu.setupExperiment(startTime=0.0)
+fmu.enterInitializationMode()
+fmu.exitInitializationMode()
+fmu.doStep(0.0, 0.01)
+fmu.terminate()
+fmu.freeInstance()
+fmu.freeLibrary()
+child = os.fork()
+if child == 0:
+    os._exit(7)
+print("child exit", os.waitstatus_to_exitcode(os.waitpid(child, 0)[1]))
+"""
+
+
+def test_a_host_may_fork_after_unloading_an_fmu(fmu_paths, tmp_path):
+    """fmpy frees an FMU and unloads its binary (dlclose), then the process forks (multiprocessing's
+    fork, a subprocess with preexec_fn): the binary left no fork handler behind to call into."""
+    run = subprocess.run([sys.executable, "-c", FORK_AFTER_UNLOAD, str(fmu_paths["ReferenceRobot"])], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=120)
+    assert run.returncode == 0 and run.stdout.strip() == "child exit 7", run.stderr[-2000:]

@@ -70,9 +70,10 @@ void platform_wait(void);
 void platform_signal(void);
 /* Start `function` in a detached thread; 0, or -1. */
 int platform_start_thread(void (*function)(void));
-/* `before`, `parent` and `child` around fork() where the system has it. */
-int platform_at_fork(void (*before)(void), void (*parent)(void), void (*child)(void));
-/* The lock and condition anew (in a forked child). */
-void platform_reset_lock(void);
+/* 1 the first time it is called in a process forked from the one that last used the lock (the
+   lock and condition are then new, whatever state fork() caught them in), else 0. No fork handler
+   is registered: one would outlive this binary when the host unloads it, and the next fork() would
+   call into unmapped memory. */
+int platform_forked(void);
 
 #endif

@@ -9,6 +9,7 @@
 #include <stdlib.h>
 #include <string.h>
 #include <sys/stat.h>
+#include <unistd.h>
 
 /* The newest CPython minor version looked for by name, and the name (the minor version for %d). */
 #define NEWEST_MINOR 20
@@ -21,6 +22,7 @@ static pthread_key_t thread_key;
 static int thread_key_made;
 static pthread_mutex_t lock = PTHREAD_MUTEX_INITIALIZER;
 static pthread_cond_t signal_ = PTHREAD_COND_INITIALIZER;
+static pid_t owner; /* the process that last used the lock */
 
 Library platform_load(const char *path, char *error, size_t size) {
     Library library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
@@ -183,11 +185,11 @@ int platform_start_thread(void (*function)(void)) {
     return result;
 }
 
-int platform_at_fork(void (*before)(void), void (*parent)(void), void (*child)(void)) {
-    return pthread_atfork(before, parent, child) == 0 ? 0 : -1;
-}
-
-void platform_reset_lock(void) {
+int platform_forked(void) {
+    pid_t now = getpid(), was = __atomic_load_n(&owner, __ATOMIC_ACQUIRE);
+    if (was == now || !__atomic_compare_exchange_n(&owner, &was, now, 0, __ATOMIC_ACQ_REL, __ATOMIC_ACQUIRE)) return 0;
+    if (was == 0) return 0; /* the first use, in the process that loaded this binary or in a child */
     pthread_mutex_init(&lock, NULL);
     pthread_cond_init(&signal_, NULL);
+    return 1;
 }

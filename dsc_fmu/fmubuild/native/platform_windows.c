@@ -355,11 +355,8 @@ int platform_start_thread(void (*function)(void)) {
     return 0;
 }
 
-int platform_at_fork(void (*before)(void), void (*parent)(void), void (*child)(void)) {
+int platform_forked(void) {
     return 0;
-}
-
-void platform_reset_lock(void) {
 }
 
 /* Unloaded by FreeLibrary before any thread set a value (else it is pinned): the key goes, no

@@ -331,11 +331,18 @@ static void start_reaper(void) {
 }
 
 /* At the end of a host thread that has a thread state of this binary's: hand it to the reaper
-   (without the GIL; if the reaper cannot start, the thread state is left). */
+   (without the GIL; if the reaper cannot start, the thread state is left). In a process forked from
+   the one that started the reaper, the reaper is gone and the states listed were the parent's (the
+   child's Python has dropped them): the list is let go and a reaper of the child's own starts. */
 static void forget_thread(void *state) {
     Ended *entry = malloc(sizeof *entry);
     if (!entry) return;
     entry->state = state;
+    if (platform_forked()) {
+        free_ended(ended);
+        ended = NULL;
+        reaper_started = 0;
+    }
     platform_lock();
     if (!reaper_started) start_reaper();
     entry->next = ended;
@@ -344,29 +351,12 @@ static void forget_thread(void *state) {
     platform_unlock();
 }
 
-static void before_fork(void) {
-    platform_lock();
-}
-
-static void after_fork_in_parent(void) {
-    platform_unlock();
-}
-
-/* In a forked child the reaper is gone and the ended threads' states are not its to delete: start afresh. */
-static void after_fork_in_child(void) {
-    Ended *list = ended;
-    ended = NULL;
-    reaper_started = 0;
-    platform_reset_lock();
-    free_ended(list);
-}
-
 static void start_once(void) {
     start_error[0] = '\0';
     start_result = find_and_start();
     if (start_result != 0) return;
     interpreter = py.PyInterpreterState_Main();
-    if (platform_thread_key(forget_thread) == 0) platform_at_fork(before_fork, after_fork_in_parent, after_fork_in_child);
+    platform_thread_key(forget_thread);
 }
 
 int pyhost_start(char *error, size_t size) {
