@@ -57,12 +57,14 @@ def _parser() -> argparse.ArgumentParser:
                           "as one ODE, integrated by SciPy's DOP853 with their event indicators (default: %(default)s)")
     run.add_argument("--tolerance", type=float, metavar="TOL", help="co-simulation: error-controlled step, the "
                      "estimated position error (m) each step may add, the step varying within [--h-min, --h-max] "
-                     "from --step-size; model exchange: the solver's relative tolerance (default 1e-6)")
+                     "from --step-size, with the linear coupling unless --coupling says otherwise; model exchange: "
+                     "the solver's relative tolerance (default 1e-6)")
     run.add_argument("--h-min", type=float, help="smallest error-controlled step in s (default: the scenario's, 1e-5)")
     run.add_argument("--h-max", type=float, help="largest error-controlled step in s (default: the scenario's, 0.02)")
     run.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
     run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
     run.add_argument("--no-plots", action="store_true", help="write no figures")
+    run.add_argument("--quiet", action="store_true", help="no progress line and no forecast (errors still show)")
 
     sweep = commands.add_parser("sweep", help="step-size sensitivity study: a grid of co-simulations and a report")
     sweep.add_argument("scenario", nargs="?", default="paper", help="a scenario name or a TOML file (default: %(default)s)")
@@ -176,7 +178,25 @@ def _scenarios(args) -> None:
 _COSIMULATION_ONLY = ("step_size", "order", "coupling", "input_derivatives", "h_min", "h_max")
 
 
-def _run(args) -> None:
+def _error_controlled_coupling(args, scenario) -> tuple[str | None, str]:
+    """The coupling of a run with ``--tolerance`` and what to tell first: without ``--coupling``, the
+    linear coupling (its second-order defect is the estimate the step control trusts) in place of the
+    scenario's hold; with ``--coupling hold`` the hold, and how to get there faster."""
+    if args.tolerance is None or args.interface != "co-simulation":
+        return args.coupling, ""
+    if args.coupling is None and scenario.simulation.coupling == "hold":
+        return "linear", ("dsc-fmu: --tolerance without --coupling: error control with the linear coupling (second "
+                          "order, whose error estimate the step control trusts); --coupling hold for the first-order "
+                          "hold, which needs far more steps")
+    if (args.coupling or scenario.simulation.coupling) == "hold":
+        return args.coupling, ("dsc-fmu: error control with the hold coupling (first order): its steps shrink in "
+                               "proportion to the tolerance, the linear coupling's with its square root; --coupling "
+                               "linear meets the same tolerance with far fewer steps")
+    return args.coupling, ""
+
+
+def _run(args) -> int:
+    from .cosim.progress import TerminalWatch
     from .cosim.run import run_scenario
 
     given = [name for name in _COSIMULATION_ONLY if getattr(args, name) is not None]
@@ -184,13 +204,22 @@ def _run(args) -> None:
         option = "--" + given[0].replace("_", "-")
         raise ScenarioError(f"{option} is a co-simulation setting; allowed with --interface model-exchange: "
                             "--tolerance, --stop-time, --output-interval")
-    scenario = load_scenario(args.scenario).with_simulation(
+    scenario = load_scenario(args.scenario)
+    coupling, note = _error_controlled_coupling(args, scenario)
+    scenario = scenario.with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
-        coupling=args.coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
+        coupling=coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
         input_derivatives=args.input_derivatives,
     )
-    print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
-                       plots=not args.no_plots, interface=args.interface))
+    if note:
+        print(note, file=sys.stderr)
+    hint = "--coupling linear meets the same tolerance with far fewer steps" if (
+        scenario.simulation.tolerance is not None and scenario.simulation.coupling == "hold"
+        and args.interface == "co-simulation") else ""
+    with TerminalWatch(scenario.simulation.stop_time, scenario.name, quiet=args.quiet, hint=hint) as watch:
+        print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
+                           plots=not args.no_plots, interface=args.interface, watch=watch))
+    return 130 if watch.interrupted else 0
 
 
 COMMANDS = {"build": _build, "export-ssp": _export, "export-fmu": _export, "sweep": _sweep, "crosscheck": _crosscheck,
@@ -209,16 +238,17 @@ def main(argv: list[str] | None = None) -> int:
     shown = warnings.showwarning
     warnings.showwarning = _warning
     try:
-        COMMANDS[args.command](args)
+        status = COMMANDS[args.command](args)
     except (DscFmuError, OSError) as error:  # OSError: a file or folder the system refuses
         print(f"dsc-fmu: error: {error}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
-        print("dsc-fmu: interrupted; finished runs are kept in the cache", file=sys.stderr)
+        kept = "; finished runs are kept in the cache" if args.command == "sweep" else ""
+        print(f"dsc-fmu: interrupted{kept}", file=sys.stderr)
         return 130
     finally:
         warnings.showwarning = shown
-    return 0
+    return status or 0
 
 
 if __name__ == "__main__":

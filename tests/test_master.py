@@ -64,8 +64,8 @@ def test_time_column_is_every_output_interval(paper, fmu_paths, h, interval, eve
     np.testing.assert_allclose(run.result["time"], expected, rtol=0, atol=1e-12)
     assert run.result.dtype == signals.DTYPE
     assert run.settings == {"scenario": "paper", "interface": "co-simulation", "step_size": h, "order": "gauss-seidel",
-                            "coupling": "hold", "stop_time": stop, "tolerance": None, "output_interval": interval,
-                            "input_derivatives": False}
+                            "coupling": "hold", "coupling_order": 1, "stop_time": stop, "tolerance": None,
+                            "output_interval": interval, "input_derivatives": False}
 
 
 @pytest.mark.parametrize("order", ORDERS)

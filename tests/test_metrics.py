@@ -100,7 +100,7 @@ def test_results_and_summary_written(tmp_path):
     assert summary["settings"] == {"interface": "co-simulation", "step_size": 1e-3, "order": "jacobi", "coupling": "linear",
                                    "input_derivatives": False, "stop_time": 30.0,
                                    "output_interval": 0.01, "tolerance": None, "steps_rejected": 0, "fmu_steps": 90000,
-                                   "steps": 30000, "wall_time_s": 1.5}
+                                   "steps": 30000, "wall_time_s": 1.5, "stopped_at": None}
     assert summary["metrics"] == metrics
     assert summary["units"]["position_error"] == "m" and summary["units"]["u1"] == "V"
     assert summary["fmus"] == {"MobileRobot": "abc"}

@@ -3,6 +3,7 @@ that cannot start, a wrong token, FMUs whose bundled pythonfmu differ, a host wi
 own, hosts that free the FMUs and delete their folders, and hosts whose standard streams are files or
 closed. C hosts run with an empty environment."""
 
+import json
 import os
 import shutil
 import subprocess
@@ -271,3 +272,40 @@ def test_a_host_may_fork_after_unloading_an_fmu(fmu_paths, tmp_path):
     run = subprocess.run([sys.executable, "-c", FORK_AFTER_UNLOAD, str(fmu_paths["ReferenceRobot"])], cwd=tmp_path,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "child exit 7", run.stderr[-2000:]
+
+
+INTERRUPTED_HOST = r"""
+import json, sys
+from dsc_fmu.cosim.master import Cosimulator, CosimulationError
+from dsc_fmu.scenario import load_scenario
+paths = json.loads(sys.argv[1])
+with Cosimulator(paths) as simulator:
+    try:
+        simulator.run(load_scenario("paper"), stop_time=0.2)
+        print("finished")
+    except KeyboardInterrupt:
+        print("KeyboardInterrupt")
+    except CosimulationError as error:
+        print("CosimulationError", error)
+    print(json.dumps([m.message for m in simulator.log]))
+"""
+
+
+def test_a_ctrl_c_inside_the_model_code_reaches_the_host_as_its_own(patched_mobile_robot, fmu_paths, tmp_path):
+    """Ctrl-C while the model code runs in the host's Python (here the step raises KeyboardInterrupt, as
+    Python does where SIGINT finds it): the FMI call fails and the FMU logs that it was interrupted,
+    not that the model failed, and the host's Python gets the KeyboardInterrupt once the call
+    returns, not a failure of the FMU."""
+    interrupting = patched_mobile_robot(
+        "        super().__init__(**kwargs)\n",
+        "\n    def do_step(self, current_time, step_size):\n        if current_time >= 0.05:\n"
+        "            raise KeyboardInterrupt\n        return super().do_step(current_time, step_size)\n",
+        "interrupting")
+    paths = {**{name: str(path) for name, path in fmu_paths.items()}, "MobileRobot": str(interrupting)}
+    run = subprocess.run([sys.executable, "-c", INTERRUPTED_HOST, json.dumps(paths)], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=300)
+    assert run.returncode == 0, run.stderr[-2000:]
+    outcome, log = run.stdout.splitlines()
+    assert outcome == "KeyboardInterrupt"
+    assert any("do_step interrupted: the KeyboardInterrupt goes on to the host" in m for m in json.loads(log))
+    assert not any("failed" in m for m in json.loads(log))

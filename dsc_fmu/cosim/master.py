@@ -20,6 +20,7 @@ from ..scenario import Scenario, ScenarioError
 from . import signals
 from .instance import LoadedFmu, LogMessage, logging_callbacks, type_name
 from .derivatives import InputRamps
+from .progress import Watch
 from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
 
 __all__ = [
@@ -35,7 +36,9 @@ class CosimulationResult:
     ``settings`` (scenario name and simulation settings), ``log`` (the FMUs' log messages),
     ``fmus`` (each FMU's path and build id), ``fmu_steps`` (doStep calls, all FMUs) and, for an
     error-controlled run, ``rejected`` (steps taken again smaller) and ``step_sizes`` (every accepted
-    step: ``time``, its start, and ``step_size``); ``steps`` then counts the accepted steps."""
+    step: ``time``, its start, and ``step_size``); ``steps`` then counts the accepted steps.
+    ``stopped_at`` is the time (s) at which the run's watch stopped it (its result ends there), or
+    None for a run that reached its stop time."""
 
     result: np.ndarray
     steps: int
@@ -46,6 +49,7 @@ class CosimulationResult:
     fmu_steps: int = 0
     rejected: int = 0
     step_sizes: np.ndarray | None = None
+    stopped_at: float | None = None
 
 
 def step_count(stop_time: float, step_size: float) -> int:
@@ -107,21 +111,22 @@ class Cosimulator:
 
     def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
             order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
-            tolerance: float | None = None, input_derivatives: bool | None = None) -> CosimulationResult:
-        """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors);
+            tolerance: float | None = None, input_derivatives: bool | None = None,
+            watch: Watch | None = None) -> CosimulationResult:
+        """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors, watch);
         ``wall_time`` counts this run only (not loading the FMUs)."""
         return self._run(scenario.with_simulation(
             step_size=step_size, stop_time=stop_time, order=order, output_interval=output_interval,
-            coupling=coupling, tolerance=tolerance, input_derivatives=input_derivatives))
+            coupling=coupling, tolerance=tolerance, input_derivatives=input_derivatives), watch)
 
-    def _run(self, scenario: Scenario) -> CosimulationResult:
+    def _run(self, scenario: Scenario, watch: Watch | None = None) -> CosimulationResult:
         """``run`` of a scenario whose settings are checked already."""
         _check_interfaces(scenario, self._loaded)
         started = clock.perf_counter()
         self._prepare()
         self.runs += 1
         self.log.clear()
-        run = _Run(scenario, self._wiring, self.log)
+        run = _Run(scenario, self._wiring, self.log, watch)
         run.execute(self._loaded)
         return CosimulationResult(
             result=run.recorder.result(),
@@ -133,6 +138,7 @@ class Cosimulator:
             fmu_steps=run.fmu_steps(),
             rejected=0 if run.controlled is None else run.controlled.rejected,
             step_sizes=None if run.controlled is None else run.controlled.table(),
+            stopped_at=run.stopped_at,
         )
 
 
@@ -180,9 +186,9 @@ class Wiring:
 class _Run:
     """One run: its scenario and settings (validated where they entered), the FMUs by role, the
     recorder, the voltages of the last exchange, the master's input ramps, the error-controlled
-    steps, and where the run is (for the message of a failure)."""
+    steps, where the run is (for the message of a failure), its watch and where that stopped it."""
 
-    def __init__(self, scenario: Scenario, wiring: Wiring, log: list[LogMessage]):
+    def __init__(self, scenario: Scenario, wiring: Wiring, log: list[LogMessage], watch: Watch | None = None):
         self.scenario, self.settings, self.wiring, self.log = scenario, scenario.simulation, wiring, log
         fmus = wiring.fmus
         self.reference, self.plant, self.controller = (fmus[name].slave for name in (REFERENCE, PLANT, CONTROLLER))
@@ -194,6 +200,8 @@ class _Run:
         self.u = None
         self.ramps = self._input_ramps() if settings.input_derivatives else None
         self.controlled = None
+        self.watch = watch
+        self.stopped_at = None
 
     def execute(self, fmus: list[LoadedFmu]) -> None:
         """Initialise the FMUs (in ``fmus``' order) and run; every FMU is terminated at the end."""
@@ -223,16 +231,23 @@ class _Run:
         return 3 * self.n if self.controlled is None else self.controlled.fmu_steps
 
     def settings_record(self) -> dict:
+        """The settings the run used: for an error-controlled run also the allowed step range and the
+        range of the steps it took."""
         settings = self.settings
-        return {"scenario": self.scenario.name, "interface": "co-simulation", "step_size": settings.step_size,
-                "order": settings.order,
-                "coupling": settings.coupling, "stop_time": settings.stop_time,
-                "output_interval": settings.output_interval, "tolerance": settings.tolerance,
-                "input_derivatives": settings.input_derivatives}
+        record = {"scenario": self.scenario.name, "interface": "co-simulation", "step_size": settings.step_size,
+                  "order": settings.order, "coupling": settings.coupling,
+                  "coupling_order": COUPLING_ORDER[settings.coupling], "stop_time": settings.stop_time,
+                  "output_interval": settings.output_interval, "tolerance": settings.tolerance,
+                  "input_derivatives": settings.input_derivatives}
+        if self.controlled is not None:
+            sizes = self.controlled.sizes or [math.nan]
+            record.update(h_min=settings.h_min, h_max=settings.h_max, step_min=min(sizes), step_max=max(sizes))
+        return record
 
     def _steps(self) -> None:
         """The exchanges and steps of a fixed-step run, as ``cosimulate`` describes them; ``at`` follows
-        (steps completed, time) for the messages of a failure."""
+        (steps completed, time) for the messages of a failure. A watch that says stop at a row ends
+        the run there (``n`` becomes the steps taken)."""
         h, stop, n, every = self.settings.step_size, self.settings.stop_time, self.n, self.every
         self._start()
         for k in range(n):
@@ -242,6 +257,17 @@ class _Run:
             self._advance(t, end - t if k == n - 1 else h, end)
             if (k + 1) % every == 0 or k == n - 1:
                 self.recorder.record(end)
+                if self._stops(end, k + 1, k == n - 1):
+                    self.n = k + 1
+                    return
+
+    def _stops(self, at: float, steps: int, last: bool) -> bool:
+        """Whether the watch stops the run at the row just recorded at ``at`` (noted in ``stopped_at``);
+        the ``last`` row is shown to the watch but ends the run anyway."""
+        if self.watch is None or self.watch(at, steps) or last:
+            return False
+        self.stopped_at = at
+        return True
 
     def _start(self) -> None:
         """The measurements at t = 0 (checked), the exchange there and its row."""
@@ -292,6 +318,7 @@ class _Run:
             h = min(h, stop - t)
             end = stop if stop - t - h < h_min * (1 - 1e-9) else t + h  # no last step shorter than h_min
             taken = end - t
+            smallest = taken <= h_min * (1 + 1e-9)  # end - t rounds: h_min may come out a little larger
             self.at = (len(done.times), t)
             saved = [slave.getFMUState() for slave in slaves]
             try:
@@ -299,7 +326,7 @@ class _Run:
                     self._advance(t, taken, end)
                     error = gain * defect(u, self.u, u_before if order == 2 else None, taken, h_before)
                 except (CosimulationError, FMICallException):
-                    if taken <= h_min:
+                    if smallest:
                         raise
                     error = math.inf  # a step that diverges or that an FMU discards is too long
                 done.fmu_steps += 3
@@ -309,11 +336,13 @@ class _Run:
                     done.errors.append(error)
                     t, u, u_before, h_before = end, self.u, u, taken
                     self.recorder.record(t)
-                elif taken <= h_min:
+                    if self._stops(t, len(done.times), t >= stop):
+                        break
+                elif smallest:
                     raise CosimulationError(
                         f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
                         f"estimated error of a step of h_min = {h_min:g} s is {error:.3g} m; allowed: a smaller "
-                        "h_min or a larger tolerance", t)
+                        f"h_min or a larger tolerance{' (or the linear coupling)' if order == 1 else ''}", t)
                 else:
                     done.rejected += 1
                     for slave, state in zip(slaves, saved):
@@ -399,7 +428,7 @@ def close_all(fmus: list[LoadedFmu]) -> None:
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
                stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
                coupling: str | None = None, tolerance: float | None = None, input_derivatives: bool | None = None,
-               workdir: Path | None = None) -> CosimulationResult:
+               workdir: Path | None = None, watch: Watch | None = None) -> CosimulationResult:
     """Co-simulate ``scenario`` with the FMUs in ``fmu_paths`` (by name) on a fixed communication step.
 
     Settings left as None come from ``scenario.simulation``; the others are validated like the
@@ -439,13 +468,16 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
     discarded) is taken again, smaller, from the FMU states saved before it; the next step grows or
     shrinks with the estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every
     accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
+
+    A ``watch`` (``progress.Watch``) is called at every recorded row with the time and the steps
+    taken; when it returns False the run ends at that row, its ``stopped_at`` that time.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                         output_interval=output_interval, coupling=coupling, tolerance=tolerance,
                                         input_derivatives=input_derivatives)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
-        run = simulator._run(scenario)
+        run = simulator._run(scenario, watch)
     run.wall_time = clock.perf_counter() - started
     return run
 

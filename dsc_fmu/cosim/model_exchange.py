@@ -17,6 +17,7 @@ from ..registry import ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 from .instance import LoadedFmu, LogMessage, logging_callbacks
 from .master import CosimulationResult, Wiring, Recorder, close_all
+from .progress import Watch
 from .reference_solution import output_times
 
 __all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
@@ -35,10 +36,12 @@ class _Loop:
     """The loaded FMUs as one ODE: the state vector is the reference's, the plant's and the controller's
     continuous states in that order; each evaluation sets the time and states, passes outputs to inputs
     in dependency order (reference and plant, then the controller, then the plant's voltages) and reads
-    the derivatives or the event indicators."""
+    the derivatives or the event indicators. A watch sees every derivative evaluation; when it says
+    stop, ``stop_at`` holds that evaluation's time, where ``stop_event`` then ends the integration."""
 
-    def __init__(self, wiring: Wiring, bound: float):
-        self.wiring, self.bound = wiring, bound
+    def __init__(self, wiring: Wiring, bound: float, watch: Watch | None = None):
+        self.wiring, self.bound, self.watch = wiring, bound, watch
+        self.stop_at = None
         self.models = [wiring.fmus[name].slave for name in ORDER]
         self.sizes = [wiring.fmus[name].states for name in ORDER]
         self.offsets = np.cumsum([0, *self.sizes])
@@ -75,8 +78,20 @@ class _Loop:
 
     def derivatives(self, t: float, y: np.ndarray) -> np.ndarray:
         self.evaluations += 1
+        if self.watch is not None and self.stop_at is None and not self.watch(t, self.evaluations):
+            self.stop_at = t
         self.load(t, y)
         return self.gather("getDerivatives")
+
+    def stop_event(self):
+        """The solver's event of a stop: positive until the watch says stop, then zero at ``stop_at``
+        (which lies in the step being taken), so that the solver ends there."""
+
+        def event(t: float, y: np.ndarray) -> float:
+            return 1.0 if self.stop_at is None else self.stop_at - t
+
+        event.terminal = True
+        return event
 
     def indicator(self, index: int):
         """The solver's event function of the controller's event indicator ``index``."""
@@ -124,10 +139,11 @@ def _start(loop: _Loop, scenario: Scenario) -> None:
 
 def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float) -> int:
     """Integrate from the FMUs' states at 0 to ``times[-1]``, recording a row at each of ``times``;
-    stop at every event, handle it just past the root and go on. Returns the events handled."""
+    stop at every event, handle it just past the root and go on, until the end or the watch's stop.
+    Returns the events handled."""
     y = loop.gather("getContinuousStates")
     atol = tolerance * loop.gather("getNominalsOfContinuousStates")
-    events = [loop.indicator(i) for i in range(len(loop.indicators))]
+    events = [*(loop.indicator(i) for i in range(len(loop.indicators))), loop.stop_event()]
     t, stop, handled = 0.0, times[-1], 0
     loop.load(t, y)
     recorder.record(t)
@@ -142,9 +158,15 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
             loop.load(at, solution.y[:, k])
             recorder.record(at)
         pending = pending[len(solution.t):]
+        if len(solution.t_events[-1]):  # stopped by the watch: a last row where the solver ended
+            at = float(solution.t_events[-1][0])
+            if at > recorder.table[recorder.rows - 1, 0]:
+                loop.load(at, solution.y_events[-1][0])
+                recorder.record(at)
+            break
         if solution.status == 0:
             break
-        found = min(float(ts[0]) for ts in solution.t_events if len(ts))
+        found = min(float(ts[0]) for ts in solution.t_events[:-1] if len(ts))
         t = min(found + _PAST_EVENT, stop)
         for at in pending[pending <= t]:  # output times between the root and where the event is handled
             loop.load(at, solution.sol(at))
@@ -160,7 +182,7 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
 
 def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: float | None = None,
                             output_interval: float | None = None, tolerance: float | None = None,
-                            workdir=None) -> CosimulationResult:
+                            workdir=None, watch: Watch | None = None) -> CosimulationResult:
     """Simulate ``scenario`` through the model-exchange interface of the FMUs in ``fmu_paths`` (by name).
 
     Parameters
@@ -178,12 +200,16 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         settings (step, order, coupling) do not apply.
     workdir : path, optional
         Where the FMUs are extracted (a temporary folder by default).
+    watch : progress.Watch, optional
+        Called at every derivative evaluation with its time and the evaluations so far; when it
+        returns False the integration ends at that time, with a last row there.
 
     Returns
     -------
     CosimulationResult
         ``result`` has a row at every output time (the same columns as co-simulation); ``steps`` counts
-        the derivative evaluations, ``settings`` names the interface and the tolerance.
+        the derivative evaluations, ``settings`` names the interface and the tolerance; ``stopped_at``
+        is where the watch stopped the run (its last row), else None.
 
     Raises
     ------
@@ -211,7 +237,7 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         fmus = {fmu.name: fmu for fmu in loaded}
         wiring = Wiring(fmus)
         recorder = Recorder(wiring, len(times))
-        loop = _Loop(wiring, settings.bound)
+        loop = _Loop(wiring, settings.bound, watch)
         try:
             _start(loop, scenario)
             events = _integrate(loop, recorder, times, rtol)
@@ -222,9 +248,11 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
                                     loop.at) from None
     finally:
         close_all(loaded)
+    result = recorder.result()
     return CosimulationResult(
-        result=recorder.result(), steps=loop.evaluations, wall_time=clock.perf_counter() - started,
+        result=result, steps=loop.evaluations, wall_time=clock.perf_counter() - started,
         settings={"scenario": scenario.name, "interface": "model-exchange", "method": METHOD, "tolerance": rtol,
                   "stop_time": settings.stop_time, "output_interval": settings.output_interval, "events": events},
         log=list(log), fmus={name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()},
+        stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )

@@ -16,7 +16,8 @@ __all__ = ["write_results", "summary", "format_summary"]
 
 def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
     """What ``summary.json`` holds: scenario, settings (the interface first; for model exchange ``steps``
-    counts derivative evaluations), metrics, units of the CSV columns, FMU build ids."""
+    counts derivative evaluations; ``stopped_at``, the time a stopped run ends at, else None), metrics,
+    units of the CSV columns, FMU build ids."""
     return {
         "scenario": scenario.name,
         "scenario_source": scenario.source,
@@ -26,6 +27,7 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
             "steps_rejected": run.rejected,
             "fmu_steps": run.fmu_steps,
             "wall_time_s": run.wall_time,
+            "stopped_at": run.stopped_at,
         },
         "metrics": metrics,
         "units": dict(signals.UNITS),
@@ -66,9 +68,12 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
                f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
                f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
                f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
-                   "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m: {run.rejected} "
-                   f"steps taken again, step {run.step_sizes['step_size'].min():.3g} s to "
-                   f"{run.step_sizes['step_size'].max():.3g} s)")]
+                   "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m, coupling of order "
+                   f"{s['coupling_order']}: {run.rejected} steps taken again, step {s['step_min']:.3g} s to "
+                   f"{s['step_max']:.3g} s within [{s['h_min']:g}, {s['h_max']:g}] s)")]
+    if run.stopped_at is not None:
+        how.insert(0, f"stopped at t = {run.stopped_at:g} s of {s['stop_time']:g} s (interrupted): the results up to "
+                      "then are written, the metrics are over that part")
     return "\n".join([
         *how,
         f"  position error over [{metrics['window_start_s']:g}, {metrics['window_end_s']:g}] s: "

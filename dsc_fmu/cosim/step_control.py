@@ -10,7 +10,7 @@ of the deviation the coupling causes. The position error that a defect ``E`` lea
 deviation per volt of defect. Measured on the paper's scenario: 1.2-1.9 mm/V at fixed steps of
 1-4 ms (both couplings, both orders), where the largest defect occurs only briefly, and 10-24 mm/V
 with the step controlled, where every step's defect sits near the tolerance; the default covers the
-second (README, "Error-controlled step"). For another scenario, compare a controlled run's deviation
+second (docs/co-simulation.md, "Error-controlled step"). For another scenario, compare a controlled run's deviation
 from the reference solution with its tolerance before relying on it. A step whose estimate misses
 the tolerance is taken again, smaller, from the FMU states saved before it.
 

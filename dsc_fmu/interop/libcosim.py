@@ -6,7 +6,7 @@ alone: the closed-loop container FMU, or a cross-check FMU replayed with its inp
 it ``execution.step()`` by ``execution.step()``, feeding its inputs (if any) from a table with
 libcosim's override manipulator. ``python -m dsc_fmu.interop.libcosim`` runs it in a process of its
 own and saves the result (``.npy``): libcosim and fmpy's container FMU loaded in one process
-sometimes abort at the process's exit (a double free while unloading), see the README; so did,
+sometimes abort at the process's exit (a double free while unloading), see docs/other-tools.md; so did,
 2 times in about 15, a process that ran the three pythonfmu FMUs one after another in libcosim
 ("corrupted double-linked list" after the last run), while one FMU per process never did (30 runs).
 

@@ -1,7 +1,7 @@
 /* The Python runtime that runs the model code: found, loaded and started at run time, never linked.
 
    Any CPython from 3.9 on will do (the bundled Python code is version-neutral, and the binary calls
-   only functions every such CPython exports). Order (README, "Use in other tools"):
+   only functions every such CPython exports). Order (docs/other-tools.md, "What the importing machine needs"):
      0. a CPython already in the process (fmpy, libcosimpy, PyFMI): used as it is;
      1. DSC_FMU_PYTHON, the path of a CPython shared library (libpython3.X.so.1.0, python3X.dll): if
         set, the only candidate;
@@ -100,7 +100,7 @@ static const Symbol SYMBOLS[] = {
     SYMBOL(PyErr_Restore), SYMBOL(PyErr_Clear), SYMBOL(Py_DecRef), SYMBOL(Py_IncRef), SYMBOL(PySequence_Size),
     SYMBOL(PySequence_GetItem), SYMBOL(PySys_GetObject), {"_Py_NoneStruct", offsetof(PyApi, None)},
     SYMBOL(Py_IgnoreEnvironmentFlag), SYMBOL(Py_NoSiteFlag), SYMBOL(Py_NoUserSiteDirectory),
-    SYMBOL(Py_DontWriteBytecodeFlag),
+    SYMBOL(Py_DontWriteBytecodeFlag), SYMBOL(PyExc_KeyboardInterrupt), SYMBOL(PyErr_SetInterrupt),
 };
 
 /* PyConfig's leading int fields (Include/cpython/initconfig.h, 3.8 and later). */

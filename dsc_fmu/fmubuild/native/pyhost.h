@@ -74,6 +74,8 @@ typedef struct {
     PyObject *(*PySequence_GetItem)(PyObject *, Py_ssize_t);
     PyObject *(*PySys_GetObject)(const char *);
     PyObject *None;
+    PyObject **PyExc_KeyboardInterrupt;
+    void (*PyErr_SetInterrupt)(void);
     int *Py_IgnoreEnvironmentFlag;
     int *Py_NoSiteFlag;
     int *Py_NoUserSiteDirectory;

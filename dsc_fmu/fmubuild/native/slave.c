@@ -61,6 +61,10 @@ static void deliver(Slave *s) {
 static void leave(Slave *s, PyGILState_STATE gil) {
     pyhost_leave(gil);
     deliver(s);
+    if (s->interrupted) { /* last: Python run before (a logger on ctypes) would swallow it */
+        s->interrupted = 0;
+        py.PyErr_SetInterrupt();
+    }
 }
 
 static void say(Slave *s, int status, const char *format, ...) {
@@ -77,10 +81,11 @@ static void clear(PyObject **object) {
     *object = NULL;
 }
 
-/* The pending exception as "Type: message" in `text`; clears it. */
-static void exception_text(char *text, size_t size) {
+/* The pending exception as "Type: message" in `text`; clears it. 1 if it was a KeyboardInterrupt. */
+static int exception_text(char *text, size_t size) {
     PyObject *type = NULL, *value = NULL, *traceback = NULL;
     py.PyErr_Fetch(&type, &value, &traceback);
+    int interrupt = type && type == *py.PyExc_KeyboardInterrupt;
     PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
     const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
     PyObject *str = value ? py.PyObject_Str(value) : NULL;
@@ -93,12 +98,20 @@ static void exception_text(char *text, size_t size) {
     clear(&type);
     clear(&value);
     clear(&traceback);
+    return interrupt;
 }
 
+/* Log the pending exception as the failure of `doing` and clear it. A KeyboardInterrupt (the host's
+   Ctrl-C arriving while the model code ran) is not the model's failure: the call still fails, and
+   the interrupt is raised again in the host's Python once the call has returned (``leave``). */
 static void log_exception(Slave *s, int status, const char *doing) {
     char text[1536];
-    exception_text(text, sizeof text);
-    say(s, status, "%s: %s failed: %s", s->instance_name, doing, text);
+    if (exception_text(text, sizeof text)) {
+        say(s, status, "%s: %s interrupted: the KeyboardInterrupt goes on to the host", s->instance_name, doing);
+        s->interrupted = 1;
+    } else {
+        say(s, status, "%s: %s failed: %s", s->instance_name, doing, text);
+    }
 }
 
 /* A tuple of `n` new references, which it steals; NULL (the exception set) if any is NULL. */

@@ -83,6 +83,7 @@ typedef struct {
     SlaveLog log;
     void *context;
     Message *messages;          /* queued while the GIL is held */
+    int interrupted;            /* a KeyboardInterrupt to raise again in the host once the GIL is released */
     Message **last;
 } Slave;
 
