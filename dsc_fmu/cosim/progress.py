@@ -41,7 +41,6 @@ class TerminalWatch:
     def __init__(self, stop_time: float, label: str = "run", quiet: bool = False, hint: str = "", stream=None):
         self.stop_time = stop_time
         self.label = label
-        self.quiet = quiet
         self.hint = hint
         self.stream = stream or sys.stderr
         self.shown = not quiet and getattr(self.stream, "isatty", lambda: False)()
