@@ -18,7 +18,7 @@ class DscSlave(SlaveCore, Fmi2Slave):
     Everything but the FMI 2.0 registration and logging is in ``SlaveCore``: a value outside its
     allowed range is refused without raising, logged as an error, and every ``do_step`` returns
     fmi2Discard until a valid value is set. (The project's binary turns an exception into fmi2Error
-    or fmi2Discard; pythonfmu's own binary, shipped for Windows, into fmi2Fatal.)
+    or fmi2Discard.)
     """
 
     author = "dsc-fmu"
