@@ -124,10 +124,10 @@ def test_each_fmu_in_a_windows_c_importer_equals_linux(importers, wine, pythons,
     assert_like_linux(parse_rows(windows.stdout), linux)
 
 
-@pytest.mark.parametrize("version", (2, 3))
-def test_model_exchange_in_a_windows_c_importer_equals_linux(wine, pythons, fmu_paths, fmu3_paths, tmp_path, version):
-    """The project's model-exchange importer (RK4 in C on the FMU's derivatives), on Windows as on Linux."""
-    path = (fmu3_paths if version == 3 else fmu_paths)["DSCController"]
+def test_model_exchange_in_a_windows_c_importer_equals_linux(wine, pythons, fmu3_paths, tmp_path):
+    """The project's model-exchange importer (RK4 in C on the FMU's derivatives), on Windows as on Linux
+    (FMI 3.0; the FMI 2.0 adapter is the same C on both systems, tested on Linux)."""
+    version, path = 3, fmu3_paths["DSCController"]
     md = read_model_description(str(path))
     folder = Path(extract(str(path), unzipdir=tmp_path / "c"))
     arguments = [version, folder, md.modelExchange.modelIdentifier, token_of(md, version), len(md.derivatives),
@@ -194,11 +194,10 @@ fmu.free_instance()
 """
 
 
-@pytest.mark.parametrize("version", (2, 3))
-def test_a_windows_python_host_lends_its_python(importers, wine, pythons, fmu_paths, fmu3_paths, tmp_path, version):
+def test_a_windows_python_host_lends_its_python(importers, wine, pythons, fmu3_paths, tmp_path):
     """The embeddable python.exe drives the FMU through ctypes (the project's stdlib-only driver): the
     binary finds the CPython already in the process and uses it, nothing else on PATH."""
-    path = (fmu3_paths if version == 3 else fmu_paths)["MobileRobot"]
+    version, path = 3, fmu3_paths["MobileRobot"]
     md = read_model_description(str(path))
     folder = Path(extract(str(path), unzipdir=tmp_path / "m"))
     linux, _ = runs(importers, wine, version, folder, md)
@@ -280,23 +279,22 @@ def test_a_python_too_old_or_broken_is_one_message_and_no_instance(importers, wi
         assert run.returncode == 2, run.stderr
         (message,) = errors(run)
         assert said in message and named in message, message
-    assert "older than 3.9" in errors(runs(importers, wine, version, folder, md, expected[0][0])[1])[0]
+        assert "older than 3.9" in message or said != "Python 3.8."
 
 
 URIS = ("file:///", "file:/", "file://localhost/")
 
 
-@pytest.mark.parametrize("form", (*URIS, "native"))
+@pytest.mark.parametrize("form", URIS)
 def test_every_form_of_resource_location(importers, wine, pythons, fmu3_paths, tmp_path, form):
     """The resources of an FMU unzipped into a folder whose name needs escaping in a URI, given as a
-    file URI of each form (percent-escaped) or as the native path (FMI 3.0 takes both; FMI 2.0's URI
-    goes through the same parser)."""
+    file URI of each form, percent-escaped (FMI 3.0 takes a URI or the native path, which every FMI
+    3.0 run here gives; FMI 2.0's URI goes through the same parser)."""
     version = 3
     path = fmu3_paths["ReferenceRobot"]
     md = read_model_description(str(path))
     folder = Path(extract(str(path), unzipdir=tmp_path / "a folder #1"))
-    native = windows_path(folder / "resources")
-    uri = native if form == "native" else form + native.replace("\\", "/").replace(" ", "%20").replace("#", "%23")
+    uri = form + windows_path(folder / "resources").replace("\\", "/").replace(" ", "%20").replace("#", "%23")
     env = {"WINEPATH": windows_path(pythons(BUILD_MINOR)), "DSC_TEST_RESOURCES": uri}
     linux, windows = runs(importers, wine, version, folder, md, env)
     assert windows.returncode == 0, windows.stderr
@@ -344,13 +342,12 @@ def fields(line: str) -> dict:
     return {key: value for key, _, value in (item.partition("=") for item in line.split())}
 
 
-@pytest.mark.parametrize("version", (2, 3))
-def test_windows_hosts_with_threads(wine, pythons, windows_threads, fmu_paths, fmu3_paths, tmp_path, version):
-    """The binary layer's promises on Windows (tests/test_real_hosts.py has them on Linux): a logger
-    that blocks holds up no other instance; 300 short-lived threads leave no Python thread state
-    behind (each deleted when its thread ends, seen through fiber-local storage); a host may join a
-    worker while holding the GIL."""
-    paths = fmu3_paths if version == 3 else fmu_paths
+def test_windows_hosts_with_threads(wine, pythons, windows_threads, fmu_paths, tmp_path):
+    """The binary layer's promises on Windows (tests/test_real_hosts.py has them on Linux, FMI 2.0 and
+    3.0): a logger that blocks holds up no other instance; 300 short-lived threads leave no Python
+    thread state behind (each deleted when its thread ends, seen through fiber-local storage); a host
+    may join a worker while holding the GIL."""
+    version, paths = 2, fmu_paths
     env = {"WINEPATH": windows_path(pythons(BUILD_MINOR))}
     plant, reference = (Path(extract(str(paths[name]), unzipdir=tmp_path / name)) for name in ("MobileRobot", "ReferenceRobot"))
     md = {folder: read_model_description(str(folder)) for folder in (plant, reference)}
