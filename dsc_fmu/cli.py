@@ -178,21 +178,24 @@ def _scenarios(args) -> None:
 _COSIMULATION_ONLY = ("step_size", "order", "coupling", "input_derivatives", "h_min", "h_max")
 
 
-def _error_controlled_coupling(args, scenario) -> tuple[str | None, str]:
-    """The coupling of a run with ``--tolerance`` and what to tell first: without ``--coupling``, the
-    linear coupling (its second-order defect is the estimate the step control trusts) in place of the
-    scenario's hold; with ``--coupling hold`` the hold, and how to get there faster."""
+_FASTER = "--coupling linear meets the same tolerance with far fewer steps"
+
+
+def _error_controlled_coupling(args, scenario) -> tuple[str | None, str, str]:
+    """The coupling of a run with ``--tolerance``, what to tell first and how to get there faster:
+    without ``--coupling``, the linear coupling (its second-order defect is the estimate the step
+    control trusts) in place of the scenario's hold; with the hold, the hold and its cost."""
     if args.tolerance is None or args.interface != "co-simulation":
-        return args.coupling, ""
+        return args.coupling, "", ""
     if args.coupling is None and scenario.simulation.coupling == "hold":
         return "linear", ("dsc-fmu: --tolerance without --coupling: error control with the linear coupling (second "
                           "order, whose error estimate the step control trusts); --coupling hold for the first-order "
-                          "hold, which needs far more steps")
+                          "hold, which needs far more steps"), ""
     if (args.coupling or scenario.simulation.coupling) == "hold":
-        return args.coupling, ("dsc-fmu: error control with the hold coupling (first order): its steps shrink in "
-                               "proportion to the tolerance, the linear coupling's with its square root; --coupling "
-                               "linear meets the same tolerance with far fewer steps")
-    return args.coupling, ""
+        note = ("dsc-fmu: error control with the hold coupling (first order): its steps shrink in proportion to the "
+                f"tolerance, the linear coupling's with its square root; {_FASTER}")
+        return args.coupling, note, _FASTER
+    return args.coupling, "", ""
 
 
 def _run(args) -> int:
@@ -205,7 +208,7 @@ def _run(args) -> int:
         raise ScenarioError(f"{option} is a co-simulation setting; allowed with --interface model-exchange: "
                             "--tolerance, --stop-time, --output-interval")
     scenario = load_scenario(args.scenario)
-    coupling, note = _error_controlled_coupling(args, scenario)
+    coupling, note, hint = _error_controlled_coupling(args, scenario)
     scenario = scenario.with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
         coupling=coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
@@ -213,9 +216,6 @@ def _run(args) -> int:
     )
     if note:
         print(note, file=sys.stderr)
-    hint = "--coupling linear meets the same tolerance with far fewer steps" if (
-        scenario.simulation.tolerance is not None and scenario.simulation.coupling == "hold"
-        and args.interface == "co-simulation") else ""
     with TerminalWatch(scenario.simulation.stop_time, scenario.name, quiet=args.quiet, hint=hint) as watch:
         print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
                            plots=not args.no_plots, interface=args.interface, watch=watch))

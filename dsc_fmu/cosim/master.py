@@ -410,6 +410,11 @@ class Recorder:
             table[row, cols] = get(refs)
         self.rows = row + 1
 
+    @property
+    def last_time(self) -> float:
+        """The time of the last row recorded."""
+        return float(self.table[self.rows - 1, 0])
+
     def result(self) -> np.ndarray:
         """The rows recorded so far as a ``signals.DTYPE`` array with the tracking errors."""
         return _result(self.table[: self.rows], self.columns)

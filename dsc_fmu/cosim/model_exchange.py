@@ -160,7 +160,7 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
         pending = pending[len(solution.t):]
         if len(solution.t_events[-1]):  # stopped by the watch: a last row where the solver ended
             at = float(solution.t_events[-1][0])
-            if at > recorder.table[recorder.rows - 1, 0]:
+            if at > recorder.last_time:
                 loop.load(at, solution.y_events[-1][0])
                 recorder.record(at)
             break
