@@ -42,11 +42,10 @@ wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, s
 /* The CPythons 3.`oldest` and newer this system registers, each as `visit(context, library, home,
    label, minor)`: on Linux libpython3.X.so.1.0 for the dynamic loader to search (label ""); on
    Windows the installs under PEP 514 (HKCU, then HKLM, each python3X.dll in its InstallPath), then
-   python3X.dll in the folders on PATH. `preferred` is the minor version to name first where the
-   order is free. */
+   python3X.dll in the folders on PATH; newest first where the system gives no order. */
 void platform_registered_pythons(void (*visit)(void *context, const char *library, const char *home,
                                                const char *label, int minor),
-                                 void *context, int preferred, int oldest);
+                                 void *context, int oldest);
 /* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
    checked; else found from the library's folder. HOME_TO_SET; HOME_FIXED where the installation
    fixes its paths itself (Windows' embeddable CPython: a python3X._pth file beside the library,

@@ -90,10 +90,8 @@ wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, s
 }
 
 void platform_registered_pythons(void (*visit)(void *, const char *, const char *, const char *, int), void *context,
-                                 int preferred, int oldest) {
+                                 int oldest) {
     char name[64];
-    snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, preferred);
-    visit(context, name, NULL, "", preferred);
     for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
         snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
         visit(context, name, NULL, "", minor);

@@ -256,7 +256,7 @@ static void on_path(Visit visit, void *context, int oldest) {
     }
 }
 
-void platform_registered_pythons(Visit visit, void *context, int preferred, int oldest) {
+void platform_registered_pythons(Visit visit, void *context, int oldest) {
     Registry r;
     if (registry(&r) == 0) {
         registered_under(&r, HKEY_CURRENT_USER, "PEP 514 (HKCU):", visit, context, oldest);

@@ -248,14 +248,13 @@ static void add_candidate(void *context, const char *library, const char *home, 
 /* The Python that built the FMU, then the system's, those of the building minor first; the rest in
    the order found. */
 static void gather(Candidates *list) {
+    int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
     if (*DSC_BUILD_LIBPYTHON) {
-        add_candidate(list, DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,",
-                      minor_of(DSC_PYTHON_VERSION));
+        add_candidate(list, DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,", preferred);
     } else {
         append(start_error, sizeof start_error, "the Python that built the FMU is not on this system; ");
     }
-    platform_registered_pythons(add_candidate, list, minor_of(DSC_PYTHON_VERSION), OLDEST_MINOR);
-    int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
+    platform_registered_pythons(add_candidate, list, OLDEST_MINOR);
     for (int i = 0; i < list->count; i++) {
         if (list->items[i].minor != preferred) continue;
         Candidate moved = list->items[i];
