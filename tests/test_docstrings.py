@@ -1,0 +1,110 @@
+"""Docstrings a user can scan: every public function, class and method in numpydoc, checked by numpydoc's
+own validator.
+
+Public means named in a module's ``__all__`` and defined there; a class's public methods and properties
+are those it defines itself (not inherited, no leading underscore). The checks below are the ones that
+make a docstring scannable: a one-line summary, every parameter listed with its type and meaning, a
+Returns (or Yields) section for what comes back, known sections in numpydoc's order.
+"""
+
+from __future__ import annotations
+
+import importlib
+import inspect
+import pkgutil
+
+import pytest
+from numpydoc.validate import validate
+
+import dsc_fmu
+
+CHECKS = {
+    "GL01", "GL02", "GL03", "GL06", "GL07", "GL08",
+    "SS01", "SS02", "SS03", "SS04", "SS06",
+    "PR01", "PR02", "PR03", "PR04", "PR06", "PR07", "PR10",
+    "RT01", "RT03", "YD01",
+}
+
+# Modules whose docstrings are not numpydoc yet (issue 20, point 5): emptied as they are converted.
+NOT_YET = {
+    "dsc_fmu.cli", "dsc_fmu.cosim.derivatives", "dsc_fmu.cosim.exchange", "dsc_fmu.cosim.instance",
+    "dsc_fmu.cosim.master", "dsc_fmu.cosim.metrics", "dsc_fmu.cosim.model_exchange", "dsc_fmu.cosim.plots",
+    "dsc_fmu.cosim.progress", "dsc_fmu.cosim.reference_solution", "dsc_fmu.cosim.results", "dsc_fmu.cosim.run",
+    "dsc_fmu.cosim.signals", "dsc_fmu.cosim.step_control", "dsc_fmu.errors", "dsc_fmu.files",
+    "dsc_fmu.fmu.fmi2", "dsc_fmu.fmu.fmi3", "dsc_fmu.fmu.native_bridge", "dsc_fmu.fmu.slave_core",
+    "dsc_fmu.fmu.slave_models", "dsc_fmu.fmubuild.binary", "dsc_fmu.fmubuild.documentation",
+    "dsc_fmu.fmubuild.fmus", "dsc_fmu.fmubuild.model_description", "dsc_fmu.fmubuild.structure",
+    "dsc_fmu.identity", "dsc_fmu.interop.container", "dsc_fmu.interop.crosscheck", "dsc_fmu.interop.libcosim",
+    "dsc_fmu.interop.ssp", "dsc_fmu.models.controller", "dsc_fmu.models.parameters", "dsc_fmu.models.plant",
+    "dsc_fmu.models.reference", "dsc_fmu.models.rk4", "dsc_fmu.models.states", "dsc_fmu.registry",
+    "dsc_fmu.scenario", "dsc_fmu.study.analysis", "dsc_fmu.study.cache", "dsc_fmu.study.cases",
+    "dsc_fmu.study.cluster", "dsc_fmu.study.execute", "dsc_fmu.study.figures", "dsc_fmu.study.report",
+    "dsc_fmu.study.rows", "dsc_fmu.study.stability", "dsc_fmu.study.sweep",
+}
+
+MODULES = sorted(
+    info.name for info in pkgutil.walk_packages(dsc_fmu.__path__, "dsc_fmu.")
+    if not info.ispkg and info.name != "dsc_fmu.__main__"
+)
+
+
+def _public(module_name: str) -> list[str]:
+    """The dotted names of the public functions, classes and class members that ``module_name`` defines."""
+    module = importlib.import_module(module_name)
+    names = []
+    for name in getattr(module, "__all__", ()):
+        obj = getattr(module, name)
+        if getattr(obj, "__module__", None) != module_name:
+            continue
+        if inspect.isfunction(obj):
+            names.append(f"{module_name}.{name}")
+        elif inspect.isclass(obj):
+            names.append(f"{module_name}.{name}")
+            for member, value in vars(obj).items():
+                if member.startswith("_"):
+                    continue
+                if inspect.isfunction(value) or isinstance(value, (property, staticmethod, classmethod)):
+                    names.append(f"{module_name}.{name}.{member}")
+    return names
+
+
+def _problems(dotted: str) -> list[str]:
+    return [f"{code} {message}" for code, message in validate(dotted)["errors"] if code in CHECKS]
+
+
+@pytest.mark.parametrize("module_name", [name for name in MODULES if name not in NOT_YET])
+def test_public_docstrings_are_numpydoc(module_name):
+    found = {dotted: _problems(dotted) for dotted in _public(module_name)}
+    assert {dotted: problems for dotted, problems in found.items() if problems} == {}
+
+
+def test_every_module_has_a_public_list():
+    assert [name for name in MODULES if not hasattr(importlib.import_module(name), "__all__")] == []
+
+
+def _prose(step_size, stop_time):
+    """Co-simulate with step ``step_size`` until ``stop_time`` and give back the result."""
+    return step_size * stop_time
+
+
+def _scannable(step_size, stop_time):
+    """Co-simulate with a fixed step.
+
+    Parameters
+    ----------
+    step_size : float
+        Communication step in s.
+    stop_time : float
+        Stop time in s.
+
+    Returns
+    -------
+    float
+        The product, in s².
+    """
+    return step_size * stop_time
+
+
+def test_the_checks_reject_prose_and_pass_numpydoc():
+    assert {"PR01", "RT01"} <= {code for code, _ in validate(f"{__name__}._prose")["errors"]}
+    assert _problems(f"{__name__}._scannable") == []
