@@ -70,8 +70,6 @@ NOT_YET = {
     "dsc_fmu.study.cases",
     "dsc_fmu.study.cluster",
     "dsc_fmu.study.execute",
-    "dsc_fmu.study.figures",
-    "dsc_fmu.study.report",
     "dsc_fmu.study.rows",
     "dsc_fmu.study.sweep",
 }
