@@ -107,8 +107,8 @@ def fit_order(step_sizes: Sequence[float], deviations: Sequence[float], *, toler
     infinite or not positive (diverged runs) are left out. The range starts with the ``min_points``
     smallest steps and grows toward larger h while the line keeps every point within ``tolerance``;
     it stops at the first step that breaks the line (the knee where higher-order terms or instability
-    take over). If the smallest steps are not on a line (a floor set by the reference solution's own
-    accuracy), the start moves up one step at a time.
+    take over), even if larger steps would fall back onto it. If the smallest steps are not on a line
+    (a floor set by the reference solution's own accuracy), the start moves up one step at a time.
 
     Parameters
     ----------
