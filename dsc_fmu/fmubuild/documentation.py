@@ -75,10 +75,30 @@ _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:colla
 
 
 def documentation_html(model_description: ET.Element, name: str, units: dict[str, str]) -> str:
-    """The HTML page of the FMU ``name`` whose completed model description is ``model_description``.
+    """The HTML documentation page of one FMU.
 
-    ``units`` maps a variable name to its unit where the model description has none (Integer and
-    Boolean variables). Every variable of the model description is listed, in its order.
+    It gives the FMU's interfaces, the equations it implements (``EQUATIONS``), every variable of the
+    model description in its order, the default experiment and what the FMU needs to run.
+
+    Parameters
+    ----------
+    model_description : xml.etree.ElementTree.Element
+        The FMU's completed model description (FMI 2.0 or 3.0), its root element.
+    name : str
+        The FMU's name, a key of ``EQUATIONS`` (``registry.ORDER``).
+    units : dict of str to str
+        Variable name -> unit, used where the model description gives none (Integer and Boolean
+        variables).
+
+    Returns
+    -------
+    str
+        The HTML page, ending with a newline.
+
+    Raises
+    ------
+    KeyError
+        If ``name`` is not a key of ``EQUATIONS``.
     """
     root = model_description
     version = root.get("fmiVersion")

@@ -60,7 +60,23 @@ def _check_version(fmi_version: int) -> int:
 
 
 def default_fmu_dir(fmi_version: int = 2) -> Path:
-    """Where the FMUs of ``fmi_version`` are built by default: build/fmus (2.0), build/fmus3 (3.0)."""
+    """Where the FMUs of an FMI version are built by default.
+
+    Parameters
+    ----------
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Returns
+    -------
+    pathlib.Path
+        ``build/fmus`` (2.0) or ``build/fmus3`` (3.0), relative to the working directory.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    """
     return DEFAULT_FMU_DIRS[_check_version(fmi_version)]
 
 
@@ -86,8 +102,28 @@ def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
 
 
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
-    """Hash of everything the FMU is built from: its sources, this builder, the FMI library's version and
-    the Python its binary looks for."""
+    """The hash of everything an FMU is built from.
+
+    Its sources, this builder, the binary's sources, the FMI library's version and the Python its
+    binary looks for: an FMU whose build id (``identity.fmu_build_id``) equals it is current.
+
+    Parameters
+    ----------
+    spec : registry.FmuSpec
+        The FMU.
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Returns
+    -------
+    str
+        The SHA-256 digest, in hex.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    """
     _check_version(fmi_version)
     library = _library_version(fmi_version)
     digest = hashlib.sha256(f"{__version__} {library} {spec.name} {build_python()}".encode())
@@ -171,7 +207,30 @@ def _forget_staged_modules(package: str, script: str) -> None:
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
-    """Build one FMU (FMI ``fmi_version``: 2 or 3) into ``out_dir`` atomically and return its path."""
+    """Build one FMU, atomically.
+
+    Parameters
+    ----------
+    spec : registry.FmuSpec
+        The FMU to build.
+    out_dir : pathlib.Path
+        The directory, created if missing; the FMU is ``out_dir/<name>.fmu``.
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Returns
+    -------
+    pathlib.Path
+        The FMU's path.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    BinaryBuildError
+        If the FMU's binary does not compile or a bundled module imports the FMI library by its
+        public name.
+    """
     _check_version(fmi_version)
     out_dir.mkdir(parents=True, exist_ok=True)
     digest = source_hash(spec, fmi_version)
@@ -207,15 +266,57 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
 
 
 def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int = 2) -> dict[str, Path]:
-    """Build the named FMUs (all three by default) as FMI ``fmi_version`` (2 or 3) FMUs into ``out_dir``
-    (default: ``default_fmu_dir(fmi_version)``)."""
+    """Build some or all of the three FMUs.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str or None, optional
+        The directory. Default None: ``default_fmu_dir(fmi_version)``.
+    names : iterable of str, optional
+        The FMUs to build, keys of ``registry.FMUS``. Default: all three.
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        The path of each FMU built, by name.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    KeyError
+        If a name is not one of the three FMUs.
+    BinaryBuildError
+        If an FMU's binary does not compile.
+    """
     out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
     return {name: build_fmu(FMUS[name], out_dir, fmi_version) for name in names}
 
 
 def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict[str, Path]:
-    """Paths of the three FMI ``fmi_version`` FMUs in ``out_dir`` (default: ``default_fmu_dir(fmi_version)``),
-    building those that are missing or stale."""
+    """The three FMUs of a directory, building those that are missing or stale.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str or None, optional
+        The directory. Default None: ``default_fmu_dir(fmi_version)``.
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        The path of each of the three FMUs, by name.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    BinaryBuildError
+        If an FMU's binary does not compile.
+    """
     out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
     paths = {}
     for name, spec in FMUS.items():
@@ -228,8 +329,31 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict
 
 @contextmanager
 def current_fmus(out_dir: Path | str | None = None, fmi_version: int = 2):
-    """The three FMUs of ``out_dir`` if they are all current, else ones built into a temporary folder
-    that is removed on exit: for exports, which write nothing but their output file."""
+    """The three current FMUs, for exports, which write nothing but their output file.
+
+    A context manager: those of ``out_dir`` if they are all current, else ones built into a temporary
+    folder that is removed on exit.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str or None, optional
+        The directory to look in; nothing is written there. Default None:
+        ``default_fmu_dir(fmi_version)``.
+    fmi_version : {2, 3}, optional
+        The FMI version. Default 2.
+
+    Yields
+    ------
+    dict of str to pathlib.Path
+        The path of each of the three FMUs, by name.
+
+    Raises
+    ------
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    BinaryBuildError
+        If an FMU's binary does not compile.
+    """
     out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
     paths = {name: out_dir / f"{name}.fmu" for name in FMUS}
     if all(fmu_build_id(path) == source_hash(FMUS[name], fmi_version) for name, path in paths.items()):

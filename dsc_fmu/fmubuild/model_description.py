@@ -120,9 +120,25 @@ def _unknown(parent: ET.Element, tag: str, key: str, ref: str, dependencies: str
 
 
 def complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
-    """Add model exchange, units, ranges, nominals, derivatives, the event indicators' number and
-    ModelStructure with its dependencies, which pythonfmu does not write (FMI 2.0); an FMU with inputs
-    declares ``canInterpolateInputs`` (the project's binary takes input derivatives)."""
+    """Complete the FMI 2.0 model description that pythonfmu writes.
+
+    Adds what pythonfmu does not write: model exchange beside co-simulation, units, exact start
+    values, ranges, nominals, derivatives, the number of event indicators and ModelStructure with its
+    dependencies (``structure``). An FMU with inputs declares ``canInterpolateInputs`` (the project's
+    binary takes input derivatives).
+
+    Parameters
+    ----------
+    xml : bytes
+        ``modelDescription.xml`` as pythonfmu wrote it.
+    spec : registry.FmuSpec
+        The FMU it describes.
+
+    Returns
+    -------
+    xml.etree.ElementTree.Element
+        The completed root element, not indented.
+    """
     root = ET.fromstring(xml)
     tables = spec.variables
     cosimulation = root.find("CoSimulation")
@@ -156,9 +172,24 @@ def complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
 
 
 def complete_model_description3(xml: bytes, spec: FmuSpec) -> ET.Element:
-    """The same for FMI 3.0: model exchange, units, exact starts, ranges, nominals, derivatives and
-    ModelStructure with its dependencies (by value reference, the time included) and event indicators;
-    pythonfmu3 writes units only if registered and no dependencies."""
+    """Complete the FMI 3.0 model description that pythonfmu3 writes.
+
+    Adds model exchange, units (pythonfmu3 writes them only if registered), exact start values,
+    ranges, nominals, derivatives and ModelStructure with its dependencies (by value reference, the
+    time included; pythonfmu3 writes none) and event indicators.
+
+    Parameters
+    ----------
+    xml : bytes
+        ``modelDescription.xml`` as pythonfmu3 wrote it.
+    spec : registry.FmuSpec
+        The FMU it describes.
+
+    Returns
+    -------
+    xml.etree.ElementTree.Element
+        The completed root element, not indented.
+    """
     root = ET.fromstring(xml)
     tables = spec.variables
     cosimulation = root.find("CoSimulation")
@@ -197,6 +228,20 @@ def complete_model_description3(xml: bytes, spec: FmuSpec) -> ET.Element:
 
 
 def documentation(root: ET.Element, spec: FmuSpec) -> bytes:
-    """The FMU's ``documentation/index.html`` from its completed model description."""
+    """The FMU's ``documentation/index.html``.
+
+    Parameters
+    ----------
+    root : xml.etree.ElementTree.Element
+        The FMU's completed model description (``complete_model_description`` or
+        ``complete_model_description3``).
+    spec : registry.FmuSpec
+        The FMU it describes.
+
+    Returns
+    -------
+    bytes
+        The HTML page, UTF-8.
+    """
     units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in spec.variables.items()}}
     return documentation_html(root, spec.name, units).encode("utf-8")

@@ -101,8 +101,19 @@ def _continuous(probe) -> dict:
 
 
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The inputs, states and ``TIME`` that each continuous output, state derivative and event indicator
-    depends on in continuous-time mode (and at communication points)."""
+    """The dependencies in continuous-time mode (and at communication points), found by running the model.
+
+    Parameters
+    ----------
+    spec : registry.FmuSpec
+        The FMU.
+
+    Returns
+    -------
+    dict of str to tuple of str
+        Each continuous output, state derivative and event indicator -> the inputs, states and ``TIME``
+        it depends on, in that order.
+    """
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
                    for i, s in enumerate(spec.states)})
@@ -120,8 +131,19 @@ def _initial(probe) -> dict:
 
 
 def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The inputs, parameters and ``TIME`` that each continuous output, state and state derivative
-    depends on in initialization mode."""
+    """The dependencies in initialization mode, found by running the model.
+
+    Parameters
+    ----------
+    spec : registry.FmuSpec
+        The FMU.
+
+    Returns
+    -------
+    dict of str to tuple of str
+        Each continuous output, state and state derivative -> the inputs, Real parameters and ``TIME``
+        it depends on, in that order.
+    """
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name))
                    for v in spec.parameters if not v.integer})

@@ -40,7 +40,20 @@ EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
 
 
 def parameter_name(fmu: str, parameter: str) -> str:
-    """The container's name of a component's parameter: ``MobileRobot.x0``."""
+    """The container's name of a component's parameter.
+
+    Parameters
+    ----------
+    fmu : str
+        The component's name, one of ``registry.ORDER``.
+    parameter : str
+        The parameter's name in that FMU.
+
+    Returns
+    -------
+    str
+        ``<fmu>.<parameter>``, e.g. ``MobileRobot.x0``.
+    """
     return f"{fmu}.{parameter}"
 
 
@@ -118,12 +131,37 @@ def _model_description(scenario: Scenario, descriptions: dict, model_variables: 
 
 def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
                stop_time: float | None = None) -> Path:
-    """Write one co-simulation FMU ``out_file`` of the scenario's closed loop and return its path.
+    """Write the scenario's closed loop as one FMI 2.0 co-simulation FMU (an fmpy container).
 
-    Its internal fixed step is the scenario's step size (or ``step_size``); every parameter of the
-    three FMUs is a parameter of the container named ``<FMU>.<parameter>`` whose start value is the
-    scenario's; its outputs are every output of ``signals.RECORDED`` under its own name. A bad
-    setting raises ScenarioError, a missing FMU FmuNotFoundError, before anything is written.
+    Every parameter of the three FMUs is a parameter of the container named ``<FMU>.<parameter>``
+    (``parameter_name``) whose start value is the scenario's; its outputs are every output of
+    ``cosim.signals.RECORDED`` under its own name. It couples by Jacobi at a fixed internal step.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The closed loop to export.
+    out_file : pathlib.Path or str
+        The FMU file to write.
+    fmu_paths : dict
+        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0).
+    step_size : float or None, optional
+        The internal fixed step, in s. Default None: the scenario's.
+    stop_time : float or None, optional
+        The default experiment's stop time, in s. Default None: the scenario's.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_file``.
+
+    Raises
+    ------
+    ScenarioError
+        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario;
+        raised before anything is written.
+    FmuNotFoundError
+        If one of the three FMUs is not given or not a file.
     """
     from fmpy.container_fmu.cli import create_container_fmu
     from fmpy.container_fmu.config import Component, Configuration, Connection

@@ -40,12 +40,42 @@ TOOL = "dsc-fmu"
 
 
 def model_dir(out_dir: Path, model: str, platform: str = "linux64", version: str = __version__) -> Path:
-    """``out_dir/fmus/2.0/cs/<platform>/dsc-fmu/<version>/<model>``."""
+    """The cross-check folder of one FMU.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path
+        The root of the cross-check tree.
+    model : str
+        The FMU's model name, e.g. ``MobileRobot``.
+    platform : str, optional
+        The cross-check platform name. Default "linux64".
+    version : str, optional
+        The exporting tool's version. Default: this package's.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir/fmus/2.0/cs/<platform>/dsc-fmu/<version>/<model>``.
+    """
     return Path(out_dir) / "fmus" / "2.0" / "cs" / platform / TOOL / version / model
 
 
 def held_inputs(inputs: np.ndarray, stop_time: float) -> np.ndarray:
-    """Inputs held over each step (``time`` = the step's start) as sample-and-hold rows."""
+    """Inputs held over each step as sample-and-hold rows.
+
+    Parameters
+    ----------
+    inputs : numpy.ndarray
+        Structured array, one row per step: ``time`` (the step's start, s) and the inputs held over it.
+    stop_time : float
+        The end of the last step, in s.
+
+    Returns
+    -------
+    numpy.ndarray
+        Two rows per step, same dtype: ``(t_k, v_k)`` and ``(t_k+1, v_k)``.
+    """
     starts = inputs["time"]
     ends = np.append(starts[1:], stop_time)
     rows = np.empty(2 * len(inputs), dtype=inputs.dtype)
@@ -88,10 +118,34 @@ def _readme(model: str, scenario: Scenario, h: float, stop: float, has_inputs: b
 def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario | None = None,
                      step_size: float | None = None, stop_time: float = DEFAULT_STOP_TIME,
                      platform: str = "linux64") -> dict[str, Path]:
-    """Write the cross-check folders of the three FMUs under ``out_dir``; return them by FMU name.
+    """Write the cross-check folders of the three FMUs.
 
-    The scenario must keep every parameter at its start value (the FMUs are replayed with their
-    defaults): the paper's scenario by default."""
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The root of the cross-check tree; folders as ``model_dir``.
+    fmu_paths : dict
+        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs.
+    scenario : Scenario or None, optional
+        The closed loop to run. It must keep every parameter at its start value (the FMUs are replayed
+        with their defaults). Default None: the paper's scenario.
+    step_size : float or None, optional
+        The communication step, in s. Default None: the scenario's.
+    stop_time : float, optional
+        The stop time, in s. Default ``DEFAULT_STOP_TIME`` (2 s).
+    platform : str, optional
+        The cross-check platform name. Default "linux64".
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        The folder of each FMU by name.
+
+    Raises
+    ------
+    ScenarioError
+        If a simulation setting is bad.
+    """
     scenario = scenario or load_scenario("paper")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time

@@ -112,10 +112,32 @@ def _observed(observer, watched, steps: int) -> tuple[np.ndarray, dict]:
 
 
 def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
-    """Co-simulate an SSP archive with libcosim's fixed-step algorithm at ``step_size`` until
-    ``stop_time`` (s) and return ``time`` and every output of ``signals.RECORDED`` at every
-    communication point (``signals.DTYPE``, tracking errors derived), as its time series observer
-    records them: at t = 0 after initialisation, then after every step."""
+    """Co-simulate an SSP archive of the closed loop with libcosim's fixed-step algorithm.
+
+    The result is sampled as libcosim's time series observer records it: at t = 0 after
+    initialisation, then after every step.
+
+    Parameters
+    ----------
+    ssp_file : pathlib.Path or str
+        The archive, with the three components of ``registry.ORDER`` (``export_ssp``).
+    step_size : float
+        The communication step, in s (rounded to whole ns).
+    stop_time : float
+        The stop time, in s, rounded up to a whole number of steps.
+
+    Returns
+    -------
+    numpy.ndarray
+        One row per communication point (dtype ``cosim.signals.DTYPE``): ``time`` in s, every output of
+        ``cosim.signals.RECORDED`` and the tracking errors derived from them.
+
+    Raises
+    ------
+    SSPError
+        If the archive's components are not the three FMUs, a variable cannot be observed or libcosim
+        fails.
+    """
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
 
@@ -142,9 +164,27 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
 
 
 def held_value_index(times: np.ndarray, t: float, h: float) -> int:
-    """Row of a sample-and-hold table (times non-decreasing, a time repeated where the value jumps)
-    that holds over the step from ``t``: the last row stamped ``<= t`` (the value after the jump),
-    with a tolerance of ``h * 1e-6`` on the stamps."""
+    """The row of a sample-and-hold table that holds over the step from ``t``.
+
+    Parameters
+    ----------
+    times : numpy.ndarray
+        The table's time stamps in s, non-decreasing, a time repeated where the value jumps.
+    t : float
+        The step's start, in s.
+    h : float
+        The step, in s: the stamps are compared with a tolerance of ``h * 1e-6``.
+
+    Returns
+    -------
+    int
+        The index of the last row stamped ``<= t`` (the value after a jump).
+
+    Raises
+    ------
+    SSPError
+        If the table starts after ``t``.
+    """
     row = int(np.searchsorted(times, t + h * 1e-6, side="right")) - 1
     if row < 0:
         raise SSPError(f"the input table starts at {times[0]!r} s, after {t!r} s")
@@ -153,18 +193,41 @@ def held_value_index(times: np.ndarray, t: float, h: float) -> int:
 
 def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                      inputs: np.ndarray | None = None, instance_name: str = "fmu") -> np.ndarray:
-    """Run one co-simulation FMU alone in libcosim at the fixed step ``step_size`` until
-    ``stop_time`` (s) and return ``time`` and the ``outputs`` (names) at every communication point
-    (structured array, float64), sampled as libcosim's time series observer samples them (see the
-    module docstring: row 0 at t = 0 after initialisation, then after each step, time stamped with
-    the step's end).
+    """Run one co-simulation FMU alone in libcosim at a fixed step.
 
-    ``inputs``: a table (structured array with ``time`` and one column per input of the FMU, e.g.
-    ``fmpy.util.read_csv`` of a cross-check ``<Model>_in.csv``) read as sample-and-hold: over the
-    step from ``t_k`` the FMU holds the value of the last row stamped ``<= t_k`` (the value after
-    a jump where a time is repeated). The values at ``t_0`` are set as initial values, those of
-    every later step with libcosim's override manipulator before the step. No parameter is set:
-    the FMU runs with its start values."""
+    The outputs are sampled as libcosim's time series observer samples them (see the module
+    docstring): row 0 at t = 0 after initialisation, then after each step, stamped with the step's
+    end. No parameter is set: the FMU runs with its start values.
+
+    Parameters
+    ----------
+    fmu_path : pathlib.Path or str
+        The FMU file.
+    step_size : float
+        The communication step, in s (rounded to whole ns).
+    stop_time : float
+        The stop time, in s, rounded up to a whole number of steps.
+    outputs : sequence of str
+        The names of the variables to record.
+    inputs : numpy.ndarray or None, optional
+        A table of Real inputs: structured array with ``time`` (s) and one column per input of the FMU,
+        e.g. ``fmpy.util.read_csv`` of a cross-check ``<Model>_in.csv``. Read as sample-and-hold
+        (``held_value_index``): the values at ``t_0`` are set as initial values, those of every later
+        step with libcosim's override manipulator before the step. Default None: no inputs.
+    instance_name : str, optional
+        The FMU's instance name. Default "fmu".
+
+    Returns
+    -------
+    numpy.ndarray
+        Structured array of float64, one row per communication point: ``time`` in s, then ``outputs``.
+
+    Raises
+    ------
+    SSPError
+        If libcosim cannot load the FMU, a name of ``outputs`` is not a variable of it, a column of
+        ``inputs`` is not a Real input of it, the table starts after 0, or libcosim fails.
+    """
     from libcosimpy.CosimEnums import CosimVariableCausality, CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimManipulator import CosimManipulator
@@ -224,9 +287,38 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
 
 def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                                     inputs_csv: Path | str | None = None, timeout: float = 600) -> np.ndarray:
-    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.interop.libcosim``), its inputs
-    (if any) read from the CSV file ``inputs_csv`` with ``fmpy.util.read_csv``. A failure of the
-    child raises SSPError with the end of its error output."""
+    """Run one co-simulation FMU alone in libcosim, in a child process.
+
+    The child is ``python -m dsc_fmu.interop.libcosim`` (``main``), which calls ``run_libcosim_fmu``.
+
+    Parameters
+    ----------
+    fmu_path : pathlib.Path or str
+        The FMU file.
+    step_size : float
+        The communication step, in s.
+    stop_time : float
+        The stop time, in s, rounded up to a whole number of steps.
+    outputs : sequence of str
+        The names of the variables to record.
+    inputs_csv : pathlib.Path or str or None, optional
+        A CSV file of inputs in the cross-check format, read with ``fmpy.util.read_csv`` as
+        ``run_libcosim_fmu``'s ``inputs``. Default None: no inputs.
+    timeout : float, optional
+        How long the child may run, in s. Default 600.
+
+    Returns
+    -------
+    numpy.ndarray
+        As from ``run_libcosim_fmu``.
+
+    Raises
+    ------
+    SSPError
+        If the child fails, with the end of its error output.
+    subprocess.TimeoutExpired
+        If the child runs longer than ``timeout``.
+    """
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_libcosim_") as tmp:
         out = Path(tmp) / "result.npy"
         command = [sys.executable, "-m", "dsc_fmu.interop.libcosim", str(fmu_path), repr(float(step_size)),
@@ -241,7 +333,20 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
 
 
 def main(argv=None) -> int:
-    """``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``."""
+    """Run one FMU in libcosim from the command line and save the result as ``.npy``.
+
+    Usage: ``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``.
+
+    Parameters
+    ----------
+    argv : list of str or None, optional
+        The arguments. Default None: ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit code, 0.
+    """
     parser = argparse.ArgumentParser(prog="python -m dsc_fmu.interop.libcosim", description=__doc__.splitlines()[0])
     parser.add_argument("fmu")
     parser.add_argument("step_size", type=float)

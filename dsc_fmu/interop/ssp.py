@@ -81,7 +81,27 @@ def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
 
 
 def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, stop_time: float) -> tuple[bytes, dict]:
-    """``SystemStructure.ssd`` and the parameter sets (archive path -> bytes) of ``scenario``."""
+    """The system structure description and the parameter sets of a scenario's closed loop.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The closed loop; its parameters go into one parameter set per component.
+    variables : dict of str to dict
+        FMU name (``registry.ORDER``) -> variable name -> fmpy ``ModelVariable`` of its model
+        description.
+    step_size : float
+        The communication step of the DefaultExperiment's fixed-step algorithm, in s.
+    stop_time : float
+        The DefaultExperiment's stop time, in s.
+
+    Returns
+    -------
+    ssd : bytes
+        ``SystemStructure.ssd``, not yet validated.
+    sets : dict of str to bytes
+        Archive path (``resources/<FMU>.ssv``) -> parameter set.
+    """
     root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP},
                          version="1.0", name=f"dsc-fmu {scenario.name}")
     system = etree.SubElement(root, f"{{{SSD}}}System", name=SYSTEM_NAME,
@@ -123,7 +143,18 @@ def _check(xml: bytes, schema: str, what: str) -> None:
 
 
 def validate_ssp(ssp_file: Path | str) -> None:
-    """Validate the SSD and every parameter set of an archive against the SSP 1.0 schemas (SSPError)."""
+    """Validate the SSD and every parameter set of an archive against the SSP 1.0 schemas.
+
+    Parameters
+    ----------
+    ssp_file : pathlib.Path or str
+        The SSP archive.
+
+    Raises
+    ------
+    SSPError
+        If a file does not validate, with each problem's line and message.
+    """
     with zipfile.ZipFile(ssp_file) as archive:
         _check(archive.read("SystemStructure.ssd"), "SystemStructureDescription.xsd", f"{ssp_file}: SystemStructure.ssd")
         for item in archive.namelist():
@@ -133,10 +164,36 @@ def validate_ssp(ssp_file: Path | str) -> None:
 
 def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
                stop_time: float | None = None) -> Path:
-    """Write the scenario's closed loop as an SSP 1.0 archive ``out_file`` and return its path.
+    """Write the scenario's closed loop as an SSP 1.0 archive.
 
-    Step size and stop time default to the scenario's. A bad setting raises ScenarioError, a
-    missing FMU FileNotFoundError, both before anything is written; only ``out_file`` is written.
+    Only ``out_file`` is written, and only once everything has been checked.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The closed loop to export.
+    out_file : pathlib.Path or str
+        The archive to write (``.ssp``).
+    fmu_paths : dict
+        FMU name (``registry.ORDER``) -> path of each of the three FMUs.
+    step_size : float or None, optional
+        The communication step, in s. Default None: the scenario's.
+    stop_time : float or None, optional
+        The stop time, in s. Default None: the scenario's.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_file``.
+
+    Raises
+    ------
+    ScenarioError
+        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario.
+    FmuNotFoundError
+        If one of the three FMUs is not given or not a file (a FileNotFoundError).
+    SSPError
+        If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     for name, value in (("step_size", scenario.simulation.step_size), ("stop_time", scenario.simulation.stop_time)):
@@ -169,14 +226,36 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
 
 def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *,
                      start_on: str | None = "valid_inputs") -> np.ndarray:
-    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp`` and return its rows as
-    ``signals.DTYPE`` (tracking errors derived), **stamped as simulate_ssp stamps them**: each row
-    holds the values after the step that *starts* at its ``time``. ``simulate_ssp`` ignores the
-    archive's parameter bindings, so they are read from it and passed as its ``parameter_set``.
+    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp``.
 
-    ``simulate_ssp`` starts every connection at 0 without an initial exchange, so the controller's
-    first step sees v_r = 0, which it refuses (Assumption 2) unless its ``start_on`` is valid_inputs:
-    ``start_on`` (a name of ``START_ON``) overrides the archive's value; None keeps it.
+    ``simulate_ssp`` ignores the archive's parameter bindings, so they are read from it and passed as
+    its ``parameter_set``. It starts every connection at 0 without an initial exchange, so the
+    controller's first step sees v_r = 0, which it refuses (Assumption 2) unless its ``start_on`` is
+    valid_inputs (docs/model.md §5.2).
+
+    Parameters
+    ----------
+    ssp_file : pathlib.Path or str
+        The archive (``export_ssp``).
+    step_size : float
+        The communication step, in s.
+    stop_time : float
+        The stop time, in s.
+    start_on : {"valid_inputs", "first_use"} or None, optional
+        The controller's ``start_on`` (``models.parameters.START_ON``), overriding the archive's
+        value; None keeps it. Default "valid_inputs".
+
+    Returns
+    -------
+    numpy.ndarray
+        One row per step (dtype ``cosim.signals.DTYPE``, tracking errors derived), **stamped as
+        simulate_ssp stamps them**: each row holds the values after the step that *starts* at its
+        ``time`` (s).
+
+    Raises
+    ------
+    ValueError
+        If ``start_on`` is not one of the allowed names or None.
     """
     if start_on is not None and start_on not in START_ON:
         raise ValueError(f"start_on = {start_on!r} is not allowed; allowed: {', '.join(START_ON)} or None")

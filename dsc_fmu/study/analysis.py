@@ -24,9 +24,20 @@ AGREEMENT_TOLERANCE = 0.2  # predicted and measured boundary agree if |predicted
 class OrderFit:
     """A straight line ``log10(deviation) = intercept + slope * log10(h)`` through the asymptotic range.
 
-    ``slope`` is the observed convergence order p (deviation ~ 10**intercept * h**p); ``h_min`` and
-    ``h_max`` (s) bound the steps used; ``points`` is their number; ``max_residual`` is the largest
-    |residual| in log10 (0.03 is a 7 % factor); ``r2`` is the coefficient of determination in log-log.
+    Parameters
+    ----------
+    slope : float
+        The observed convergence order p: deviation ~ ``10**intercept * h**p``.
+    intercept : float
+        log10 of the deviation at h = 1 s, in log10 of the fitted data's unit.
+    h_min, h_max : float
+        The smallest and largest step in the fitted range, in s.
+    points : int
+        The number of steps in the fitted range.
+    max_residual : float
+        The largest |residual| in log10 (0.03 is a factor 1.07).
+    r2 : float
+        The coefficient of determination in log-log.
     """
 
     slope: float
@@ -38,7 +49,18 @@ class OrderFit:
     r2: float
 
     def deviation(self, step_size):
-        """The fitted deviation at ``step_size`` (s), in the unit of the fitted data."""
+        """The fitted deviation at a step size.
+
+        Parameters
+        ----------
+        step_size : float or array_like
+            Communication step(s) h, in s.
+
+        Returns
+        -------
+        numpy.ndarray or numpy.float64
+            ``10**intercept * h**slope``, in the unit of the fitted data, shaped like ``step_size``.
+        """
         return 10.0**self.intercept * np.asarray(step_size, dtype=float) ** self.slope
 
 
@@ -46,8 +68,15 @@ class OrderFit:
 class Boundary:
     """A stability boundary bracketed by ``h_stable`` < h* <= ``h_unstable`` (s).
 
-    ``h_stable`` is the largest step known stable, the estimate of h*; ``evaluated`` lists the
-    ``(step_size, stable)`` pairs run during the refinement, in the order run.
+    Parameters
+    ----------
+    h_stable : float
+        The largest step known stable, in s: the estimate of h*.
+    h_unstable : float
+        The smallest step known unstable above it, in s.
+    evaluated : tuple of (float, bool), optional
+        The ``(step_size, stable)`` pairs run during the refinement, step in s, in the order run.
+        Default: none.
     """
 
     h_stable: float
@@ -56,10 +85,12 @@ class Boundary:
 
     @property
     def estimate(self) -> float:
+        """The estimate of the boundary h*, in s: ``h_stable``."""
         return self.h_stable
 
     @property
     def relative_width(self) -> float:
+        """The bracket's width relative to its lower end, ``(h_unstable - h_stable) / h_stable``."""
         return (self.h_unstable - self.h_stable) / self.h_stable
 
 
@@ -70,21 +101,39 @@ def _line(x: np.ndarray, y: np.ndarray) -> tuple[float, float, np.ndarray]:
 
 def fit_order(step_sizes: Sequence[float], deviations: Sequence[float], *, tolerance: float = 0.03,
               min_points: int = 3) -> OrderFit:
-    """The observed convergence order: least squares of log10(deviation) against log10(h) over the
-    asymptotic range of small steps.
+    """The observed convergence order over the asymptotic range of small steps.
 
-    The rule: points whose deviation is NaN, None, infinite or not positive (diverged runs) are left
-    out and the rest sorted by step size h (s). The range starts with the ``min_points`` smallest
-    steps and grows one step at a time toward larger h for as long as the least-squares line through
-    the range keeps every point within ``tolerance`` in log10 (0.03: a factor 1.07); it stops at the
-    first step that breaks the line (the knee where higher-order terms or instability take over),
-    even if larger steps would fall back onto it. If the ``min_points`` smallest steps are not on a
-    line themselves (a floor set by the reference solution's own accuracy), the start moves up one
-    step at a time. Step sizes must be distinct.
+    A least-squares line of log10(deviation) against log10(h). Points whose deviation is NaN, None,
+    infinite or not positive (diverged runs) are left out. The range starts with the ``min_points``
+    smallest steps and grows toward larger h while the line keeps every point within ``tolerance``;
+    it stops at the first step that breaks the line (the knee where higher-order terms or instability
+    take over), even if larger steps would fall back onto it. If the smallest steps are not on a line
+    (a floor set by the reference solution's own accuracy), the start moves up one step at a time.
 
-    Raises ValueError if fewer than ``min_points`` usable points remain or no ``min_points``
-    consecutive points lie on a line.
+    Parameters
+    ----------
+    step_sizes : sequence of float
+        Communication steps h, in s, distinct.
+    deviations : sequence of float
+        The deviation at each step, same length, in any unit (e.g. m).
+    tolerance : float, optional
+        The largest |residual| allowed in log10. Default 0.03 (a factor 1.07).
+    min_points : int, optional
+        The fewest steps a range may have, at least 2. Default 3.
 
+    Returns
+    -------
+    OrderFit
+        The line through the range found; its ``slope`` is the order.
+
+    Raises
+    ------
+    ValueError
+        If the inputs are not 1-D of equal length, ``min_points`` < 2, step sizes repeat, fewer than
+        ``min_points`` usable points remain or no ``min_points`` consecutive points lie on a line.
+
+    Examples
+    --------
     >>> fit = fit_order([1e-3, 2e-3, 4e-3, 8e-3], [0.5e-3, 1e-3, 2e-3, 4e-3])
     >>> round(fit.slope, 9), fit.h_min, fit.h_max, fit.points
     (1.0, 0.001, 0.008, 4)
@@ -123,14 +172,33 @@ def fit_order(step_sizes: Sequence[float], deviations: Sequence[float], *, toler
 
 
 def grid_bracket(step_sizes: Sequence[float], stable_flags: Sequence[bool]) -> tuple[float, float] | None:
-    """The grid's bracket ``(h_stable, h_unstable)`` (s) around the FIRST unstable step.
+    """The grid's bracket ``(h_stable, h_unstable)`` around the first unstable step.
 
-    ``h_unstable`` is the smallest unstable step, ``h_stable`` the largest stable step below it.
     Stability need not be monotone in h (a stable step may lie above ``h_unstable``); the bracket is
     always around the first loss of stability. A step that appears more than once (samples,
-    overrides) counts as stable only if all its runs are. None if every step is stable or no step
-    below the first unstable one is stable: no boundary within the grid (the caller says which).
+    overrides) counts as stable only if all its runs are.
 
+    Parameters
+    ----------
+    step_sizes : sequence of float
+        Communication steps h, in s, in any order.
+    stable_flags : sequence of bool
+        Whether the run at each step was stable, same length.
+
+    Returns
+    -------
+    tuple of (float, float) or None
+        ``h_unstable`` the smallest unstable step and ``h_stable`` the largest stable step below it,
+        in s; None if every step is stable or none below the first unstable one is: no boundary
+        within the grid (the caller says which).
+
+    Raises
+    ------
+    ValueError
+        If the two sequences differ in length.
+
+    Examples
+    --------
     >>> grid_bracket([0.001, 0.002, 0.005, 0.01], [True, True, False, True])
     (0.002, 0.005)
     """
@@ -148,12 +216,33 @@ def grid_bracket(step_sizes: Sequence[float], stable_flags: Sequence[bool]) -> t
 
 def refine_boundary(is_stable: Callable[[float], bool], h_stable: float, h_unstable: float,
                     rel_tol: float = 0.02) -> Boundary:
-    """Bisect the bracket ``h_stable`` < h* <= ``h_unstable`` (s) at geometric midpoints
-    ``sqrt(h_stable * h_unstable)`` until ``(h_unstable - h_stable) / h_stable <= rel_tol``.
+    """Bisect a stability bracket at geometric midpoints until it is narrow enough.
 
-    ``is_stable(h)`` runs (or looks up) one co-simulation at step h. It takes
+    Each step runs ``is_stable`` at ``sqrt(h_stable * h_unstable)``, until
+    ``(h_unstable - h_stable) / h_stable <= rel_tol``: that takes
     ``ceil(log2(ln(h_unstable / h_stable) / ln(1 + rel_tol)))`` evaluations. If stability is not
     monotone in h, the result is one transition from stable to unstable inside the bracket.
+
+    Parameters
+    ----------
+    is_stable : callable
+        ``is_stable(h) -> bool`` runs (or looks up) one co-simulation at step h (s).
+    h_stable : float
+        A step known stable, in s.
+    h_unstable : float
+        A step known unstable, in s, larger than ``h_stable``.
+    rel_tol : float, optional
+        The relative width to reach, > 0. Default 0.02.
+
+    Returns
+    -------
+    Boundary
+        The final bracket and the steps evaluated.
+
+    Raises
+    ------
+    ValueError
+        If not ``0 < h_stable < h_unstable`` or ``rel_tol`` is not positive.
     """
     if not 0 < h_stable < h_unstable:
         raise ValueError(f"bracket ({h_stable!r}, {h_unstable!r}) is not allowed; allowed: 0 < h_stable < h_unstable")
@@ -173,7 +262,18 @@ def refine_boundary(is_stable: Callable[[float], bool], h_stable: float, h_unsta
 
 
 def overrides(row: Mapping) -> dict:
-    """The parameter overrides of a sweep row: its keys with a dot, like ``controller.k4``."""
+    """The parameter overrides of a sweep row.
+
+    Parameters
+    ----------
+    row : Mapping
+        One run's row (keys of ``study.rows.ROW_KEYS``).
+
+    Returns
+    -------
+    dict
+        The row's items whose key has a dot, like ``controller.k4``.
+    """
     return {name: value for name, value in row.items() if "." in name}
 
 
@@ -182,9 +282,20 @@ def _value(value) -> str:
 
 
 def group_label(row: Mapping) -> str:
-    """The label of a row's series in a sweep: ``order/discretization``, the coupling if not the hold,
-    ``error-controlled`` for a run with a tolerance, then any overrides ``name=value`` and ``sample N``;
-    e.g. ``gauss-seidel/rk4 linear controller.k4=2 sample 3``."""
+    """The label of a row's series in a sweep.
+
+    Parameters
+    ----------
+    row : Mapping
+        One run's row (keys of ``study.rows.ROW_KEYS``; ``order`` required).
+
+    Returns
+    -------
+    str
+        ``order/discretization``, the coupling if not the hold, ``error-controlled`` for a run with a
+        tolerance, then any overrides ``name=value`` and ``sample N``; e.g.
+        ``gauss-seidel/rk4 linear controller.k4=2 sample 3``.
+    """
     parts = [f"{row['order']}/{row.get('discretization', 'rk4')}"]
     if row.get("coupling", "hold") != "hold":
         parts.append(row["coupling"])
@@ -197,7 +308,18 @@ def group_label(row: Mapping) -> str:
 
 
 def group_rows(rows: Sequence[Mapping]) -> dict[str, list[Mapping]]:
-    """The rows by ``group_label``, groups in order of first appearance, rows sorted by step size."""
+    """The rows of a sweep by series.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+
+    Returns
+    -------
+    dict of str to list of Mapping
+        ``group_label`` -> its rows sorted by step size; groups in order of first appearance.
+    """
     groups: dict[str, list[Mapping]] = {}
     for row in rows:
         groups.setdefault(group_label(row), []).append(row)
@@ -210,8 +332,23 @@ def _float(value) -> float:
 
 def fit_orders(rows: Sequence[Mapping], quantities: Sequence[str] = DEVIATION_QUANTITIES,
                **fit_options) -> dict[str, dict[str, OrderFit | str]]:
-    """``fit_order`` of each quantity of each group of ``rows`` against its step sizes:
-    label -> quantity -> OrderFit, or the ValueError's message if no order could be fitted."""
+    """The observed convergence order of each quantity of each series of a sweep.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+    quantities : sequence of str, optional
+        The row keys to fit against ``step_size``. Default ``DEVIATION_QUANTITIES``.
+    **fit_options
+        ``tolerance`` and ``min_points``, passed to ``fit_order``.
+
+    Returns
+    -------
+    dict of str to dict of str to OrderFit or str
+        ``group_label`` -> quantity -> OrderFit, or the ValueError's message if no order could be
+        fitted.
+    """
     fits: dict[str, dict[str, OrderFit | str]] = {}
     for label, group in group_rows(rows).items():
         fits[label] = {}
@@ -225,7 +362,18 @@ def fit_orders(rows: Sequence[Mapping], quantities: Sequence[str] = DEVIATION_QU
 
 
 def grid_brackets(rows: Sequence[Mapping]) -> dict[str, tuple[float, float] | None]:
-    """``grid_bracket`` of each group of ``rows`` from their ``stable`` flags: label -> bracket or None."""
+    """The grid's stability bracket of each series of a sweep.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+
+    Returns
+    -------
+    dict of str to tuple of (float, float) or None
+        ``group_label`` -> ``grid_bracket`` of its rows' ``stable`` flags (s), or None.
+    """
     return {label: grid_bracket([row["step_size"] for row in group], [row["stable"] for row in group])
             for label, group in group_rows(rows).items()}
 
@@ -284,16 +432,36 @@ def summarise(rows: Sequence[Mapping], *, stability_definition: str, settings: M
               boundaries: Mapping[str, Boundary | None] | None = None,
               predictions: Mapping[str, float | None] | None = None, notes: Sequence[str] = (),
               tolerance: float = AGREEMENT_TOLERANCE) -> dict:
-    """The content of ``sweep.json``, JSON-serialisable (NaN and infinity as null).
+    """The content of ``sweep.json``.
 
-    ``rows``: one dict per run (keys of the sweep engine); ``stability_definition``: what "stable"
-    means, in words; ``settings``: the sweep's settings, stored as given; ``fits``: as from
-    ``fit_orders`` (computed from ``rows`` if None); ``boundaries``: label -> refined Boundary (groups
-    without one use the grid bracket); ``predictions``: the linearised boundary h* (s) by group label,
-    or by coupling order for the groups with nominal parameters (no overrides, no sample);
-    ``notes``: reasons for any disagreement (> ``tolerance``) between predicted and measured
-    boundaries, and other remarks. Per group: its order, discretization, overrides and
-    sample, counts, observed orders, stability boundary and the comparison with the prediction.
+    Per series: its order, discretization, overrides and sample, counts, observed orders, stability
+    boundary and the comparison with the prediction.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+    stability_definition : str
+        What "stable" means, in words.
+    settings : Mapping, optional
+        The sweep's settings, stored as given. Default: none.
+    fits : Mapping, optional
+        As from ``fit_orders``; computed from ``rows`` if None.
+    boundaries : Mapping of str to Boundary or None, optional
+        ``group_label`` -> refined boundary; series without one use the grid bracket.
+    predictions : Mapping of str to float or None, optional
+        The linearised boundary h* (s) by ``group_label``, or by coupling order (``"gauss-seidel"``,
+        ``"jacobi"``) for the series with nominal parameters (no overrides, no sample).
+    notes : sequence of str, optional
+        Reasons for any disagreement between predicted and measured boundaries, and other remarks.
+    tolerance : float, optional
+        Predicted and measured boundaries agree if ``|predicted / measured - 1| <= tolerance``.
+        Default ``AGREEMENT_TOLERANCE`` (0.2).
+
+    Returns
+    -------
+    dict
+        JSON-serialisable, NaN and infinities as None (``to_json``).
     """
     fits = fit_orders(rows) if fits is None else fits
     boundaries, predictions = boundaries or {}, predictions or {}
@@ -327,8 +495,19 @@ def summarise(rows: Sequence[Mapping], *, stability_definition: str, settings: M
 
 
 def to_json(value):
-    """``value`` with NumPy scalars and arrays as Python numbers and lists, tuples and Paths as lists
-    and strings, and NaN and infinities as None, so ``json.dumps`` writes strict JSON."""
+    """A value that ``json.dumps`` writes as strict JSON.
+
+    Parameters
+    ----------
+    value : object
+        Nested mappings, sequences, NumPy scalars and arrays, numbers, Paths and strings.
+
+    Returns
+    -------
+    object
+        ``value`` with mapping keys as strings, NumPy scalars and arrays as Python numbers and lists,
+        tuples as lists, Paths as strings, and NaN and infinities as None.
+    """
     if isinstance(value, Mapping):
         return {str(key): to_json(item) for key, item in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
@@ -345,7 +524,20 @@ def to_json(value):
 
 
 def write_summary_json(out_dir: Path | str, summary: Mapping) -> Path:
-    """Write ``summary`` (as from ``summarise``) to ``out_dir/sweep.json``; return its path."""
+    """Write a sweep's summary to ``sweep.json``.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The directory, created if missing.
+    summary : Mapping
+        As from ``summarise``.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir/sweep.json``.
+    """
     path = Path(out_dir) / "sweep.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(to_json(summary), indent=2, allow_nan=False) + "\n")

@@ -92,12 +92,27 @@ def _fit_of(fits: Mapping | None, label: str, quantity: str) -> OrderFit | None:
 
 def plot_deviation(rows: Sequence[Mapping], fits: Mapping | None, path: Path | str, *,
                    with_voltage: bool = True) -> Path:
-    """The deviation from the continuous reference solution against the communication step h (s),
-    log-log: (a) max position deviation (m), (b) if ``with_voltage`` the max voltage deviation (V).
+    """Plot the deviation from the continuous reference solution against the communication step.
 
-    One line per series of ``rows`` (``study.group_label``); each fitted line of ``fits`` (as from
-    ``study.fit_orders``, computed if None) dashed over its range, with its slope in the legend;
-    diverged runs as an x at the top edge, runs not stable as open markers. Saved to ``path``.
+    Log-log against h (s): (a) the max position deviation (m), (b) the max voltage deviation (V). One
+    line per series (``study.group_label``); each fitted line dashed over its range, with its slope in
+    the legend; diverged runs as an x at the top edge, runs not stable as open markers.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+    fits : Mapping or None
+        As from ``study.fit_orders``; computed from ``rows`` if None.
+    path : pathlib.Path or str
+        The image file to write (its suffix sets the format).
+    with_voltage : bool, optional
+        Draw panel (b). Default True.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
     """
     groups = group_rows(rows)
     fits = fit_orders(rows) if fits is None else fits
@@ -129,9 +144,24 @@ def plot_deviation(rows: Sequence[Mapping], fits: Mapping | None, path: Path | s
 
 
 def plot_tracking_and_cost(rows: Sequence[Mapping], path: Path | str) -> Path:
-    """Against the communication step h (s, log): (a) the max position tracking error over the last
-    third of the run (m), (b) the wall time of the run (s); one line per series of ``rows``, diverged
-    runs as an x at the top edge of (a) and as x markers at their wall time in (b). Saved to ``path``."""
+    """Plot the tracking error and the cost of each run against the communication step.
+
+    Against h (s, log): (a) the max position tracking error over the last third of the run (m), (b) the
+    wall time of the run (s). One line per series; diverged runs as an x at the top edge of (a) and as
+    x markers at their wall time in (b).
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+    path : pathlib.Path or str
+        The image file to write (its suffix sets the format).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     groups = group_rows(rows)
     styles = _styles(list(groups), groups)
     figure = new_figure(12.0, 5.0)
@@ -171,11 +201,27 @@ def _has(trajectory, key: str) -> bool:
 
 
 def plot_paths(trajectories: Mapping[str, Mapping], reference_traj: Mapping, path: Path | str) -> Path:
-    """The robot's path (x, y in m) of each run of ``trajectories`` (label -> anything indexable by
-    ``"x"`` and ``"y"``: dict, npz, structured array) over the reference solution's path
-    ``reference_traj["x"], ["y"]`` and, if given, the reference robot's ``x_r, y_r``; equal axes,
-    starts marked. The view is the reference paths plus a margin, so a diverging path leaves it
-    rather than shrinking it. Saved to ``path``."""
+    """Plot the robot's path in the plane for several runs over the reference solution's path.
+
+    Equal axes, starts marked. The view is the reference paths plus a margin, so a diverging path
+    leaves it rather than shrinking it.
+
+    Parameters
+    ----------
+    trajectories : Mapping of str to Mapping
+        Label -> anything indexable by ``"x"`` and ``"y"`` (m): dict, npz, structured array.
+        Non-finite points are left out.
+    reference_traj : Mapping
+        The reference solution, indexable by ``"x"`` and ``"y"`` (m) and, optionally, by the reference
+        robot's ``"x_r"`` and ``"y_r"`` (m).
+    path : pathlib.Path or str
+        The image file to write (its suffix sets the format).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     figure = new_figure(7.0, 7.0)
     axes = figure.add_subplot()
     names = [key for key in ("x", "y", "x_r", "y_r") if _has(reference_traj, key)]
@@ -207,11 +253,29 @@ def plot_paths(trajectories: Mapping[str, Mapping], reference_traj: Mapping, pat
 def plot_spectral_radius(curves: Mapping[str, tuple[Sequence[float], Sequence[float]]],
                          measured: Mapping[str, float | None], path: Path | str, *,
                          predicted: Mapping[str, float | None] | None = None) -> Path:
-    """The predicted spectral radius rho (1) of the linearised co-simulation step against the
-    communication step h (s, log) per coupling order (``curves``: order -> (steps, rho)), the line
-    rho = 1, and the measured boundary h* (s) of each order (``measured``: order -> h or None) as a
-    vertical dashed line in the order's colour, and the predicted boundary (``predicted``: order ->
-    h or None, optional) as a dotted one. Saved to ``path``."""
+    """Plot the predicted spectral radius against the communication step, with the boundaries.
+
+    One curve of rho (1) against h (s, log) per series, the line rho = 1, each measured boundary h* as a
+    vertical dashed line in its series' colour and each predicted one as a dotted line. The y axis is
+    logarithmic if rho spans more than a factor 20.
+
+    Parameters
+    ----------
+    curves : Mapping of str to tuple of (sequence of float, sequence of float)
+        Coupling order or series label -> ``(steps, rho)``: steps h in s and the spectral radius at
+        each (``study.stability.spectral_radius_curve``).
+    measured : Mapping of str to float or None
+        Same keys -> measured boundary h* in s; None or non-finite draws no line.
+    path : pathlib.Path or str
+        The image file to write (its suffix sets the format).
+    predicted : Mapping of str to float or None, optional
+        Same keys -> predicted boundary h* in s; None or non-finite draws no line. Default: none.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     figure = new_figure(7.5, 5.0)
     axes = figure.add_subplot()
     predicted = predicted or {}
@@ -241,10 +305,25 @@ def plot_spectral_radius(curves: Mapping[str, tuple[Sequence[float], Sequence[fl
 
 
 def plot_work_precision(rows: Sequence[Mapping], path: Path | str) -> Path:
-    """Work-precision diagram: the largest position deviation from the reference solution (m) against
-    the wall time (s) and against the FMUs' doStep calls, one line per fixed-step series (its step
-    sizes) and one marked line per error-controlled series (its tolerances, annotated); runs that
-    diverged or have no deviation are left out."""
+    """Plot the work-precision diagram of a sweep.
+
+    The largest position deviation from the reference solution (m) against the wall time (s) and
+    against the FMUs' doStep calls; one line per fixed-step series (its step sizes) and one marked line
+    per error-controlled series (its tolerances in m, annotated). Runs that diverged or have no
+    deviation are left out.
+
+    Parameters
+    ----------
+    rows : sequence of Mapping
+        One row per run (keys of ``study.rows.ROW_KEYS``).
+    path : pathlib.Path or str
+        The image file to write (its suffix sets the format).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     figure = new_figure(12.0, 5.0)
     panels = figure.subplots(1, 2, sharey=True)
     groups = group_rows([row for row in rows if np.isfinite(_number(row.get("max_position_deviation_m")))])

@@ -183,7 +183,27 @@ def _figures(out_dir: Path, figures: Mapping[str, Path | str]) -> list[str]:
 
 def format_report(out_dir: Path | str, summary: Mapping, rows: Sequence[Mapping],
                   figures: Mapping[str, Path | str]) -> str:
-    """The Markdown text of ``write_report``; figure links relative to ``out_dir``."""
+    """The Markdown text of a sweep's report.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The report's directory: figure paths are linked relative to it.
+    summary : Mapping
+        As from ``study.summarise``, optionally with ``error_controlled`` (the sweep's error-controlled
+        runs); its ``notes`` give the reasons for any disagreement between predicted and measured
+        boundaries.
+    rows : sequence of Mapping
+        The sweep's rows, one per fixed-step run (keys of ``study.rows.ROW_KEYS``).
+    figures : Mapping of str to pathlib.Path or str
+        Name -> image path (absolute or relative to ``out_dir``); a name of ``FIGURE_CAPTIONS`` gets
+        its caption. A missing or empty file is reported as not written.
+
+    Returns
+    -------
+    str
+        The Markdown, without a final newline.
+    """
     counts = summary["counts"]
     settings = [f"- {name}: {_setting(value)}" for name, value in summary.get("settings", {}).items()]
     return "\n".join([
@@ -211,12 +231,24 @@ def format_report(out_dir: Path | str, summary: Mapping, rows: Sequence[Mapping]
 
 def write_report(out_dir: Path | str, summary: Mapping, rows: Sequence[Mapping],
                  figures: Mapping[str, Path | str]) -> Path:
-    """Write ``out_dir/report.md`` and return its path.
+    """Write a sweep's report to ``report.md``.
 
-    ``summary``: as from ``study.summarise`` (its ``notes`` give the reasons for any disagreement
-    between predicted and measured boundaries); ``rows``: the sweep's rows, one per run;
-    ``figures``: name -> PNG path (absolute or relative to ``out_dir``), named as in
-    ``FIGURE_CAPTIONS`` for a descriptive caption. Figures are linked relative to ``out_dir``.
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The directory, created if missing; figures are linked relative to it.
+    summary : Mapping
+        As from ``study.summarise`` (see ``format_report``).
+    rows : sequence of Mapping
+        The sweep's rows, one per fixed-step run (keys of ``study.rows.ROW_KEYS``).
+    figures : Mapping of str to pathlib.Path or str
+        Name -> image path (absolute or relative to ``out_dir``); a name of ``FIGURE_CAPTIONS`` gets
+        its caption.
+
+    Returns
+    -------
+    pathlib.Path
+        ``out_dir/report.md``.
     """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

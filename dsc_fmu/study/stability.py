@@ -36,13 +36,29 @@ class OperatingPointError(DscFmuError, RuntimeError):
 
 @dataclass
 class LinearLoop:
-    """The loop linearised about an operating point: plant ``xp' = Ap xp + Bp u, y = Cp xp`` and controller
-    ``xc' = Ac xc + Bc y, u = Cc xc + Dc y`` (deviations from the operating point).
+    """The loop linearised about an operating point, in deviations from it.
 
-    ``operating_point`` is ``[xp; xc]`` (27) in error coordinates (``operating_point()``), ``drift`` the largest
-    |derivative| there (0 at an equilibrium; the frozen estimates' slow drift otherwise), ``at_time`` the time (s)
-    the point was taken at and ``discretization`` the scenario's controller setting. Any small system can be
-    built directly, e.g. ``LinearLoop([[-a]], [[b]], [[1]], [], [], [], [[-k]])`` (static u = -k y).
+    Plant ``xp' = Ap xp + Bp u, y = Cp xp``, controller ``xc' = Ac xc + Bc y, u = Cc xc + Dc y``. For the
+    DSC loop (``linearise``) xp has 7 entries, xc 20, y 8 and u 2. Any small system can be built
+    directly, e.g. ``LinearLoop([[-a]], [[b]], [[1]], [], [], [], [[-k]])`` (static u = -k y); matrices
+    are converted to 2-D float arrays.
+
+    Parameters
+    ----------
+    Ap, Bp, Cp : array_like
+        The plant's matrices, shapes (np, np), (np, nu), (ny, np).
+    Ac, Bc, Cc, Dc : array_like
+        The controller's matrices, shapes (nc, nc), (nc, ny), (nu, nc), (nu, ny); Ac, Bc, Cc empty for
+        a static controller.
+    operating_point : numpy.ndarray or None, optional
+        ``[xp; xc]`` (27) in error coordinates (``operating_point``). Default None.
+    drift : float, optional
+        The largest |derivative| at the operating point: 0 at an equilibrium, the frozen estimates'
+        slow drift otherwise. Default 0.
+    at_time : float or None, optional
+        The time the operating point was taken at, in s. Default None.
+    discretization : {"rk4", "euler"}, optional
+        The controller's discretization (``models.parameters.DISCRETIZATIONS``). Default "rk4".
     """
 
     Ap: np.ndarray
@@ -96,8 +112,20 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
 
 
 def error_coordinates(plant: list, reference: list) -> list:
-    """World plant state ``[x, y, theta, v1, v2, i1, i2]`` and ``[xr, yr, thetar]`` to
-    ``xp = [S11, S12, S13bar, v1, v2, i1, i2]``, eqs. (10), (12) (S13bar not wrapped)."""
+    """The plant state in error coordinates, eqs. (10), (12) (S13bar not wrapped).
+
+    Parameters
+    ----------
+    plant : list of float
+        ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
+    reference : list of float
+        ``[xr, yr, thetar]`` in m, m, rad.
+
+    Returns
+    -------
+    list of float
+        ``xp = [S11, S12, S13bar, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
+    """
     x, y, theta = plant[:3]
     ex, ey = reference[0] - x, reference[1] - y
     c, s = math.cos(theta), math.sin(theta)
@@ -105,8 +133,29 @@ def error_coordinates(plant: list, reference: list) -> list:
 
 
 def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -> list:
-    """Derivative of ``xp`` under voltages ``u``: eq. (11) of the paper for S11, S12, S13bar and the
-    wheel and motor rows (7), (8) of ``plant_derivatives`` (which do not depend on the pose)."""
+    """The derivative of the plant state in error coordinates, eqs. (11), (7), (8).
+
+    Eq. (11) gives S11, S12, S13bar; the wheel and motor rows (7), (8) come from
+    ``models.plant.plant_derivatives`` (they do not depend on the pose).
+
+    Parameters
+    ----------
+    k : models.plant.PlantCoefficients
+        The plant's coefficients (``plant_coefficients``).
+    vr : float
+        The reference's speed, in m/s.
+    wr : float
+        The reference's turn rate, in rad/s.
+    xp : sequence of float
+        ``[S11, S12, S13bar, v1, v2, i1, i2]`` (``error_coordinates``).
+    u : sequence of float
+        The voltages ``[u1, u2]``, in V.
+
+    Returns
+    -------
+    list of float
+        The 7 derivatives of ``xp``, per s.
+    """
     S11, S12, S13bar, v1, v2, i1, i2 = xp
     w = theta_dot(k, v1, v2)
     rows = plant_derivatives(k, [0.0, 0.0, 0.0, v1, v2, i1, i2], u[0], u[1])
@@ -115,27 +164,93 @@ def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -
 
 
 def error_outputs(k: PlantCoefficients, xp) -> list:
-    """Measurement ``y = [S11, S12, S13bar, theta_dot, v1, v2, i1, i2]`` (theta_dot from eq. 1)."""
+    """The measurement of the plant state in error coordinates.
+
+    Parameters
+    ----------
+    k : models.plant.PlantCoefficients
+        The plant's coefficients (``plant_coefficients``).
+    xp : sequence of float
+        ``[S11, S12, S13bar, v1, v2, i1, i2]`` (``error_coordinates``).
+
+    Returns
+    -------
+    list of float
+        ``y = [S11, S12, S13bar, theta_dot, v1, v2, i1, i2]``, theta_dot in rad/s from eq. (1).
+    """
     S11, S12, S13bar, v1, v2, i1, i2 = xp
     return [S11, S12, S13bar, theta_dot(k, v1, v2), v1, v2, i1, i2]
 
 
 def error_measurements(y, vr: float, wr: float) -> list:
-    """Controller inputs ``m`` equivalent to ``y``: robot at the origin heading 0, so xr = S11, yr = S12,
-    thetar = S13bar (eq. 10 with theta = 0), and vr_dot = 0."""
+    """The controller's inputs equivalent to a measurement in error coordinates.
+
+    The robot is put at the origin heading 0, so xr = S11, yr = S12, thetar = S13bar (eq. (10) with
+    theta = 0), and vr_dot = 0.
+
+    Parameters
+    ----------
+    y : sequence of float
+        ``[S11, S12, S13bar, theta_dot, v1, v2, i1, i2]`` (``error_outputs``).
+    vr : float
+        The reference's speed, in m/s.
+    wr : float
+        The reference's turn rate, in rad/s.
+
+    Returns
+    -------
+    list of float
+        The controller's 14 inputs ``m`` in its input order (docs/model.md §3).
+    """
     S11, S12, S13bar, td, v1, v2, i1, i2 = y
     return [0.0, 0.0, 0.0, td, v1, v2, i1, i2, S11, S12, S13bar, vr, wr, 0.0]
 
 
 def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
-    """Derivative of ``z = [xp; xc]`` (27): plant (11), (7), (8) driven by u of (26), controller (15)-(27)."""
+    """The derivative of the continuous closed loop in error coordinates.
+
+    The plant (11), (7), (8) driven by u of (26), and the controller (15)-(27).
+
+    Parameters
+    ----------
+    k : models.plant.PlantCoefficients
+        The plant's coefficients (``plant_coefficients``).
+    g : models.controller.Gains
+        The controller's gains (``gains``).
+    vr : float
+        The reference's speed, in m/s.
+    wr : float
+        The reference's turn rate, in rad/s.
+    z : array_like
+        ``[xp; xc]`` (27): ``xp`` as from ``error_coordinates``, ``xc`` the controller's 20 states.
+
+    Returns
+    -------
+    numpy.ndarray
+        The 27 derivatives of ``z``, per s.
+    """
     xp, xc = list(z[:7]), list(z[7:])
     law = control_law(g, xc, error_measurements(error_outputs(k, xp), vr, wr))
     return np.array([*error_plant_derivatives(k, vr, wr, xp, (law.u1, law.u2)), *law.derivative])
 
 
 def jacobian(f, x, rel: float = 1e-6) -> np.ndarray:
-    """Central finite-difference Jacobian of ``f`` at ``x``, step ``rel * max(1, |x_j|)`` per entry."""
+    """The central finite-difference Jacobian of a function.
+
+    Parameters
+    ----------
+    f : callable
+        ``f(x)`` -> array_like of m entries, for x of n entries.
+    x : array_like
+        The point, n entries.
+    rel : float, optional
+        Relative step: entry j is perturbed by ``rel * max(1, |x_j|)``. Default 1e-6.
+
+    Returns
+    -------
+    numpy.ndarray
+        The Jacobian, shape (m, n).
+    """
     x = np.asarray(x, float)
     columns = []
     for j in range(x.size):
@@ -172,20 +287,41 @@ def _newton(f, z, free, tol: float = 1e-12, iterations: int = 50) -> np.ndarray:
 
 def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bool = True,
                     state=None) -> tuple[np.ndarray, float]:
-    """Operating point ``z`` (27) of steady tracking in error coordinates and the time (s) it was taken at.
+    """The operating point of steady tracking in error coordinates.
 
-    The continuous closed loop is integrated from the scenario's initial state (docs/model.md §5) to ``at_time``
-    (default: the scenario's stop time), or ``state`` (27, error coordinates, e.g. from a co-simulation at
-    ``at_time``) is taken instead; then it is polished by Newton's method:
+    The continuous closed loop is integrated from the scenario's initial state (docs/model.md §5) to
+    ``at_time``, or ``state`` is taken instead; then it is polished by Newton's method. With ``frozen``
+    the adaptation is slow enough to freeze: the leakage poles are -sigma gamma, down to -1e-8 1/s, so a
+    30 s run stays far from the equilibrium of the whole adaptive loop. That equilibrium, unique thanks
+    to sigma-modification (15), (16), (21), (27), is unstable for the paper's gains (e.g. ra_hat = 3.47 >
+    Ra + k5 there: the current loop (26) has negative resistance) and reached only after ~1e4 s.
 
-    - ``frozen`` (default): the 16 estimates (a1_hat, a2_hat, W1_hat, W2_hat) keep the values reached there and
-      the derivatives of the 11 other states vanish: steady tracking with the adaptation frozen (it is slow:
-      the leakage poles are -sigma gamma, down to -1e-8 1/s, so a 30 s run stays far from its equilibrium);
-    - otherwise all 27 derivatives vanish: the equilibrium of the whole adaptive loop, unique thanks to
-      sigma-modification (15), (16), (21), (27). For the paper's gains it is unstable (e.g. ra_hat = 3.47 >
-      Ra + k5 there: the current loop (26) has negative resistance), and reached only after ~1e4 s.
+    Parameters
+    ----------
+    scenario : Scenario
+        A scenario with the constant reference profile.
+    at_time : float or None, optional
+        Where to take the point, in s. Default None: the scenario's stop time.
+    frozen : bool, optional
+        True (default): the 16 estimates (a1_hat, a2_hat, W1_hat, W2_hat) keep the values reached and
+        the derivatives of the 11 other states vanish. False: all 27 derivatives vanish.
+    state : array_like or None, optional
+        ``[xp; xc]`` (27) in error coordinates to start Newton's method from (e.g. from a
+        co-simulation at ``at_time``) instead of integrating. Default None.
 
-    OperatingPointError if the integration or Newton's method fails.
+    Returns
+    -------
+    z : numpy.ndarray
+        The operating point ``[xp; xc]`` (27) in error coordinates.
+    at_time : float
+        The time it was taken at, in s.
+
+    Raises
+    ------
+    ValueError
+        If the scenario's reference profile is not constant.
+    OperatingPointError
+        If the integration or Newton's method fails.
     """
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
@@ -203,8 +339,37 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
 
 def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = True, rel: float = 1e-6,
               state=None) -> LinearLoop:
-    """Linearise plant (Ap, Bp, Cp) and controller (Ac, Bc, Cc, Dc) about ``operating_point`` by central
-    differences of ``error_plant_derivatives``, ``error_outputs`` and ``control_law`` (step ``rel * max(1, |x|)``)."""
+    """Linearise the plant and the controller about the operating point of steady tracking.
+
+    By central differences (``jacobian``) of ``error_plant_derivatives``, ``error_outputs`` and the
+    control law at ``operating_point(scenario, at_time, frozen, state)``.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        A scenario with the constant reference profile.
+    at_time : float or None, optional
+        Where to take the operating point, in s. Default None: the scenario's stop time.
+    frozen : bool, optional
+        Freeze the 16 estimates at the operating point (see ``operating_point``). Default True.
+    rel : float, optional
+        Relative finite-difference step. Default 1e-6.
+    state : array_like or None, optional
+        ``[xp; xc]`` (27) in error coordinates to start from instead of integrating. Default None.
+
+    Returns
+    -------
+    LinearLoop
+        Plant (7 states, 2 inputs, 8 outputs) and controller (20 states), with the operating point,
+        its drift, its time and the scenario's discretization.
+
+    Raises
+    ------
+    ValueError
+        If the scenario's reference profile is not constant.
+    OperatingPointError
+        If no operating point is found.
+    """
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     z, T = operating_point(scenario, at_time, frozen, state)
@@ -225,9 +390,31 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
 
 
 def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.ndarray, ...]:
-    """``(Phi_p, Gamma_p, Phi_c, Gamma_c)`` at step ``h``: plant by ZOH (``control.c2d``, exact with u held);
-    controller by ZOH ("rk4": RK4 sub-steps, ~ exact with y held) or by one explicit Euler step ("euler":
-    Phi_c = I + h Ac, Gamma_c = h Bc)."""
+    """The plant and the controller sampled over one communication step.
+
+    The plant by zero-order hold (``control.c2d``, exact with u held); the controller by zero-order hold
+    for "rk4" (its RK4 sub-steps are nearly exact with y held) or by one explicit Euler step for "euler"
+    (``Phi_c = I + h Ac``, ``Gamma_c = h Bc``).
+
+    Parameters
+    ----------
+    loop : LinearLoop
+        The linearised loop.
+    h : float
+        The communication step, in s.
+    discretization : {"rk4", "euler"}
+        The controller's discretization.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(Phi_p, Gamma_p, Phi_c, Gamma_c)``.
+
+    Raises
+    ------
+    ValueError
+        If ``discretization`` is not one of the allowed names.
+    """
     if discretization not in DISCRETIZATIONS:
         raise ValueError(f"discretization {discretization!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
     plant = control.c2d(loop.plant, h, method="zoh")
@@ -240,9 +427,10 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
 
 
 def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
-    """Transition matrix M of the stacked state ``[xp; xc]`` over one communication step (master.cosimulate).
+    """The transition matrix of the sampled loop with held inputs over one communication step.
 
-    At t_k the controller's inputs hold y_k = Cp xp_k and u_k = Cc xc_k + Dc y_k is read (feedthrough), so
+    The matrix M of the stacked state ``[xp; xc]`` (as ``cosim.master`` steps). At t_k the controller's
+    inputs hold y_k = Cp xp_k and u_k = Cc xc_k + Dc y_k is read (feedthrough), so
     ``xp_{k+1} = Phi_p xp_k + Gamma_p u_k = Kp xp_k + Kc xc_k``, ``Kp = Phi_p + Gamma_p Dc Cp``, ``Kc = Gamma_p Cc``.
 
     - Jacobi: the controller integrates with y_k held, ``xc_{k+1} = Gamma_c Cp xp_k + Phi_c xc_k``, so
@@ -251,6 +439,27 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
       ``xc_{k+1} = Gamma_c Cp Kp xp_k + (Phi_c + Gamma_c Cp Kc) xc_k`` and
       ``M = [[Kp, Kc], [Gamma_c Cp Kp, Phi_c + Gamma_c Cp Kc]]``
       (u_{k+1} = Cc xc_{k+1} + Dc y_{k+1} then uses the same y_{k+1}: no further term).
+
+    Parameters
+    ----------
+    loop : LinearLoop
+        The linearised loop.
+    h : float
+        The communication step, in s.
+    order : {"gauss-seidel", "jacobi"}
+        The coupling order (``scenario.ORDERS``).
+    discretization : {"rk4", "euler"} or None, optional
+        The controller's discretization. Default None: the loop's.
+
+    Returns
+    -------
+    numpy.ndarray
+        M, shape (np + nc, np + nc).
+
+    Raises
+    ------
+    ValueError
+        If ``order`` or ``discretization`` is not one of the allowed names.
     """
     if order not in ORDERS:
         raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
@@ -265,8 +474,25 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
 
 
 def ramp_pieces(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(Phi, G0, G1)`` of ``x' = A x + B w`` over a step h with the input a ramp ``w(s) = w0 + (s / h) d``:
-    ``x(h) = Phi x(0) + G0 w0 + G1 d`` (the exponential of ``[[A, B, 0], [0, 0, I/h], [0, 0, 0]] h``)."""
+    """A linear system sampled over one step with its input a ramp.
+
+    For ``x' = A x + B w`` with ``w(s) = w0 + (s / h) d``: ``x(h) = Phi x(0) + G0 w0 + G1 d``, from the
+    exponential of ``[[A, B, 0], [0, 0, I/h], [0, 0, 0]] h``.
+
+    Parameters
+    ----------
+    A : numpy.ndarray
+        The system matrix, shape (n, n).
+    B : numpy.ndarray
+        The input matrix, shape (n, m).
+    h : float
+        The step, in s.
+
+    Returns
+    -------
+    tuple of numpy.ndarray
+        ``(Phi, G0, G1)``, shapes (n, n), (n, m), (n, m).
+    """
     n, m = B.shape
     F = np.zeros((n + 2 * m, n + 2 * m))
     F[:n, :n], F[:n, n:n + m], F[n:n + m, n + m:] = A, B, np.eye(m) / h
@@ -275,8 +501,9 @@ def ramp_pieces(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.
 
 
 def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
-    """Transition matrix over one step with the linear coupling (``docs/model.md`` section 5.10), of the
-    state ``s_k = [xp_k; xc_k; u_{k-1}; y_{k-1}]``.
+    """The transition matrix of the sampled loop with the linear coupling over one communication step.
+
+    The state is ``s_k = [xp_k; xc_k; u_{k-1}; y_{k-1}]`` (docs/model.md §5.10).
 
     The plant sees the ramp through ``u_{k-1}`` and ``u_k = Cc xc_k + Dc y_k``:
     ``xp_{k+1} = Phi_p xp_k + G0_p u_k + G1_p (u_k - u_{k-1})`` (``ramp_pieces``). The controller sees its
@@ -284,6 +511,27 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     G1_c (y_k - y_{k-1})``, or interpolated from ``y_k`` to ``y_{k+1} = Cp xp_{k+1}`` (Gauss-Seidel),
     ``xc_{k+1} = Phi_c xc_k + G0_c y_k + G1_c (y_{k+1} - y_k)``. With ``discretization`` = euler the
     controller takes ``xc + h (Ac xc + Bc y(t_k))``: ``G1_c = 0``.
+
+    Parameters
+    ----------
+    loop : LinearLoop
+        The linearised loop.
+    h : float
+        The communication step, in s.
+    order : {"gauss-seidel", "jacobi"}
+        The coupling order (``scenario.ORDERS``).
+    discretization : {"rk4", "euler"} or None, optional
+        The controller's discretization. Default None: the loop's.
+
+    Returns
+    -------
+    numpy.ndarray
+        The matrix of ``s_k``, shape (np + nc + nu + ny, np + nc + nu + ny).
+
+    Raises
+    ------
+    ValueError
+        If ``order`` is not one of the allowed names.
     """
     if order not in ORDERS:
         raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
@@ -310,8 +558,33 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
 
 def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str | None = None,
                     coupling: str = "hold") -> float:
-    """Largest |eigenvalue| of the transition matrix of ``coupling`` (``transition_matrix`` for hold,
-    ``linear_transition_matrix`` for linear): the sampled loop is stable where it is < 1."""
+    """The spectral radius of the sampled loop: it is stable where this is below 1.
+
+    Parameters
+    ----------
+    loop : LinearLoop
+        The linearised loop.
+    h : float
+        The communication step, in s.
+    order : {"gauss-seidel", "jacobi"}
+        The coupling order (``scenario.ORDERS``).
+    discretization : {"rk4", "euler"} or None, optional
+        The controller's discretization. Default None: the loop's.
+    coupling : {"hold", "linear"}, optional
+        The coupling (``scenario.COUPLINGS``): ``transition_matrix`` for "hold" (default),
+        ``linear_transition_matrix`` for "linear".
+
+    Returns
+    -------
+    float
+        The largest |eigenvalue| of the transition matrix.
+
+    Raises
+    ------
+    ValueError
+        If ``coupling`` or ``order`` is not one of the allowed names, or ``discretization`` with the
+        hold coupling.
+    """
     if coupling not in COUPLINGS:
         raise ValueError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
     matrix = (transition_matrix if coupling == "hold" else linear_transition_matrix)(loop, h, order, discretization)
@@ -320,17 +593,72 @@ def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str 
 
 def spectral_radius_curve(loop: LinearLoop, steps, order: str, discretization: str | None = None,
                           coupling: str = "hold") -> np.ndarray:
-    """``spectral_radius`` at each communication step in ``steps`` (s), for plotting against h."""
+    """The spectral radius at each of several communication steps, for plotting against h.
+
+    Parameters
+    ----------
+    loop : LinearLoop
+        The linearised loop.
+    steps : array_like
+        Communication steps h, in s.
+    order : {"gauss-seidel", "jacobi"}
+        The coupling order (``scenario.ORDERS``).
+    discretization : {"rk4", "euler"} or None, optional
+        The controller's discretization. Default None: the loop's.
+    coupling : {"hold", "linear"}, optional
+        The coupling (``scenario.COUPLINGS``). Default "hold".
+
+    Returns
+    -------
+    numpy.ndarray
+        ``spectral_radius`` at each step, shaped like ``steps`` flattened.
+
+    Raises
+    ------
+    ValueError
+        If ``coupling`` or ``order`` is not one of the allowed names, or ``discretization`` with the
+        hold coupling.
+    """
     return np.array([spectral_radius(loop, h, order, discretization, coupling) for h in np.asarray(steps, float)])
 
 
 def predicted_boundary(loop: LinearLoop | Scenario, order: str, discretization: str | None = None, *,
                        steps=DEFAULT_STEPS, rtol: float = 1e-3, tol: float = 1e-9, coupling: str = "hold") -> float:
-    """Smallest step h (s) at which the spectral radius reaches 1 (+ ``tol``, above rounding of the slow
-    adaptation modes, |lambda| = 1 - O(1e-8 h)): the first crossing on the ascending grid ``steps``,
-    bisected (geometrically) to ``rtol``. 0.0 if unstable at ``steps[0]``, inf if stable on the whole grid.
+    """The predicted stability boundary: the smallest step at which the spectral radius reaches 1.
+
+    The first crossing of ``1 + tol`` on the ascending grid ``steps``, bisected geometrically to ``rtol``.
     Only the first crossing counts: the curve need not be monotonic (stable windows can follow).
-    A Scenario is linearised first (``linearise``); ``discretization`` defaults to the loop's.
+
+    Parameters
+    ----------
+    loop : LinearLoop or Scenario
+        The linearised loop; a Scenario is linearised first (``linearise``).
+    order : {"gauss-seidel", "jacobi"}
+        The coupling order (``scenario.ORDERS``).
+    discretization : {"rk4", "euler"} or None, optional
+        The controller's discretization. Default None: the loop's.
+    steps : array_like, optional
+        Ascending communication steps to scan, in s. Default 201 steps from 1e-5 s to 1 s, log-spaced.
+    rtol : float, optional
+        Relative width to bisect the crossing to. Default 1e-3.
+    tol : float, optional
+        Margin above 1, above the rounding of the slow adaptation modes (|lambda| = 1 - O(1e-8 h)).
+        Default 1e-9.
+    coupling : {"hold", "linear"}, optional
+        The coupling (``scenario.COUPLINGS``). Default "hold".
+
+    Returns
+    -------
+    float
+        The boundary h*, in s; 0.0 if unstable at ``steps[0]``, inf if stable on the whole grid.
+
+    Raises
+    ------
+    ValueError
+        If ``coupling`` or ``order`` is not one of the allowed names, or ``discretization`` with the
+        hold coupling, or a Scenario's reference profile is not constant.
+    OperatingPointError
+        If a Scenario has no operating point.
     """
     if isinstance(loop, Scenario):
         loop = linearise(loop)
