@@ -1,7 +1,7 @@
 """One slave glue over FMI 2.0 and 3.0: ``SlaveCore`` registered and logging through an FMI library's names.
 
 Bundled into every FMU beside ``slave_core``, ``slave_models`` and ``models``; imports only the standard
-library. The FMI library comes as a table of its names (``FmiLibrary``): ``fmi2`` makes it from
+library and ``slave_core``. The FMI library comes as a table of its names (``FmiLibrary``): ``fmi2`` makes it from
 pythonfmu, ``fmi3`` from pythonfmu3, and an FMU carries the one module of its FMI version.
 """
 
@@ -76,7 +76,7 @@ class SlaveGlue(SlaveCore):
     def __init__(self, **kwargs):
         super().__init__(**kwargs)
         library = self.library
-        # The FMI library's __init__ sets these to None on the instance: take the model's values.
+        # The FMI library's __init__ sets these to None on the instance.
         self.description = type(self).description
         self.author = "dsc-fmu"
         self.default_experiment = library.default_experiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
