@@ -1,10 +1,8 @@
 """DSCController.fmu (FMI 3.0): the adaptive dynamic surface controller of docs/model.md §3 (equations 10-27)."""
 
-from pythonfmu3 import Fmi3Slave
-
 from dsc_fmu.fmu.fmi3 import DscSlave
 from dsc_fmu.fmu.slave_models import DSCControllerModel
 
 
-class DSCController(DSCControllerModel, DscSlave, Fmi3Slave):
-    """The FMI 3.0 slave: ``DSCControllerModel`` on the FMI 3.0 glue (pythonfmu3)."""
+class DSCController(DSCControllerModel, DscSlave):
+    """``DSCControllerModel`` on the FMI 3.0 glue (pythonfmu3)."""

@@ -915,7 +915,7 @@ RAISING = """
 def test_an_exception_in_the_model_discards_the_step_and_the_state_api_rolls_back(patched_mobile_robot, tmp_path):
     """A Python exception inside a step is fmi2Discard with the exception in the log, never
     fmi2Fatal; the instance answers afterwards and fmi2SetFMUstate brings it back exactly."""
-    path = patched_mobile_robot("        super().__init__(**kwargs)\n", RAISING, "raising")
+    path = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', RAISING, "raising")
     plant = Instance(read_model_description(str(path)), extract(str(path), unzipdir=tmp_path / "u"), "raising")
     plant.initialize()
     plant.set(("u1", "u2"), (6.0, 5.0))
@@ -1059,7 +1059,8 @@ def test_bundled_package_names_are_unique_per_fmu_and_build(fmu_paths):
             script = archive.read(f"resources/{module}.py").decode()
         assert module == f"{Path(FMUS[name].script).stem}_{digest[:12]}"
         package = f"dsc_fmu_{name.lower()}_{digest[:12]}"
-        assert f"resources/{package}/fmu/fmi2.py" in files
+        assert {f"resources/{package}/fmu/glue.py", f"resources/{package}/fmu/fmi2.py"} <= set(files)
+        assert f"resources/{package}/fmu/fmi3.py" not in files  # an FMI 2.0 FMU never needs pythonfmu3
         assert f"resources/{package}/models/plant.py" in files
         assert "from dsc_fmu." not in script and f"from {package}." in script
         assert not any(f.startswith("resources/dsc_fmu/") for f in files)
@@ -1071,7 +1072,7 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
                                                                  patched_mobile_robot):
     """A second MobileRobot built from changed sources: own names, own code, both run side by side."""
     shifted = "\n    def outputs(self, x):\n        x_, *rest = super().outputs(x)\n        return [x_ + 1000.0, *rest]\n"
-    variant = patched_mobile_robot("        super().__init__(**kwargs)\n", shifted, "variant")
+    variant = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', shifted, "variant")
 
     original = fmu_paths["MobileRobot"]
     ids = fmu_build_id(original), fmu_build_id(variant)
@@ -1108,8 +1109,8 @@ def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu
 
 @pytest.mark.parametrize("name", NAMES)
 def test_an_fmu_instantiates_again_after_its_instances_are_freed(md, fmu_unzipped, name):
-    """pythonfmu 0.7.0 drops a reference to the slave module when an instance is freed; the slave
-    scripts keep its namespace alive (see fmu_sources), so each new instance still finds its class."""
+    """Freeing the last instance forgets the build's modules, the slave script's among them
+    (native_bridge.release); each new instance imports them again and finds its class."""
     for cycle in range(3):
         inst = Instance(md[name], fmu_unzipped[name], f"again{cycle}").initialize()
         inst.step(0.0, 1e-3)

@@ -1,9 +1,8 @@
 """The FMI-version-independent part of the slaves: variables from tables, checks, steps, model exchange, state.
 
 Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
-``fmi2.DscSlave`` (FMI 2.0, pythonfmu) and ``fmi3.DscSlave`` (FMI 3.0, pythonfmu3)
-put it on their slave base classes and supply the hooks ``_register``, ``log_error``,
-``log_discard`` and ``log_warning``.
+``glue.SlaveGlue`` puts it on the FMI library's slave class (``fmi2``: pythonfmu, ``fmi3``:
+pythonfmu3) and supplies the hooks ``_register``, ``log_error``, ``log_discard`` and ``log_warning``.
 """
 
 from __future__ import annotations
@@ -85,15 +84,33 @@ class SlaveCore:
         raise NotImplementedError
 
     def log_error(self, message: str) -> None:
-        """Hook: log ``message`` with the status error."""
+        """Hook: log ``message`` with the status error.
+
+        Parameters
+        ----------
+        message : str
+            The message, naming the instance.
+        """
         raise NotImplementedError
 
     def log_discard(self, message: str) -> None:
-        """Hook: log ``message`` with the status discard (why a step is discarded)."""
+        """Hook: log ``message`` with the status discard (why a step is discarded).
+
+        Parameters
+        ----------
+        message : str
+            The message, naming the instance.
+        """
         raise NotImplementedError
 
     def log_warning(self, message: str) -> None:
-        """Hook: log ``message`` with the status warning."""
+        """Hook: log ``message`` with the status warning.
+
+        Parameters
+        ----------
+        message : str
+            The message, naming the instance.
+        """
         raise NotImplementedError
 
     def _accept(self, kind: str, v, value) -> bool:
@@ -108,7 +125,15 @@ class SlaveCore:
         return False
 
     def report_refusal(self, kind: str, message: str) -> None:
-        """Log the refusal of a ``kind`` ("parameter" or "input") value as an error."""
+        """Log the refusal of a value as an error.
+
+        Parameters
+        ----------
+        kind : {"parameter", "input"}
+            What was refused.
+        message : str
+            Why, naming the variable, the value and the allowed range.
+        """
         self.log_error(f"{self.instance_name}: {message}")
 
     def _set_parameter(self, v, value):
@@ -130,16 +155,48 @@ class SlaveCore:
         return self._constants
 
     def current_state(self) -> list:
-        """The state: until the first step, ``initial_state()`` of the current parameters and inputs
-        (so the order in which an importer initialises, sets and reads does not matter)."""
+        """The state, also before the first step.
+
+        Until the first step it is ``initial_state()`` of the current parameters and inputs, so the order in
+        which an importer initialises, sets and reads does not matter.
+
+        Returns
+        -------
+        list of float
+            The state vector, in the order of ``STATES``.
+        """
         return self.initial_state() if self.state is None else self.state
 
     def substep_count(self, step_size: float) -> int:
-        """How many sub-steps ``integrate`` takes over ``step_size``."""
+        """How many sub-steps ``integrate`` takes over ``step_size``.
+
+        Parameters
+        ----------
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        int
+            The number of RK4 sub-steps no longer than ``max_step`` (docs/model.md §5.11).
+        """
         return substeps(step_size, self.p["max_step"])
 
     def too_many_substeps(self, current_time: float, step_size: float) -> bool:
-        """Whether the step needs more than ``MAX_SUBSTEPS`` sub-steps (logged): no step may demand unbounded work."""
+        """Whether the step needs more than ``MAX_SUBSTEPS`` sub-steps: no step may demand unbounded work.
+
+        Parameters
+        ----------
+        current_time : float
+            The communication point the step starts from, in s.
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        bool
+            True if it does (then logged as the reason of a discard).
+        """
         n = self.substep_count(step_size)
         if n <= MAX_SUBSTEPS:
             return False
@@ -150,16 +207,41 @@ class SlaveCore:
         return True
 
     def inputs(self, t: float) -> list:
-        """The inputs at ``t`` within the current step: held, or on the line of ``coupling``."""
+        """The inputs at ``t`` within the current step: held, or on the line of ``coupling`` (docs/model.md §5.10).
+
+        Parameters
+        ----------
+        t : float
+            A time within the current step, in s.
+
+        Returns
+        -------
+        list of float
+            The inputs in the order of ``INPUTS``, in their units.
+        """
         if self._slope is None:
             return self.u
         dt = t - self._stamp
         return [value + dt * slope for value, slope in zip(self.u, self._slope)]
 
     def set_input_derivatives(self, refs: list, orders: list, values: list) -> None:
-        """fmi2SetRealInputDerivatives: the first derivatives (order 1) of Real inputs (by value
-        reference) at the current communication point, for the next step only; ValueError
-        (fmi2Error) for anything else, and then none of them is taken."""
+        """Take first derivatives of Real inputs for the next step only (fmi2SetRealInputDerivatives).
+
+        Parameters
+        ----------
+        refs : sequence of int
+            The inputs' value references.
+        orders : sequence of int
+            The derivatives' orders: 1 only.
+        values : sequence of float
+            The derivatives, in the inputs' units per s.
+
+        Raises
+        ------
+        ValueError
+            If a reference is not a Real input, an order is not 1 or a value is not finite (fmi2Error);
+            then none of them is taken.
+        """
         given = {}
         for vr, order, value in zip(refs, orders, values):
             index = self._input_index.get(getattr(self.vars.get(int(vr)), "name", None))
@@ -191,19 +273,56 @@ class SlaveCore:
         return stamp
 
     def integrate(self, t: float, x: list, step_size: float) -> list:
-        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``."""
+        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``.
+
+        Parameters
+        ----------
+        t : float
+            The start time, in s.
+        x : list of float
+            The state at ``t``.
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        list of float
+            The state at ``t + step_size``.
+        """
         return rk4_integrate(self.derivatives, t, x, step_size, self.p["max_step"])
 
     def output_values(self) -> list:
-        """The outputs in the order of ``OUTPUTS``, computed once per change of state or input."""
+        """The outputs, computed once per change of state or input.
+
+        Returns
+        -------
+        list of float
+            The outputs in the order of ``OUTPUTS``, in their units.
+        """
         if self._cache is None:
             self._cache = self.outputs(self.current_state())
         return self._cache
 
     def exit_initialization_mode(self):
+        """The end of initialization: the outputs are computed again."""
         self._cache = None
 
     def do_step(self, current_time, step_size):
+        """Take the communication step (fmi2DoStep, fmi3DoStep).
+
+        Parameters
+        ----------
+        current_time : float
+            The communication point the step starts from, in s.
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        bool
+            True if taken; False (fmiDiscard, the reason logged) while values are refused, for a step of
+            more than ``MAX_SUBSTEPS`` sub-steps or a state that is not finite, and then the state is unchanged.
+        """
         if self.rejected:
             self.log_discard(
                 f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}; "
@@ -237,7 +356,15 @@ class SlaveCore:
     # --- model exchange: the importer integrates the state; the switches change only at events ---
 
     def set_point(self, t: float | None, x: list | None) -> None:
-        """The time and (a copy of) the continuous states, each unless None, that the importer set."""
+        """Take the time and the continuous states that a model-exchange importer set.
+
+        Parameters
+        ----------
+        t : float or None
+            The time in s, unless None.
+        x : list of float or None
+            The continuous states (copied), unless None.
+        """
         if t is not None:
             self.time = t
         if x is not None:
@@ -245,24 +372,57 @@ class SlaveCore:
         self._cache = None
 
     def get_continuous_states(self) -> list:
+        """The continuous states, for model exchange.
+
+        Returns
+        -------
+        list of float
+            A copy of the state, in the order of ``STATES``.
+        """
         return list(self.current_state())
 
     def get_derivatives(self) -> list:
-        """The state's time derivative at the current time, inputs and state; RuntimeError (discard)
-        while values are refused."""
+        """The state's time derivative at the current time, inputs and state, for model exchange.
+
+        Returns
+        -------
+        list of float
+            The derivative, in the order of ``STATES``.
+
+        Raises
+        ------
+        RuntimeError
+            While values are refused (fmiDiscard).
+        """
         if self.rejected:
             raise RuntimeError(f"no derivatives while values are refused: {'; '.join(self.rejected.values())}")
         return self.derivatives(self.time, self.current_state())
 
     def get_event_indicators(self) -> list:
+        """The event indicators at the current state, for model exchange.
+
+        Returns
+        -------
+        list of float
+            ``indicator_values`` of the state, in the order of ``INDICATORS``.
+        """
         return self.indicator_values(self.current_state())
 
     def get_nominals(self) -> list:
+        """The nominal magnitudes of the continuous states, for model exchange.
+
+        Returns
+        -------
+        list of float
+            In the order of ``STATES``, in their units.
+        """
         return [s.nominal for s in self.STATES]
 
     def start_continuous_time(self) -> None:
-        """The end of initialization in model exchange: the state no longer follows the inputs, and
-        the switches are chosen for the first continuous stretch."""
+        """End initialization in model exchange: the state no longer follows the inputs.
+
+        The switches are chosen for the first continuous stretch (``update_discrete_states``).
+        """
         if self.state is None:
             self.state = self.initial_state()
         self.update_discrete_states()
@@ -272,7 +432,18 @@ class SlaveCore:
         self._cache = None
 
     def indicator_values(self, x: list) -> list:
-        """Hook: the event indicators at state ``x`` (none by default)."""
+        """Hook: the event indicators at state ``x`` (none by default).
+
+        Parameters
+        ----------
+        x : list of float
+            A state.
+
+        Returns
+        -------
+        list of float
+            One value per entry of ``INDICATORS``.
+        """
         return []
 
     def _get_fmu_state(self):
@@ -297,21 +468,77 @@ class SlaveCore:
         self._cache = None
 
     def extra_state(self) -> dict:
-        """Hook: what else a subclass must save with the FMU state."""
+        """Hook: what else a subclass must save with the FMU state.
+
+        Returns
+        -------
+        dict
+            JSON-serialisable values; none by default.
+        """
         return {}
 
     def set_extra_state(self, extra: dict):
-        """Hook: restore what ``extra_state`` saved."""
+        """Hook: restore what ``extra_state`` saved.
+
+        Parameters
+        ----------
+        extra : dict
+            What ``extra_state`` returned, after a round trip through JSON.
+        """
 
     def derive(self, p: dict):
-        """What the model needs from the parameters ``p``, precomputed (``constants``)."""
+        """What the model needs from the parameters ``p``, precomputed (``constants``).
+
+        Parameters
+        ----------
+        p : dict
+            The parameter values by name.
+
+        Returns
+        -------
+        object
+            ``p`` itself by default.
+        """
         return p
 
     def initial_state(self) -> list:
+        """Hook: the state at the start, from the current parameters and inputs.
+
+        Returns
+        -------
+        list of float
+            The state vector, in the order of ``STATES``.
+        """
         raise NotImplementedError
 
     def derivatives(self, t: float, x: list) -> list:
+        """Hook: the model's ``x_dot = derivatives(t, x)``, its inputs from ``inputs(t)``.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
         raise NotImplementedError
 
     def outputs(self, x: list) -> list:
+        """Hook: the outputs at state ``x`` and the current inputs.
+
+        Parameters
+        ----------
+        x : list of float
+            A state.
+
+        Returns
+        -------
+        list of float
+            The outputs in the order of ``OUTPUTS``.
+        """
         raise NotImplementedError

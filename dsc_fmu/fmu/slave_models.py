@@ -1,7 +1,7 @@
 """What each FMU computes, independent of the FMI version: the robot, the reference robot, the controller.
 
-Bundled into every FMU beside ``slave_core`` and ``models``. Each class is a mixin put before an
-FMI glue class (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
+Bundled into every FMU beside ``slave_core`` and ``models``. Each class is a mixin put before the
+glue of an FMI version (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
 ``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
 """
 
@@ -36,16 +36,61 @@ class MobileRobotModel:
     STATES = PLANT_STATES
 
     def derive(self, p):
+        """The constants of (1)-(8) from the parameters ``p``.
+
+        Parameters
+        ----------
+        p : dict
+            The parameter values by name.
+
+        Returns
+        -------
+        PlantCoefficients
+            ``models.plant.plant_coefficients(p)``.
+        """
         return plant_coefficients(p)
 
     def initial_state(self):
+        """The plant's state at the start (docs/model.md §5.1).
+
+        Returns
+        -------
+        list of float
+            ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
+        """
         return initial_plant_state(self.p)
 
     def derivatives(self, t, x):
+        """Equations (6)-(8) under the voltages ``inputs(t)``.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The state ``[x, y, theta, v1, v2, i1, i2]``.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
         u1, u2 = self.inputs(t)
         return plant_derivatives(self.constants, x, u1, u2)
 
     def outputs(self, x):
+        """The outputs at state ``x``, the heading rate from (1).
+
+        Parameters
+        ----------
+        x : list of float
+            The state ``[x, y, theta, v1, v2, i1, i2]``.
+
+        Returns
+        -------
+        list of float
+            ``[x, y, theta, theta_dot, omega1, omega2, i1, i2]`` in m, m, rad, rad/s, rad/s, rad/s, A, A.
+        """
         x_, y, theta, v1, v2, i1, i2 = x
         return [x_, y, theta, theta_dot(self.constants, v1, v2), v1, v2, i1, i2]
 
@@ -59,12 +104,45 @@ class ReferenceRobotModel:
     STATES = REFERENCE_STATES
 
     def initial_state(self):
+        """The reference's state at the start.
+
+        Returns
+        -------
+        list of float
+            ``[xr, yr, thetar]`` in m, m, rad.
+        """
         return initial_reference_state(self.p)
 
     def derivatives(self, t, x):
+        """Equation (9) with the velocity profile of the parameters.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The state ``[xr, yr, thetar]``.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
         return reference_derivatives(self.p, t, x)
 
     def outputs(self, x):
+        """The outputs at state ``x`` and the current time.
+
+        Parameters
+        ----------
+        x : list of float
+            The state ``[xr, yr, thetar]``.
+
+        Returns
+        -------
+        list of float
+            ``[x_r, y_r, theta_r, v_r, omega_r, v_r_dot]`` in m, m, rad, m/s, rad/s, m/s2.
+        """
         return [*x, *velocity(self.p, self.time)]
 
 
@@ -115,51 +193,167 @@ class DSCControllerModel:
         )
 
     def derive(self, p):
+        """The design parameters of Section III from the parameters ``p``.
+
+        Parameters
+        ----------
+        p : dict
+            The parameter values by name.
+
+        Returns
+        -------
+        Gains
+            ``models.controller.gains(p)``.
+        """
         return gains(p)
 
     def law(self):
+        """The law (10)-(27) at the current state and the inputs set.
+
+        Returns
+        -------
+        ControlLaw
+            The voltages, the state derivative and the law's intermediate values.
+        """
         return control_law(self.constants, self.current_state(), self.u, self.held)
 
     def started(self):
-        """Whether the filter states have started (at the first step with every input valid)."""
+        """Whether the filter states have started (at the first step with every input valid).
+
+        Returns
+        -------
+        bool
+            True once started.
+        """
         return self.state is not None
 
     def may_wait(self):
-        """Whether refused inputs would make the controller wait: start_on = valid_inputs, not started."""
+        """Whether refused inputs would make the controller wait: start_on = valid_inputs, not started.
+
+        Returns
+        -------
+        bool
+            True if they would.
+        """
         return self.state is None and self.p["start_on"] == VALID_INPUTS
 
     def waiting(self):
-        """Whether the controller waits for valid inputs (see the class docstring)."""
+        """Whether the controller waits for valid inputs (see the class).
+
+        Returns
+        -------
+        bool
+            True while it may wait and the only refused values are inputs.
+        """
         return self.may_wait() and bool(self.rejected) and _INPUT_NAMES.issuperset(self.rejected)
 
     def report_refusal(self, kind, message):
+        """Log the refusal of a value, unless it is an input the controller may wait for.
+
+        Parameters
+        ----------
+        kind : {"parameter", "input"}
+            What was refused.
+        message : str
+            Why, naming the variable, the value and the allowed range.
+        """
         if kind == "input" and self.may_wait():
             return  # reported by the step that waits
         super().report_refusal(kind, message)
 
     def current_state(self):
+        """The state: the initial estimates while waiting, else as ``SlaveCore.current_state``.
+
+        Returns
+        -------
+        list of float
+            The controller state ``xc`` (20 entries).
+        """
         if self.waiting():
             return initial_controller_state(self.p)
         return super().current_state()
 
     def initial_state(self):
+        """The state at the start: the initial estimates, the filters from the inputs (docs/model.md §5.2).
+
+        Returns
+        -------
+        list of float
+            The controller state ``xc`` (20 entries).
+        """
         return start_filters(self.constants, initial_controller_state(self.p), self.u)
 
     def derivatives(self, t, x):
+        """The derivative of ``xc`` by the law (10)-(27) at the inputs ``inputs(t)``; notes a guard that acts.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The controller state ``xc`` (20 entries).
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
         law = control_law(self.constants, x, self.inputs(t), self.held)
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative
 
     def substep_count(self, step_size):
+        """How many sub-steps ``integrate`` takes: 1 with ``discretization`` = euler.
+
+        Parameters
+        ----------
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        int
+            1 (euler) or the RK4 sub-steps no longer than ``max_step``.
+        """
         return 1 if self.p["discretization"] == EULER else super().substep_count(step_size)
 
     def integrate(self, t, x, step_size):
+        """The state after ``step_size``: RK4 or one explicit Euler step, as ``discretization`` says.
+
+        Parameters
+        ----------
+        t : float
+            The start time, in s.
+        x : list of float
+            The controller state at ``t``.
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        list of float
+            The controller state at ``t + step_size``.
+        """
         if self.p["discretization"] == EULER:
             return euler_step(self.derivatives, t, x, step_size)
         return super().integrate(t, x, step_size)
 
     def do_step(self, current_time, step_size):
+        """Take the communication step, or wait for valid inputs; count and log the beta guard.
+
+        Parameters
+        ----------
+        current_time : float
+            The communication point the step starts from, in s.
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        bool
+            True if taken (or waited), False if discarded (see ``SlaveCore.do_step``).
+        """
         if self.waiting():
             if not self.waited_steps:
                 self.log_warning(
@@ -188,6 +382,19 @@ class DSCControllerModel:
         return ok
 
     def outputs(self, x):
+        """The outputs at state ``x`` and the inputs set: u = 0 and the surfaces zero while waiting.
+
+        Parameters
+        ----------
+        x : list of float
+            The controller state ``xc`` (20 entries).
+
+        Returns
+        -------
+        list of float
+            The outputs in the order of ``CONTROLLER_OUTPUTS``: voltages (26), surfaces (10), (12),
+            beta (13), estimates and their norms.
+        """
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
         estimates = [x[0], x[1], weight_norm(W1_hat), weight_norm(W2_hat), *W1_hat, *W2_hat]
         if self.waiting():
@@ -196,11 +403,25 @@ class DSCControllerModel:
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
     def indicator_values(self, x):
+        """The event indicators of the wrap and the guard at the inputs set (docs/model.md §5.13).
+
+        Parameters
+        ----------
+        x : list of float
+            The controller state (the indicators depend on the inputs only).
+
+        Returns
+        -------
+        list of float
+            ``[cos((thetar - theta) / 2), beta - beta_min]``.
+        """
         return event_indicators(self.constants, self.u)
 
     def update_discrete_states(self):
-        """Model exchange, event mode: the switches of the current inputs, held until the next event;
-        an engaging guard is counted and logged as in co-simulation."""
+        """Model exchange, event mode: hold the switches of the current inputs until the next event.
+
+        An engaging guard is counted and logged as in co-simulation.
+        """
         held = switches(self.constants, self.u)
         if held.guarded and not (self.held and self.held.guarded):
             self.beta_guard_count += 1
@@ -212,10 +433,24 @@ class DSCControllerModel:
         super().update_discrete_states()
 
     def extra_state(self):
+        """The guard count, the wait and the held switches, saved with the FMU state.
+
+        Returns
+        -------
+        dict
+            ``beta_guard_count``, ``guarded_last_step``, ``waited_steps`` and ``held``.
+        """
         return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step,
                 "waited_steps": self.waited_steps, "held": self.held}
 
     def set_extra_state(self, extra):
+        """Restore what ``extra_state`` saved.
+
+        Parameters
+        ----------
+        extra : dict
+            What ``extra_state`` returned, after a round trip through JSON.
+        """
         self.beta_guard_count = extra["beta_guard_count"]
         self._guarded_last_step = extra["guarded_last_step"]
         self.waited_steps = extra["waited_steps"]

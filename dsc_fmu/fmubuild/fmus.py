@@ -37,10 +37,10 @@ DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
 FMI_VERSIONS = (2, 3)
 ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
-# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue
-# of its FMI version only.
-_FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "native_bridge.py")
-_GLUE = {2: "fmi2.py", 3: "fmi3.py"}
+# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
+# module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
+_FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
+_VERSION_MODULE = {2: "fmi2.py", 3: "fmi3.py"}
 # The FMI library each FMU carries, under its build's private package.
 _LIBRARY = {2: "pythonfmu", 3: "pythonfmu3"}
 
@@ -90,7 +90,7 @@ def _library_version(fmi_version: int) -> str:
 
 def _bundle(fmi_version: int) -> list[Path]:
     """The package files bundled into an FMI ``fmi_version`` FMU, relative to the package."""
-    fmu = [Path("fmu") / name for name in (*_FMU_MODULES, _GLUE[fmi_version])]
+    fmu = [Path("fmu") / name for name in (*_FMU_MODULES, _VERSION_MODULE[fmi_version])]
     return [*fmu, *sorted(path.relative_to(PACKAGE_DIR) for path in (PACKAGE_DIR / "models").glob("*.py"))]
 
 
@@ -182,16 +182,31 @@ def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
     return cache, importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(data) + marshal.dumps(code)
 
 
-def _raw_fmu(script: Path, package_dir: Path, dest: Path, fmi_version: int) -> Path:
+@contextmanager
+def _slave_class_named(class_name: str):
+    """pythonfmu3's builder finds the slave class by searching the script's text for a class statement
+    naming ``Fmi3Slave``; ours derive from it through the glue: give it the class the registry names."""
+    from pythonfmu3 import builder
+
+    find = builder.get_class_name
+    builder.get_class_name = lambda script: class_name
+    try:
+        yield
+    finally:
+        builder.get_class_name = find
+
+
+def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_version: int) -> Path:
     """The FMU as the FMI library builds it from the staged script and package."""
     if fmi_version == 3:
         from pythonfmu3 import FmuBuilder as Fmu3Builder
 
-        return Fmu3Builder.build_FMU(
-            script, dest=dest, project_files=[package_dir],
-            needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
-            canGetAndSetFMUState="true", canSerializeFMUState="true",
-        )
+        with _slave_class_named(spec.name):
+            return Fmu3Builder.build_FMU(
+                script, dest=dest, project_files=[package_dir],
+                needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+                canGetAndSetFMUState="true", canSerializeFMUState="true",
+            )
     return FmuBuilder.build_FMU(
         script, dest=dest, project_files=[package_dir],
         needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
@@ -239,7 +254,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
         tmp = Path(tmp)
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
-        raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", fmi_version)
+        raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", spec, fmi_version)
         _forget_staged_modules(package_dir.name, script.stem)
         staged = tmp / f"{spec.name}.fmu"
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:

@@ -31,9 +31,21 @@ __all__ = [
 
 
 def weight_norm(values) -> float:
-    """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27), its sum
-    of squares exactly rounded (``math.fsum``): every CPython gives the same bits (``sum`` of floats
-    rounds differently from 3.12 on)."""
+    """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27).
+
+    Its sum of squares is exactly rounded (``math.fsum``): every CPython gives the same bits (``sum``
+    of floats rounds differently from 3.12 on).
+
+    Parameters
+    ----------
+    values : iterable of float
+        The estimate's entries, ``W1_hat`` or ``W2_hat``.
+
+    Returns
+    -------
+    float
+        The norm.
+    """
     return math.sqrt(math.fsum(v * v for v in values))
 
 W1_SLICE = slice(4, 12)
@@ -42,7 +54,25 @@ W2_SLICE = slice(14, 20)
 
 @dataclass(frozen=True)
 class Gains:
-    """The design parameters of Section III (names as the controller FMU's parameters)."""
+    """The design parameters of Section III (names as the controller FMU's parameters).
+
+    Parameters
+    ----------
+    k1, k2, k3, k4, k5 : float
+        The gains of (12), (14), (14), (20) and (26).
+    gamma1, gamma2 : float
+        The adaptation gains of (15) and (16).
+    sigma1, sigma2, sigma3, sigma4 : float
+        The sigma-modifications of (15), (16), (21) and (27).
+    tau2, tau3 : float
+        The filter time constants of (17) and (23), in s.
+    Gamma1 : tuple of float
+        The diagonal of the adaptation gain matrix of (21), 8 entries.
+    Gamma2 : tuple of float
+        The diagonal of the adaptation gain matrix of (27), 6 entries.
+    beta_min : float
+        The guard of beta (docs/model.md §5.6).
+    """
 
     k1: float
     k2: float
@@ -63,7 +93,18 @@ class Gains:
 
 
 def gains(p: dict) -> Gains:
-    """Gains from the controller FMU's parameter values by name."""
+    """Gains from the controller FMU's parameter values by name.
+
+    Parameters
+    ----------
+    p : dict
+        The DSCController FMU's parameter values by name (``Gamma1_1`` ... ``Gamma1_8`` and so on).
+
+    Returns
+    -------
+    Gains
+        The design parameters.
+    """
     return Gains(
         **{name: p[name] for name in Gains.__dataclass_fields__ if not name.startswith("Gamma")},
         Gamma1=tuple(p[f"Gamma1_{i}"] for i in range(1, 9)),
@@ -72,7 +113,27 @@ def gains(p: dict) -> Gains:
 
 
 class ControlLaw(NamedTuple):
-    """One evaluation of the law: the voltages, the state derivative and what is shown of it."""
+    """One evaluation of the law: the voltages, the state derivative and what is shown of it.
+
+    Parameters
+    ----------
+    u1, u2 : float
+        The motor voltages of (26), right and left wheel, in V.
+    derivative : list of float
+        The time derivative of the controller state ``xc`` (20 entries).
+    S11, S12 : float
+        The tracking errors in the robot frame of (10), in m.
+    S13 : float
+        The transformed heading error of (12), in rad.
+    beta : float
+        ``1 + k1 vr S11 / (1 + (k1 S12 vr)^2)`` of (13), before the guard.
+    guarded : bool
+        Whether ``h2`` divided by ``beta_min`` instead of ``beta`` (docs/model.md §5.6).
+    x2bar : tuple of float
+        The virtual wheel speeds of (14), in rad/s.
+    x3bar : tuple of float
+        The virtual currents of (20), in A.
+    """
 
     u1: float
     u2: float
@@ -87,23 +148,53 @@ class ControlLaw(NamedTuple):
 
 
 class Switches(NamedTuple):
-    """The discrete choices of the law (docs/model.md §5.13), held between events in model exchange:
-    ``S13bar = (thetar - theta) - 2 pi turns`` and whether ``h2`` divides by ``beta_min``."""
+    """The discrete choices of the law (docs/model.md §5.13), held between events in model exchange.
+
+    Parameters
+    ----------
+    turns : int
+        The wrap of (5.4): ``S13bar = (thetar - theta) - 2 pi turns``.
+    guarded : bool
+        Whether ``h2`` divides by ``beta_min`` (5.6).
+    """
 
     turns: int
     guarded: bool
 
 
 def wrap(angle: float) -> float:
-    """``angle`` wrapped to (-pi, pi] (docs/model.md §5)."""
+    """``angle`` wrapped to (-pi, pi] (docs/model.md §5.4).
+
+    Parameters
+    ----------
+    angle : float
+        An angle, in rad.
+
+    Returns
+    -------
+    float
+        ``angle`` less the nearest multiple of 2 pi, in (-pi, pi] (-pi becomes pi).
+    """
     wrapped = math.remainder(angle, 2.0 * math.pi)
     return math.pi if wrapped == -math.pi else wrapped
 
 
 def alpha2(S13: float, a: float) -> float:
-    """``integral_0^1 cos(-a + eta S13) d eta`` (step 1), free of cancellation near S13 = 0.
+    """``integral_0^1 cos(-a + eta S13) d eta`` of (15) (step 1), free of cancellation near S13 = 0.
 
-    Equal to ``(sin(S13 - a) + sin(a)) / S13 = sinc(S13 / 2) cos(S13 / 2 - a)``.
+    Equal to ``(sin(S13 - a) + sin(a)) / S13 = sinc(S13 / 2) cos(S13 / 2 - a)`` (docs/model.md §5.5).
+
+    Parameters
+    ----------
+    S13 : float
+        The transformed heading error of (12), in rad.
+    a : float
+        ``arctan(k1 S12 vr)`` of (12), in rad.
+
+    Returns
+    -------
+    float
+        alpha2 (dimensionless).
     """
     half = 0.5 * S13
     sinc = 1.0 - half * half / 6.0 if abs(half) < 1e-4 else math.sin(half) / half
@@ -111,8 +202,19 @@ def alpha2(S13: float, a: float) -> float:
 
 
 def initial_controller_state(p: dict) -> list:
-    """The estimates from the parameters ``a1_hat0, a2_hat0, W1_hat0_i, W2_hat0_i`` (docs/model.md §5: zero by
-    default); the filter states are zero here and set from the first measurements by ``start_filters``."""
+    """The controller state at the start, but for its filters (docs/model.md §5.1: estimates zero by default).
+
+    Parameters
+    ----------
+    p : dict
+        The DSCController FMU's parameter values by name (``a1_hat0``, ``a2_hat0``, ``W1_hat0_i``, ``W2_hat0_i``).
+
+    Returns
+    -------
+    list of float
+        ``xc`` with the estimates from ``p`` and the filter states zero (``start_filters`` sets them
+        from the first measurements).
+    """
     return [
         p["a1_hat0"], p["a2_hat0"], 0.0, 0.0, *(p[f"W1_hat0_{i}"] for i in range(1, 9)),
         0.0, 0.0, *(p[f"W2_hat0_{i}"] for i in range(1, 7)),
@@ -133,21 +235,62 @@ def _surfaces(k1: float, m: list) -> tuple:
 
 
 def switches(g: Gains, m: list) -> Switches:
-    """The switches as the law chooses them at measurements ``m``: the wrap of (5.4), the guard of (5.6)."""
+    """The switches as the law chooses them at measurements ``m`` (docs/model.md §5.4, §5.6).
+
+    Parameters
+    ----------
+    g : Gains
+        The design parameters.
+    m : list of float
+        The measurements (14 entries, see the module).
+
+    Returns
+    -------
+    Switches
+        The wrap of ``thetar - theta`` and whether the beta guard acts.
+    """
     heading = m[10] - m[2]
     beta = _surfaces(g.k1, m)[4]
     return Switches(round((heading - wrap(heading)) / (2.0 * math.pi)), beta < g.beta_min)
 
 
 def event_indicators(g: Gains, m: list) -> list:
-    """``[cos((thetar - theta) / 2), beta - beta_min]``: each changes sign exactly where a switch of
-    ``switches`` changes (docs/model.md §5.13)."""
+    """The controller's event indicators: each changes sign exactly where a switch changes (docs/model.md §5.13).
+
+    Parameters
+    ----------
+    g : Gains
+        The design parameters.
+    m : list of float
+        The measurements (14 entries, see the module).
+
+    Returns
+    -------
+    list of float
+        ``[cos((thetar - theta) / 2), beta - beta_min]``, for the wrap and the guard of ``switches``.
+    """
     return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min]
 
 
 def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> ControlLaw:
-    """Evaluate the three DSC steps for controller state ``xc`` and measurements ``m``; the switches
-    are chosen at ``m`` unless ``held`` gives them (model exchange between events)."""
+    """Evaluate the three DSC steps, equations (10)-(27).
+
+    Parameters
+    ----------
+    g : Gains
+        The design parameters.
+    xc : list of float
+        The controller state (20 entries, see the module).
+    m : list of float
+        The measurements (14 entries, see the module).
+    held : Switches or None, optional
+        The switches held since the last event (model exchange). Default None: chosen at ``m``.
+
+    Returns
+    -------
+    ControlLaw
+        The voltages (26), the derivative of ``xc`` and the law's intermediate values.
+    """
     _, _, theta, theta_dot, v1, v2, i1, i2, _, _, thetar, vr, wr, vr_dot = m
     a1_hat, a2_hat, x2f1, x2f2 = xc[0], xc[1], xc[2], xc[3]
     W1_hat = xc[W1_SLICE]
@@ -221,9 +364,23 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> Co
 
 
 def start_filters(g: Gains, xc: list, m: list) -> list:
-    """``xc`` with ``x2f = x2bar`` and then ``x3f = x3bar`` for measurements ``m`` (docs/model.md §5).
+    """Start the filters: ``x2f(0) = x2bar(0)`` of (17), then ``x3f(0) = x3bar(0)`` of (23) (docs/model.md §5.2).
 
     With ``x2f = x2bar`` the filter derivative ``x2f_dot`` is zero when ``x3bar`` is formed.
+
+    Parameters
+    ----------
+    g : Gains
+        The design parameters.
+    xc : list of float
+        The controller state (20 entries); its filter entries are replaced.
+    m : list of float
+        The measurements the filters start from (14 entries, see the module).
+
+    Returns
+    -------
+    list of float
+        A new controller state.
     """
     xc = list(xc)
     xc[2:4] = control_law(g, xc, m).x2bar

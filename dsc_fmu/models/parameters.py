@@ -31,10 +31,27 @@ ANY = "any"
 class Variable:
     """One FMU variable: name, start value, SI unit, description and allowed range.
 
-    ``bound`` is ``"positive"`` (> 0), ``"nonnegative"`` (>= 0) or ``"any"`` (finite).
-    ``tunable`` parameters may change between communication points; the others are fixed.
-    ``minimum`` and ``maximum`` bound it further (inclusive). ``integer`` marks an Integer variable; ``choices``
-    names its values 0, 1, ... (a scenario gives the name, the FMU takes the number).
+    Parameters
+    ----------
+    name : str
+        The FMU variable's name (docs/model.md).
+    start : float
+        Its start value, in ``unit``: the paper's value for parameters (Section IV).
+    unit : str
+        Its SI unit (``"1"`` for none), as the model description writes it.
+    description : str
+        Its description, citing the paper's equation where it has one.
+    bound : {"any", "positive", "nonnegative"}, optional
+        Finite, > 0 or >= 0. Default "any".
+    tunable : bool, optional
+        Whether a parameter may change between communication points (else fixed). Default False.
+    integer : bool, optional
+        Whether it is an Integer variable (else Real). Default False.
+    minimum, maximum : float or None, optional
+        Inclusive bounds beyond ``bound``. Default None (none).
+    choices : tuple of str, optional
+        The names of an Integer's values 0, 1, ... (a scenario gives the name, the FMU takes the
+        number). Default none.
     """
 
     name: str
@@ -49,7 +66,18 @@ class Variable:
     choices: tuple = ()
 
     def check(self, value: float) -> str | None:
-        """Return why ``value`` is not allowed for this variable, or None if it is."""
+        """Why ``value`` is not allowed for this variable, if it is not.
+
+        Parameters
+        ----------
+        value : float
+            A value to set, in the variable's unit.
+
+        Returns
+        -------
+        str or None
+            The reason, naming the variable and the value; None if the value is allowed.
+        """
         if not math.isfinite(value):
             return f"{self.name} = {value} is not finite"
         if self.bound == POSITIVE and not value > 0:
@@ -76,7 +104,18 @@ class Variable:
 
 
 def defaults(variables) -> dict:
-    """Map each variable's name to its start value."""
+    """Map each variable's name to its start value.
+
+    Parameters
+    ----------
+    variables : iterable of Variable
+        The variables, for example ``PLANT_PARAMETERS``.
+
+    Returns
+    -------
+    dict
+        ``{name: start}`` in the variables' order.
+    """
     return {v.name: v.start for v in variables}
 
 

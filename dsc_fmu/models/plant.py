@@ -10,8 +10,26 @@ __all__ = ["PlantCoefficients", "plant_coefficients", "plant_derivatives", "thet
 class PlantCoefficients:
     """The constants of equations (1)-(8), computed once from the physical parameters.
 
-    ``m11, m12`` are the entries of the inertia matrix M, ``c`` the Coriolis coefficient
-    (C = c [[0, theta_dot], [-theta_dot, 0]]), ``nkt`` = n kt, ``nke`` = n ke per wheel.
+    Parameters
+    ----------
+    r : float
+        Wheel radius, in m.
+    R : float
+        Half the distance between the driving wheels, in m.
+    m11, m12 : float
+        The entries of the inertia matrix M of (2), in kg.m2.
+    c : float
+        The Coriolis coefficient, C = c [[0, theta_dot], [-theta_dot, 0]] in (2), in kg.m2.
+    d11, d22 : float
+        The viscous damping D of (2), right and left wheel, in N.m.s/rad.
+    nkt1, nkt2 : float
+        Gear ratio times torque constant, n kt of (5), in N.m/A.
+    nke1, nke2 : float
+        Gear ratio times back-EMF constant, n ke of (5), in V.s/rad.
+    ra1, ra2 : float
+        Armature resistances of (5), in Ohm.
+    la1, la2 : float
+        Armature inductances of (5), in H.
     """
 
     r: float
@@ -37,7 +55,18 @@ class PlantCoefficients:
 
 
 def plant_coefficients(p: dict) -> PlantCoefficients:
-    """Coefficients of (2) and (5) from the parameters of docs/model.md §4 (names as the FMU's)."""
+    """Coefficients of (2) and (5) from the parameters of docs/model.md §4.
+
+    Parameters
+    ----------
+    p : dict
+        The MobileRobot FMU's parameter values by name (SI units, as ``PLANT_PARAMETERS``).
+
+    Returns
+    -------
+    PlantCoefficients
+        The constants of (1)-(8).
+    """
     r, R, d, mc, mw = p["r"], p["R"], p["d"], p["mc"], p["mw"]
     m = mc + 2.0 * mw
     inertia = mc * d * d + 2.0 * mw * R * R + p["Ic"] + 2.0 * p["Im"]
@@ -62,17 +91,56 @@ def plant_coefficients(p: dict) -> PlantCoefficients:
 
 
 def theta_dot(k: PlantCoefficients, v1: float, v2: float) -> float:
-    """Heading rate from the wheel speeds, third row of (1)."""
+    """Heading rate from the wheel speeds, third row of (1).
+
+    Parameters
+    ----------
+    k : PlantCoefficients
+        The plant's constants.
+    v1, v2 : float
+        Angular velocities of the right and left wheel, in rad/s.
+
+    Returns
+    -------
+    float
+        ``theta_dot = r / (2 R) (v1 - v2)``, in rad/s.
+    """
     return 0.5 * k.r / k.R * (v1 - v2)
 
 
 def initial_plant_state(p: dict) -> list:
-    """``[x, y, theta, v1, v2, i1, i2]`` from the initial-state parameters (docs/model.md §5: at rest by default)."""
+    """The plant's state at t = 0 from its initial-state parameters (docs/model.md §5.1: at rest by default).
+
+    Parameters
+    ----------
+    p : dict
+        The MobileRobot FMU's parameter values by name (``x0``, ``y0``, ``theta0``, ``omega1_0``, ...).
+
+    Returns
+    -------
+    list of float
+        ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
+    """
     return [p["x0"], p["y0"], p["theta0"], p["omega1_0"], p["omega2_0"], p["i1_0"], p["i2_0"]]
 
 
 def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float) -> list:
-    """Time derivative of ``[x, y, theta, v1, v2, i1, i2]`` under voltages ``u1, u2`` (6)-(8)."""
+    """Time derivative of the plant's state under the motor voltages, equations (6)-(8).
+
+    Parameters
+    ----------
+    k : PlantCoefficients
+        The plant's constants.
+    x : list of float
+        The state ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
+    u1, u2 : float
+        Motor voltages of the right and left wheel, in V.
+
+    Returns
+    -------
+    list of float
+        The derivative of each entry of ``x``, per s.
+    """
     _, _, theta, v1, v2, i1, i2 = x
     speed = 0.5 * k.r * (v1 + v2)
     w = 0.5 * k.r / k.R * (v1 - v2)

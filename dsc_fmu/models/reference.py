@@ -20,17 +20,42 @@ def _figure_eight(t: float, A: float, B: float, T: float) -> tuple:
 
 
 def velocity(p: dict, t: float) -> tuple:
-    """``(vr, wr, vr_dot)`` of the profile selected by ``p["profile"]`` at time ``t``."""
+    """The reference's velocities at time ``t`` (docs/model.md §5.8).
+
+    Parameters
+    ----------
+    p : dict
+        The ReferenceRobot FMU's parameter values by name; ``p["profile"]`` selects the profile.
+    t : float
+        Time, in s.
+
+    Returns
+    -------
+    tuple of float
+        ``(vr, wr, vr_dot)`` of (9): in m/s, rad/s, m/s2.
+    """
     if p["profile"] == FIGURE_EIGHT:
         return _figure_eight(t, p["eight_A"], p["eight_B"], p["eight_T"])
     return p["vr0"], p["wr0"], 0.0
 
 
 def min_speed(p: dict, t_end: float) -> float:
-    """Smallest vr over ``[0, t_end]`` (exact: vr is constant or a closed form in cos(W t)).
+    """Smallest vr over ``[0, t_end]`` (docs/model.md §5.7: vr > 0 is required).
 
     For the figure eight, vr^2 = W^2 (A^2 s + 4 B^2 (2 s - 1)^2) with s = cos^2(W t) in [0, 1],
     minimised in closed form (over a whole period, so a lower bound for any shorter run).
+
+    Parameters
+    ----------
+    p : dict
+        The ReferenceRobot FMU's parameter values by name.
+    t_end : float
+        The end of the run, in s.
+
+    Returns
+    -------
+    float
+        The smallest vr, in m/s (exact: vr is constant or a closed form in cos(W t)).
     """
     if p["profile"] != FIGURE_EIGHT:
         return p["vr0"]
@@ -41,11 +66,37 @@ def min_speed(p: dict, t_end: float) -> float:
 
 
 def initial_reference_state(p: dict) -> list:
-    """``[xr, yr, thetar]`` at t = 0."""
+    """The reference's state at t = 0.
+
+    Parameters
+    ----------
+    p : dict
+        The ReferenceRobot FMU's parameter values by name (``x0``, ``y0``, ``theta0``).
+
+    Returns
+    -------
+    list of float
+        ``[xr, yr, thetar]`` in m, m, rad.
+    """
     return [p["x0"], p["y0"], p["theta0"]]
 
 
 def reference_derivatives(p: dict, t: float, x: list) -> list:
-    """Time derivative of ``[xr, yr, thetar]``, equation (9)."""
+    """Time derivative of the reference's state, equation (9).
+
+    Parameters
+    ----------
+    p : dict
+        The ReferenceRobot FMU's parameter values by name.
+    t : float
+        Time, in s.
+    x : list of float
+        The state ``[xr, yr, thetar]`` in m, m, rad.
+
+    Returns
+    -------
+    list of float
+        ``[vr cos(thetar), vr sin(thetar), wr]`` in m/s, m/s, rad/s.
+    """
     vr, wr, _ = velocity(p, t)
     return [vr * math.cos(x[2]), vr * math.sin(x[2]), wr]

@@ -24,7 +24,15 @@ _PER_SECOND = {"m": "m/s", "rad": "rad/s", "rad/s": "rad/s2", "A": "A/s", "1": "
 
 @dataclass(frozen=True)
 class ContinuousState:
-    """One entry of a model's state vector: the variable that holds it and its nominal magnitude."""
+    """One entry of a model's state vector: the variable that holds it and its nominal magnitude.
+
+    Parameters
+    ----------
+    variable : Variable
+        The FMU variable that holds the state (an output, or a local of ``FILTER_STATES``).
+    nominal : float
+        Its nominal magnitude, in the variable's unit.
+    """
 
     variable: Variable
     nominal: float
@@ -37,8 +45,19 @@ class ContinuousState:
 
 
 def true_unknowns(p: dict) -> tuple:
-    """``(a1, a2, W1, W2)``, the values the controller's estimates stand for, of plant parameters ``p``
-    (docs/model.md §3: a1 = 1/r, a2 = R/r, W1 of (22), W2 of (27))."""
+    """The values the controller's estimates stand for, for the plant parameters ``p`` (docs/model.md §3).
+
+    Parameters
+    ----------
+    p : dict
+        The MobileRobot FMU's parameter values by name.
+
+    Returns
+    -------
+    tuple
+        ``(a1, a2, W1, W2)``: a1 = 1/r in 1/m, a2 = R/r, W1 of (22) (8 entries) and W2 of (27)
+        (6 entries) as tuples.
+    """
     k = plant_coefficients(p)
     W1 = (k.c / k.nkt1, k.c / k.nkt2, k.d11 / k.nkt1, k.d22 / k.nkt2,
           k.m11 / k.nkt1, k.m12 / k.nkt1, k.m11 / k.nkt2, k.m12 / k.nkt2)
