@@ -67,15 +67,9 @@ NOT_YET = {
     "dsc_fmu.registry",
     "dsc_fmu.scenario",
     "dsc_fmu.study.analysis",
-    "dsc_fmu.study.cache",
-    "dsc_fmu.study.cases",
-    "dsc_fmu.study.cluster",
-    "dsc_fmu.study.execute",
     "dsc_fmu.study.figures",
     "dsc_fmu.study.report",
-    "dsc_fmu.study.rows",
     "dsc_fmu.study.stability",
-    "dsc_fmu.study.sweep",
 }
 
 MODULES = sorted(
