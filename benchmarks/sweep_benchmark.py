@@ -23,8 +23,9 @@ import psutil
 from dsc_fmu.fmubuild.fmus import ensure_fmus
 from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import ORDERS, load_scenario
-from dsc_fmu.study.cases import Case, apply, build_cases
-from dsc_fmu.study.execute import execute, simulate
+from dsc_fmu.study.cases import Case, Runner, apply, build_cases
+from dsc_fmu.study.execute import execute
+from dsc_fmu.study.rows import simulate
 
 MB = 1024.0**2
 STEPS = (1e-4, 2.4e-4, 5.6e-4, 1.3e-3, 3.2e-3, 7.5e-3, 1.8e-2, 5e-2)  # 8 steps x 2 orders = 16 runs
@@ -40,7 +41,7 @@ def speed_up(fmu_paths: dict, stop_time: float) -> None:
     for jobs in (1, 2):
         with tempfile.TemporaryDirectory(prefix="dsc_fmu_sweep_benchmark_") as out:
             started = time.perf_counter()
-            rows = execute(scenario, cases, Path(out), fmu_paths, jobs=jobs, progress=False).rows
+            rows = execute(scenario, cases, Path(out), fmu_paths, Runner(jobs=jobs, progress=False)).rows
             times[jobs] = time.perf_counter() - started
         diverged = sum(row["diverged"] for row in rows)
         print(f"    jobs = {jobs}: {times[jobs]:6.2f} s wall ({len(rows)} rows, {diverged} diverged, "
@@ -68,7 +69,7 @@ def memory(fmu_paths: dict, runs: int, stop_time: float) -> None:
             for index in range(runs):
                 chosen = failing if index % 10 == 9 else scenario
                 outcome = simulate(apply(chosen, cases[index % len(cases)]), simulator)
-                diverged += outcome["metrics"] is None
+                diverged += outcome.metrics is None
             elapsed = time.perf_counter() - started
             gc.collect()
             end = process.memory_info().rss

@@ -144,20 +144,19 @@ def _export(args) -> None:
 
 
 def _sweep(args) -> None:
-    from .study.cases import DEFAULT_TOLERANCES, parse_perturb, parse_set
+    from .study.cases import DEFAULT_TOLERANCES, Grid, Runner, parse_perturb, parse_set
     from .study.sweep import run_sweep
 
     scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time, stability=args.stability,
                                                             reference=args.reference)
-    if args.jobs is not None and args.jobs < 1:
-        raise DscFmuError(f"--jobs {args.jobs} is not allowed; allowed: >= 1")
-    print(run_sweep(
-        scenario, args.out or Path("results") / f"sweep-{scenario.name}", fmu_dir=args.fmu_dir,
-        step_sizes=args.step_sizes, orders=args.orders, discretizations=args.discretizations,
-        sets=[parse_set(text) for text in args.set], perturbations=[parse_perturb(text) for text in args.perturb],
-        samples=args.samples, seed=args.seed, jobs=args.jobs, scheduler=args.scheduler, refine=not args.no_refine,
-        couplings=args.couplings, tolerances=DEFAULT_TOLERANCES if args.tolerances is None else args.tolerances,
-    ))
+    grid = Grid(step_sizes=args.step_sizes, orders=args.orders or ORDERS, discretizations=args.discretizations,
+                couplings=args.couplings,
+                tolerances=DEFAULT_TOLERANCES if args.tolerances is None else args.tolerances,
+                sets=[parse_set(text) for text in args.set],
+                perturbations=[parse_perturb(text) for text in args.perturb], samples=args.samples, seed=args.seed)
+    runner = Runner(jobs=args.jobs, scheduler=args.scheduler)
+    print(run_sweep(scenario, args.out or Path("results") / f"sweep-{scenario.name}", grid, runner,
+                    fmu_dir=args.fmu_dir, refine=not args.no_refine))
 
 
 def _crosscheck(args) -> None:

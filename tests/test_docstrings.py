@@ -48,12 +48,6 @@ NOT_YET = {
     "dsc_fmu.identity",
     "dsc_fmu.registry",
     "dsc_fmu.scenario",
-    "dsc_fmu.study.cache",
-    "dsc_fmu.study.cases",
-    "dsc_fmu.study.cluster",
-    "dsc_fmu.study.execute",
-    "dsc_fmu.study.rows",
-    "dsc_fmu.study.sweep",
 }
 
 MODULES = sorted(

@@ -78,7 +78,7 @@ def test_beyond_the_predicted_boundary_a_run_settles_but_steady_tracking_is_unst
     (["--step-sizes", "fast"], None),
     (["--set", "controller.k9=1,2"], "controller.k9"),
     (["--orders", "random"], "order 'random' is not allowed"),
-    (["--jobs", "0"], "--jobs 0 is not allowed"),
+    (["--jobs", "0"], "jobs = 0 is not allowed; allowed: a whole number >= 1"),
     (["--scheduler", "tcp://127.0.0.1:1"], "cannot reach the Dask scheduler"),
 ])
 def test_bad_sweep_options_fail_in_one_line_and_write_nothing(tmp_path, fmu_dir, capsys, arguments, message):

@@ -11,15 +11,15 @@ import pytest
 
 from dsc_fmu.study import cache as sweep_cache
 from dsc_fmu.study import cluster as sweep_dask
-from dsc_fmu.study import execute as sweep_exec
 from dsc_fmu.study import rows as sweep_rows
+from dsc_fmu.study import tasks as sweep_tasks
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
 from dsc_fmu.scenario import REFERENCES, ScenarioError, load_scenario
 from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
 from dsc_fmu.study.cases import (
-    Case, Perturbation, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
+    Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
 from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, run_case
@@ -53,8 +53,8 @@ def counted(monkeypatch):
         counts["reference"] += 1
         return reference(*args)
 
-    monkeypatch.setattr(sweep_exec, "simulate", counting_simulate)
-    monkeypatch.setattr(sweep_exec, "compute_reference", counting_reference)
+    monkeypatch.setattr(sweep_tasks, "simulate", counting_simulate)
+    monkeypatch.setattr(sweep_tasks, "compute_reference", counting_reference)
     return counts
 
 
@@ -277,7 +277,7 @@ def test_stability_over_the_papers_run(fmu_paths, tmp_path):
     """The paper's 30 s: settled by the last third at h = 10 ms; Jacobi diverges at 20 ms, Gauss-Seidel not."""
     paper = load_scenario("paper")
     cases = [Case(0.01), Case(0.02, "jacobi"), Case(0.02)]
-    rows = execute(paper, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
+    rows = execute(paper, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert [row["stable"] for row in rows] == [True, False, True]
     assert rows[0]["max_position_error_m"] < STABLE_POSITION_ERROR and rows[1]["diverged"]
     assert "0.5 m over the last third of the run" in SETTLED_DEFINITION
@@ -304,17 +304,17 @@ def test_a_diverging_run_is_a_row_with_its_reason(short, fmu_paths, tmp_path, bo
 
 def test_second_execute_runs_nothing_and_a_new_step_only_itself(short, fmu_paths, tmp_path, counted):
     cases = build_cases(short, step_sizes=[2e-3, 0.01], orders=ORDERS)
-    done = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    done = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     first = done.rows
     assert counted == {"run": 4, "reference": 1} and (done.cached, done.ran) == (0, 4)
     files = {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")}
     assert len(files) == 2 + 4 * 2 + 2  # two folders, a record and a trajectory per run, one reference and its record
-    again = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    again = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert counted == {"run": 4, "reference": 1} and (again.cached, again.ran, again.unverified) == (4, 0, ())
     assert json.dumps(again.rows) == json.dumps(first)  # wall times too: they come from the cache
     assert {p: p.stat().st_mtime_ns for p in (tmp_path / "cache").rglob("*")} == files
     done = execute(short, build_cases(short, step_sizes=[2e-3, 5e-3, 0.01], orders=ORDERS), tmp_path, fmu_paths,
-                   jobs=1, progress=False)
+                   Runner(jobs=1, progress=False))
     more = done.rows
     assert counted == {"run": 6, "reference": 1}  # the reference of the physical case is cached too
     assert (done.cached, done.ran) == (4, 2)
@@ -329,24 +329,24 @@ def test_second_execute_runs_nothing_and_a_new_step_only_itself(short, fmu_paths
 
 def test_a_changed_scenario_value_or_fmu_build_invalidates(short, fmu_paths, tmp_path, counted, monkeypatch):
     cases = [Case(0.01), Case(0.01, "jacobi")]
-    execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     renamed = dataclasses.replace(short, name="renamed", source="elsewhere.toml")
-    rows = execute(renamed, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
+    rows = execute(renamed, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert counted["run"] == 2 and {row["scenario"] for row in rows} == {"renamed"}  # name and file do not count
     changed = dataclasses.replace(short, controller={**short.controller, "k5": 1.5})
-    execute(changed, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+    execute(changed, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert counted == {"run": 4, "reference": 2}
     monkeypatch.setattr(sweep_cache, "fmu_build_id", lambda path: f"rebuilt {path.name}")
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
+    rows = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert counted == {"run": 6, "reference": 2}  # same physics: the reference solution is still valid
     assert rows[0]["key"] == sweep_cache.case_key(short, cases[0], sweep_cache.fmu_identities(fmu_paths))
 
 
 def test_a_partial_cache_entry_is_a_miss(short, fmu_paths, tmp_path, counted):
     """A trajectory without its record (a write interrupted between the two) is a plain miss."""
-    [row] = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
+    [row] = execute(short, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     (tmp_path / "cache" / "runs" / f"{row['key']}.json").unlink()
-    again = execute(short, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)
+    again = execute(short, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert again.rows[0]["key"] == row["key"] and again.unverified == ()
     assert counted["run"] == 2
     assert not list((tmp_path / "cache").rglob("*.partial"))
@@ -356,8 +356,8 @@ def test_a_partial_cache_entry_is_a_miss(short, fmu_paths, tmp_path, counted):
 
 
 def test_diverging_cases_are_rows_in_a_sweep(short, fmu_paths, tmp_path):
-    rows = execute(short.with_simulation(stop_time=5.0), [Case(0.01), Case(0.25)], tmp_path, fmu_paths, jobs=1,
-                   progress=False).rows
+    rows = execute(short.with_simulation(stop_time=5.0), [Case(0.01), Case(0.25)], tmp_path, fmu_paths,
+                   Runner(jobs=1, progress=False)).rows
     assert [row["diverged"] for row in rows] == [False, True]
     assert rows[1]["diverged_time"] > 0 and rows[1]["diverged_signal"]
 
@@ -372,15 +372,15 @@ def test_an_interrupted_sweep_cleans_up_and_resumes(short, fmu_paths, tmp_path, 
             raise KeyboardInterrupt
         return simulate(*args)
 
-    monkeypatch.setattr(sweep_exec, "simulate", interrupted)
+    monkeypatch.setattr(sweep_tasks, "simulate", interrupted)
     cases = [Case(0.01), Case(0.02), Case(0.05)]
     with pytest.raises(KeyboardInterrupt):
-        execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False)
+        execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert leftovers(tmp_path) == []
     assert len(list((tmp_path / "cache" / "runs").glob("*.json"))) == 1
     calls.clear()
-    monkeypatch.setattr(sweep_exec, "simulate", lambda *args: calls.append(args) or simulate(*args))
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=1, progress=False).rows
+    monkeypatch.setattr(sweep_tasks, "simulate", lambda *args: calls.append(args) or simulate(*args))
+    rows = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert len(calls) == 2 and [row["step_size"] for row in rows] == [0.01, 0.02, 0.05]
     assert leftovers(tmp_path) == []
 
@@ -389,9 +389,9 @@ def test_a_failing_sweep_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
     def failing(*args):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(sweep_exec, "simulate", failing)
+    monkeypatch.setattr(sweep_tasks, "simulate", failing)
     with pytest.raises(RuntimeError, match="boom"):
-        execute(short, [Case(0.01), Case(0.02)], tmp_path, fmu_paths, jobs=1, progress=False)
+        execute(short, [Case(0.01), Case(0.02)], tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert leftovers(tmp_path) == []
 
 
@@ -399,8 +399,8 @@ def test_a_failing_sweep_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
 def test_two_jobs_give_the_rows_of_one(short, fmu_paths, tmp_path):
     scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
     cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
-    one = execute(scenario, cases, tmp_path / "one", fmu_paths, jobs=1, progress=False).rows
-    two = execute(scenario, cases, tmp_path / "two", fmu_paths, jobs=2, progress=False).rows
+    one = execute(scenario, cases, tmp_path / "one", fmu_paths, Runner(jobs=1, progress=False)).rows
+    two = execute(scenario, cases, tmp_path / "two", fmu_paths, Runner(jobs=2, progress=False)).rows
     assert without_wall_time(two) == without_wall_time(one)
     assert any(row["diverged"] for row in one) and not all(row["diverged"] for row in one)
     assert leftovers(tmp_path / "two") == []
@@ -412,7 +412,7 @@ def test_a_failing_worker_is_reported_and_cleaned_up(short, fmu_paths, tmp_path)
     broken.write_text("not an FMU")
     paths = {**fmu_paths, "DSCController": broken}
     with pytest.raises(CosimulationError, match=r"broken\.fmu: not a valid FMU for DSCController"):
-        execute(short, [Case(0.01), Case(0.02)], tmp_path / "out", paths, jobs=2, progress=False)
+        execute(short, [Case(0.01), Case(0.02)], tmp_path / "out", paths, Runner(jobs=2, progress=False))
     assert leftovers(tmp_path / "out") == []
 
 
@@ -433,20 +433,20 @@ def test_an_interrupt_stops_the_pool_and_cleans_up(short, fmu_paths, tmp_path, m
     monkeypatch.setattr(sweep_cache.SweepCache, "store_run", interrupted)
     cases = [Case(h, order) for h in (1e-3, 2e-3, 5e-3) for order in ORDERS]
     with pytest.raises(KeyboardInterrupt):
-        execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False)
+        execute(short, cases, tmp_path, fmu_paths, Runner(jobs=2, progress=False))
     workers = [p for p in psutil.Process().children(recursive=True) if "spawn_main" in " ".join(p.cmdline())]
     assert workers == [] and leftovers(tmp_path) == []
     assert [p.stem for p in (tmp_path / "cache" / "runs").glob("*.json")] == stored
     monkeypatch.setattr(sweep_cache.SweepCache, "store_run", store_run)
-    rows = execute(short, cases, tmp_path, fmu_paths, jobs=2, progress=False).rows
+    rows = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=2, progress=False)).rows
     assert len({row["key"] for row in rows}) == 6 and stored[0] in {row["key"] for row in rows}
 
 
 def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths, tmp_path):
     started = time.perf_counter()
     with pytest.raises(SweepError, match=r"cannot reach the Dask scheduler at tcp://127\.0\.0\.1:1 within 1 s") as info:
-        execute(short, [Case(0.01)], tmp_path / "out", fmu_paths, scheduler="tcp://127.0.0.1:1", scheduler_timeout=1,
-                progress=False)
+        execute(short, [Case(0.01)], tmp_path / "out", fmu_paths,
+                Runner(scheduler="tcp://127.0.0.1:1", scheduler_timeout=1, progress=False))
     assert time.perf_counter() - started < 10
     assert "\n" not in str(info.value)
     assert not (tmp_path / "out").exists()
@@ -454,10 +454,10 @@ def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths
 
 def test_the_worker_cleanup_frees_the_cosimulator_and_its_folder(short, fmu_paths):
     blobs = {name: path.read_bytes() for name, path in fmu_paths.items()}
-    outcome = sweep_dask._run_on_worker(blobs, apply(short, Case(0.01)))
+    outcome = sweep_dask._on_worker(blobs, sweep_tasks.Run("a", apply(short, Case(0.01))))
     status = sweep_dask.worker_status()
-    assert outcome["metrics"] is not None and status["runs"] == 1
-    sweep_dask._run_on_worker(blobs, apply(short, Case(0.02)))
+    assert outcome.metrics is not None and status["runs"] == 1
+    sweep_dask._on_worker(blobs, sweep_tasks.Run("b", apply(short, Case(0.02))))
     assert sweep_dask.worker_status() == {**status, "runs": 2}  # the same Cosimulator, reused
     sweep_dask.CosimulatorCleanup().teardown(worker=None)
     assert sweep_dask.worker_status() == {"folder": None, "runs": 0}
@@ -469,12 +469,12 @@ def test_a_dask_cluster_gives_the_rows_of_a_local_run(short, fmu_paths, tmp_path
     distributed = pytest.importorskip("distributed")
     scenario = short.with_simulation(stop_time=5.0)  # long enough for h = 0.25 s to diverge
     cases = build_cases(scenario, step_sizes=[4e-3, 0.02, 0.25], orders=ORDERS, sets=[parse_set("controller.k4=0.5,1")])
-    local = execute(scenario, cases, tmp_path / "local", fmu_paths, jobs=1, progress=False).rows
+    local = execute(scenario, cases, tmp_path / "local", fmu_paths, Runner(jobs=1, progress=False)).rows
     scratch = tmp_path / "dask"
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True, dashboard_address=None,
                                   host="127.0.0.1", local_directory=str(scratch)) as cluster:
-        remote = execute(scenario, cases, tmp_path / "remote", fmu_paths, scheduler=cluster.scheduler_address,
-                         progress=False).rows
+        remote = execute(scenario, cases, tmp_path / "remote", fmu_paths,
+                         Runner(scheduler=cluster.scheduler_address, progress=False)).rows
         with distributed.Client(cluster.scheduler_address, set_as_default=False) as client:
             status = client.run(sweep_dask.worker_status)
     assert without_wall_time(remote) == without_wall_time(local)
@@ -557,7 +557,7 @@ def test_local_stability_needs_a_seed_window_with_rows_after_the_start(times):
 def test_a_row_says_which_definition_judged_it(fmu_paths):
     """on_reference ("local"): a fixed-step run whose deviation grows is unstable; without a reference
     solution, or error-controlled, the same run is judged as a settled one (and stable)."""
-    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, make_row
+    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, Outcome, make_row
     scenario = load_scenario("on_reference")
     t = np.linspace(0.0, 30.0, 3001)
     trajectory = np.zeros(len(t), dtype=[(n, float) for n in TRAJECTORY])
@@ -565,9 +565,8 @@ def test_a_row_says_which_definition_judged_it(fmu_paths):
     trajectory["time"], trajectory["x"], trajectory["x_r"] = t, grown_then_damped, 0.0
     reference = np.zeros(len(t), dtype=[(n, float) for n in sweep_rows.REFERENCE_COLUMNS])
     reference["time"] = t
-    outcome = {"trajectory": trajectory, "metrics": dict.fromkeys(METRIC_KEYS, 0.01), "diverged_time": math.nan,
-               "diverged_signal": None, "diverged_reason": None, "steps": 1500, "steps_rejected": 0, "fmu_steps": 4500,
-               "wall_time_s": 1.0}
+    outcome = Outcome(trajectory, dict.fromkeys(METRIC_KEYS, 0.01), steps=1500, steps_rejected=0, fmu_steps=4500,
+                      wall_time_s=1.0)
     judged = {}
     for name, case, with_reference in (("local", Case(0.02), True), ("no reference", Case(0.02), False),
                                        ("error-controlled", Case(0.02, coupling="linear", tolerance=1e-3), True)):
@@ -586,9 +585,11 @@ def test_a_scenario_with_input_derivatives_sweeps_both_couplings(short):
 
 
 def test_an_error_controlled_run_that_cannot_meet_its_tolerance_is_reported_with_why(short, fmu_paths, tmp_path):
+    from dsc_fmu.study.cases import Grid
     from dsc_fmu.study.sweep import run_sweep
-    text = run_sweep(short.with_simulation(stop_time=1.0), tmp_path / "out", fmu_dir=next(iter(fmu_paths.values())).parent,
-                     step_sizes=[0.01], couplings=["hold"], tolerances=[1e-9], jobs=1, progress=False, refine=False)
+    text = run_sweep(short.with_simulation(stop_time=1.0), tmp_path / "out",
+                     Grid(step_sizes=[0.01], couplings=["hold"], tolerances=[1e-9]), Runner(jobs=1, progress=False),
+                     fmu_dir=next(iter(fmu_paths.values())).parent, refine=False)
     why = "the error-controlled step cannot meet the tolerance 1e-09 m at t = 0 s"
     assert f"  gauss-seidel/rk4 error-controlled, tolerance 1e-09 m: failed: {why}" in text
     report = (tmp_path / "out" / "report.md").read_text()
@@ -609,14 +610,14 @@ def test_boundary_notes_say_why_a_prediction_is_off():
 
 def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(fmu_paths, tmp_path, monkeypatch):
     scenario = load_scenario("on_reference").with_simulation(stop_time=2.0)
-    monkeypatch.setattr(sweep_exec, "compute_reference", lambda applied, fmu_paths: (None, "solver gave up"))
+    monkeypatch.setattr(sweep_tasks, "compute_reference", lambda applied, fmu_paths: (None, "solver gave up"))
     with pytest.warns(UserWarning, match=r"reference solution failed \(solver gave up\): deviations are NaN for its "
                                          r"runs; they are judged as settled runs and not cached"):
-        row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
+        row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert row["stability"] == "settled" and math.isnan(row["max_position_deviation_m"])
     assert not list((tmp_path / "cache" / "runs").glob("*.json"))
     monkeypatch.undo()
-    row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False).rows
+    row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert row["stability"] == "local" and row["max_position_deviation_m"] < 1e-3
 
 
@@ -637,7 +638,7 @@ def test_the_reference_through_model_exchange_measures_the_same_deviations(fmu_p
     rows = {}
     for reference in REFERENCES:
         applied = scenario.with_simulation(reference=reference)
-        rows[reference], = execute(applied, [Case(0.01)], tmp_path / reference, fmu_paths, jobs=1, progress=False).rows
+        rows[reference], = execute(applied, [Case(0.01)], tmp_path / reference, fmu_paths, Runner(jobs=1, progress=False)).rows
     monolithic, through_fmus = rows["monolithic"], rows["model-exchange"]
     assert monolithic["reference_key"] != through_fmus["reference_key"]
     for key in ("max_position_deviation_m", "rms_position_deviation_m", "max_u_deviation_V"):

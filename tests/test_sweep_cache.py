@@ -23,7 +23,7 @@ from dsc_fmu.cli import main
 from dsc_fmu.scenario import load_scenario
 from dsc_fmu.study import cache as sweep_cache
 from dsc_fmu.study.cache import CacheEntryError, SweepCache, load_reference, load_trajectory
-from dsc_fmu.study.cases import Case, SweepError
+from dsc_fmu.study.cases import Case, Runner, SweepError
 from dsc_fmu.study.execute import LOST_TWICE, execute
 
 SCENARIO = "figure_eight"  # no linearised prediction: the sweeps of these tests stay short
@@ -285,10 +285,10 @@ def test_work_folders_of_killed_sweeps_are_removed_those_of_live_ones_kept(tmp_p
         folder.mkdir(parents=True)
         (folder / "DSCController.fmu").write_bytes(b"left behind")
     scenario = load_scenario(SCENARIO).with_simulation(stop_time=0.1)
-    done = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)
+    done = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert done.ran == 1 and not stale.exists() and (live / "DSCController.fmu").is_file()
     shutil.rmtree(live)
-    execute(scenario, [Case(0.01)], tmp_path, fmu_paths, jobs=1, progress=False)  # all cached: still cleaned
+    execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False))  # all cached: still cleaned
     assert not (tmp_path / ".work").exists()
 
 

@@ -72,7 +72,15 @@ class CacheWarning(UserWarning):
 
 
 class CacheEntryError(SweepError):
-    """A cache entry that is missing or does not verify: ``path``, the file at fault, and ``reason``."""
+    """A cache entry that is missing or does not verify; its message is ``"<path>: <reason>"``.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file at fault.
+    reason : str
+        Why, on one line.
+    """
 
     def __init__(self, path: Path, reason: str):
         super().__init__(f"{path}: {reason}")
@@ -103,19 +111,58 @@ def _code_hash() -> str:
 
 
 def fmu_identities(fmu_paths: dict) -> dict[str, str]:
-    """Each FMU's build id (``fmu_build_id``), or the SHA-256 of its file if it has none."""
+    """What identifies each FMU: its build id, or the SHA-256 of its file if it has none.
+
+    Parameters
+    ----------
+    fmu_paths : dict
+        The FMU files by name.
+
+    Returns
+    -------
+    dict
+        By name, sorted: ``identity.fmu_build_id``, or ``"sha256:<hex>"``.
+    """
     return {name: fmu_build_id(path) or "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
             for name, path in sorted(fmu_files(fmu_paths).items())}
 
 
 def scenario_content(scenario: Scenario) -> dict:
-    """What of ``scenario`` determines a run: every parameter value and the simulation settings."""
+    """What of a scenario determines a run: every parameter value and the simulation settings.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario, a case applied to it.
+
+    Returns
+    -------
+    dict
+        ``"simulation"`` (its settings) and each of ``TABLES`` (its values); not its name or file.
+    """
     return {"simulation": dataclasses.asdict(scenario.simulation), **{t: getattr(scenario, t) for t in TABLES}}
 
 
 def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
-    """Key of the reference solution of ``case`` applied to ``scenario`` (independent of the step,
-    the order and the discretisation); through model exchange, of the FMUs' build ids too."""
+    """Key of the reference solution of a case applied to a scenario.
+
+    Independent of the step, the order and the discretisation; through model exchange, it depends on
+    the FMUs' build ids too.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case.
+    fmu_build_ids : dict
+        The FMUs' identities by name (``fmu_identities``).
+
+    Returns
+    -------
+    str
+        SHA-256 (hex) of its content, the reference grid, the solver settings and the code.
+    """
     content = scenario_content(apply(scenario, case))
     kind = content["simulation"]["reference"]
     content["simulation"] = {"stop_time": content["simulation"]["stop_time"]}
@@ -127,7 +174,23 @@ def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
 
 
 def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
-    """Key of the row of ``case`` run on ``scenario`` with FMUs of the given build ids (by name)."""
+    """Key of the row of a case run on a scenario with given FMUs.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case.
+    fmu_build_ids : dict
+        The FMUs' identities by name (``fmu_identities``).
+
+    Returns
+    -------
+    str
+        SHA-256 (hex) of the applied scenario's content, the case, the FMUs, the reference key and
+        ``ROW_VERSION``.
+    """
     return _digest({
         "scenario": scenario_content(apply(scenario, case)),
         "case": dataclasses.asdict(case),
@@ -138,8 +201,21 @@ def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
 
 
 def provenance(key: str, fmus: dict | None = None) -> dict:
-    """What writes a cache entry now: its ``key``, dsc-fmu's version, the FMUs' identities (``fmus``,
-    for a run), the Python, NumPy and SciPy versions and the time (UTC, ISO 8601)."""
+    """What writes a cache entry now.
+
+    Parameters
+    ----------
+    key : str
+        The entry's key.
+    fmus : dict or None, optional
+        The FMUs' identities by name, for a run; None for a reference solution.
+
+    Returns
+    -------
+    dict
+        The key, dsc-fmu's version, the Python, NumPy and SciPy versions, the time (UTC, ISO 8601) and
+        for a run the FMUs' identities.
+    """
     written = {"key": key, "dsc_fmu": __version__, "python": platform.python_version(), "numpy": np.__version__,
                "scipy": version("scipy"), "written": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     return written if fmus is None else {**written, "fmus": dict(sorted(fmus.items()))}
@@ -213,8 +289,15 @@ def _read_npz(path: Path, sha256, columns: tuple) -> np.ndarray:
 
 
 class SweepCache:
-    """The cache folder of a sweep's output folder ``out_dir`` (created on the first write). Every
-    read verifies the entry: None if there is none, CacheEntryError if it does not verify."""
+    """The cache of a sweep's output folder; every read verifies the entry.
+
+    A read gives None if there is no entry, CacheEntryError if it does not verify.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The sweep folder; its ``cache`` folder is created on the first write.
+    """
 
     def __init__(self, out_dir: Path | str):
         self.root = Path(out_dir) / "cache"
@@ -228,7 +311,23 @@ class SweepCache:
         return record
 
     def row(self, key: str) -> dict | None:
-        """The cached row of ``key`` (its trajectory verified too), or None if there is no entry."""
+        """The cached row of a run, its trajectory verified too.
+
+        Parameters
+        ----------
+        key : str
+            The run's key (``case_key``).
+
+        Returns
+        -------
+        dict or None
+            The row, or None if there is no entry.
+
+        Raises
+        ------
+        CacheEntryError
+            If the entry does not verify.
+        """
         record = self._run_record(key)
         if record is None:
             return None
@@ -236,39 +335,123 @@ class SweepCache:
         return record["row"]
 
     def store_run(self, key: str, row: dict, trajectory: np.ndarray, fmus: dict) -> None:
-        """Cache a run: its trajectory, then its record (the row, ``fmus``: the FMUs' identities)."""
+        """Cache a run: its trajectory, then its record.
+
+        Parameters
+        ----------
+        key : str
+            The run's key (``case_key``).
+        row : dict
+            Its row (``rows.ROW_KEYS``).
+        trajectory : numpy.ndarray
+            Its ``TRAJECTORY`` columns.
+        fmus : dict
+            The FMUs' identities by name (``fmu_identities``).
+        """
         _write_entry(self.runs, key, trajectory, TRAJECTORY, {"row": row}, "trajectory_sha256", provenance(key, fmus))
 
     def trajectory(self, key: str) -> np.ndarray:
-        """The trajectory of the run cached under ``key`` (structured array, ``time`` first)."""
+        """The trajectory of a cached run.
+
+        Parameters
+        ----------
+        key : str
+            The run's key (``case_key``).
+
+        Returns
+        -------
+        numpy.ndarray
+            Its ``TRAJECTORY`` columns, ``time`` (s) first.
+
+        Raises
+        ------
+        CacheEntryError
+            If no run of this key is cached or its entry does not verify.
+        """
         record = self._run_record(key)
         if record is None:
             raise CacheEntryError(self.runs / f"{key}.json", "missing: no run of this key is cached")
         return _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
 
     def reference(self, key: str) -> np.ndarray | None:
-        """The cached reference solution of ``key``, or None if there is none."""
+        """A cached reference solution.
+
+        Parameters
+        ----------
+        key : str
+            Its key (``reference_key``).
+
+        Returns
+        -------
+        numpy.ndarray or None
+            Its ``REFERENCE_COLUMNS``, or None if there is no entry.
+
+        Raises
+        ------
+        CacheEntryError
+            If the entry does not verify.
+        """
         record = _read_record(self.references / f"{key}.json", key, _REFERENCE_FIELDS)
         if record is None:
             return None
         return _read_npz(self.references / f"{key}.npz", record["reference_sha256"], REFERENCE_COLUMNS)
 
     def store_reference(self, key: str, reference: np.ndarray) -> None:
-        """Cache a reference solution: the array, then its record."""
+        """Cache a reference solution: the array, then its record.
+
+        Parameters
+        ----------
+        key : str
+            Its key (``reference_key``).
+        reference : numpy.ndarray
+            Its ``REFERENCE_COLUMNS``.
+        """
         _write_entry(self.references, key, reference, REFERENCE_COLUMNS, {}, "reference_sha256", provenance(key))
 
 
 def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
-    """The trajectory (``TRAJECTORY`` columns, as recorded; up to the failure for a diverged run)
-    of a run cached in the sweep folder ``out_dir``, given its row or its key; CacheEntryError (one
-    line) if it is not cached or does not verify."""
+    """The trajectory of a run cached in a sweep folder.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The sweep folder.
+    row_or_key : dict or str
+        The run's row, or its key.
+
+    Returns
+    -------
+    numpy.ndarray
+        Its ``TRAJECTORY`` columns as recorded, ``time`` (s) first; up to the failure for a diverged run.
+
+    Raises
+    ------
+    CacheEntryError
+        One line, if the run is not cached or its entry does not verify.
+    """
     key = row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key
     return SweepCache(out_dir).trajectory(key)
 
 
 def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | None:
-    """The reference solution (``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s) of a row cached in
-    the sweep folder ``out_dir``, given the row or its ``reference_key``; None if the solver failed
-    (none is cached), CacheEntryError (one line) if it does not verify."""
+    """The reference solution of a row cached in a sweep folder.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The sweep folder.
+    row_or_key : dict or str
+        The row, or its ``reference_key``.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        Its ``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s; None if the solver failed (none is cached).
+
+    Raises
+    ------
+    CacheEntryError
+        One line, if the entry does not verify.
+    """
     key = row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key
     return SweepCache(out_dir).reference(key)

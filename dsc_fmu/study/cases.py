@@ -1,9 +1,10 @@
 """Step-size sensitivity sweeps: the cases (step, order, discretisation, parameter values, samples) and their grid.
 
-A sweep runs one co-simulation per ``Case``; ``build_cases`` makes the full grid from the options of
-``dsc-fmu sweep`` (``parse_set``, ``parse_perturb``), ``apply`` turns a case into the scenario it runs;
-``check_scheduler`` checks the address of a Dask scheduler up front.
-Running them (cached, on a process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
+A sweep runs one co-simulation per ``Case``; a ``Grid`` says what it varies and ``build_cases`` makes
+the full grid from it (the options of ``dsc-fmu sweep``: ``parse_set``, ``parse_perturb``), ``apply``
+turns a case into the scenario it runs. A ``Runner`` says where the runs go (local processes or a Dask
+scheduler, checked with ``parse_scheduler`` and ``check_scheduler``). Running them (cached, on a
+process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
 
 >>> parse_set("controller.k4=0.5,1,2")
 ('controller.k4', (0.5, 1.0, 2.0))
@@ -29,7 +30,7 @@ from ..scenario import COUPLINGS, ORDERS, TABLES, Scenario, ScenarioError
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
-    "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler", "DEFAULT_TOLERANCES",
+    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler", "DEFAULT_TOLERANCES",
 ]
 
 SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
@@ -52,10 +53,25 @@ def _number(value):
 
 @dataclass(frozen=True)
 class Case:
-    """One run of a sweep: communication step (s; the first one if error-controlled), coupling order,
-    controller discretisation, parameter overrides as ``("table.name", value)`` pairs (a choice by its
-    name), the Monte Carlo sample index (None without perturbations), the coupling (``COUPLINGS``) and
-    the tolerance of an error-controlled step (m; None: a fixed step). Numbers are stored as floats."""
+    """One run of a sweep. Numbers are stored as floats.
+
+    Parameters
+    ----------
+    step_size : float
+        Communication step in s; the first one if error-controlled.
+    order : {"gauss-seidel", "jacobi"}, optional
+        Coupling order (``ORDERS``). Default "gauss-seidel".
+    discretization : {"rk4", "euler"}, optional
+        Controller discretisation (``DISCRETIZATIONS``). Default "rk4".
+    overrides : tuple, optional
+        Parameter overrides as ``("table.name", value)`` pairs, a choice by its name. Default none.
+    sample : int or None, optional
+        The Monte Carlo sample index; None (the default) without perturbations.
+    coupling : {"hold", "linear"}, optional
+        How inputs are extrapolated over a step (``COUPLINGS``). Default "hold".
+    tolerance : float or None, optional
+        Tolerance of an error-controlled step in m; None (the default): a fixed step.
+    """
 
     step_size: float
     order: str = "gauss-seidel"
@@ -75,7 +91,13 @@ class Case:
 
     @property
     def label(self) -> str:
-        """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, controller.k4 = 0.5``."""
+        """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, hold coupling, controller.k4 = 0.5``.
+
+        Returns
+        -------
+        str
+            The step (or tolerance), order, discretisation, coupling, overrides and sample.
+        """
         parts = [f"h = {self.step_size:g} s" if self.tolerance is None else f"tolerance = {self.tolerance:g} m",
                  self.order, self.discretization, f"{self.coupling} coupling"]
         parts += [f"{key} = {value:g}" if isinstance(value, float) else f"{key} = {value}"
@@ -85,8 +107,17 @@ class Case:
 
 @dataclass(frozen=True)
 class Perturbation:
-    """A plant parameter drawn uniformly per Monte Carlo sample: within ``relative`` (a fraction, 0.2
-    for 20 %) of its nominal value, or in the absolute range ``[low, high]``."""
+    """A plant parameter drawn uniformly per Monte Carlo sample.
+
+    Parameters
+    ----------
+    key : str
+        The parameter, ``plant.NAME``.
+    relative : float or None, optional
+        Drawn within this fraction of its nominal value (0.2 for 20 %); None for an absolute range.
+    low, high : float or None, optional
+        The absolute range ``[low, high]`` drawn from, in the parameter's unit; None for a relative one.
+    """
 
     key: str
     relative: float | None = None
@@ -94,7 +125,18 @@ class Perturbation:
     high: float | None = None
 
     def bounds(self, nominal: float) -> tuple[float, float]:
-        """The range ``[low, high]`` drawn from, for the parameter's ``nominal`` value."""
+        """The range drawn from.
+
+        Parameters
+        ----------
+        nominal : float
+            The parameter's nominal value, in its unit.
+
+        Returns
+        -------
+        tuple of float
+            ``(low, high)``, in the parameter's unit.
+        """
         if self.relative is None:
             return self.low, self.high
         return nominal * (1.0 - self.relative), nominal * (1.0 + self.relative)
@@ -140,11 +182,25 @@ def _value(key: str, variable: Variable, value, option: str):
 
 
 def parse_set(text: str) -> tuple[str, tuple]:
-    """``"table.name=v1,v2,..."`` as ``(key, values)``: the values of one parameter to sweep over.
+    """The values of one parameter to sweep over, from ``--set``.
 
-    ``table`` is plant, controller or reference and ``name`` one of its parameters; values are
-    numbers in the parameter's range, or names for a choice (``reference.profile=constant,figure_eight``).
-    Repeated values are kept once. ScenarioError (one line, naming the key and what is allowed) otherwise.
+    Parameters
+    ----------
+    text : str
+        ``"table.name=v1,v2,..."``: ``table`` is plant, controller or reference and ``name`` one of
+        its parameters; values are numbers in the parameter's range, or names for a choice
+        (``reference.profile=constant,figure_eight``).
+
+    Returns
+    -------
+    tuple
+        ``(key, values)``: ``"table.name"`` and the values as floats (a choice by its name),
+        repeated ones kept once.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming the key and what is allowed, if the text, key or a value is not allowed.
     """
     key, sep, raw = (part.strip() for part in text.partition("="))
     if not sep or not key or not raw:
@@ -155,9 +211,27 @@ def parse_set(text: str) -> tuple[str, tuple]:
 
 
 def parse_perturb(text: str) -> Perturbation:
-    """``"plant.name=P%"`` (uniform within P % of the nominal value) or ``"plant.name=LOW:HIGH"``
-    (uniform in [LOW, HIGH]) as a Perturbation. Only plant parameters can be perturbed: the paper's
-    Assumption 1 (unknown but bounded parameters) concerns the plant. ScenarioError otherwise."""
+    """A plant parameter to draw per Monte Carlo sample, from ``--perturb``.
+
+    Only plant parameters can be perturbed: the paper's Assumption 1 (unknown but bounded
+    parameters) concerns the plant.
+
+    Parameters
+    ----------
+    text : str
+        ``"plant.name=P%"`` (uniform within P % of the nominal value) or ``"plant.name=LOW:HIGH"``
+        (uniform in [LOW, HIGH], in the parameter's unit).
+
+    Returns
+    -------
+    Perturbation
+        The parameter and its bound.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming what is wrong and what is allowed, if the text, key or bound is not allowed.
+    """
     key, sep, raw = (part.strip() for part in text.partition("="))
     if not sep or not key or not raw:
         raise ScenarioError(f"--perturb {text!r}: expected plant.NAME=P% or plant.NAME=LOW:HIGH, "
@@ -197,9 +271,21 @@ def _check_range(perturbation: Perturbation, variable: Variable, low: float, hig
 
 
 def default_step_sizes(per_decade: int = 4, smallest: float = 1e-4, largest: float = 5e-2) -> list[float]:
-    """Communication steps (s) log-spaced ``per_decade`` to a decade from ``smallest`` up to
-    ``largest`` (both included), rounded to 3 significant digits; the decades (1e-3, 1e-2 s) are on
-    the grid. The default: 1e-4, 1.78e-4, 3.16e-4, 5.62e-4, 1e-3, ..., 3.16e-2, 5e-2 (12 steps)."""
+    """Communication steps log-spaced from ``smallest`` up to ``largest``, both included.
+
+    Parameters
+    ----------
+    per_decade : int, optional
+        Steps per decade. Default 4.
+    smallest, largest : float, optional
+        The first and last step in s. Default 1e-4 and 5e-2.
+
+    Returns
+    -------
+    list of float
+        The steps in s, rounded to 3 significant digits, the decades (1e-3, 1e-2 s) on the grid. The
+        default: 1e-4, 1.78e-4, 3.16e-4, 5.62e-4, 1e-3, ..., 3.16e-2, 5e-2 (12 steps).
+    """
     count = math.floor(per_decade * math.log10(largest / smallest) + 1e-9)
     steps = [float(f"{smallest * 10 ** (k / per_decade):.3g}") for k in range(count + 1)]
     return steps if steps[-1] == largest else [*steps, largest]
@@ -240,17 +326,46 @@ def _draw(scenario: Scenario, perturbations, samples, seed) -> list[tuple[int | 
 
 def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretizations=None, sets=(), perturbations=(),
                 samples: int | None = None, seed: int = 0, couplings=None, tolerances=()) -> list[Case]:
-    """The full grid: every step size x order x discretisation x coupling x combination of the ``sets``
-    values x Monte Carlo sample, in that nesting (the step size outermost); then, for each of the
-    ``tolerances`` (m), an error-controlled run of every order x discretisation x combination x sample,
-    starting from the scenario's step size, with the highest-order coupling of ``couplings`` (linear
-    unless only the hold is chosen).
+    """The full grid of a sweep, every case checked up front.
 
-    ``step_sizes`` default to ``default_step_sizes()``, ``orders``, ``discretizations`` and
-    ``couplings`` to the scenario's; ``sets`` are ``(key, values)`` pairs (``parse_set``), ``perturbations`` Perturbations
-    (``parse_perturb``) drawn for ``samples`` samples from ``numpy.random.default_rng(seed)``: sample
-    ``i`` is the same plant at every step, order and ``sets`` combination. Every case is checked up
-    front (ScenarioError), every step size against the scenario's stop time too.
+    Every step size x order x discretisation x coupling x combination of the ``sets`` values x Monte
+    Carlo sample, in that nesting (the step size outermost); then, for each of the ``tolerances``, an
+    error-controlled run of every order x discretisation x combination x sample, starting from the
+    scenario's step size, with the highest-order coupling of ``couplings`` (linear unless only the
+    hold is chosen). Sample ``i`` is the same plant at every step, order and ``sets`` combination.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario the cases apply to.
+    step_sizes : sequence of float, optional
+        Communication steps in s, each at most the stop time. Default ``default_step_sizes()``.
+    orders : sequence of str, optional
+        Coupling orders (``ORDERS``). Default: the scenario's.
+    discretizations : sequence of str, optional
+        Controller discretisations (``DISCRETIZATIONS``). Default: the scenario's.
+    sets : sequence of tuple, optional
+        ``(key, values)`` pairs (``parse_set``). Default none.
+    perturbations : sequence of Perturbation, optional
+        Plant parameters drawn per sample (``parse_perturb``). Default none.
+    samples : int or None, optional
+        Number of Monte Carlo samples; needs ``perturbations``. Default None (no sampling).
+    seed : int, optional
+        Seed of ``numpy.random.default_rng`` for the draws. Default 0.
+    couplings : sequence of str, optional
+        Couplings (``COUPLINGS``). Default: the scenario's.
+    tolerances : sequence of float, optional
+        Tolerances of the error-controlled runs in m. Default none.
+
+    Returns
+    -------
+    list of Case
+        The cases, fixed-step ones first.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming what is not allowed, if a value or a case is not.
     """
     steps = default_step_sizes() if step_sizes is None else list(dict.fromkeys(step_sizes))
     stop_time = scenario.simulation.stop_time
@@ -304,10 +419,30 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
 
 
 def apply(scenario: Scenario, case: Case) -> Scenario:
-    """``scenario`` with the case's overrides (checked), its discretisation (as the controller's
-    integer ``discretization``), its step size, order, coupling and tolerance: the scenario this case
-    runs. The scenario's ``input_derivatives`` carries over to a linear fixed-step case only; the
-    others run on the FMUs' coupling parameters."""
+    """The scenario a case runs.
+
+    The scenario's ``input_derivatives`` carries over to a linear fixed-step case only; the others run
+    on the FMUs' coupling parameters.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case to apply.
+
+    Returns
+    -------
+    Scenario
+        ``scenario`` with the case's overrides (checked), its discretisation (as the controller's
+        integer ``discretization``), its step size, order, coupling and tolerance.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming what is not allowed, if the case's order, discretisation, coupling or an
+        override is not.
+    """
     where = scenario.source
     if case.order not in ORDERS:
         raise ScenarioError(f"{where}: order {case.order!r} is not allowed; allowed: {', '.join(ORDERS)}")
@@ -330,13 +465,88 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
     return changed.with_simulation(step_size=case.step_size, order=case.order, coupling=case.coupling)
 
 
+@dataclass(frozen=True)
+class Grid:
+    """What a step-size study varies; ``cases`` checks it against a scenario and makes its cases.
+
+    Parameters
+    ----------
+    step_sizes : sequence of float, optional
+        Communication steps in s. Default ``default_step_sizes()``.
+    orders : sequence of str, optional
+        Coupling orders (``ORDERS``). Default both; None: the scenario's.
+    discretizations : sequence of str, optional
+        Controller discretisations (``DISCRETIZATIONS``). Default: the scenario's.
+    couplings : sequence of str, optional
+        Couplings of the fixed-step runs (``COUPLINGS``). Default both; None: the scenario's.
+    tolerances : sequence of float, optional
+        Tolerances of the error-controlled runs in m. Default ``DEFAULT_TOLERANCES``; empty for none.
+    sets : sequence of tuple, optional
+        Scenario values to vary too, as ``(key, values)`` pairs (``parse_set``). Default none.
+    perturbations : sequence of Perturbation, optional
+        Plant parameters drawn per Monte Carlo sample (``parse_perturb``). Default none.
+    samples : int or None, optional
+        Number of Monte Carlo samples; needs ``perturbations``. Default None (no sampling).
+    seed : int, optional
+        Seed of the draws (``numpy.random.default_rng``). Default 0.
+    """
+
+    step_sizes: tuple | None = None
+    orders: tuple | None = ORDERS
+    discretizations: tuple | None = None
+    couplings: tuple | None = COUPLINGS
+    tolerances: tuple = DEFAULT_TOLERANCES
+    sets: tuple = ()
+    perturbations: tuple = ()
+    samples: int | None = None
+    seed: int = 0
+
+    def cases(self, scenario: Scenario) -> list[Case]:
+        """The grid's cases on ``scenario`` (``build_cases``).
+
+        Parameters
+        ----------
+        scenario : Scenario
+            The scenario the cases apply to.
+
+        Returns
+        -------
+        list of Case
+            Every case of the grid, fixed-step ones first.
+
+        Raises
+        ------
+        ScenarioError
+            One line naming what is not allowed, if a value of the grid or a case is not.
+        """
+        return build_cases(scenario, self.step_sizes, self.orders, self.discretizations, self.sets, self.perturbations,
+                           self.samples, self.seed, self.couplings, self.tolerances)
+
+
 _SCHEDULER_ALLOWED = "allowed: tcp://HOST:PORT or tls://HOST:PORT with PORT a whole number in 1..65535"
 
 
 def parse_scheduler(address: str) -> tuple[str, str, int]:
-    """The protocol, host and port of a Dask scheduler address ``tcp://HOST:PORT`` or ``tls://HOST:PORT``
-    (``HOST:PORT`` alone is tcp, ``[IPv6]:PORT`` in brackets, as for ``distributed.comm.parse_address``);
-    SweepError (one line, naming the address and what is allowed) otherwise.
+    """The protocol, host and port of a Dask scheduler address.
+
+    Parameters
+    ----------
+    address : str
+        ``tcp://HOST:PORT`` or ``tls://HOST:PORT``; ``HOST:PORT`` alone is tcp, ``[IPv6]:PORT`` in
+        brackets, as for ``distributed.comm.parse_address``.
+
+    Returns
+    -------
+    tuple
+        ``(protocol, host, port)``, the port an int.
+
+    Raises
+    ------
+    SweepError
+        One line naming the address and what is allowed, if it is not such an address.
+
+    Examples
+    --------
 
     >>> parse_scheduler("tcp://10.0.0.5:8786"), parse_scheduler("tls://[::1]:8786")
     (('tcp', '10.0.0.5', 8786), ('tls', '::1', 8786))
@@ -365,12 +575,62 @@ def parse_scheduler(address: str) -> tuple[str, str, int]:
 
 
 def check_scheduler(address: str, timeout: float) -> None:
-    """SweepError (one line) unless ``address`` is a scheduler address (``parse_scheduler``) whose host
-    accepts a TCP connection on its port within ``timeout`` s. Run it before ``distributed.Client``:
-    a client of an address that is wrong or closed stalls for its own timeout, then complains when collected."""
+    """Check that a Dask scheduler's host accepts a TCP connection on its port.
+
+    Run it before ``distributed.Client``: a client of an address that is wrong or closed stalls for
+    its own timeout, then complains when collected.
+
+    Parameters
+    ----------
+    address : str
+        The scheduler's address (``parse_scheduler``).
+    timeout : float
+        How long to wait for the connection, in s.
+
+    Raises
+    ------
+    SweepError
+        One line, if the address is not one or its host does not accept the connection in time.
+    """
     _, host, port = parse_scheduler(address)
     try:
         socket.create_connection((host, port), timeout=timeout).close()
     except OSError as error:
         reason = error.strerror or str(error) or type(error).__name__
         raise SweepError(f"cannot reach the Dask scheduler at {address} within {timeout:g} s: {reason}") from None
+
+
+@dataclass(frozen=True)
+class Runner:
+    """Where and how a sweep's runs go, checked when it is made.
+
+    Parameters
+    ----------
+    jobs : int or None, optional
+        Local worker processes, each loading the FMUs once; 1 runs in this process. Default None:
+        ``os.cpu_count()``. Does not apply with ``scheduler``.
+    scheduler : str or None, optional
+        Address of a Dask scheduler (``parse_scheduler``) to send the runs to instead. Default None.
+    scheduler_timeout : float, optional
+        How long to wait for the scheduler to answer, in s. Default ``SCHEDULER_TIMEOUT``.
+    progress : bool, optional
+        Show a progress bar on stderr. Default True.
+
+    Raises
+    ------
+    SweepError
+        One line naming what is allowed, if ``jobs`` is not a whole number >= 1 or ``scheduler`` not
+        an address.
+    """
+
+    jobs: int | None = None
+    scheduler: str | None = None
+    scheduler_timeout: float = SCHEDULER_TIMEOUT
+    progress: bool = True
+
+    def __post_init__(self):
+        jobs = self.jobs
+        if jobs is not None and (isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1):
+            raise SweepError(f"jobs = {jobs!r} is not allowed; allowed: a whole number >= 1")
+        if self.scheduler is not None:
+            parse_scheduler(self.scheduler)

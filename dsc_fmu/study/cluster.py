@@ -25,7 +25,7 @@ from distributed.diagnostics.plugin import WorkerPlugin
 
 from ..cosim.master import Cosimulator
 from .cases import SweepError, check_scheduler
-from .rows import compute_reference, lost_outcome, simulate
+from .tasks import Task
 
 __all__ = ["connect", "run_on_cluster", "CosimulatorCleanup", "close_worker_simulator", "worker_status"]
 
@@ -40,9 +40,27 @@ async def _identity(address: str) -> dict:
 
 
 def connect(address: str, timeout: float) -> distributed.Client:
-    """A client of the scheduler at ``address``; SweepError (one line) if it is not an address
-    (``check_scheduler``), cannot be reached, or what listens there does not answer as a Dask
-    scheduler within ``timeout`` s (a ``distributed.Client`` of such a server waits forever)."""
+    """A client of the Dask scheduler at ``address``, checked first.
+
+    Parameters
+    ----------
+    address : str
+        The scheduler's address (``cases.parse_scheduler``).
+    timeout : float
+        How long to wait for the scheduler to answer, in s.
+
+    Returns
+    -------
+    distributed.Client
+        A client of it, not set as the default client.
+
+    Raises
+    ------
+    SweepError
+        One line, if ``address`` is not an address, cannot be reached, or what listens there does not
+        answer as a Dask scheduler within ``timeout`` (a ``distributed.Client`` of such a server
+        waits forever).
+    """
     check_scheduler(address, timeout)
     try:
         with ThreadPoolExecutor(1) as thread:  # an event loop of its own, whatever loop the caller runs
@@ -70,19 +88,34 @@ def close_worker_simulator() -> None:
 
 
 def worker_status() -> dict:
-    """This process's Cosimulator: its folder (None if there is none) and how many runs it made;
-    for ``client.run(worker_status)``."""
+    """This process's Cosimulator, for ``client.run(worker_status)``.
+
+    Returns
+    -------
+    dict
+        ``{"folder": its folder as text, None if there is none; "runs": how many runs it made}``.
+    """
     simulator, folder = _STATE["simulator"], _STATE["folder"]
     return {"folder": None if folder is None else str(folder), "runs": 0 if simulator is None else simulator.runs}
 
 
 class CosimulatorCleanup(WorkerPlugin):
-    """Worker plugin: when the worker closes, free its Cosimulator and remove its folder."""
+    """Worker plugin: when the worker closes, free its Cosimulator and remove its folder.
+
+    Register it with ``client.register_plugin(CosimulatorCleanup())``; ``run_on_cluster`` does.
+    """
 
     name = "dsc-fmu-cosimulator-cleanup"
     idempotent = True
 
     def teardown(self, worker) -> None:
+        """Free the worker's Cosimulator and remove its folder (``close_worker_simulator``).
+
+        Parameters
+        ----------
+        worker : distributed.Worker
+            The worker that closes.
+        """
         close_worker_simulator()
 
 
@@ -116,41 +149,47 @@ def _simulator(fmus: dict[str, bytes]) -> Cosimulator:
     return simulator
 
 
-def _run_on_worker(fmus: dict[str, bytes], applied) -> dict:
-    """Task: simulate one applied case with this worker process's Cosimulator."""
+def _on_worker(fmus: dict[str, bytes], task: Task):
+    """Dask task: compute ``task`` with this worker process's FMUs and Cosimulator."""
     with _LOCK:
-        return simulate(applied, _simulator(fmus))
+        simulator = _simulator(fmus)
+        return task.compute(simulator.paths, lambda: simulator)
 
 
-def _reference_on_worker(fmus: dict[str, bytes], applied) -> tuple:
-    """Task: the reference solution of one applied case, with this worker process's FMUs if it needs them."""
-    with _LOCK:
-        return compute_reference(applied, _simulator(fmus).paths)
+def run_on_cluster(client: distributed.Client, tasks: list[Task], fmu_paths: dict):
+    """Compute tasks on a Dask cluster and yield their values as they finish.
 
+    Closing the generator early cancels what has not finished. A task whose workers the scheduler
+    lost too often (``KilledWorker``) yields ``task.lost`` instead, computed in this process.
 
-def run_on_cluster(client: distributed.Client, tasks, fmu_paths: dict):
-    """Submit the tasks (``(kind, tag, applied scenario)``) and yield ``(kind, tag, result)`` as
-    they finish; closing the generator early cancels what has not finished. A task whose workers
-    the scheduler lost too often (``KilledWorker``) yields ``lost_outcome`` for a run; a reference
-    solution is computed in this process then."""
+    Parameters
+    ----------
+    client : distributed.Client
+        A client of the cluster's scheduler (``connect``).
+    tasks : list of Task
+        What to compute.
+    fmu_paths : dict
+        The FMU files by name: shipped once to every worker, and used here for a lost task.
+
+    Yields
+    ------
+    tuple
+        ``(task, value)``, in the order they finish.
+    """
     client.register_plugin(CosimulatorCleanup())
     blobs = {name: Path(path).read_bytes() for name, path in fmu_paths.items()}
     [fmus] = client.scatter([blobs], broadcast=True)
-    pending = {}
-    for kind, tag, applied in tasks:
-        task = _reference_on_worker if kind == "reference" else _run_on_worker
-        future = client.submit(task, fmus, applied, pure=False)
-        pending[future] = (kind, tag, applied)
+    pending = {client.submit(_on_worker, fmus, task, pure=False): task for task in tasks}
     try:
         for future in distributed.as_completed(list(pending), loop=client.loop):
-            kind, tag, applied = pending.pop(future)
+            task = pending.pop(future)
             try:
-                result = future.result()
+                value = future.result()
             except distributed.KilledWorker as error:
-                reason = f"Dask worker lost {error.allowed_failures + 1} times while running it (killed or crashed)"
-                result = compute_reference(applied, fmu_paths) if kind == "reference" else lost_outcome(reason)
+                value = task.lost(f"Dask worker lost {error.allowed_failures + 1} times while running it "
+                                  "(killed or crashed)", fmu_paths)
             future.release()
-            yield kind, tag, result
+            yield task, value
     finally:
         if pending:
             client.cancel(list(pending))

@@ -23,8 +23,9 @@ from tqdm import tqdm
 from ..cosim.master import Cosimulator
 from ..scenario import Scenario
 from .cache import CacheEntryError, CacheWarning, SweepCache, case_key, fmu_identities, reference_key
-from .cases import SCHEDULER_TIMEOUT, Case, SweepError, apply, check_scheduler, parse_scheduler
-from .rows import compute_reference, lost_outcome, make_row, simulate
+from .cases import Case, Runner, SweepError, apply, check_scheduler
+from .rows import Outcome, make_row
+from .tasks import Reference, Run, Task
 
 __all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep_folder"]
 
@@ -38,11 +39,25 @@ class WorkerLostWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Execution:
-    """What ``execute`` did: the ``rows`` (in the order of the cases), how many of them came from the
-    cache (``cached``) and how many were run now (``ran``), the keys of the runs that did not finish
-    (``lost``: their rows carry the reason, they are not cached), the cache entries that did not
-    verify and were recomputed (``unverified``, a CacheEntryError each), how many times the process
-    pool lost a worker (``workers_lost``) and how many computations in flight were retried (``retried``)."""
+    """What ``execute`` did; two executions add up (a sweep's grid and its refinement).
+
+    Parameters
+    ----------
+    rows : list of dict
+        The rows (``rows.ROW_KEYS``), in the order of the cases.
+    cached : int, optional
+        How many of them came from the cache.
+    ran : int, optional
+        How many were run now.
+    lost : tuple of str, optional
+        The keys of the runs that did not finish: their rows carry the reason, they are not cached.
+    unverified : tuple of CacheEntryError, optional
+        The cache entries that did not verify and were recomputed.
+    workers_lost : int, optional
+        How many times the process pool lost a worker.
+    retried : int, optional
+        How many computations in flight were retried on a new pool.
+    """
 
     rows: list
     cached: int = 0
@@ -59,8 +74,11 @@ class Execution:
                          self.workers_lost + other.workers_lost, self.retried + other.retried)
 
     def warn(self) -> None:
-        """One CacheWarning line if cache entries did not verify, one WorkerLostWarning line if a
-        worker was lost or runs did not finish."""
+        """Warn of what went wrong, one line per kind of problem.
+
+        One CacheWarning if cache entries did not verify, one WorkerLostWarning if a worker was lost
+        or runs did not finish; nothing if all went well.
+        """
         if self.unverified:
             count = len(self.unverified)
             what = "1 cache entry did not verify and was recomputed:" if count == 1 else \
@@ -79,8 +97,18 @@ class Execution:
 
 
 def prepare_sweep_folder(out_dir: Path) -> None:
-    """Create the sweep folder ``out_dir`` if needed and check that files can be written in it;
-    SweepError (one line, naming ``out_dir``) otherwise."""
+    """Create the sweep folder if needed and check that files can be written in it.
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path
+        The sweep folder.
+
+    Raises
+    ------
+    SweepError
+        One line naming ``out_dir``, if it cannot be created or written in.
+    """
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out_dir):
@@ -126,45 +154,49 @@ def _remove_stale_work(work_root: Path) -> None:
 
 # --- where the tasks run: this process, a process pool (one Cosimulator per worker), a Dask cluster ---
 
+
+class _Place:
+    """A process where tasks run: the FMU files, and one Cosimulator made on first need in ``folder``."""
+
+    def __init__(self, fmu_paths: dict, folder: Path):
+        self.fmu_paths, self._folder, self._simulator = fmu_paths, folder, None
+
+    def simulator(self) -> Cosimulator:
+        if self._simulator is None:
+            self._folder.mkdir(parents=True, exist_ok=True)
+            self._simulator = Cosimulator(self.fmu_paths, self._folder)
+        return self._simulator
+
+    def compute(self, task: Task):
+        return task.compute(self.fmu_paths, self.simulator)
+
+    def close(self) -> None:
+        if self._simulator is not None:
+            self._simulator.close()
+
+
 _WORKER: dict = {}
 
 
 def _init_pool_worker(fmu_paths: dict, work: str) -> None:
-    """Pool initializer: this worker's one Cosimulator, extracted into ``work/<pid>``."""
+    """Pool initializer: this worker's place, its Cosimulator to be made in ``work/<pid>``."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
-    try:
-        folder = Path(work) / str(os.getpid())
-        folder.mkdir(parents=True, exist_ok=True)
-        simulator = Cosimulator(fmu_paths, folder)
-    except Exception as error:  # noqa: BLE001 - reported by the first run, not as a broken pool
-        _WORKER["error"] = error
-        return
-    _WORKER["simulator"] = simulator
-    multiprocessing.util.Finalize(None, simulator.close, exitpriority=10)  # workers exit without atexit
+    _WORKER["place"] = place = _Place(fmu_paths, Path(work) / str(os.getpid()))
+    multiprocessing.util.Finalize(None, place.close, exitpriority=10)  # workers exit without atexit
 
 
-def _pool_run(applied: Scenario) -> dict:
-    if "error" in _WORKER:
-        raise _WORKER["error"]
-    return simulate(applied, _WORKER["simulator"])
+def _on_pool_worker(task: Task):
+    return _WORKER["place"].compute(task)
 
 
 def _in_process(tasks, fmu_paths, work: Path):
     """Run the tasks here, one after the other, with one Cosimulator."""
-    simulator = None
+    place = _Place(fmu_paths, work / str(os.getpid()))
     try:
-        for kind, tag, applied in tasks:
-            if kind == "reference":
-                yield kind, tag, compute_reference(applied, fmu_paths)
-                continue
-            if simulator is None:
-                folder = work / str(os.getpid())
-                folder.mkdir(parents=True, exist_ok=True)
-                simulator = Cosimulator(fmu_paths, folder)
-            yield kind, tag, simulate(applied, simulator)
+        for task in tasks:
+            yield task, place.compute(task)
     finally:
-        if simulator is not None:
-            simulator.close()
+        place.close()
 
 
 def _executor(fmu_paths: dict, work: Path, jobs: int) -> ProcessPoolExecutor:
@@ -177,9 +209,8 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
     out at most ``jobs`` at a time, so that the tasks in flight are those running on a worker.
 
     When a worker process is lost (killed or crashed: the pool breaks, and with it every task in
-    flight), a new pool retries those tasks once; a run lost twice yields ``lost_outcome(LOST_TWICE)``,
-    a reference solution lost twice is computed in this process. ``events`` counts the broken pools
-    (``workers_lost``) and the retried tasks (``retried``).
+    flight), a new pool retries those tasks once; a task lost twice becomes ``task.lost(LOST_TWICE)``.
+    ``events`` counts the broken pools (``workers_lost``) and the retried tasks (``retried``).
     """
     queue, losses, in_flight, executor, finished = deque(tasks), Counter(), {}, None, False
     try:
@@ -188,10 +219,8 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
                 executor = _executor(fmu_paths, work, jobs)
             broken = False
             while queue and len(in_flight) < jobs and not broken:
-                kind, tag, applied = queue[0]
                 try:
-                    future = (executor.submit(compute_reference, applied, fmu_paths) if kind == "reference"
-                              else executor.submit(_pool_run, applied))
+                    future = executor.submit(_on_pool_worker, queue[0])
                 except BrokenProcessPool:
                     broken = True
                 else:
@@ -203,17 +232,15 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
                     done, _ = wait(in_flight)  # a broken pool fails every task in flight at once
                 retry = []
                 for future in done:
-                    kind, tag, applied = task = in_flight.pop(future)
+                    task = in_flight.pop(future)
                     if not isinstance(future.exception(), BrokenProcessPool):
-                        yield kind, tag, future.result()  # a task's own error is raised here
+                        yield task, future.result()  # a task's own error is raised here
                         continue
-                    losses[kind, tag] += 1
-                    if losses[kind, tag] == 1:
+                    losses[task] += 1
+                    if losses[task] == 1:
                         retry.append(task)
-                    elif kind == "reference":
-                        yield kind, tag, compute_reference(applied, fmu_paths)
                     else:
-                        yield kind, tag, lost_outcome(LOST_TWICE)
+                        yield task, task.lost(LOST_TWICE, fmu_paths)
                 queue.extendleft(reversed(retry))
                 events["retried"] += len(retry)
             if broken:
@@ -229,31 +256,47 @@ def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
             executor.shutdown(wait=True, cancel_futures=True)
 
 
-def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, jobs: int | None = None,
-            scheduler: str | None = None, progress: bool = True, *, scheduler_timeout: float = SCHEDULER_TIMEOUT,
+def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(), *,
             warn: bool = True) -> Execution:
-    """Run every case not yet cached in ``out_dir`` and return the rows of all, in the order of
-    ``cases``, with what was done (``Execution``).
+    """Run every case not yet cached in ``out_dir`` and return the rows of all.
 
-    Locally (no ``scheduler``), ``jobs`` worker processes (default: ``os.cpu_count()``; 1 runs in
-    this process) each load the FMUs once (into ``out_dir/.work``, removed at the end whatever
-    happens; the work folders of sweeps killed before they could remove theirs are removed at the
-    start). A worker process lost (killed or crashed) costs the runs in flight one retry on a new
-    pool; a run lost twice is a row with the reason ``LOST_TWICE``, not cached. With ``scheduler =
-    "tcp://host:port"`` the runs go to that Dask cluster instead (``jobs`` does not apply;
-    SweepError if the address is not one or cannot be reached within ``scheduler_timeout`` s, and
-    nothing is written then). Each finished run is cached at once (``cache``), so an interrupted
-    sweep resumes where it stopped; cached cases are not run again. Reference solutions are
-    computed once per physical case and cached too. Cache entries that do not verify (damaged,
-    edited, of an older layout) are recomputed, references included. ``progress`` shows a bar on
-    stderr; ``warn`` issues ``Execution.warn`` (one line per kind of problem) before returning.
+    Locally (no ``runner.scheduler``), ``runner.jobs`` worker processes each load the FMUs once (into
+    ``out_dir/.work``, removed at the end whatever happens; the work folders of sweeps killed before
+    they could remove theirs are removed at the start). A worker process lost (killed or crashed)
+    costs the runs in flight one retry on a new pool; a run lost twice is a row with the reason
+    ``LOST_TWICE``, not cached. With a scheduler the runs go to that Dask cluster instead. Each
+    finished run is cached at once (``cache``), so an interrupted sweep resumes where it stopped;
+    cached cases are not run again. Reference solutions are computed once per physical case and
+    cached too. Cache entries that do not verify (damaged, edited, of an older layout) are
+    recomputed, references included.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    cases : list of Case
+        The cases to run on it (``build_cases``).
+    out_dir : pathlib.Path or str
+        The sweep folder: its cache, and the work folder while it runs.
+    fmu_paths : dict
+        The FMU files by name (``ensure_fmus``).
+    runner : Runner, optional
+        Where the runs go and whether a progress bar shows. Default ``Runner()``: all cores.
+    warn : bool, optional
+        Issue ``Execution.warn`` (one line per kind of problem) before returning. Default True.
+
+    Returns
+    -------
+    Execution
+        The rows of all cases, in the order of ``cases``, and what was done.
+
+    Raises
+    ------
+    SweepError
+        One line, if the scheduler cannot be reached within ``runner.scheduler_timeout`` s (nothing
+        is written then) or ``out_dir`` cannot be a folder.
     """
     out_dir, cache = Path(out_dir), SweepCache(out_dir)
-    jobs = (os.cpu_count() or 1) if jobs is None else jobs
-    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
-        raise SweepError(f"jobs = {jobs!r} is not allowed; allowed: a whole number >= 1")
-    if scheduler is not None:
-        parse_scheduler(scheduler)
     identities = fmu_identities(fmu_paths)
     plans = [(case, apply(scenario, case), case_key(scenario, case, identities),
               reference_key(scenario, case, identities)) for case in cases]
@@ -269,17 +312,17 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     from_cache = set(done)
     references, missing = _references(cache, plans, todo, unverified)
     events = Counter()
-    if (todo or missing) and scheduler is not None:
-        check_scheduler(scheduler, scheduler_timeout)  # before anything is written
+    if (todo or missing) and runner.scheduler is not None:
+        check_scheduler(runner.scheduler, runner.scheduler_timeout)  # before anything is written
     prepare_sweep_folder(out_dir)
     _remove_stale_work(out_dir / ".work")
     lost = []
     if todo or missing:
-        tasks = [("reference", k, applied) for k, applied in missing.items()]
+        tasks = [Reference(k, applied) for k, applied in missing.items()]
         runs = sorted(todo, key=lambda k: -todo[k][1].simulation.stop_time / todo[k][1].simulation.step_size)
-        tasks += [("run", key, todo[key][1]) for key in runs]  # the longest first, for an even load
-        with _results(tasks, out_dir, fmu_paths, jobs, scheduler, scheduler_timeout, events) as results:
-            done.update(_collect(scenario, todo, references, cache, identities, results, progress, lost))
+        tasks += [Run(key, todo[key][1]) for key in runs]  # the longest first, for an even load
+        with _results(tasks, out_dir, fmu_paths, runner, events) as results:
+            done.update(_collect(scenario, todo, references, cache, identities, results, runner.progress, lost))
     keys = [key for _, _, key, _ in plans]
     execution = Execution([done[key] for key in keys], cached=sum(key in from_cache for key in keys),
                           ran=sum(key not in from_cache for key in keys), lost=tuple(lost),
@@ -318,14 +361,13 @@ def _verified(read, key: str, unverified: list) -> tuple:
 
 
 @contextmanager
-def _results(tasks, out_dir: Path, fmu_paths: dict, jobs: int, scheduler: str | None, timeout: float,
-             events: Counter):
-    """The results of ``tasks`` as they finish, from this process, a process pool or a Dask cluster;
-    on leaving, stop what still runs and remove the work folder."""
-    if scheduler is not None:
+def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner, events: Counter):
+    """The results of ``tasks`` as ``(task, value)`` as they finish, from this process, a process pool
+    or a Dask cluster; on leaving, stop what still runs and remove the work folder."""
+    if runner.scheduler is not None:
         from .cluster import connect, run_on_cluster
 
-        client = connect(scheduler, timeout)
+        client = connect(runner.scheduler, runner.scheduler_timeout)
         results = run_on_cluster(client, tasks, fmu_paths)
         try:
             yield results
@@ -341,7 +383,8 @@ def _results(tasks, out_dir: Path, fmu_paths: dict, jobs: int, scheduler: str | 
     except OSError as error:
         raise _folder_error(out_dir, error) from None
     try:
-        workers = min(jobs, sum(kind == "run" for kind, _, _ in tasks))
+        jobs = (os.cpu_count() or 1) if runner.jobs is None else runner.jobs
+        workers = min(jobs, sum(task.needs_simulator for task in tasks))
         if workers <= 1:
             results = _in_process(tasks, fmu_paths, work)
         else:
@@ -358,45 +401,60 @@ def _results(tasks, out_dir: Path, fmu_paths: dict, jobs: int, scheduler: str | 
             pass
 
 
+class _Collector:
+    """The rows (by key) of the runs of ``todo`` (key: (case, applied scenario, reference key)) as
+    their outcomes and reference solutions come in (``Task.hand_over``), each cached as soon as both
+    are in, except the runs that did not finish (their keys are appended to ``lost``) and, under the
+    "local" stability, those whose reference solution failed (judged as settled runs for now)."""
+
+    def __init__(self, scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict,
+                 bar: tqdm, lost: list):
+        self.rows, self._waiting = {}, defaultdict(list)
+        self._remaining = Counter(ref_key for _, _, ref_key in todo.values())
+        self._local = scenario.simulation.stability == "local"
+        self._todo, self._references, self._cache, self._identities = todo, references, cache, identities
+        self._bar, self._lost = bar, lost
+
+    def take_reference(self, ref_key: str, value: tuple) -> None:
+        reference, why = value
+        if reference is None:
+            judged = "; they are judged as settled runs and not cached" if self._local else ""
+            warnings.warn(f"reference solution failed ({why}): deviations are NaN for its runs{judged}",
+                          stacklevel=6)  # the caller of execute's caller
+        else:
+            self._cache.store_reference(ref_key, reference)
+        if self._remaining[ref_key]:
+            self._references[ref_key] = reference
+        for key, outcome in self._waiting.pop(ref_key, []):
+            self._finish(key, outcome)
+
+    def take_run(self, key: str, outcome: Outcome) -> None:
+        ref_key = self._todo[key][2]
+        if ref_key in self._references:
+            self._finish(key, outcome)
+        else:
+            self._waiting[ref_key].append((key, outcome))
+
+    def _finish(self, key: str, outcome: Outcome) -> None:
+        case, applied, ref_key = self._todo[key]
+        reference = self._references[ref_key]
+        self.rows[key] = make_row(applied, case, (key, ref_key), outcome, reference)
+        if outcome.lost:
+            self._lost.append(key)
+        elif reference is not None or not self._local:  # judged without its reference: not for keeps
+            self._cache.store_run(key, self.rows[key], outcome.trajectory, self._identities)
+        self._bar.update()
+        self._remaining[ref_key] -= 1
+        if not self._remaining[ref_key]:
+            self._references.pop(ref_key)  # no run left that needs it
+
+
 def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict, results,
              progress: bool, lost: list) -> dict:
-    """Rows (by key) of the runs of ``todo`` (key: (case, applied scenario, reference key)) from
-    ``results``, each cached as soon as both the run and its reference solution are in, except the
-    runs that did not finish (their keys are appended to ``lost``) and, under the "local" stability,
-    those whose reference solution failed (judged as settled runs for now)."""
-    rows, waiting = {}, defaultdict(list)
-    remaining = Counter(ref_key for _, _, ref_key in todo.values())
-    local = scenario.simulation.stability == "local"
+    """Rows (by key) of the runs of ``todo`` from ``results`` (``_Collector``)."""
     with tqdm(total=len(todo), unit="run", desc=f"sweep {scenario.name}", file=sys.stderr,
               disable=None if progress else True) as bar:
-
-        def finish(key, outcome):
-            case, applied, ref_key = todo[key]
-            rows[key] = make_row(applied, case, (key, ref_key), outcome, references[ref_key])
-            if outcome.get("lost"):
-                lost.append(key)
-            elif references[ref_key] is not None or not local:  # judged without its reference: not for keeps
-                cache.store_run(key, rows[key], outcome["trajectory"], identities)
-            bar.update()
-            remaining[ref_key] -= 1
-            if not remaining[ref_key]:
-                references.pop(ref_key)  # no run left that needs it
-
-        for kind, tag, value in results:
-            if kind == "reference":
-                reference, why = value
-                if reference is None:
-                    judged = "; they are judged as settled runs and not cached" if local else ""
-                    warnings.warn(f"reference solution failed ({why}): deviations are NaN for its runs{judged}",
-                                  stacklevel=4)
-                else:
-                    cache.store_reference(tag, reference)
-                if remaining[tag]:
-                    references[tag] = reference
-                for key, outcome in waiting.pop(tag, []):
-                    finish(key, outcome)
-            elif todo[tag][2] in references:
-                finish(tag, value)
-            else:
-                waiting[todo[tag][2]].append((tag, value))
-    return rows
+        collector = _Collector(scenario, todo, references, cache, identities, bar, lost)
+        for task, value in results:
+            task.hand_over(value, collector)
+    return collector.rows

@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import math
 import time as clock
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -16,7 +17,7 @@ from .cases import Case, apply
 
 __all__ = [
     "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
-    "DEVIATION_KEYS", "ROW_KEYS", "simulate", "compute_reference", "lost_outcome", "error_grows",
+    "DEVIATION_KEYS", "ROW_KEYS", "Outcome", "simulate", "compute_reference", "error_grows",
     "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row", "run_case",
 ]
 
@@ -65,27 +66,115 @@ def _columns(result: np.ndarray, names) -> np.ndarray:
     return out
 
 
-def simulate(applied: Scenario, cosimulator: Cosimulator) -> dict:
-    """Run ``applied`` (a case applied to its scenario) and return what the row needs: the trajectory,
-    the tracking metrics (None if it diverged), the divergence, the steps and the wall time (s)."""
+@dataclass(frozen=True, eq=False)
+class Outcome:
+    """What a run gives its row: made by ``simulate``, or by ``Outcome.of_lost`` for a run that did not finish.
+
+    Parameters
+    ----------
+    trajectory : numpy.ndarray
+        The ``TRAJECTORY`` columns as recorded, up to the failure for a diverged run; empty if lost.
+    metrics : dict or None
+        The tracking metrics (``METRIC_KEYS``), None if the run diverged or was lost.
+    diverged_time : float, optional
+        Time (s) at which the run diverged; NaN if it did not.
+    diverged_signal : str or None, optional
+        The signal that diverged, or the failing FMU's name; None if the run did not diverge.
+    diverged_reason : str or None, optional
+        Why the run diverged or did not finish, on one line; None if it finished.
+    steps : float, optional
+        Communication steps taken; NaN if lost.
+    steps_rejected : float, optional
+        Error-controlled steps taken again; NaN for a diverged or lost run.
+    fmu_steps : float, optional
+        doStep calls over all FMUs; NaN for a diverged or lost run.
+    wall_time_s : float, optional
+        Wall time of the run in s; NaN if lost.
+    lost : bool, optional
+        The run did not finish because its worker process was lost: not to be cached (a later
+        sweep tries it again). Default False.
+    """
+
+    trajectory: np.ndarray
+    metrics: dict | None
+    diverged_time: float = math.nan
+    diverged_signal: str | None = None
+    diverged_reason: str | None = None
+    steps: float = math.nan
+    steps_rejected: float = math.nan
+    fmu_steps: float = math.nan
+    wall_time_s: float = math.nan
+    lost: bool = False
+
+    @classmethod
+    def of_lost(cls, reason: str) -> Outcome:
+        """The outcome of a run that did not finish because its worker process was lost.
+
+        Parameters
+        ----------
+        reason : str
+            Why, on one line; the row's ``diverged_reason``.
+
+        Returns
+        -------
+        Outcome
+            No trajectory, no metrics, NaN where a number would be, ``lost`` set.
+        """
+        return cls(np.zeros(0, dtype=[(name, np.float64) for name in TRAJECTORY]), None, diverged_reason=reason,
+                   lost=True)
+
+
+def simulate(applied: Scenario, cosimulator: Cosimulator) -> Outcome:
+    """Run one applied case and return what its row needs.
+
+    Parameters
+    ----------
+    applied : Scenario
+        A case applied to its scenario (``cases.apply``).
+    cosimulator : Cosimulator
+        The loaded FMUs to run it with.
+
+    Returns
+    -------
+    Outcome
+        The trajectory, the tracking metrics (None if it diverged), the divergence, the steps and
+        the wall time (s).
+    """
     started = clock.perf_counter()
     try:
         run = cosimulator.run(applied)
     except CosimulationError as error:
-        return {"trajectory": _columns(error.result, TRAJECTORY), "metrics": None, "diverged_time": float(error.time),
-                "diverged_signal": error.signal or error.fmu, "diverged_reason": " ".join(str(error).split()),
-                "steps": error.steps, "steps_rejected": math.nan, "fmu_steps": math.nan,
-                "wall_time_s": clock.perf_counter() - started}
+        return Outcome(_columns(error.result, TRAJECTORY), None, float(error.time), error.signal or error.fmu,
+                       " ".join(str(error).split()), error.steps, wall_time_s=clock.perf_counter() - started)
     metrics = tracking_metrics(run.result, applied.simulation.stop_time)
-    return {"trajectory": _columns(run.result, TRAJECTORY), "metrics": {k: metrics[k] for k in METRIC_KEYS},
-            "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": None, "steps": run.steps,
-            "steps_rejected": run.rejected, "fmu_steps": run.fmu_steps, "wall_time_s": clock.perf_counter() - started}
+    return Outcome(_columns(run.result, TRAJECTORY), {k: metrics[k] for k in METRIC_KEYS}, steps=run.steps,
+                   steps_rejected=run.rejected, fmu_steps=run.fmu_steps, wall_time_s=clock.perf_counter() - started)
 
 
 def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple[np.ndarray | None, str | None]:
-    """The reference solution of ``applied`` on a ``REFERENCE_GRID`` grid up to its stop time
-    (``REFERENCE_COLUMNS``), or None and why the solver failed: the monolithic ODE, or with
-    ``applied.simulation.reference`` = "model-exchange" the FMUs of ``fmu_paths`` as one ODE."""
+    """The reference solution of an applied case, or why the solver failed.
+
+    The monolithic ODE (docs/model.md), or with ``applied.simulation.reference`` = "model-exchange"
+    the FMUs of ``fmu_paths`` as one ODE.
+
+    Parameters
+    ----------
+    applied : Scenario
+        A case applied to its scenario (``cases.apply``).
+    fmu_paths : dict or None, optional
+        The FMU files by name; needed through model exchange only.
+
+    Returns
+    -------
+    tuple
+        The solution (``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s up to the stop time) and None,
+        or None and why the solver failed, on one line.
+
+    Raises
+    ------
+    ValueError
+        If the reference goes through model exchange and ``fmu_paths`` is None.
+    """
     from ..cosim.model_exchange import simulate_model_exchange  # scipy: only where references are computed
     from ..cosim.reference_solution import output_times, reference_solution
 
@@ -104,15 +193,6 @@ def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple
     return _columns(solution, REFERENCE_COLUMNS), None
 
 
-def lost_outcome(reason: str) -> dict:
-    """The outcome (as from ``simulate``) of a run that did not finish because its worker process was
-    lost: no trajectory, NaN where a number would be, ``reason`` as its diverged_reason; ``lost``
-    marks it as one not to cache (a later sweep tries it again)."""
-    return {"trajectory": np.zeros(0, dtype=[(name, np.float64) for name in TRAJECTORY]), "metrics": None,
-            "diverged_time": math.nan, "diverged_signal": None, "diverged_reason": reason, "steps": math.nan,
-            "steps_rejected": math.nan, "fmu_steps": math.nan, "wall_time_s": math.nan, "lost": True}
-
-
 def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
     """Whether ``values`` over the last sixth of ``t`` exceed ``GROWTH_FACTOR`` times their maximum over
     the sixth before, plus ``GROWTH_SLACK``."""
@@ -125,7 +205,19 @@ def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
 
 
 def error_grows(trajectory: np.ndarray) -> bool:
-    """Whether the position error grows over the last third of the run (``SETTLED_DEFINITION``)."""
+    """Whether the position error grows over the last third of the run (``SETTLED_DEFINITION``).
+
+    Parameters
+    ----------
+    trajectory : numpy.ndarray
+        The run's rows: ``time`` (s), ``x``, ``y``, ``x_r``, ``y_r`` (m).
+
+    Returns
+    -------
+    bool
+        True if its maximum over the last sixth exceeds ``GROWTH_FACTOR`` times that over the sixth
+        before, plus ``GROWTH_SLACK`` (m).
+    """
     error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
     return _grows_at_end(trajectory["time"], error)
 
@@ -136,14 +228,38 @@ def _reference_at(trajectory: np.ndarray, reference: np.ndarray, names) -> dict:
 
 
 def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The run's distance (m) from the reference solution at each of its times."""
+    """The run's distance from the reference solution at each of its times.
+
+    Parameters
+    ----------
+    trajectory : numpy.ndarray
+        The run's rows: ``time`` (s), ``x``, ``y`` (m).
+    reference : numpy.ndarray
+        The reference solution, interpolated linearly at the run's times: ``time``, ``x``, ``y``.
+
+    Returns
+    -------
+    numpy.ndarray
+        The distance in m, one per row of ``trajectory``.
+    """
     at = _reference_at(trajectory, reference, ("x", "y"))
     return np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
 
 
 def seed_window(t: np.ndarray) -> np.ndarray | None:
-    """The rows of the times ``t`` (s) over which the first steps seed the deviation: the first
-    ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after t = 0; None for a run no longer."""
+    """The rows over which the first steps seed the deviation (``LOCAL_DEFINITION``).
+
+    Parameters
+    ----------
+    t : numpy.ndarray
+        The run's times in s, from 0.
+
+    Returns
+    -------
+    numpy.ndarray or None
+        A mask of the rows in the first ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after
+        t = 0; None for a run no longer than that.
+    """
     if len(t) <= SEED_ROWS + 1:
         return None
     start = t <= max(SEED_TIME, t[SEED_ROWS])
@@ -151,9 +267,22 @@ def seed_window(t: np.ndarray) -> np.ndarray | None:
 
 
 def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
-    """Whether the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
-    maximum over the ``seed_window`` plus ``DEVIATION_SLACK``: the sampled loop amplifying the coupling
-    error about steady tracking (``LOCAL_DEFINITION``). False for a run without a seed window."""
+    """Whether the sampled loop amplifies the coupling error about steady tracking (``LOCAL_DEFINITION``).
+
+    Parameters
+    ----------
+    trajectory : numpy.ndarray
+        The run's rows: ``time`` (s), ``x``, ``y`` (m).
+    reference : numpy.ndarray
+        The reference solution: ``time``, ``x``, ``y``.
+
+    Returns
+    -------
+    bool
+        True if the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
+        maximum over the ``seed_window`` plus ``DEVIATION_SLACK`` (m); False for a run without a seed
+        window.
+    """
     start = seed_window(trajectory["time"])
     if start is None:
         return False
@@ -162,13 +291,36 @@ def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
 
 
 def stability_definition(stability: str) -> str:
-    """What "stable" means for a scenario's ``[simulation] stability`` (``STABILITIES``)."""
+    """What "stable" means for a scenario's ``[simulation] stability``.
+
+    Parameters
+    ----------
+    stability : {"settled", "local"}
+        The definition's name (``scenario.STABILITIES``).
+
+    Returns
+    -------
+    str
+        ``SETTLED_DEFINITION`` or ``LOCAL_DEFINITION``.
+    """
     return {"settled": SETTLED_DEFINITION, "local": LOCAL_DEFINITION}[stability]
 
 
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
-    """Largest and RMS deviation of a run from the reference solution (interpolated linearly at the
-    run's times) over all its rows: position (m), wrapped heading (rad), voltage of both wheels (V)."""
+    """Largest and RMS deviation of a run from the reference solution over all its rows.
+
+    Parameters
+    ----------
+    trajectory : numpy.ndarray
+        The run's rows (``cache.TRAJECTORY``).
+    reference : numpy.ndarray
+        The reference solution (``cache.REFERENCE_COLUMNS``), interpolated linearly at the run's times.
+
+    Returns
+    -------
+    dict
+        ``DEVIATION_KEYS``: position (m), wrapped heading (rad), voltage of both wheels (V).
+    """
     at = _reference_at(trajectory, reference, ("theta", "u1", "u2"))
     position = position_deviation(trajectory, reference)
     heading = np.abs(np.remainder(trajectory["theta"] - at["theta"] + np.pi, 2.0 * np.pi) - np.pi)
@@ -180,38 +332,74 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
     return values
 
 
-def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: dict, reference: np.ndarray | None) -> dict:
-    """The row (``ROW_KEYS``; JSON-serialisable, NaN where a value does not apply) of a simulated case;
-    ``applied`` is the case applied to its scenario (``apply``), ``keys`` are its cache key and that of
-    its reference solution. Its ``stability`` is the definition its ``stable`` was judged by: the
-    scenario's, or "settled" where "local" does not apply (``LOCAL_DEFINITION``)."""
-    diverged = outcome["metrics"] is None
-    metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome["metrics"]
-    usable = not diverged and reference is not None and len(outcome["trajectory"])
+def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outcome,
+             reference: np.ndarray | None) -> dict:
+    """The row of a simulated case: its settings, deviations, metrics and stability.
+
+    Parameters
+    ----------
+    applied : Scenario
+        The case applied to its scenario (``cases.apply``).
+    case : Case
+        The case.
+    keys : tuple of str
+        Its cache key and that of its reference solution.
+    outcome : Outcome
+        What its run gave (``simulate``).
+    reference : numpy.ndarray or None
+        Its reference solution (``compute_reference``); None leaves the deviations NaN and judges
+        the run as a settled one.
+
+    Returns
+    -------
+    dict
+        ``ROW_KEYS``, JSON-serialisable, NaN where a value does not apply. Its ``stability`` is the
+        definition its ``stable`` was judged by: the scenario's, or "settled" where "local" does not
+        apply (``LOCAL_DEFINITION``).
+    """
+    diverged = outcome.metrics is None
+    metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome.metrics
+    usable = not diverged and reference is not None and len(outcome.trajectory)
     local = bool(usable and applied.simulation.stability == "local" and case.tolerance is None
-                 and seed_window(outcome["trajectory"]["time"]) is not None)
+                 and seed_window(outcome.trajectory["time"]) is not None)
     row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
            "sample": case.sample, **dict(case.overrides), "key": keys[0],
            "reference_key": keys[1],
-           "diverged": diverged, "diverged_time": outcome["diverged_time"],
-           "diverged_signal": outcome["diverged_signal"], "diverged_reason": outcome["diverged_reason"],
+           "diverged": diverged, "diverged_time": outcome.diverged_time,
+           "diverged_signal": outcome.diverged_signal, "diverged_reason": outcome.diverged_reason,
            "stability": "local" if local else "settled",
            "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
-           and not error_grows(outcome["trajectory"])
-           and not (local and deviation_grows(outcome["trajectory"], reference))}
-    row.update(deviations(outcome["trajectory"], reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
+           and not error_grows(outcome.trajectory)
+           and not (local and deviation_grows(outcome.trajectory, reference))}
+    row.update(deviations(outcome.trajectory, reference) if usable else dict.fromkeys(DEVIATION_KEYS, math.nan))
     row.update({name: math.nan if value is None else value for name, value in metrics.items()})
-    row.update(wall_time_s=outcome["wall_time_s"], steps=outcome["steps"], steps_rejected=outcome["steps_rejected"],
-               fmu_steps=outcome["fmu_steps"])
+    row.update(wall_time_s=outcome.wall_time_s, steps=outcome.steps, steps_rejected=outcome.steps_rejected,
+               fmu_steps=outcome.fmu_steps)
     return json.loads(json.dumps(row))  # exactly what the cache gives back
 
 
 def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
-    """Run one case with ``cosimulator`` and return its row; ``reference`` is the reference solution
-    of the case's physical scenario (``reference_solution(apply(scenario, case), times=...)``,
-    at least the ``REFERENCE_COLUMNS``), or None to leave the deviations NaN (and judge the run as a
-    settled one)."""
+    """Run one case and return its row.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case to run on it.
+    cosimulator : Cosimulator
+        The loaded FMUs to run it with.
+    reference : numpy.ndarray or None
+        The reference solution of the case's physical scenario
+        (``reference_solution(apply(scenario, case), times=...)``, at least the ``REFERENCE_COLUMNS``),
+        or None to leave the deviations NaN and judge the run as a settled one.
+
+    Returns
+    -------
+    dict
+        The row (``make_row``).
+    """
     identities = fmu_identities(cosimulator.paths)
     keys = case_key(scenario, case, identities), reference_key(scenario, case, identities)
     applied = apply(scenario, case)

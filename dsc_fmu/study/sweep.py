@@ -11,9 +11,9 @@ import numpy as np
 
 from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
-from ..scenario import COUPLINGS, ORDERS, Scenario
+from ..scenario import Scenario
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
-from .cases import DEFAULT_TOLERANCES, SCHEDULER_TIMEOUT, SweepError, apply, build_cases, check_scheduler
+from .cases import Grid, Runner, SweepError, apply, check_scheduler
 from .cache import load_trajectory
 
 __all__ = ["run_sweep", "write_rows_csv", "boundary_notes", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
@@ -40,9 +40,24 @@ RECOVERY_NOTE = (
 
 
 def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[str]:
-    """Why refined boundaries lie more than 20 % from their predictions: below them, the start-up
-    transient (``TRANSIENT_NOTE``); above them under the "settled" definition, the adaptation damping
-    an oscillation that grows at first (``RECOVERY_NOTE``)."""
+    """Why refined boundaries lie more than 20 % from their predictions.
+
+    Parameters
+    ----------
+    predictions : dict
+        Predicted boundaries in s, by series label.
+    boundaries : dict
+        Refined boundaries (``analysis.Boundary``), by series label.
+    stability : {"settled", "local"}
+        The definition the runs were judged by.
+
+    Returns
+    -------
+    list of str
+        ``TRANSIENT_NOTE`` if a boundary lies below its prediction (the start-up transient);
+        ``RECOVERY_NOTE`` if one lies above it under the "settled" definition (the adaptation damping
+        an oscillation that grows at first).
+    """
     ratios = [predicted / boundaries[label].h_stable for label, predicted in predictions.items()
               if label in boundaries and math.isfinite(predicted) and predicted > 0]
     return ([TRANSIENT_NOTE] if any(ratio > 1.2 for ratio in ratios) else []) + (
@@ -50,8 +65,21 @@ def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[
 
 
 def write_rows_csv(path: Path, rows: list[dict]) -> Path:
-    """``sweep.csv``: one line per run, the keys of the rows as columns in their order (empty where a
-    row has no value, ``nan`` where a value does not apply, ``True``/``False`` for flags)."""
+    """Write ``sweep.csv``: one line per run, the keys of the rows as columns in their order.
+
+    Parameters
+    ----------
+    path : pathlib.Path
+        The file to write.
+    rows : list of dict
+        The rows (``rows.ROW_KEYS``).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``. Cells are empty where a row has no value, ``nan`` where a value does not apply,
+        ``True``/``False`` for flags.
+    """
     names = list(dict.fromkeys(name for row in rows for name in row))
     with open(path, "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=names, restval="")
@@ -98,55 +126,74 @@ def _path_figure(out_dir: Path, rows: list[dict]) -> Path | None:
     return plot_paths(trajectories, load_trajectory(out_dir, first[0]), out_dir / "paths.png")
 
 
-def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = DEFAULT_FMU_DIR, step_sizes=None,
-              orders=None, discretizations=None, sets=(), perturbations=(), samples=None, seed: int = 0,
-              jobs: int | None = None, scheduler: str | None = None, progress: bool = True,
-              refine: bool = True, couplings=COUPLINGS, tolerances=DEFAULT_TOLERANCES) -> str:
-    """Run a step-size study of ``scenario`` and write ``sweep.csv``, ``sweep.json``, figures and
-    ``report.md`` into ``out_dir``; return a short text summary, with how many runs came from the cache.
+def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runner: Runner = Runner(), *,
+              fmu_dir: Path | str = DEFAULT_FMU_DIR, refine: bool = True) -> str:
+    """Run a step-size study of a scenario and write its results, figures and report.
 
-    The grid is ``build_cases`` of the arguments (both coupling orders unless ``orders`` is given, both
-    couplings and error-controlled runs at ``DEFAULT_TOLERANCES`` unless ``couplings`` and
-    ``tolerances`` are given); each fixed-step series' stability boundary is refined by bisection
-    between its last stable and first unstable grid step to 2 % (with ``refine``); the linearised
-    prediction (of each series' coupling) is added for the nominal series of a constant-velocity
-    scenario. Every run, fixed-step and error-controlled, is a point of the work-precision figure.
-    "Stable" is judged by ``scenario.simulation.stability`` (``rows.stability_definition``).
+    Every case of ``grid`` runs (``execute``); each fixed-step series' stability boundary is refined
+    by bisection between its last stable and first unstable grid step to 2 % (with ``refine``); the
+    linearised prediction (of each series' coupling) is added for the nominal series of a
+    constant-velocity scenario. Every run, fixed-step and error-controlled, is a point of the
+    work-precision figure. "Stable" is judged by ``scenario.simulation.stability``
+    (``rows.stability_definition``). Cache entries that did not verify, and worker processes lost,
+    are reported in one warning line each for the whole sweep (``Execution.warn``).
 
-    Before anything runs, the grid, the scheduler (``check_scheduler``) and the output folder are
-    checked (one-line errors). Cache entries that did not verify, and worker processes lost, are
-    reported in one warning line each for the whole sweep (``Execution.warn``). Runs that did not
-    finish (their worker process lost twice) are rows with the reason, not cached: everything is
-    written, then SweepError says how many there are (``dsc-fmu sweep`` exits with status 1); the
-    next sweep runs them again.
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario to study.
+    out_dir : pathlib.Path or str
+        The sweep folder: ``sweep.csv``, ``sweep.json``, the figures, ``report.md`` and the cache.
+    grid : Grid, optional
+        What the study varies. Default ``Grid()``: 12 steps from 1e-4 to 5e-2 s, both orders, both
+        couplings and error-controlled runs at ``DEFAULT_TOLERANCES``.
+    runner : Runner, optional
+        Where the runs go. Default ``Runner()``: all cores, a progress bar.
+    fmu_dir : pathlib.Path or str, optional
+        Where the FMUs are built (``ensure_fmus``). Default ``DEFAULT_FMU_DIR``.
+    refine : bool, optional
+        Bisect the stability boundaries. Default True.
+
+    Returns
+    -------
+    str
+        A short text summary, with how many runs came from the cache.
+
+    Raises
+    ------
+    ScenarioError
+        One line, if the grid does not fit the scenario; before anything runs.
+    SweepError
+        One line, if the scheduler cannot be reached or ``out_dir`` cannot be a folder (before anything
+        runs), or if runs did not finish (their worker process lost twice): then everything is
+        written, their rows carry the reason and are not cached, and the next sweep runs them again.
     """
     out_dir = Path(out_dir)
-    cases = build_cases(scenario, step_sizes, orders or ORDERS, discretizations, sets, perturbations, samples, seed,
-                        couplings, tolerances)
-    if scheduler is not None:
-        check_scheduler(scheduler, SCHEDULER_TIMEOUT)
+    cases = grid.cases(scenario)
+    if runner.scheduler is not None:
+        check_scheduler(runner.scheduler, runner.scheduler_timeout)
     from .execute import execute, prepare_sweep_folder  # fmpy: imported after the checks that fail fast
     from .rows import stability_definition
 
     prepare_sweep_folder(out_dir)
     fmu_paths = ensure_fmus(fmu_dir)
-    grid = execute(scenario, cases, out_dir, fmu_paths, jobs=jobs, scheduler=scheduler, progress=progress, warn=False)
-    all_rows, refining = grid.rows, []
+    on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False)
+    all_rows, refining = on_grid.rows, []
     write_rows_csv(out_dir / "sweep.csv", all_rows)
     rows = [row for row in all_rows if row.get("tolerance") is None]  # the fixed-step series
 
     boundaries = {}
     if refine:
+        bisecting = dataclasses.replace(runner, jobs=1, progress=False)  # one run at a time
         template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
         for label, bracket in grid_brackets(rows).items():
             if bracket is not None:
                 def is_stable(h, case=template[label]):
                     run = [dataclasses.replace(case, step_size=h)]
-                    refining.append(execute(scenario, run, out_dir, fmu_paths, jobs=1, scheduler=scheduler,
-                                            progress=False, warn=False))
+                    refining.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False))
                     return refining[-1].rows[0]["stable"]
                 boundaries[label] = refine_boundary(is_stable, *bracket)
-    done = sum(refining, grid)
+    done = sum(refining, on_grid)
     done.warn()
 
     from .figures import (  # matplotlib: slow to import
@@ -159,8 +206,9 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                 "step_sizes": sorted({c.step_size for c in cases}), "orders": sorted({c.order for c in cases}),
                 "discretizations": sorted({c.discretization for c in cases}),
                 "couplings": sorted({c.coupling for c in cases if c.tolerance is None}),
-                "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}), "sets": [list(s) for s in sets],
-                "perturbations": [str(p) for p in perturbations], "samples": samples, "seed": seed,
+                "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}),
+                "sets": [list(s) for s in grid.sets], "perturbations": [str(p) for p in grid.perturbations],
+                "samples": grid.samples, "seed": grid.seed,
                 "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval,
                 "stability": scenario.simulation.stability, "reference": scenario.simulation.reference}
     measured = {label: b.h_stable for label, b in boundaries.items()}
@@ -191,7 +239,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
                          f"killed or crashed): their rows carry the reason and are not cached; everything else is "
                          f"written to {out_dir}; run the sweep again to retry them")
     lines = [f"sweep of {scenario.name}: {len(all_rows)} runs, {sum(not r['stable'] for r in all_rows)} not stable",
-             f"  runs: {_counts(grid, refining, done)}"]
+             f"  runs: {_counts(on_grid, refining, done)}"]
     for label, group in summary["groups"].items():
         fit = group["observed_order"].get("max_position_deviation_m", {})
         order = f"{fit['slope']:.2f}" if "slope" in fit else "n/a"
@@ -206,7 +254,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, *, fmu_dir: Path | str = 
     return "\n".join(lines)
 
 
-def _counts(grid, refining: list, done) -> str:
+def _counts(on_grid, refining: list, done) -> str:
     """``24 (24 from the cache, 0 run now)``, or ``24 + 6 refining the boundaries (...)``."""
     refined = f" + {len(refining)} refining the boundaries" if refining else ""
-    return f"{len(grid.rows)}{refined} ({done.cached} from the cache, {done.ran} run now)"
+    return f"{len(on_grid.rows)}{refined} ({done.cached} from the cache, {done.ran} run now)"
