@@ -10,7 +10,10 @@ from pathlib import Path
 from .fmubuild.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
 from .errors import DscFmuError
 from .models.parameters import DISCRETIZATIONS
-from .scenario import COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, ScenarioError, load_scenario, scenario_names
+from .scenario import (
+    COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, Coupling, Interface, ScenarioError, load_scenario,
+    scenario_names,
+)
 
 __all__ = ["main"]
 
@@ -121,6 +124,11 @@ def _optional_floats(text: str) -> list[float]:
     return _floats(text) if text.strip() else []
 
 
+def _option(setting: str) -> str:
+    """The command-line option of a simulation setting: ``step_size`` is ``--step-size``."""
+    return "--" + setting.replace("_", "-")
+
+
 def _names(text: str) -> list[str]:
     return [item.strip() for item in text.split(",") if item.strip()]
 
@@ -174,23 +182,26 @@ def _scenarios(args) -> None:
         print(f"{name}: {load_scenario(name).description}")
 
 
-_COSIMULATION_ONLY = ("step_size", "order", "coupling", "input_derivatives", "h_min", "h_max")
+_SETTINGS = ("step_size", "stop_time", "order", "coupling", "input_derivatives", "output_interval", "tolerance",
+             "h_min", "h_max")  # the simulation settings ``run`` takes as options
 
 
 _FASTER = "--coupling linear meets the same tolerance with far fewer steps"
 
 
-def _error_controlled_coupling(args, scenario) -> tuple[str | None, str, str]:
+def _error_controlled_coupling(args, interface: Interface, scenario) -> tuple[str | None, str, str]:
     """The coupling of a run with ``--tolerance``, what to tell first and how to get there faster:
     without ``--coupling``, the linear coupling (its second-order defect is the estimate the step
-    control trusts) in place of the scenario's hold; with the hold, the hold and its cost."""
-    if args.tolerance is None or args.interface != "co-simulation":
+    control trusts) in place of the scenario's hold; with the hold, the hold and its cost. An interface
+    without a coupling takes ``--tolerance`` as its solver's."""
+    if args.tolerance is None or "coupling" not in interface.settings:
         return args.coupling, "", ""
-    if args.coupling is None and scenario.simulation.coupling == "hold":
-        return "linear", ("dsc-fmu: --tolerance without --coupling: error control with the linear coupling (second "
-                          "order, whose error estimate the step control trusts); --coupling hold for the first-order "
-                          "hold, which needs far more steps"), ""
-    if (args.coupling or scenario.simulation.coupling) == "hold":
+    if args.coupling is None and scenario.simulation.coupling is Coupling.HOLD:
+        note = ("dsc-fmu: --tolerance without --coupling: error control with the linear coupling (second order, "
+                "whose error estimate the step control trusts); --coupling hold for the first-order hold, which "
+                "needs far more steps")
+        return Coupling.LINEAR, note, ""
+    if Coupling(args.coupling or scenario.simulation.coupling) is Coupling.HOLD:
         note = ("dsc-fmu: error control with the hold coupling (first order): its steps shrink in proportion to the "
                 f"tolerance, the linear coupling's with its square root; {_FASTER}")
         return args.coupling, note, _FASTER
@@ -201,13 +212,15 @@ def _run(args) -> int:
     from .cosim.progress import TerminalWatch
     from .cosim.run import run_scenario
 
-    given = [name for name in _COSIMULATION_ONLY if getattr(args, name) is not None]
-    if args.interface == "model-exchange" and given:
-        option = "--" + given[0].replace("_", "-")
-        raise ScenarioError(f"{option} is a co-simulation setting; allowed with --interface model-exchange: "
-                            "--tolerance, --stop-time, --output-interval")
+    interface = Interface(args.interface)
+    given = [name for name in _SETTINGS if getattr(args, name) is not None and name not in interface.settings]
+    if given:
+        owners = " or ".join(other for other in Interface if given[0] in other.settings)
+        allowed = ", ".join(_option(name) for name in interface.settings if name in _SETTINGS)
+        raise ScenarioError(f"{_option(given[0])} is a {owners} setting; allowed with --interface {interface}: "
+                            f"{allowed}")
     scenario = load_scenario(args.scenario)
-    coupling, note, hint = _error_controlled_coupling(args, scenario)
+    coupling, note, hint = _error_controlled_coupling(args, interface, scenario)
     scenario = scenario.with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
         coupling=coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
@@ -217,7 +230,7 @@ def _run(args) -> int:
         print(note, file=sys.stderr)
     with TerminalWatch(scenario.simulation.stop_time, scenario.name, quiet=args.quiet, hint=hint) as watch:
         print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
-                           plots=not args.no_plots, interface=args.interface, watch=watch))
+                           plots=not args.no_plots, interface=interface, watch=watch))
     return 130 if watch.interrupted else 0
 
 
@@ -231,8 +244,21 @@ def _warning(message, category, filename, lineno, file=None, line=None) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Run the command line; return the exit status (0 on success, 1 on an error the user can fix,
-    130 when interrupted). Each command imports what it needs when it runs."""
+    """Run the ``dsc-fmu`` command line.
+
+    Each command calls one public function and imports what it needs when it runs. Errors a user
+    can fix (``DscFmuError``, ``OSError``) are printed as one line on stderr.
+
+    Parameters
+    ----------
+    argv : list of str, optional
+        The arguments after the program's name; None (default) takes ``sys.argv[1:]``.
+
+    Returns
+    -------
+    int
+        The exit status: 0 on success, 1 on an error the user can fix, 130 when interrupted.
+    """
     args = _parser().parse_args(argv)
     shown = warnings.showwarning
     warnings.showwarning = _warning

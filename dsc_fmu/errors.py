@@ -4,8 +4,11 @@ __all__ = ["DscFmuError", "FmuNotFoundError", "CosimulationError"]
 
 
 class DscFmuError(Exception):
-    """An error a user can cause and fix (a bad scenario or option, a missing or wrong FMU, a run that
-    diverged, an archive a tool refuses); its message is one line naming what is wrong and what is allowed."""
+    """An error a user can cause and fix.
+
+    A bad scenario or option, a missing or wrong FMU, a run that diverged, an archive a tool refuses;
+    its message is one line naming what is wrong and what is allowed.
+    """
 
 
 class FmuNotFoundError(DscFmuError, FileNotFoundError):
@@ -13,9 +16,28 @@ class FmuNotFoundError(DscFmuError, FileNotFoundError):
 
 
 class CosimulationError(DscFmuError, RuntimeError):
-    """A run that diverged or in which an FMU failed; carries the time (s), the signal, its value,
-    the rows recorded before the failure (``result``), the communication steps completed
-    (``steps``) and, for a failing FMI call, the FMU's name (``fmu``)."""
+    """A run that diverged or in which an FMU failed.
+
+    Parameters
+    ----------
+    message : str
+        One line: what failed, when, and what is allowed.
+    time : float
+        Simulated time of the failure in s.
+    signal : str, optional
+        The signal that diverged (``FMU.variable``), if one did.
+    value : float, optional
+        Its value there.
+
+    Attributes
+    ----------
+    result : numpy.ndarray or None
+        The rows recorded before the failure (dtype ``cosim.signals.DTYPE``), where the master knows them.
+    steps : int or None
+        The communication steps completed before the failure.
+    fmu : str or None
+        The FMU whose FMI call failed, if one did.
+    """
 
     def __init__(self, message: str, time: float, signal: str | None = None, value: float | None = None):
         super().__init__(message)

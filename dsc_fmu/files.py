@@ -10,8 +10,24 @@ __all__ = ["atomic_write"]
 
 
 def atomic_write(path: Path | str, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a temporary file beside it and ``os.replace``: never a partial
-    file, and the permissions of any new file (``0o666`` less the umask; ``tempfile.mkstemp`` would give 0600)."""
+    """Write ``data`` to ``path`` atomically: never a partial file.
+
+    The data go to a temporary file beside ``path``, which ``os.replace`` then moves into place; the
+    file gets the permissions of any new file (``0o666`` less the umask; ``tempfile.mkstemp`` would
+    give 0600).
+
+    Parameters
+    ----------
+    path : pathlib.Path or str
+        The file to write; missing parent folders are created.
+    data : bytes
+        The content.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     partial = path.parent / f".{path.name}.{os.getpid()}.{secrets.token_hex(4)}.partial"

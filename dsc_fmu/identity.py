@@ -13,7 +13,18 @@ BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
 
 def fmu_build_id(fmu: Path) -> str | None:
-    """The source hash an FMU was built from, or None if it is not one of ours."""
+    """The source hash an FMU was built from.
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        An FMU file.
+
+    Returns
+    -------
+    str or None
+        The ``source_hash`` of its ``BUILD_ID_FILE``, or None if it is not one of ours (or not readable).
+    """
     try:
         with zipfile.ZipFile(fmu) as archive:
             return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]

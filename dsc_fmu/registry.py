@@ -38,10 +38,26 @@ _ALL_CONTROLLER_INPUTS = tuple(v.name for v in CONTROLLER_INPUTS)
 
 @dataclass(frozen=True)
 class FmuSpec:
-    """One FMU: its slave script in ``fmu_sources`` (FMI 2.0; ``<stem>_fmi3.py`` for FMI 3.0), its
-    variable tables, for each discrete output the inputs it depends on (ModelStructure), and for model
-    exchange its continuous states (``models.states``), the states' variables that are not outputs
-    and its event indicators."""
+    """One FMU: its script, its variable tables and what model exchange needs of it.
+
+    Parameters
+    ----------
+    name : str
+        The FMU's model name (``REFERENCE``, ``PLANT``, ``CONTROLLER``).
+    script : str
+        Its FMI 2.0 slave script in ``fmu_sources`` (``<stem>_fmi3.py`` is the FMI 3.0 one).
+    parameters, inputs, outputs : tuple of models.parameters.Variable
+        Its variable tables.
+    states : tuple of models.states.ContinuousState
+        Its continuous states, for model exchange (``models.states``).
+    state_locals : tuple of models.parameters.Variable, optional
+        The states' variables that are not outputs.
+    indicators : tuple of models.parameters.Variable, optional
+        Its event indicators.
+    depends : dict, optional
+        For each discrete output, the inputs it depends on (ModelStructure); an output not listed
+        depends on none.
+    """
 
     name: str
     script: str
@@ -54,13 +70,26 @@ class FmuSpec:
     depends: dict = field(default_factory=dict)
 
     def script_for(self, fmi_version: int) -> str:
-        """The slave script of FMI ``fmi_version`` (2 or 3)."""
+        """The slave script of an FMI version.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version.
+
+        Returns
+        -------
+        str
+            The script's file name in ``fmu_sources``.
+        """
         return f"{Path(self.script).stem}_fmi3.py" if fmi_version == 3 else self.script
 
     @property
     def locals(self) -> tuple:
-        """The local variables, in the order the slave registers them: the states that are not outputs,
-        the derivatives of the states, the event indicators."""
+        """The local variables, in the order the slave registers them.
+
+        The states that are not outputs, the derivatives of the states, the event indicators.
+        """
         return (*self.state_locals, *(s.derivative for s in self.states), *self.indicators)
 
     @property
@@ -88,7 +117,17 @@ FMUS = {
 
 @dataclass(frozen=True)
 class Connection:
-    """The output ``signal`` of FMU ``start`` feeds the input of the same name of FMU ``end``."""
+    """The output ``signal`` of FMU ``start`` feeds the input of the same name of FMU ``end``.
+
+    Parameters
+    ----------
+    start : str
+        The FMU whose output it is.
+    signal : str
+        The variable's name, the same on both sides.
+    end : str
+        The FMU whose input it is.
+    """
 
     start: str
     signal: str
@@ -110,8 +149,23 @@ CONNECTIONS = _connections()
 
 
 def fmu_files(fmu_paths: dict) -> dict[str, Path]:
-    """The three FMU files of ``fmu_paths`` (name -> path) in ``ORDER``; FmuNotFoundError names the
-    first that is not given or not a file."""
+    """The three FMU files of ``fmu_paths``, checked.
+
+    Parameters
+    ----------
+    fmu_paths : dict
+        FMU name -> path of its file.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        The three FMU files in ``ORDER``.
+
+    Raises
+    ------
+    FmuNotFoundError
+        Naming the first FMU that is not given or not a file.
+    """
     paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
     for name, path in paths.items():
         if name not in fmu_paths or not path.is_file():

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import enum
 import json
 import math
 import tomllib
@@ -15,27 +16,94 @@ from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
-    "ScenarioError", "Simulation", "Scenario", "ORDERS", "COUPLINGS", "STABILITIES", "INTERFACES", "REFERENCES",
-    "load_scenario",
-    "scenario_names", "SCENARIO_DIR",
+    "ScenarioError", "Simulation", "Scenario", "Coupling", "Interface", "Reference", "ORDERS", "COUPLINGS",
+    "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "scenario_names", "SCENARIO_DIR",
 ]
 
+
+class Coupling(enum.StrEnum):
+    """How the exchanged signals vary over a communication step.
+
+    ``"hold"``: held over the step (zero-order hold). ``"linear"``: on a line (first-order hold): the
+    plant extrapolates ``u``, the controller interpolates its inputs with Gauss-Seidel and extrapolates
+    them with Jacobi. A coupling sets the FMUs' ``coupling`` parameters, which a scenario does not set
+    itself (docs/co-simulation.md).
+
+    Attributes
+    ----------
+    order : int
+        The order in h of the deviation the coupling causes, and of its defect (``cosim.step_control``).
+    from_start : str
+        The FMU input law (a name of ``models.parameters.INPUT_COUPLINGS``) for inputs set at a step's start.
+    to_end : str
+        The FMU input law for inputs set at the step's end (the controller's, with Gauss-Seidel).
+    """
+
+    HOLD = "hold", 1, "hold", "hold"
+    LINEAR = "linear", 2, "extrapolate", "interpolate"
+
+    def __new__(cls, value: str, order: int, from_start: str, to_end: str):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.order, member.from_start, member.to_end = order, from_start, to_end
+        return member
+
+
+class Interface(enum.StrEnum):
+    """How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange.
+
+    Attributes
+    ----------
+    settings : tuple of str
+        The ``Simulation`` settings a run through this interface reads.
+    """
+
+    CO_SIMULATION = "co-simulation", ("stop_time", "step_size", "order", "output_interval", "bound", "coupling",
+                                      "tolerance", "h_min", "h_max", "error_gain", "input_derivatives")
+    MODEL_EXCHANGE = "model-exchange", ("tolerance", "stop_time", "output_interval", "bound")
+
+    def __new__(cls, value: str, settings: tuple):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.settings = settings
+        return member
+
+
+class Reference(enum.StrEnum):
+    """What a step-size study measures its runs against.
+
+    ``"monolithic"``: the monolithic ODE of the equations (``cosim.reference_solution``);
+    ``"model-exchange"``: the three FMUs as one ODE through model exchange (``cosim.model_exchange``);
+    both solved with DOP853 at a relative tolerance of 1e-10.
+
+    Attributes
+    ----------
+    through_fmus : bool
+        Whether the reference solution runs the FMUs (and so depends on their builds).
+    """
+
+    MONOLITHIC = "monolithic", False
+    MODEL_EXCHANGE = "model-exchange", True
+
+    def __new__(cls, value: str, through_fmus: bool):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.through_fmus = through_fmus
+        return member
+
+
 ORDERS = ("gauss-seidel", "jacobi")
-COUPLINGS = ("hold", "linear")
-"""How the exchanged signals vary over a step: held (zero-order hold), or linear (first-order: the plant
-extrapolates u, the controller interpolates its inputs with Gauss-Seidel and extrapolates them with
-Jacobi). It sets the FMUs' ``coupling`` parameters, which a scenario does not set itself."""
+COUPLINGS = tuple(coupling.value for coupling in Coupling)
+"""The names of the couplings (``Coupling``), as scenarios and the command line give them."""
 STABILITIES = ("settled", "local")
 """What a step-size study calls a stable run (``study.rows.stability_definition``): "settled" judges where
 the run ends up; "local", for a scenario that starts in steady tracking, also asks that the run stay
 with the reference solution from its start (the stability of steady tracking, what the linearised
 prediction predicts)."""
-INTERFACES = ("co-simulation", "model-exchange")
-"""How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange."""
-REFERENCES = ("monolithic", "model-exchange")
-"""What a step-size study measures its runs against: the monolithic ODE of the equations
-(``cosim.reference_solution``), or the three FMUs as one ODE through model exchange
-(``cosim.model_exchange``), both solved with DOP853 at a relative tolerance of 1e-10."""
+INTERFACES = tuple(interface.value for interface in Interface)
+"""The names of the interfaces (``Interface``)."""
+REFERENCES = tuple(reference.value for reference in Reference)
+"""The names of the references of a step-size study (``Reference``)."""
 
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
@@ -50,33 +118,77 @@ class ScenarioError(DscFmuError, ValueError):
 
 @dataclass(frozen=True)
 class Simulation:
-    """How the scenario is co-simulated: stop time (s), communication step (s), coupling order
-    (``ORDERS``), coupling (``COUPLINGS``), output interval (s), the bound on |signal| beyond
-    which a run counts as diverged, and for an error-controlled step its ``tolerance`` (m: the
-    estimated position error of each step; None: a fixed step) within ``[h_min, h_max]`` (s),
-    starting from ``step_size``, with the position error per volt of coupling defect ``error_gain``
-    (m/V, see ``cosim.step_control``). ``input_derivatives`` realises the linear coupling through the
-    standard route instead of the FMUs' ``coupling`` parameters (``cosim.derivatives``: the master sets
-    the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold; FMI 2.0 FMUs, a fixed step).
-    ``stability`` (``STABILITIES``) is how a step-size study judges a run, ``reference`` (``REFERENCES``)
-    what it measures the runs' deviations against."""
+    """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
+
+    Names of couplings and references become ``Coupling`` and ``Reference``; ``check`` says whether
+    the settings are allowed.
+
+    Parameters
+    ----------
+    stop_time : float, optional
+        s. Default 30.
+    step_size : float, optional
+        Communication step in s (the first one of an error-controlled run). Default 1e-3.
+    order : {"gauss-seidel", "jacobi"}, optional
+        Coupling order (``ORDERS``). Default "gauss-seidel".
+    output_interval : float, optional
+        Recording interval in s. Default 0.01.
+    bound : float, optional
+        A run whose measurements or voltages exceed this in magnitude (SI units) counts as diverged.
+        Default 1e6.
+    coupling : Coupling or {"hold", "linear"}, optional
+        How the exchanged signals vary over a step. Default "hold".
+    tolerance : float, optional
+        Error-controlled step: the estimated position error (m) each step may add; None (default):
+        a fixed step.
+    h_min, h_max : float, optional
+        Range of the error-controlled step in s. Defaults 1e-5 and 0.02.
+    error_gain : float, optional
+        Position error per volt of coupling defect in m/V (``cosim.step_control``). Default 0.02.
+    input_derivatives : bool, optional
+        Realise the linear coupling through the standard route instead of the FMUs' ``coupling``
+        parameters: the master sets the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold
+        (``cosim.derivatives``; FMI 2.0 FMUs, a fixed step). Default False.
+    stability : {"settled", "local"}, optional
+        How a step-size study judges a run (``STABILITIES``). Default "settled".
+    reference : Reference or {"monolithic", "model-exchange"}, optional
+        What a step-size study measures the runs' deviations against. Default "monolithic".
+    """
 
     stop_time: float = 30.0
     step_size: float = 1e-3
     order: str = "gauss-seidel"
     output_interval: float = 0.01
     bound: float = 1e6
-    coupling: str = "hold"
+    coupling: Coupling = Coupling.HOLD
     tolerance: float | None = None
     h_min: float = 1e-5
     h_max: float = 0.02
     error_gain: float = 0.02
     input_derivatives: bool = False
     stability: str = "settled"
-    reference: str = "monolithic"
+    reference: Reference = Reference.MONOLITHIC
+
+    def __post_init__(self):
+        for key, kind in (("coupling", Coupling), ("reference", Reference)):  # a name that is none: ``check`` says so
+            try:
+                object.__setattr__(self, key, kind(getattr(self, key)))
+            except ValueError:
+                pass
 
     def check(self, where: str) -> None:
-        """Raise ScenarioError naming ``where`` if a setting is out of its range."""
+        """Check every setting against its range.
+
+        Parameters
+        ----------
+        where : str
+            Where the settings come from (a file), for the message.
+
+        Raises
+        ------
+        ScenarioError
+            Naming ``where``, the first setting out of its range and what is allowed.
+        """
         positive = ("stop_time", "step_size", "output_interval", "bound", "h_min", "h_max", "error_gain")
         for key in (*positive, *(("tolerance",) if self.tolerance is not None else ())):
             value = getattr(self, key)
@@ -95,25 +207,53 @@ class Simulation:
         if not isinstance(self.input_derivatives, bool):
             raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not "
                                 "allowed; allowed: true, false")
-        if self.input_derivatives and (self.coupling != "linear" or self.tolerance is not None):
+        if self.input_derivatives and (self.coupling is not Coupling.LINEAR or self.tolerance is not None):
             here = f"coupling = {json.dumps(self.coupling)}" + (
                 "" if self.tolerance is None else f", tolerance = {self.tolerance!r}")
             raise ScenarioError(f"{where}: [simulation] input_derivatives = true realises the linear coupling at a "
                                 f"fixed step; allowed: with coupling = \"linear\" and no tolerance (here {here})")
 
     def fmu_coupling(self, fmu: str) -> int | None:
-        """The ``coupling`` parameter of FMU ``fmu`` for these settings (None: it has none)."""
+        """The ``coupling`` parameter of an FMU for these settings.
+
+        Parameters
+        ----------
+        fmu : str
+            The FMU's name (``registry.PLANT``, ``registry.CONTROLLER``, ``registry.REFERENCE``).
+
+        Returns
+        -------
+        int or None
+            The index in ``models.parameters.INPUT_COUPLINGS`` of its input law: the coupling's law for
+            inputs set at the step's start, or at its end for the controller with Gauss-Seidel; None
+            for an FMU without inputs.
+        """
         if fmu == REFERENCE:
             return None
-        if self.coupling == "hold":
-            return INPUT_COUPLINGS.index("hold")
         ends = fmu == CONTROLLER and self.order == "gauss-seidel"  # its inputs set for the step's end
-        return INPUT_COUPLINGS.index("interpolate" if ends else "extrapolate")
+        return INPUT_COUPLINGS.index(self.coupling.to_end if ends else self.coupling.from_start)
 
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario: settings and the value of every parameter of the three FMUs."""
+    """A validated scenario: settings and the value of every parameter of the three FMUs.
+
+    Made by ``load_scenario`` and ``with_simulation``, which check it.
+
+    Parameters
+    ----------
+    name : str
+        The scenario's name.
+    description : str
+        One line on what it shows.
+    source : str
+        The file it was read from, named in error messages.
+    simulation : Simulation
+        How it is simulated.
+    plant, controller, reference : dict
+        Every parameter of the MobileRobot, DSCController and ReferenceRobot FMUs by name (SI units as
+        in docs/model.md; choices as their index), except ``coupling``, which ``simulation`` sets.
+    """
 
     name: str
     description: str
@@ -124,9 +264,21 @@ class Scenario:
     reference: dict
 
     def parameters(self, fmu: str, *, slopes_from_master: bool = False) -> dict:
-        """Parameter values of the FMU named ``fmu`` (``MobileRobot``, ``DSCController``, ``ReferenceRobot``):
-        its table, and its ``coupling`` from the simulation settings, or the hold where the master gives
-        the slopes (``slopes_from_master``: ``input_derivatives``, which only this project's master does)."""
+        """Parameter values of one FMU.
+
+        Parameters
+        ----------
+        fmu : str
+            The FMU's name (``MobileRobot``, ``DSCController``, ``ReferenceRobot``).
+        slopes_from_master : bool, optional
+            The master gives the slopes (``input_derivatives``, which only this project's master
+            does): the FMU's ``coupling`` is the hold. Default False.
+
+        Returns
+        -------
+        dict
+            Its table, and its ``coupling`` from the simulation settings (``Simulation.fmu_coupling``).
+        """
         table = {v: k for k, v in FMU_OF_TABLE.items()}[fmu]
         coupling = self.simulation.fmu_coupling(fmu)
         if coupling is None:
@@ -134,9 +286,27 @@ class Scenario:
         return {**getattr(self, table), "coupling": INPUT_COUPLINGS.index("hold") if slopes_from_master else coupling}
 
     def with_simulation(self, **settings) -> Scenario:
-        """This scenario with some simulation settings replaced (None leaves a setting as it is), all of
-        them checked."""
+        """This scenario with some simulation settings replaced, all of them checked.
+
+        Parameters
+        ----------
+        **settings
+            ``Simulation`` fields by name; None leaves a setting as it is.
+
+        Returns
+        -------
+        Scenario
+            The new scenario; this one if nothing is replaced.
+
+        Raises
+        ------
+        ScenarioError
+            For an unknown setting, one out of its range, or a reference speed that is not positive
+            over the run (Assumption 2).
+        """
         changed = {k: v for k, v in settings.items() if v is not None}
+        if not changed:  # checked already, where it entered (``load_scenario`` or an earlier replacement)
+            return self
         unknown = set(changed) - {f.name for f in dataclasses.fields(Simulation)}
         if unknown:
             raise ScenarioError(f"{self.source}: unknown simulation setting {sorted(unknown)[0]}")
@@ -148,7 +318,13 @@ class Scenario:
 
 
 def scenario_names() -> list[str]:
-    """Names of the scenarios shipped in ``scenarios/``."""
+    """Names of the scenarios shipped in ``scenarios/``.
+
+    Returns
+    -------
+    list of str
+        Sorted file stems.
+    """
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 
 
@@ -213,7 +389,25 @@ def _check_reference_speed(scenario: Scenario) -> None:
 
 
 def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
-    """Read and validate a scenario given by name (from ``scenarios/``) or by path to a TOML file."""
+    """Read and validate a scenario.
+
+    Parameters
+    ----------
+    name_or_path : str or pathlib.Path, optional
+        A scenario's name (from ``scenarios/``, ``scenario_names``) or the path of a TOML file.
+        Default "paper".
+
+    Returns
+    -------
+    Scenario
+        Every FMU parameter set: the file's values, the others at their defaults.
+
+    Raises
+    ------
+    ScenarioError
+        For a file that is missing or not TOML, an unknown key, a value out of its range, or a
+        reference speed that is not positive over the run (Assumption 2).
+    """
     path = _resolve(name_or_path)
     where = str(path)
     try:

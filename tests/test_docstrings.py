@@ -27,27 +27,8 @@ CHECKS = {
 
 # Modules whose docstrings are not numpydoc yet (issue 20, point 5): emptied as they are converted.
 NOT_YET = {
-    "dsc_fmu.cli",
-    "dsc_fmu.cosim.derivatives",
-    "dsc_fmu.cosim.exchange",
-    "dsc_fmu.cosim.instance",
-    "dsc_fmu.cosim.master",
-    "dsc_fmu.cosim.metrics",
-    "dsc_fmu.cosim.model_exchange",
-    "dsc_fmu.cosim.plots",
-    "dsc_fmu.cosim.progress",
-    "dsc_fmu.cosim.reference_solution",
-    "dsc_fmu.cosim.results",
-    "dsc_fmu.cosim.run",
-    "dsc_fmu.cosim.signals",
-    "dsc_fmu.cosim.step_control",
-    "dsc_fmu.errors",
-    "dsc_fmu.files",
     "dsc_fmu.fmu.native_bridge",
     "dsc_fmu.fmubuild.binary",
-    "dsc_fmu.identity",
-    "dsc_fmu.registry",
-    "dsc_fmu.scenario",
 }
 
 MODULES = sorted(
@@ -77,7 +58,10 @@ def _public(module_name: str) -> list[str]:
 
 
 def _problems(dotted: str) -> list[str]:
-    return [f"{code} {message}" for code, message in validate(dotted)["errors"] if code in CHECKS]
+    found = validate(dotted)
+    # An enum's signature is enum's functional API (names, module, ...), not its own: its members document it.
+    checks = {code for code in CHECKS if not code.startswith("PR")} if found["type"] == "EnumType" else CHECKS
+    return [f"{code} {message}" for code, message in found["errors"] if code in checks]
 
 
 @pytest.mark.parametrize("module_name", [name for name in MODULES if name not in NOT_YET])

@@ -19,7 +19,21 @@ def _slope(now: list, before: list, dt: float) -> list:
 
 
 class InputRamps:
-    """The values of the last two exchanges, and the input derivatives set from them."""
+    """The values of the last two exchanges, and the input derivatives set from them.
+
+    Parameters
+    ----------
+    plant : fmpy.fmi2.FMU2Slave
+        The plant's instance.
+    plant_u : list of int
+        Value references of its inputs ``u1, u2``.
+    controller : fmpy.fmi2.FMU2Slave
+        The controller's instance.
+    controller_in : list of int
+        Value references of its measured inputs.
+    jacobi : bool
+        Jacobi (the controller's slopes extrapolate) rather than Gauss-Seidel (they interpolate).
+    """
 
     def __init__(self, plant, plant_u: list, controller, controller_in: list, jacobi: bool):
         self.plant, self.plant_u = plant, plant_u
@@ -29,7 +43,17 @@ class InputRamps:
         self.before = None  # (time, u, measurements) of the exchange before the last
 
     def exchanged(self, at: float, u: list, measured: list) -> None:
-        """Note the exchange at ``at``: ``u`` set on the plant, ``measured`` on the controller."""
+        """Note an exchange.
+
+        Parameters
+        ----------
+        at : float
+            Its time in s.
+        u : list of float
+            The voltages set on the plant, in V.
+        measured : list of float
+            The measurements set on the controller.
+        """
         if self.at is not None:
             self.before = (self.at, self.u, self.measured)
         self.at, self.u, self.measured = at, list(u), list(measured)
@@ -41,7 +65,15 @@ class InputRamps:
                                                _slope(self.u, self.before[1], self.at - self.before[0]))
 
     def before_controller(self, step: float, measured_end: list) -> None:
-        """The controller's slopes for the step of ``step`` from the last exchange."""
+        """Set the controller's slopes for the step from the last exchange.
+
+        Parameters
+        ----------
+        step : float
+            The step's size in s.
+        measured_end : list of float
+            The measurements at the step's end (Gauss-Seidel interpolates towards them).
+        """
         if self.jacobi:
             if self.before is None:
                 return

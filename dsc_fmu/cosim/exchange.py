@@ -47,8 +47,18 @@ __all__ = ["MODES", "SCHEMES", "ExchangeRun", "Scheme", "cosimulate_exchange"]
 
 @dataclass
 class ExchangeRun:
-    """``result``: structured array (``signals.DTYPE``) at every communication point;
-    ``inputs``: for each FMU with inputs, the inputs it held over each step (``time`` = start)."""
+    """What a run under another master's exchange recorded.
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        A row at every communication point, dtype ``signals.DTYPE``.
+    inputs : dict of str to numpy.ndarray
+        For each FMU with inputs, the inputs it held over each step (``time``: the step's start, s).
+    controller_before_inputs : numpy.ndarray, optional
+        Jacobi only: the controller's recorded outputs read right after each step, before its
+        inputs are updated (see the attribute's note).
+    """
 
     result: np.ndarray
     inputs: dict
@@ -116,30 +126,85 @@ class _Loop:
 
 class Scheme:
     """How a master exchanges: its time points, initialisation and what it does around each step.
+
     This base is the step-then-transfer loop of libcosim and ``simulate_ssp``: before a step every FMU
-    gets the values transferred last; after it every output is read, transferred and recorded."""
+    gets the values transferred last; after it every output is read, transferred and recorded.
+    """
 
     name = ""
     parameters_first = True  # parameters set before initialisation mode
 
     def time_points(self, h: float, stop: float) -> list[tuple[float, float, float]]:
-        """(start, step, recorded time) of every step: ``t_k = k h``, the last one shorter to end at ``stop``."""
+        """The steps of a run: ``t_k = k h``, the last one shorter to end at ``stop``.
+
+        Parameters
+        ----------
+        h : float
+            Communication step in s.
+        stop : float
+            Stop time in s.
+
+        Returns
+        -------
+        list of tuple of float
+            (start, step, recorded time) of every step, in s.
+        """
         n = step_count(stop, h)
         return [(k * h, h if k < n - 1 else stop - k * h, (k + 1) * h if k < n - 1 else stop) for k in range(n)]
 
     def stop_time(self, stop: float) -> float | None:
+        """The stop time the master passes to ``setupExperiment``.
+
+        Parameters
+        ----------
+        stop : float
+            The run's stop time in s.
+
+        Returns
+        -------
+        float or None
+            In s; None: none.
+        """
         return stop
 
     def initialise(self, loop: _Loop) -> None:
-        """In initialisation mode, after the parameters."""
+        """What the master does in initialisation mode, after the parameters.
+
+        Parameters
+        ----------
+        loop : _Loop
+            The loaded FMUs and their connectors.
+        """
 
     def start(self, loop: _Loop) -> None:
-        """After initialisation, before the first step."""
+        """What the master does after initialisation, before the first step.
+
+        Parameters
+        ----------
+        loop : _Loop
+            The loaded FMUs and their connectors.
+        """
 
     def before_step(self, loop: _Loop) -> None:
+        """What the master does before each step: set every FMU's inputs.
+
+        Parameters
+        ----------
+        loop : _Loop
+            The loaded FMUs and their connectors.
+        """
         loop.push()
 
     def after_step(self, loop: _Loop, end: float) -> None:
+        """What the master does after each step: read, transfer and record every output.
+
+        Parameters
+        ----------
+        loop : _Loop
+            The loaded FMUs and their connectors.
+        end : float
+            The time in s the row is recorded at.
+        """
         loop.read_all()
         loop.transfer()
         loop.record(end)
@@ -206,7 +271,29 @@ MODES = tuple(SCHEMES)
 
 def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_size: float | None = None,
                         stop_time: float | None = None) -> ExchangeRun:
-    """Co-simulate ``scenario`` with the exchange scheme ``mode`` (one of ``MODES``, see the module)."""
+    """Co-simulate a scenario with another master's exchange scheme (see the module).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    fmu_paths : dict
+        The three FMU files by name.
+    mode : {"jacobi", "libcosim", "simulate_ssp"}
+        The scheme (``MODES``).
+    step_size, stop_time : float, optional
+        s; None: the scenario's.
+
+    Returns
+    -------
+    ExchangeRun
+        The rows as that master observes them, and the inputs each FMU held.
+
+    Raises
+    ------
+    ValueError
+        If ``mode`` is not one of ``MODES``.
+    """
     if mode not in SCHEMES:
         raise ValueError(f"mode {mode!r} is not allowed; allowed: {', '.join(MODES)}")
     scheme = SCHEMES[mode]

@@ -19,14 +19,24 @@ from fmpy.model_description import ValidationError
 
 from ..errors import CosimulationError
 
-__all__ = ["LogMessage", "LoadedFmu", "logging_callbacks", "type_name"]
+__all__ = ["LogMessage", "LoadedFmu", "failed_call", "logging_callbacks", "type_name"]
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
 
 @dataclass(frozen=True)
 class LogMessage:
-    """One message an FMU sent to the logger callback: the FMU's name, the status and the text."""
+    """One message an FMU sent to the logger callback.
+
+    Parameters
+    ----------
+    fmu : str
+        The FMU's instance name.
+    status : str
+        ``OK``, ``WARNING``, ``DISCARD``, ``ERROR``, ``FATAL`` or ``PENDING``.
+    message : str
+        The text.
+    """
 
     fmu: str
     status: str
@@ -34,7 +44,18 @@ class LogMessage:
 
 
 def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
-    """FMI callbacks whose logger appends every message to ``log``."""
+    """FMI 2.0 callbacks whose logger appends every message to ``log``.
+
+    Parameters
+    ----------
+    log : list of LogMessage
+        Where the messages go.
+
+    Returns
+    -------
+    fmpy.fmi2.fmi2CallbackFunctions
+        Keep it alive as long as an instance uses it.
+    """
 
     def logger(component, instance, status, category, message):
         text = [(b or b"").decode(errors="replace") for b in (instance, message)]
@@ -48,6 +69,30 @@ def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
     # logger registered, which dangles once this run's callbacks are gone. pythonfmu passes
     # formatted messages, so the variadic arguments are not needed.
     return callbacks
+
+
+def failed_call(error: FMICallException, log: list[LogMessage], at: float) -> CosimulationError:
+    """The CosimulationError of a failing FMI call at ``at`` (s), naming the FMU that made it.
+
+    Parameters
+    ----------
+    error : fmpy.fmi1.FMICallException
+        The failing call, as a ``LoadedFmu``'s instance raises it (its ``fmu`` names the FMU).
+    log : list of LogMessage
+        The run's log messages; the FMU's last three go into the message.
+    at : float
+        Time of the failure in s.
+
+    Returns
+    -------
+    CosimulationError
+        Its message names the FMU, the time and the FMU's last log messages; ``fmu`` is the FMU's name.
+    """
+    name = getattr(error, "fmu", "an FMU")
+    messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
+    failure = CosimulationError(f"{name} failed at t = {at:.6g} s: {error} Its last log messages: {messages}", at)
+    failure.fmu = name
+    return failure
 
 
 class _Named:
@@ -120,7 +165,18 @@ _KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 
 
 
 def type_name(variable) -> str:
-    """The FMI 2.0 type name of ``variable`` (``Real``, ``Integer``, ...), for either FMI version."""
+    """The FMI 2.0 type name of a model variable of either FMI version.
+
+    Parameters
+    ----------
+    variable : fmpy.model_description.ScalarVariable
+        The variable.
+
+    Returns
+    -------
+    str
+        ``Real``, ``Integer``, ...: FMI 3.0's ``Float64`` and ``Int32`` under their FMI 2.0 names.
+    """
     return _KINDS.get(variable.type, variable.type)
 
 
@@ -139,8 +195,21 @@ _CLASSES = {(2, False): FMU2SlaveNamed, (3, False): FMU3SlaveNamed, (2, True): F
 
 
 class LoadedFmu:
-    """One loaded FMU (FMI 2.0 or 3.0; co-simulation, or with ``model_exchange`` model exchange): its instance
-    and the value references and types of its variables by name."""
+    """One loaded FMU: its instance and its variables by name.
+
+    FMI 2.0 or 3.0 (read from its model description), co-simulation or model exchange, on fmpy.
+
+    Parameters
+    ----------
+    name : str
+        The FMU's name, also its instance name.
+    workdir : pathlib.Path or None
+        Where its extraction folder is made; None: the system's temporary folder.
+    log : list of LogMessage, optional
+        Where an FMI 3.0 instance's messages go (FMI 2.0 ones go through the callbacks given).
+    model_exchange : bool, optional
+        Model exchange instead of co-simulation. Default False.
+    """
 
     def __init__(self, name: str, workdir: Path | None, log: list[LogMessage] | None = None, *,
                  model_exchange: bool = False):
@@ -152,7 +221,20 @@ class LoadedFmu:
         self.folder = os.path.abspath(tempfile.mkdtemp(prefix=f"dsc_fmu_{name}_", dir=workdir))  # a file URI needs it
 
     def load(self, path: Path, callbacks) -> None:
-        """Read the model description, extract the FMU and instantiate it with ``callbacks``."""
+        """Read the model description, extract the FMU and instantiate it.
+
+        Parameters
+        ----------
+        path : pathlib.Path
+            The FMU file.
+        callbacks : fmpy.fmi2.fmi2CallbackFunctions
+            The logger and memory callbacks (``logging_callbacks``).
+
+        Raises
+        ------
+        CosimulationError
+            If the file is not a valid FMU or lacks the interface asked for.
+        """
         self.path = path
         try:
             md = read_model_description(str(path))
@@ -173,8 +255,14 @@ class LoadedFmu:
         self.instantiate(callbacks)
 
     def instantiate(self, callbacks) -> None:
-        """Instantiate the extracted FMU with ``callbacks`` (a fresh instance, not yet used); an FMI 3.0
-        FMU logs through its own callback instead, into the same log."""
+        """Instantiate the extracted FMU: a fresh instance, not yet used.
+
+        Parameters
+        ----------
+        callbacks : fmpy.fmi2.fmi2CallbackFunctions
+            The callbacks of an FMI 2.0 FMU; an FMI 3.0 FMU logs through its own callback instead,
+            into the same log.
+        """
         kind = _CLASSES[self.fmi_version, self.model_exchange]
         slave = kind(guid=self.guid, unzipDirectory=self.folder, modelIdentifier=self.model_identifier,
                      instanceName=self.name)
@@ -187,8 +275,15 @@ class LoadedFmu:
         self.used = False
 
     def renew(self, callbacks) -> None:
-        """Bring a used instance back to its state after instantiation: fmiReset, or, if the reset
-        fails, free the instance and instantiate it again from the same folder."""
+        """Bring a used instance back to its state after instantiation.
+
+        fmiReset, or, if the reset fails, free the instance and instantiate it again from the same folder.
+
+        Parameters
+        ----------
+        callbacks : fmpy.fmi2.fmi2CallbackFunctions
+            For a new instance, as for ``instantiate``.
+        """
         if not self.used:
             return
         self.terminate()
@@ -200,24 +295,67 @@ class LoadedFmu:
             self.instantiate(callbacks)
 
     def variable(self, name: str):
-        """The model variable named ``name``; CosimulationError if this FMU has none (a wrong FMU file)."""
+        """The model variable of a name.
+
+        Parameters
+        ----------
+        name : str
+            The variable's name.
+
+        Returns
+        -------
+        fmpy.model_description.ScalarVariable
+            The variable.
+
+        Raises
+        ------
+        CosimulationError
+            If this FMU has none (a wrong FMU file).
+        """
         if name not in self.variables:
             raise CosimulationError(f"{self.path}: {self.name} has no variable {name!r}: not the FMU expected", 0.0)
         return self.variables[name]
 
     def refs(self, names) -> list[int]:
-        """Value references of the named variables, in order."""
+        """Value references of named variables.
+
+        Parameters
+        ----------
+        names : iterable of str
+            The variables' names.
+
+        Returns
+        -------
+        list of int
+            Their value references, in order.
+        """
         return [self.variable(name).valueReference for name in names]
 
     def initialise(self, stop_time: float, parameters: dict) -> None:
-        """Set up the experiment on [0, stop_time], set every parameter (Real or Integer) in
-        initialisation mode and leave it."""
+        """Initialise: set up the experiment, set the parameters in initialisation mode and leave it.
+
+        Parameters
+        ----------
+        stop_time : float
+            The experiment runs on [0, stop_time], in s.
+        parameters : dict
+            Values of Real or Integer variables by name.
+        """
         self.enter_initialization(stop_time, parameters)
         self.slave.exitInitializationMode()
 
     def enter_initialization(self, stop_time: float | None, parameters: dict, *, set_first: bool = False) -> None:
-        """Set up the experiment on [0, stop_time] (None: no stop time), enter initialisation mode and
-        set ``parameters``: in it, or before it with ``set_first`` (as some masters do)."""
+        """Set up the experiment, enter initialisation mode and set the parameters.
+
+        Parameters
+        ----------
+        stop_time : float or None
+            The experiment runs on [0, stop_time], in s; None: no stop time.
+        parameters : dict
+            Values of Real or Integer variables by name.
+        set_first : bool, optional
+            Set them before initialisation mode instead of in it, as some masters do. Default False.
+        """
         self.used = True
         self.slave.setupExperiment(startTime=0.0, stopTime=stop_time)
         if set_first:
@@ -228,7 +366,13 @@ class LoadedFmu:
             self.set_values(parameters)
 
     def set_values(self, values: dict) -> None:
-        """Set Real and Integer variables by name."""
+        """Set Real and Integer variables by name.
+
+        Parameters
+        ----------
+        values : dict
+            Values by variable name (Integer variables get ``int`` of theirs).
+        """
         integers = [name for name in values if type_name(self.variable(name)) == "Integer"]
         reals = [name for name in values if name not in integers]
         if integers:
@@ -237,7 +381,18 @@ class LoadedFmu:
             self.slave.setReal(self.refs(reals), [float(values[name]) for name in reals])
 
     def get_values(self, names) -> dict:
-        """Real and Integer variables by name (others among ``names`` are left out)."""
+        """Values of Real and Integer variables.
+
+        Parameters
+        ----------
+        names : iterable of str
+            The variables' names; those of other types are left out.
+
+        Returns
+        -------
+        dict
+            Values by name.
+        """
         values = {}
         for kind, getter in (("Real", self.slave.getReal), ("Integer", self.slave.getInteger)):
             chosen = [name for name in names if type_name(self.variable(name)) == kind]
@@ -246,7 +401,7 @@ class LoadedFmu:
         return values
 
     def terminate(self) -> None:
-        """fmiTerminate if initialised; an FMU in an error state may refuse, which is ignored."""
+        """Terminate the instance if initialised; an FMU in an error state may refuse, which is ignored."""
         if self.initialised:
             self.initialised = False
             try:

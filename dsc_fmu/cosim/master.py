@@ -16,12 +16,12 @@ from fmpy.fmi1 import FMICallException
 from ..identity import fmu_build_id
 from ..errors import CosimulationError
 from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
-from ..scenario import Scenario, ScenarioError
+from ..scenario import Interface, Scenario, ScenarioError
 from . import signals
-from .instance import LoadedFmu, LogMessage, logging_callbacks, type_name
+from .instance import LoadedFmu, LogMessage, failed_call, logging_callbacks, type_name
 from .derivatives import InputRamps
 from .progress import Watch
-from .step_control import COUPLING_ORDER, ControlledSteps, defect, next_step
+from .step_control import ControlledSteps, defect, next_step
 
 __all__ = [
     "CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "Recorder", "Wiring", "check_values",
@@ -31,14 +31,34 @@ __all__ = [
 
 @dataclass
 class CosimulationResult:
-    """A finished run: ``result`` (structured array of dtype ``signals.DTYPE``, ``time`` in s first),
-    ``steps`` (communication steps), ``wall_time`` (s, from loading the FMUs to freeing them),
-    ``settings`` (scenario name and simulation settings), ``log`` (the FMUs' log messages),
-    ``fmus`` (each FMU's path and build id), ``fmu_steps`` (doStep calls, all FMUs) and, for an
-    error-controlled run, ``rejected`` (steps taken again smaller) and ``step_sizes`` (every accepted
-    step: ``time``, its start, and ``step_size``); ``steps`` then counts the accepted steps.
-    ``stopped_at`` is the time (s) at which the run's watch stopped it (its result ends there), or
-    None for a run that reached its stop time."""
+    """A finished run.
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        The recorded rows, dtype ``signals.DTYPE``, ``time`` in s first.
+    steps : int
+        Communication steps (the accepted ones of an error-controlled run; derivative evaluations
+        for model exchange).
+    wall_time : float
+        s, from loading the FMUs to freeing them (a ``Cosimulator`` run: this run only).
+    settings : dict
+        The scenario's name, the interface and the simulation settings the run used.
+    log : list of LogMessage, optional
+        The FMUs' log messages.
+    fmus : dict, optional
+        Each FMU's ``path`` and ``build_id``, by name.
+    fmu_steps : int, optional
+        ``doStep`` calls of all FMUs.
+    rejected : int, optional
+        Error-controlled run: the steps taken again, smaller.
+    step_sizes : numpy.ndarray, optional
+        Error-controlled run: every accepted step, ``time`` (its start, s), ``step_size`` (s) and
+        ``estimated_error`` (m).
+    stopped_at : float, optional
+        The time in s at which the run's watch stopped it (its result ends there); None for a run
+        that reached its stop time.
+    """
 
     result: np.ndarray
     steps: int
@@ -53,24 +73,49 @@ class CosimulationResult:
 
 
 def step_count(stop_time: float, step_size: float) -> int:
-    """Number of communication steps: ``ceil(stop_time / step_size)``, a ratio within 1e-9 (relative)
-    of a whole number counting as that number."""
+    """Number of communication steps to reach ``stop_time``.
+
+    Parameters
+    ----------
+    stop_time : float
+        s.
+    step_size : float
+        Communication step in s.
+
+    Returns
+    -------
+    int
+        ``ceil(stop_time / step_size)``, at least 1; a ratio within 1e-9 (relative) of a whole number
+        counts as that number.
+    """
     ratio = stop_time / step_size
     nearest = round(ratio)
     return max(1, nearest if abs(ratio - nearest) <= 1e-9 * ratio else math.ceil(ratio))
 
 
 class Cosimulator:
-    """The three FMUs loaded once (extracted into ``workdir`` and instantiated) for many runs.
-
-    Each FMU may be FMI 2.0 or 3.0 co-simulation (read from its model description; fmpy's
-    FMU2Slave or FMU3Slave), with the same variable names; the runs are the same either way.
+    """The three FMUs loaded once (extracted and instantiated) for many runs.
 
     ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances
-    are reset (``fmi2Reset`` / ``fmi3Reset``) instead of extracted again, and an instance that cannot be reset is
-    freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every instance and
-    removes the extracted folders. One Cosimulator serves one thread at a time; what a run needs
-    beyond the loaded FMUs and their wiring lives in that run's own object.
+    are reset (``fmi2Reset`` / ``fmi3Reset``) instead of extracted again, and an instance that cannot
+    be reset is freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every
+    instance and removes the extracted folders. One Cosimulator serves one thread at a time; what a
+    run needs beyond the loaded FMUs and their wiring lives in that run's own object.
+
+    Parameters
+    ----------
+    fmu_paths : dict
+        The three FMU files by name (``registry.ORDER``), each FMI 2.0 or 3.0 co-simulation (read
+        from its model description), with the same variable names; the runs are the same either way.
+    workdir : pathlib.Path, optional
+        Where the FMUs are extracted; a temporary folder by default.
+
+    Raises
+    ------
+    FmuNotFoundError
+        If an FMU is not given or not a file.
+    CosimulationError
+        If a file is not the FMU expected (not an FMU, no co-simulation, a variable missing).
     """
 
     def __init__(self, fmu_paths: dict[str, Path], workdir: Path | None = None):
@@ -113,8 +158,31 @@ class Cosimulator:
             order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
             tolerance: float | None = None, input_derivatives: bool | None = None,
             watch: Watch | None = None) -> CosimulationResult:
-        """Co-simulate ``scenario`` as ``cosimulate`` does (same settings, result, errors, watch);
-        ``wall_time`` counts this run only (not loading the FMUs)."""
+        """Co-simulate ``scenario`` as ``cosimulate`` does.
+
+        Parameters
+        ----------
+        scenario : Scenario
+            The scenario.
+        step_size, stop_time, order, output_interval, coupling, tolerance, input_derivatives : optional
+            Settings replacing the scenario's, as for ``cosimulate`` (None: the scenario's).
+        watch : progress.Watch, optional
+            Sees every recorded row and may stop the run there, as for ``cosimulate``.
+
+        Returns
+        -------
+        CosimulationResult
+            As ``cosimulate``'s, bit for bit; ``wall_time`` counts this run only (not loading the FMUs).
+
+        Raises
+        ------
+        ScenarioError
+            For a setting out of its range, or one the FMUs' FMI version lacks.
+        CosimulationError
+            For a run that diverges or an FMU that fails, as ``cosimulate``.
+        RuntimeError
+            If this Cosimulator is closed.
+        """
         return self._run(scenario.with_simulation(
             step_size=step_size, stop_time=stop_time, order=order, output_interval=output_interval,
             coupling=coupling, tolerance=tolerance, input_derivatives=input_derivatives), watch)
@@ -143,8 +211,20 @@ class Cosimulator:
 
 
 class Wiring:
-    """The three loaded FMUs by role and the value references of the exchange and the recording,
-    looked up once per load."""
+    """The three loaded FMUs by role and the value references of the exchange and the recording.
+
+    Looked up once per load: a wrong FMU file fails here.
+
+    Parameters
+    ----------
+    fmus : dict of str to LoadedFmu
+        The loaded FMUs by name (``registry.REFERENCE``, ``registry.PLANT``, ``registry.CONTROLLER``).
+
+    Raises
+    ------
+    CosimulationError
+        If an FMU lacks a variable that is exchanged or recorded.
+    """
 
     def __init__(self, fmus: dict[str, LoadedFmu]):
         for fmu in fmus.values():  # each FMU has the outputs recorded from it: a wrong file fails here
@@ -170,13 +250,49 @@ class Wiring:
 
 
     def measure(self, at: float, bound: float) -> list:
-        """The controller's measurements: the plant's and the reference's outputs, checked against ``bound``."""
+        """The controller's measurements: the plant's and the reference's outputs, checked.
+
+        Parameters
+        ----------
+        at : float
+            Simulated time in s, for the message of a divergence.
+        bound : float
+            Largest magnitude allowed (``Simulation.bound``).
+
+        Returns
+        -------
+        list of float
+            The measurements, in the order of ``controller_in``.
+
+        Raises
+        ------
+        CosimulationError
+            At the first measurement that is not finite or beyond ``bound``.
+        """
         measured = self.plant.slave.getReal(self.plant_out) + self.reference.slave.getReal(self.reference_out)
         check_values(measured, self.checked, at, bound)
         return measured
 
     def pass_u(self, at: float, bound: float) -> list:
-        """The controller's ``u``, checked against ``bound``, set on the plant; returns it."""
+        """The controller's ``u``, checked, set on the plant.
+
+        Parameters
+        ----------
+        at : float
+            Simulated time in s, for the message of a divergence.
+        bound : float
+            Largest magnitude allowed in V (``Simulation.bound``).
+
+        Returns
+        -------
+        list of float
+            ``[u1, u2]`` in V.
+
+        Raises
+        ------
+        CosimulationError
+            If a voltage is not finite or beyond ``bound``.
+        """
         u = self.controller.slave.getReal(self.controller_u)
         check_values(u, self.u_names, at, bound)
         self.plant.slave.setReal(self.plant_u, u)
@@ -234,9 +350,9 @@ class _Run:
         """The settings the run used: for an error-controlled run also the allowed step range and the
         range of the steps it took."""
         settings = self.settings
-        record = {"scenario": self.scenario.name, "interface": "co-simulation", "step_size": settings.step_size,
-                  "order": settings.order, "coupling": settings.coupling,
-                  "coupling_order": COUPLING_ORDER[settings.coupling], "stop_time": settings.stop_time,
+        record = {"scenario": self.scenario.name, "interface": Interface.CO_SIMULATION,
+                  "step_size": settings.step_size, "order": settings.order, "coupling": settings.coupling,
+                  "coupling_order": settings.coupling.order, "stop_time": settings.stop_time,
                   "output_interval": settings.output_interval, "tolerance": settings.tolerance,
                   "input_derivatives": settings.input_derivatives}
         if self.controlled is not None:
@@ -307,7 +423,7 @@ class _Run:
         defect of ``u`` at its end; a step that misses the tolerance is taken again, smaller, from the
         FMU states saved before it."""
         settings = self.settings
-        tolerance, order, gain = settings.tolerance, COUPLING_ORDER[settings.coupling], settings.error_gain
+        tolerance, order, gain = settings.tolerance, settings.coupling.order, settings.error_gain
         h_min, h_max, stop = settings.h_min, settings.h_max, settings.stop_time
         slaves = [self.reference, self.plant, self.controller]
         done = ControlledSteps()
@@ -367,10 +483,9 @@ class _Run:
     def _failure(self, error: FMICallException) -> CosimulationError:
         """The CosimulationError of a failing FMI call: the FMU that the call named, the time and that
         FMU's last log messages."""
-        (k, t), name = self.at, getattr(error, "fmu", "an FMU")
-        messages = "; ".join([f"[{m.status}] {m.message}" for m in self.log if m.fmu == name][-3:]) or "none"
-        failure = CosimulationError(f"{name} failed at t = {t:.6g} s: {error} Its last log messages: {messages}", t)
-        failure.result, failure.steps, failure.fmu = self.recorder.result(), k, name
+        k, t = self.at
+        failure = failed_call(error, self.log, t)
+        failure.result, failure.steps = self.recorder.result(), k
         return failure
 
 
@@ -383,8 +498,24 @@ def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
 
 
 def check_values(values, names, at: float, bound: float) -> None:
-    """CosimulationError at the first of ``values`` (named by ``names``) that is not finite or
-    exceeds ``bound`` in magnitude."""
+    """Check that every value is finite and within ``bound`` in magnitude.
+
+    Parameters
+    ----------
+    values : sequence of float
+        The values.
+    names : sequence of str
+        Their names (``FMU.variable``), in the same order.
+    at : float
+        Simulated time in s, for the message.
+    bound : float
+        Largest magnitude allowed.
+
+    Raises
+    ------
+    CosimulationError
+        At the first value that is not finite or exceeds ``bound``, naming it.
+    """
     for name, value in zip(names, values):
         if not -bound <= value <= bound:
             reason = "is not finite" if not math.isfinite(value) else f"exceeds the bound {bound:g}"
@@ -392,7 +523,15 @@ def check_values(values, names, at: float, bound: float) -> None:
 
 
 class Recorder:
-    """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``."""
+    """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``.
+
+    Parameters
+    ----------
+    wiring : Wiring
+        The loaded FMUs and the value references of their recorded outputs.
+    rows : int
+        Rows to allocate; an error-controlled run grows the table as it needs.
+    """
 
     def __init__(self, wiring: Wiring, rows: int):
         self.columns = wiring.columns
@@ -402,6 +541,13 @@ class Recorder:
                         for fmu, kind, refs, cols in wiring.readers if refs]
 
     def record(self, at: float) -> None:
+        """Read a row: every recorded output now, stamped with ``at``.
+
+        Parameters
+        ----------
+        at : float
+            The row's time in s.
+        """
         if self.rows == len(self.table):  # an error-controlled run: as many rows as accepted steps
             self.table = np.concatenate([self.table, np.full_like(self.table, np.nan)])
         table, row = self.table, self.rows
@@ -412,16 +558,28 @@ class Recorder:
 
     @property
     def last_time(self) -> float:
-        """The time of the last row recorded."""
+        """The time in s of the last row recorded."""
         return float(self.table[self.rows - 1, 0])
 
     def result(self) -> np.ndarray:
-        """The rows recorded so far as a ``signals.DTYPE`` array with the tracking errors."""
+        """The rows recorded so far, with the tracking errors.
+
+        Returns
+        -------
+        numpy.ndarray
+            dtype ``signals.DTYPE``.
+        """
         return _result(self.table[: self.rows], self.columns)
 
 
 def close_all(fmus: list[LoadedFmu]) -> None:
-    """Close every FMU of ``fmus`` (last loaded first), removing all folders even if one fails."""
+    """Close every FMU, last loaded first, removing all their folders even if one fails.
+
+    Parameters
+    ----------
+    fmus : list of LoadedFmu
+        The FMUs, emptied as they are closed.
+    """
     try:
         while fmus:
             fmus.pop().close()
@@ -434,48 +592,64 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
                stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
                coupling: str | None = None, tolerance: float | None = None, input_derivatives: bool | None = None,
                workdir: Path | None = None, watch: Watch | None = None) -> CosimulationResult:
-    """Co-simulate ``scenario`` with the FMUs in ``fmu_paths`` (by name) on a fixed communication step.
+    """Co-simulate a scenario with the three FMUs (FMI 2.0 or 3.0) on fmpy.
 
-    Settings left as None come from ``scenario.simulation``; the others are validated like the
-    scenario's (ScenarioError). Communication points are ``t_k = k h`` (s) for ``k < n`` with
-    ``n = step_count(stop_time, h)``, and ``t_n = stop_time``: the last step is shorter when
-    ``stop_time`` is not a multiple of ``h``.
+    Communication points are ``t_k = k h`` for ``k < n = step_count(stop_time, h)`` and ``t_n = stop_time``
+    (a last, shorter step); at each one the controller's inputs are set from the plant's and the
+    reference's outputs and its ``u`` goes to the plant, then the FMUs step (Gauss-Seidel: reference
+    and plant first, the controller with their outputs at ``t_{k+1}``; Jacobi: all three from ``t_k``).
+    Rows are recorded at ``t = 0``, every ``round(output_interval / h)`` steps and at ``stop_time``
+    (an error-controlled run: at every accepted step). docs/co-simulation.md gives the details; for
+    many runs, load the FMUs once with ``Cosimulator``: its runs give the same results.
 
-    At every communication point ``t_k`` the controller's inputs are set from the plant's and the
-    reference's outputs of the same names, then ``u1, u2`` are read from the controller (direct
-    feedthrough) and set on the plant. Then
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario: FMU parameters and simulation settings (``scenario.simulation``).
+    fmu_paths : dict
+        The three FMU files by name (``registry.ORDER``).
+    step_size : float, optional
+        Communication step ``h`` in s (an error-controlled run's first step).
+    stop_time : float, optional
+        s.
+    order : {"gauss-seidel", "jacobi"}, optional
+        Coupling order.
+    output_interval : float, optional
+        Recording interval in s.
+    coupling : {"hold", "linear"} or Coupling, optional
+        How the FMUs vary their inputs over a step (their ``coupling`` parameters): held, or linear
+        (the plant extrapolates ``u``; the controller interpolates its inputs with Gauss-Seidel,
+        extrapolates them with Jacobi). The master's calls are the same.
+    tolerance : float, optional
+        Error-controlled step (``step_control``): the estimated position error in m each step may add.
+        A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
+        stay within ``[h_min, h_max]`` of the scenario.
+    input_derivatives : bool, optional
+        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``) with the
+        FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
+    workdir : pathlib.Path, optional
+        Where the FMUs are extracted (temporary folders, removed at the end).
+    watch : progress.Watch, optional
+        Called at every recorded row with its time (s) and the steps taken; when it returns False
+        the run ends at that row.
 
-    - Jacobi: all three FMUs ``doStep(t_k, h)`` with those inputs;
-    - Gauss-Seidel: ReferenceRobot and MobileRobot ``doStep(t_k, h)`` first; then the controller's
-      inputs are set from their new outputs (at ``t_{k+1}``) and the controller does
-      ``doStep(t_k, h)``, so that its states integrate with the measurements of the end of the step.
-      (Those inputs are already in place at the exchange at ``t_{k+1}``, so it does not set them again.)
+    Returns
+    -------
+    CosimulationResult
+        The rows (dtype ``signals.DTYPE``: every output of ``signals.RECORDED``, then the tracking
+        errors), the steps, the settings used and the FMUs' log.
 
-    The coupling (``scenario.simulation.coupling``) is the FMUs' business: with ``"linear"`` the plant
-    extrapolates ``u`` over each step from the two last communication points, and the controller
-    interpolates its inputs between those of the two ends of the step (Gauss-Seidel) or extrapolates
-    them from the two last points (Jacobi); the master's calls are the same. With ``input_derivatives``
-    (or ``scenario.simulation.input_derivatives``; FMI 2.0 FMUs, a fixed step) the linear coupling takes
-    the standard route instead: the FMUs' ``coupling`` parameters hold and the master sets each step's
-    slopes with ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``).
-
-    Rows are recorded at ``t = 0``, every ``max(1, round(output_interval / h))`` steps and at
-    ``stop_time``, each after the exchange at that point: every output in ``signals.RECORDED``,
-    then the tracking errors. After each exchange every measurement and ``u`` must be finite and
-    within ``scenario.simulation.bound``, else CosimulationError; a failing FMI call also raises
-    CosimulationError, with the FMU's last log messages. FMUs are extracted into temporary folders
-    (inside ``workdir`` if given), and every instance is freed and every folder removed at the end.
-    For many runs, load the FMUs once with ``Cosimulator`` instead: its runs give the same results.
-
-    With a ``tolerance`` (m; or ``scenario.simulation.tolerance``) the step is error-controlled
-    instead (``step_control``): starting from ``h``, each step's position error is estimated from the
-    defect of ``u`` at its end; a step whose estimate exceeds the tolerance (or that diverges or is
-    discarded) is taken again, smaller, from the FMU states saved before it; the next step grows or
-    shrinks with the estimate within ``[h_min, h_max]`` of the settings. A row is recorded at every
-    accepted step. If a step of ``h_min`` misses the tolerance, CosimulationError names the time.
-
-    A ``watch`` (``progress.Watch``) is called at every recorded row with the time and the steps
-    taken; when it returns False the run ends at that row, its ``stopped_at`` that time.
+    Raises
+    ------
+    ScenarioError
+        For a setting out of its range (a setting left as None is the scenario's, checked already),
+        or one the FMUs' FMI version lacks.
+    FmuNotFoundError
+        If an FMU is not given or not a file.
+    CosimulationError
+        If a measurement or ``u`` is not finite or beyond ``scenario.simulation.bound`` after an
+        exchange, if an FMI call fails (naming the FMU, with its last log messages), or if a step of
+        ``h_min`` misses the tolerance.
     """
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
                                         output_interval=output_interval, coupling=coupling, tolerance=tolerance,

@@ -10,8 +10,22 @@ SETTLING_THRESHOLD = 0.1  # m
 
 
 def settling_time(time: np.ndarray, error: np.ndarray, threshold: float) -> float | None:
-    """The first recorded time (s) from which ``error`` stays below ``threshold`` in every later
-    row, or None if the last row is not below it."""
+    """The first recorded time from which ``error`` stays below ``threshold``.
+
+    Parameters
+    ----------
+    time : numpy.ndarray
+        Row times in s.
+    error : numpy.ndarray
+        The error at each row (NaN counts as not below).
+    threshold : float
+        In the error's unit.
+
+    Returns
+    -------
+    float or None
+        The time in s from which every later row is below ``threshold``; None if the last row is not.
+    """
     above = np.flatnonzero(~(np.asarray(error) < threshold))  # NaN counts as not settled
     if len(above) == 0:
         return float(time[0])
@@ -21,14 +35,29 @@ def settling_time(time: np.ndarray, error: np.ndarray, threshold: float) -> floa
 
 
 def tracking_metrics(result: np.ndarray, stop_time: float) -> dict:
-    """Metrics of a result with the columns of ``signals.COLUMNS`` that ends at ``stop_time`` (s).
+    """Tracking metrics of a result: errors over its last third, settling time, peak voltage.
 
-    Over the window [2/3 stop_time, stop_time] (the rows recorded in it): the position error
-    (``sqrt(xe^2 + ye^2)``, m) of the last row, its RMS over the rows and its maximum, and the
-    largest ``|thetae|`` (rad). Over the whole run: ``settling_time_0p1_s``, the first recorded time
-    from which the position error stays below 0.1 m (None if it never does), the largest voltage
-    ``max(|u1|, |u2|)`` (V) and the number of steps in which the controller's beta guard acted.
-    Values are plain floats (or None, or an int for the count), so the dict is JSON-serialisable.
+    Parameters
+    ----------
+    result : numpy.ndarray
+        Rows with the columns of ``signals.COLUMNS``.
+    stop_time : float
+        Where the result ends, in s.
+
+    Returns
+    -------
+    dict
+        JSON-serialisable. Over the window [2/3 stop_time, stop_time] (the rows recorded in it):
+        ``final_position_error_m``, ``rms_position_error_m`` and ``max_position_error_m`` (the
+        position error ``sqrt(xe^2 + ye^2)``, m), ``max_abs_thetae_rad``; the window's ends
+        ``window_start_s``, ``window_end_s``. Over the whole run: ``settling_time_0p1_s`` (from when the
+        position error stays below 0.1 m, None if never), ``max_abs_u_V`` (``max(|u1|, |u2|)``) and
+        ``beta_guard_count`` (steps in which the controller's beta guard acted).
+
+    Raises
+    ------
+    ValueError
+        If ``stop_time`` is not positive or no row lies in the window.
     """
     if not stop_time > 0:
         raise ValueError(f"stop_time = {stop_time!r} is not allowed; allowed: > 0")

@@ -14,8 +14,8 @@ from scipy.integrate import solve_ivp
 from ..errors import CosimulationError
 from ..identity import fmu_build_id
 from ..registry import ORDER, fmu_files
-from ..scenario import Scenario, ScenarioError
-from .instance import LoadedFmu, LogMessage, logging_callbacks
+from ..scenario import Interface, Scenario, ScenarioError
+from .instance import LoadedFmu, LogMessage, failed_call, logging_callbacks
 from .master import CosimulationResult, Wiring, Recorder, close_all
 from .progress import Watch
 from .reference_solution import output_times
@@ -242,16 +242,13 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
             _start(loop, scenario)
             events = _integrate(loop, recorder, times, rtol)
         except FMICallException as error:
-            name = getattr(error, "fmu", "an FMU")
-            messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
-            raise CosimulationError(f"{name} failed at t = {loop.at:.6g} s: {error} Its last log messages: {messages}",
-                                    loop.at) from None
+            raise failed_call(error, log, loop.at) from None
     finally:
         close_all(loaded)
     result = recorder.result()
     return CosimulationResult(
         result=result, steps=loop.evaluations, wall_time=clock.perf_counter() - started,
-        settings={"scenario": scenario.name, "interface": "model-exchange", "method": METHOD, "tolerance": rtol,
+        settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": METHOD, "tolerance": rtol,
                   "stop_time": settings.stop_time, "output_interval": settings.output_interval, "events": events},
         log=list(log), fmus={name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()},
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,

@@ -12,15 +12,38 @@ __all__ = ["new_figure", "plot_trajectory", "plot_signals", "plot_step_sizes"]
 
 
 def new_figure(width: float, height: float) -> Figure:
-    """A figure on an Agg canvas, outside pyplot: no display, no global state, nothing to close."""
+    """A figure on an Agg canvas, outside pyplot: no display, no global state, nothing to close.
+
+    Parameters
+    ----------
+    width, height : float
+        Size in inches.
+
+    Returns
+    -------
+    matplotlib.figure.Figure
+        The figure, with a constrained layout.
+    """
     figure = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(figure)
     return figure
 
 
 def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
-    """Fig. 1: the reference path (x_r, y_r) and the robot's path (x, y) in the plane (m), start
-    points marked; saved to ``path`` (format from its suffix)."""
+    """Fig. 1: the reference path (x_r, y_r) and the robot's path (x, y) in the plane (m).
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        Rows of dtype ``signals.DTYPE``.
+    path : pathlib.Path or str
+        The image to write (format from its suffix).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     figure = new_figure(6.0, 6.0)
     axes = figure.add_subplot()
     axes.plot(result["x_r"], result["y_r"], "--", color="tab:blue", label="reference robot")
@@ -36,9 +59,23 @@ def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
 
 
 def plot_signals(result: np.ndarray, path: Path | str) -> Path:
-    """Fig. 2 against time (s): (a) tracking errors xe, ye (m) and thetae (rad); (b) voltages u1, u2
-    (V); (c) estimates a1_hat (1/m) and a2_hat (1); (d) norms of W1_hat and W2_hat (1); saved to
-    ``path`` (format from its suffix)."""
+    """Fig. 2 against time (s): tracking errors, voltages, estimates and the weights' norms.
+
+    Panels: (a) xe, ye (m) and thetae (rad); (b) u1, u2 (V); (c) a1_hat (1/m) and a2_hat (1);
+    (d) the norms of W1_hat and W2_hat (1).
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        Rows of dtype ``signals.DTYPE``.
+    path : pathlib.Path or str
+        The image to write (format from its suffix).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     time = result["time"]
     figure = new_figure(10.0, 7.5)
     (errors, voltages), (estimates, norms) = figure.subplots(2, 2, sharex=True)
@@ -64,8 +101,22 @@ def plot_signals(result: np.ndarray, path: Path | str) -> Path:
 
 
 def plot_step_sizes(step_sizes: np.ndarray, tolerance: float, path: Path | str) -> Path:
-    """An error-controlled run's step size (s, log scale) and estimated error per step (m, log scale)
-    against time (s), the tolerance marked; saved to ``path``."""
+    """An error-controlled run's step size and estimated error per step against time.
+
+    Parameters
+    ----------
+    step_sizes : numpy.ndarray
+        ``CosimulationResult.step_sizes``: ``time`` (s), ``step_size`` (s), ``estimated_error`` (m).
+    tolerance : float
+        The run's tolerance in m, marked.
+    path : pathlib.Path or str
+        The image to write (format from its suffix).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``.
+    """
     figure = new_figure(8.0, 5.5)
     sizes, errors = figure.subplots(2, 1, sharex=True)
     sizes.semilogy(step_sizes["time"], step_sizes["step_size"], ".-", markersize=2, color="tab:blue")

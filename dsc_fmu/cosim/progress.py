@@ -32,6 +32,19 @@ class TerminalWatch:
     faster). Inside the ``with`` block (on the main thread), the first Ctrl-C stops the run at its next
     recorded row (``interrupted`` is then True); a second one raises KeyboardInterrupt at once, as
     Python does by default.
+
+    Parameters
+    ----------
+    stop_time : float
+        The run's stop time in s.
+    label : str, optional
+        The line's label (the scenario's name). Default "run".
+    quiet : bool, optional
+        No progress line and no forecast. Default False.
+    hint : str, optional
+        How to get there faster, added to the forecast.
+    stream : file-like, optional
+        Where to write; standard error by default.
     """
 
     SHOW_AFTER = 1.0  # s of wall time before the line appears

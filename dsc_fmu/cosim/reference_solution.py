@@ -33,7 +33,20 @@ REFERENCE_STATES = slice(27, 30)
 
 
 def output_times(stop_time: float, output_interval: float) -> np.ndarray:
-    """The output grid ``k * output_interval`` for k = 0, 1, ..., ending exactly at ``stop_time``."""
+    """The output grid ``k * output_interval`` for k = 0, 1, ..., ending exactly at ``stop_time``.
+
+    Parameters
+    ----------
+    stop_time : float
+        s.
+    output_interval : float
+        s.
+
+    Returns
+    -------
+    numpy.ndarray
+        The times in s; the last one is ``stop_time`` (an extra, shorter interval if it is not on the grid).
+    """
     n = math.floor(stop_time / output_interval * (1.0 + 1e-12))
     times = np.arange(n + 1) * output_interval
     if stop_time - times[-1] > 1e-9 * output_interval:
@@ -43,15 +56,57 @@ def output_times(stop_time: float, output_interval: float) -> np.ndarray:
 
 
 def measurements(k: PlantCoefficients, ref_params: dict, t: float, plant: list, reference: list) -> list:
-    """The controller's inputs ``m`` (models/controller.py) from the plant and reference states at ``t``."""
+    """The controller's inputs ``m`` (models/controller.py) from the plant and reference states.
+
+    Parameters
+    ----------
+    k : PlantCoefficients
+        The plant's coefficients (``models.plant.plant_coefficients``).
+    ref_params : dict
+        The reference robot's parameters.
+    t : float
+        Time in s.
+    plant : list of float
+        Plant state ``x, y, theta`` (m, rad), wheel speeds ``omega1, omega2`` (rad/s), currents
+        ``i1, i2`` (A), eqs. (6)-(8).
+    reference : list of float
+        Reference state ``x_r, y_r, theta_r`` (m, rad), eq. (9).
+
+    Returns
+    -------
+    list of float
+        The controller's inputs in order, ``x, y, theta, theta_dot, omega1, omega2, i1, i2, x_r, y_r,
+        theta_r, v_r, omega_r, v_r_dot`` (SI units).
+    """
     x, y, theta, v1, v2, i1, i2 = plant
     vr, wr, vr_dot = velocity(ref_params, t)
     return [x, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *reference, vr, wr, vr_dot]
 
 
 def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
-    """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by u of (26),
-    controller (15)-(27) fed the current measurements, reference robot (9)."""
+    """Time derivative of the 30 closed-loop states.
+
+    Plant (6)-(8) driven continuously by ``u`` of (26), controller (15)-(27) fed the current
+    measurements, reference robot (9).
+
+    Parameters
+    ----------
+    t : float
+        Time in s.
+    state : sequence of float
+        The 30 states: plant (``PLANT_STATES``), controller, reference.
+    k : PlantCoefficients
+        The plant's coefficients.
+    g : Gains
+        The controller's gains (``models.controller.gains``).
+    ref_params : dict
+        The reference robot's parameters.
+
+    Returns
+    -------
+    list of float
+        The 30 derivatives, in the states' order.
+    """
     state = list(state)
     plant, reference = state[PLANT_STATES], state[REFERENCE_STATES]
     law = control_law(g, state[CONTROLLER_STATES], measurements(k, ref_params, t, plant, reference))
@@ -63,7 +118,19 @@ def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref
 
 
 def initial_closed_loop_state(scenario: Scenario) -> list:
-    """Plant at rest at its initial pose, estimates zero, filters started from the t = 0 measurements (docs/model.md §5)."""
+    """The closed loop's state at t = 0 (docs/model.md §5).
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+
+    Returns
+    -------
+    list of float
+        The 30 states: plant at rest at its initial pose, estimates zero, filters started from the
+        t = 0 measurements, reference at its initial pose.
+    """
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     plant, reference = initial_plant_state(scenario.plant), initial_reference_state(scenario.reference)
     m0 = measurements(k, scenario.reference, 0.0, plant, reference)
@@ -73,10 +140,31 @@ def initial_closed_loop_state(scenario: Scenario) -> list:
 def reference_solution(
     scenario: Scenario, times=None, rtol: float = 1e-10, atol: float = 1e-10, method: str = "DOP853"
 ) -> np.ndarray:
-    """Solve the closed loop from t = 0 with ``solve_ivp`` and return one ``signals.DTYPE`` row per time.
+    """Solve the closed loop as one ODE from t = 0 with SciPy's ``solve_ivp``.
 
-    ``times`` (ascending, >= 0) defaults to the scenario's output grid; ``method`` is any solve_ivp method.
-    ``beta_guard_count`` counts the output rows so far at which the beta guard acts (docs/model.md §5).
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    times : array_like, optional
+        Output times in s, strictly ascending, >= 0; the scenario's output grid by default.
+    rtol, atol : float, optional
+        The solver's tolerances. Default 1e-10.
+    method : str, optional
+        Any ``solve_ivp`` method. Default "DOP853".
+
+    Returns
+    -------
+    numpy.ndarray
+        One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far
+        at which the beta guard acts (docs/model.md §5).
+
+    Raises
+    ------
+    ValueError
+        If ``times`` is empty, not ascending or negative.
+    RuntimeError
+        If the solver fails.
     """
     sim = scenario.simulation
     times = output_times(sim.stop_time, sim.output_interval) if times is None else np.asarray(times, float)

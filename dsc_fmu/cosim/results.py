@@ -9,15 +9,30 @@ from fmpy.util import write_csv
 
 from . import signals
 from .master import CosimulationResult
-from ..scenario import Scenario
+from ..scenario import Interface, Scenario
 
 __all__ = ["write_results", "summary", "format_summary"]
 
 
 def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
-    """What ``summary.json`` holds: scenario, settings (the interface first; for model exchange ``steps``
-    counts derivative evaluations; ``stopped_at``, the time a stopped run ends at, else None), metrics,
-    units of the CSV columns, FMU build ids."""
+    """What ``summary.json`` holds.
+
+    Parameters
+    ----------
+    run : CosimulationResult
+        The run.
+    scenario : Scenario
+        Its scenario.
+    metrics : dict
+        Its ``metrics.tracking_metrics``.
+
+    Returns
+    -------
+    dict
+        The scenario's name and source; the settings (the interface first; ``steps``, which for model
+        exchange counts derivative evaluations; ``stopped_at``, the time in s a stopped run ends at,
+        else None); the metrics; the units of the CSV columns; the FMUs' build ids.
+    """
     return {
         "scenario": scenario.name,
         "scenario_source": scenario.source,
@@ -36,9 +51,27 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
 
 
 def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict[str, Path]:
-    """Write ``results.csv`` (fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``),
-    ``summary.json`` and, for an error-controlled run, ``step_sizes.csv`` (every accepted step: start
-    time, size, estimated error) into ``out_dir`` (created if missing); return their paths by kind."""
+    """Write a run's ``results.csv``, ``summary.json`` and, if error-controlled, ``step_sizes.csv``.
+
+    ``results.csv`` is in fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``;
+    ``step_sizes.csv`` has every accepted step's start time (s), size (s) and estimated error (m).
+
+    Parameters
+    ----------
+    out_dir : pathlib.Path or str
+        The folder, created if missing.
+    run : CosimulationResult
+        The run.
+    scenario : Scenario
+        Its scenario.
+    metrics : dict
+        Its ``metrics.tracking_metrics``.
+
+    Returns
+    -------
+    dict of str to pathlib.Path
+        The files written, by kind: ``csv``, ``summary``, ``step_sizes``.
+    """
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "results.csv", "summary": out_dir / "summary.json"}
@@ -54,23 +87,49 @@ def _number(value, unit: str) -> str:
     return "never" if value is None else f"{value:.4g} {unit}"
 
 
-def format_summary(run: CosimulationResult, metrics: dict) -> str:
-    """A short multi-line text of the run's settings, cost and metrics, for the command line."""
+def _cosimulation(run: CosimulationResult, guarded: int) -> tuple[list[str], str]:
+    """The lines on how a co-simulation ran, and what its beta guard did in ``guarded`` steps."""
     s = run.settings
-    guard = f"beta guard acted in {metrics['beta_guard_count']} steps"
-    if s["interface"] == "model-exchange":
-        guard = f"beta guard engaged {metrics['beta_guard_count']} times"
-        how = [f"scenario {s['scenario']}: model exchange, {s['method']} at relative tolerance {s['tolerance']:g}, "
-               f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
-               f"  {run.steps} derivative evaluations and {s['events']} events in {run.wall_time:.2f} s wall time"]
-    else:
-        how = [f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
-               f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
-               f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
-               f"  {run.steps} steps in {run.wall_time:.2f} s wall time" + (
-                   "" if s["tolerance"] is None else f" (error-controlled to {s['tolerance']:g} m, coupling of order "
-                   f"{s['coupling_order']}: {run.rejected} steps taken again, step {s['step_min']:.3g} s to "
-                   f"{s['step_max']:.3g} s within [{s['h_min']:g}, {s['h_max']:g}] s)")]
+    controlled = "" if s["tolerance"] is None else (
+        f" (error-controlled to {s['tolerance']:g} m, coupling of order {s['coupling_order']}: {run.rejected} "
+        f"steps taken again, step {s['step_min']:.3g} s to {s['step_max']:.3g} s within [{s['h_min']:g}, "
+        f"{s['h_max']:g}] s)")
+    how = [f"scenario {s['scenario']}: {s['order']}, {s['coupling']} coupling"
+           f"{' (input derivatives)' if s['input_derivatives'] else ''}, step {s['step_size']:g} s, "
+           f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
+           f"  {run.steps} steps in {run.wall_time:.2f} s wall time{controlled}"]
+    return how, f"acted in {guarded} steps"
+
+
+def _model_exchange(run: CosimulationResult, guarded: int) -> tuple[list[str], str]:
+    """The lines on how a model-exchange run went, and what its beta guard did (``guarded`` times)."""
+    s = run.settings
+    how = [f"scenario {s['scenario']}: model exchange, {s['method']} at relative tolerance {s['tolerance']:g}, "
+           f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
+           f"  {run.steps} derivative evaluations and {s['events']} events in {run.wall_time:.2f} s wall time"]
+    return how, f"engaged {guarded} times"
+
+
+_HOW = {Interface.CO_SIMULATION: _cosimulation, Interface.MODEL_EXCHANGE: _model_exchange}
+
+
+def format_summary(run: CosimulationResult, metrics: dict) -> str:
+    """A short multi-line text of the run's settings, cost and metrics, for the command line.
+
+    Parameters
+    ----------
+    run : CosimulationResult
+        The run; its ``settings["interface"]`` (``Interface``) says what it tells of how the run went.
+    metrics : dict
+        Its ``metrics.tracking_metrics``.
+
+    Returns
+    -------
+    str
+        Lines without a trailing newline.
+    """
+    s = run.settings
+    how, guard = _HOW[s["interface"]](run, metrics["beta_guard_count"])
     if run.stopped_at is not None:
         how.insert(0, f"stopped at t = {run.stopped_at:g} s of {s['stop_time']:g} s (interrupted): the results up to "
                       "then are written, the metrics are over that part")
@@ -81,5 +140,5 @@ def format_summary(run: CosimulationResult, metrics: dict) -> str:
         f"RMS {_number(metrics['rms_position_error_m'], 'm')}, max {_number(metrics['max_position_error_m'], 'm')}",
         f"  max |thetae| over the same window: {_number(metrics['max_abs_thetae_rad'], 'rad')}",
         f"  position error below 0.1 m from: {_number(metrics['settling_time_0p1_s'], 's')}",
-        f"  max |u|: {_number(metrics['max_abs_u_V'], 'V')}; {guard}",
+        f"  max |u|: {_number(metrics['max_abs_u_V'], 'V')}; beta guard {guard}",
     ])

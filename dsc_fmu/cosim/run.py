@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
-from ..scenario import INTERFACES, Scenario, ScenarioError
+from ..scenario import INTERFACES, Interface, Scenario, ScenarioError
 from .master import cosimulate
 from .metrics import tracking_metrics
 from .model_exchange import simulate_model_exchange
@@ -14,18 +14,45 @@ from .results import format_summary, write_results
 
 __all__ = ["run_scenario"]
 
-_SIMULATE = dict(zip(INTERFACES, (cosimulate, simulate_model_exchange)))
+_SIMULATE = {Interface.CO_SIMULATION: cosimulate, Interface.MODEL_EXCHANGE: simulate_model_exchange}
 
 
-def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = DEFAULT_FMU_DIR,
-                 plots: bool = True, interface: str = "co-simulation", watch: Watch | None = None) -> str:
-    """Simulate ``scenario`` through the FMUs and write ``results.csv``, ``summary.json`` and,
-    with ``plots``, ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2) into ``out_dir``; an
-    error-controlled co-simulation (``scenario.simulation.tolerance``) adds ``step_sizes.csv`` and
-    ``step_sizes.png``. ``interface`` is one of ``INTERFACES``; ``watch`` (``progress.Watch``) sees
-    the run go and may stop it: what was simulated until then is written, its metrics over that part.
+def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = DEFAULT_FMU_DIR, plots: bool = True,
+                 interface: Interface | str = Interface.CO_SIMULATION, watch: Watch | None = None) -> str:
+    """Simulate a scenario through the FMUs and write its results, metrics and figures.
 
-    Returns the printed summary. Nothing is written when the run fails.
+    Writes ``results.csv`` and ``summary.json`` (``results.write_results``) and, with ``plots``,
+    ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2); an error-controlled co-simulation adds
+    ``step_sizes.csv`` and ``step_sizes.png``. Nothing is written when the run fails.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario, its settings checked.
+    out_dir : pathlib.Path or str
+        The folder to write into, created if missing.
+    fmu_dir : pathlib.Path or str, optional
+        Where the FMUs are, built there first if missing or out of date.
+    plots : bool, optional
+        Draw the figures. Default True.
+    interface : {"co-simulation", "model-exchange"} or Interface, optional
+        Stepped by the master (``master.cosimulate``) or integrated as one ODE
+        (``model_exchange.simulate_model_exchange``). Default "co-simulation".
+    watch : progress.Watch, optional
+        Sees the run go and may stop it: what was simulated until then is written, its metrics over
+        that part.
+
+    Returns
+    -------
+    str
+        The summary the command line prints (``results.format_summary``) and the files written.
+
+    Raises
+    ------
+    ScenarioError
+        If ``interface`` is not one of ``INTERFACES``, or the scenario asks what the FMUs lack.
+    CosimulationError
+        If the run diverges or an FMU fails.
     """
     if interface not in INTERFACES:
         raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")

@@ -35,7 +35,14 @@ DTYPE = np.dtype([(name, np.float64) for name in COLUMNS])
 
 
 def add_tracking_errors(result: np.ndarray) -> None:
-    """Fill ``xe = x_r - x``, ``ye = y_r - y``, ``thetae = wrap(theta_r - theta)`` and the position error (docs/model.md §5)."""
+    """Fill in the tracking errors of a result (docs/model.md §5).
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        Rows of dtype ``DTYPE`` with the recorded columns; ``xe = x_r - x``, ``ye = y_r - y`` (m),
+        ``thetae = wrap(theta_r - theta)`` (rad) and ``position_error = hypot(xe, ye)`` (m) are set in place.
+    """
     result["xe"] = result["x_r"] - result["x"]
     result["ye"] = result["y_r"] - result["y"]
     result["thetae"] = [wrap(a) for a in result["theta_r"] - result["theta"]]

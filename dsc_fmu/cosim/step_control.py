@@ -5,14 +5,14 @@ Over a step from ``t_k`` the plant sees ``u`` held (hold coupling) or extrapolat
 communication points (linear coupling). At ``t_k+1`` the controller's actual ``u_k+1`` is known; the
 defect ``E = max |u_k+1 - u_hat_k+1|`` between it and the value the coupling assumed (``u_k``, or the
 line through ``u_k-1`` and ``u_k`` at ``t_k+1``) is of order ``h`` (hold) or ``h^2`` (linear), the order
-of the deviation the coupling causes. The position error that a defect ``E`` leaves is estimated as
-``error_gain * E``: ``error_gain`` (m/V, a scenario setting, default 0.02) is the loop's position
-deviation per volt of defect. Measured on the paper's scenario: 1.2-1.9 mm/V at fixed steps of
-1-4 ms (both couplings, both orders), where the largest defect occurs only briefly, and 10-24 mm/V
-with the step controlled, where every step's defect sits near the tolerance; the default covers the
-second (docs/co-simulation.md, "Error-controlled step"). For another scenario, compare a controlled run's deviation
-from the reference solution with its tolerance before relying on it. A step whose estimate misses
-the tolerance is taken again, smaller, from the FMU states saved before it.
+of the deviation the coupling causes (``scenario.Coupling.order``). The position error that a defect
+``E`` leaves is estimated as ``error_gain * E``: ``error_gain`` (m/V, a scenario setting, default 0.02)
+is the loop's position deviation per volt of defect. Measured on the paper's scenario: 1.2-1.9 mm/V at
+fixed steps of 1-4 ms (both couplings, both orders), where the largest defect occurs only briefly, and
+10-24 mm/V with the step controlled, where every step's defect sits near the tolerance; the default
+covers the second (docs/co-simulation.md, "Error-controlled step"). For another scenario, compare a
+controlled run's deviation from the reference solution with its tolerance before relying on it. A
+step whose estimate misses the tolerance is taken again, smaller, from the FMU states saved before it.
 
 >>> defect((10.0, 20.0), (11.0, 20.5), None, 1e-3, 1e-3)
 1.0
@@ -30,16 +30,34 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-__all__ = ["COUPLING_ORDER", "SAFETY", "GROWTH", "ControlledSteps", "defect", "next_step"]
+__all__ = ["SAFETY", "GROWTH", "ControlledSteps", "defect", "next_step"]
 
-COUPLING_ORDER = {"hold": 1, "linear": 2}  # the deviation's order in h, and the defect's
 SAFETY = 0.9
 GROWTH = (0.2, 4.0)  # the next step is between these factors of the last one
 
 
 def defect(u: tuple, u_next: tuple, u_before: tuple | None, h: float, h_before: float) -> float:
-    """Largest difference between ``u_next`` (at ``t + h``) and what the coupling assumed: ``u`` held
-    (``u_before`` None), or the line through ``u_before`` (at ``t - h_before``) and ``u`` (at ``t``)."""
+    """The defect of a step: how far ``u`` at its end is from what the coupling assumed.
+
+    Parameters
+    ----------
+    u : tuple of float
+        ``u`` at the step's start ``t``, in V.
+    u_next : tuple of float
+        ``u`` at its end ``t + h``, in V.
+    u_before : tuple of float or None
+        ``u`` at ``t - h_before`` for the linear coupling (the line through it and ``u``); None for
+        the hold (``u`` held).
+    h : float
+        The step in s.
+    h_before : float
+        The step before it in s (unused with ``u_before`` None).
+
+    Returns
+    -------
+    float
+        The largest difference over the components, in V.
+    """
     if u_before is None:
         return max(abs(b - a) for a, b in zip(u, u_next))
     ratio = h / h_before
@@ -47,16 +65,48 @@ def defect(u: tuple, u_next: tuple, u_before: tuple | None, h: float, h_before: 
 
 
 def next_step(h: float, error: float, tolerance: float, order: int, h_min: float, h_max: float) -> float:
-    """The next step size after a step of ``h`` with estimated ``error``: the one that would meet the
-    tolerance with a safety margin (the error ~ h^order), within ``GROWTH`` times ``h`` and ``[h_min, h_max]``."""
+    """The next step size after a step with an estimated error.
+
+    Parameters
+    ----------
+    h : float
+        The step just taken, in s.
+    error : float
+        Its estimated position error in m.
+    tolerance : float
+        m.
+    order : int
+        The coupling's order (``scenario.Coupling.order``): the error goes as ``h**order``.
+    h_min, h_max : float
+        The allowed range in s.
+
+    Returns
+    -------
+    float
+        The step (s) that would meet the tolerance with the margin ``SAFETY``, within ``GROWTH`` times
+        ``h`` and ``[h_min, h_max]``.
+    """
     factor = GROWTH[1] if error == 0 else SAFETY * (tolerance / error) ** (1.0 / order)
     return min(h_max, max(h_min, h * min(GROWTH[1], max(GROWTH[0], factor))))
 
 
 @dataclass
 class ControlledSteps:
-    """What an error-controlled run did: the start time, size and estimated error of every accepted
-    step, the steps rejected, and the doStep calls made (each FMU's counted)."""
+    """What an error-controlled run did.
+
+    Parameters
+    ----------
+    times : list of float, optional
+        Start of every accepted step, in s.
+    sizes : list of float, optional
+        Their sizes in s.
+    errors : list of float, optional
+        Their estimated position errors in m.
+    rejected : int, optional
+        Steps taken again, smaller.
+    fmu_steps : int, optional
+        ``doStep`` calls made, each FMU's counted.
+    """
 
     times: list = field(default_factory=list)
     sizes: list = field(default_factory=list)
@@ -65,7 +115,13 @@ class ControlledSteps:
     fmu_steps: int = 0
 
     def table(self) -> np.ndarray:
-        """The accepted steps: ``time`` (s, the start), ``step_size`` (s) and ``estimated_error`` (m)."""
+        """The accepted steps as a table.
+
+        Returns
+        -------
+        numpy.ndarray
+            Structured: ``time`` (s, the start), ``step_size`` (s) and ``estimated_error`` (m).
+        """
         history = np.zeros(len(self.times), dtype=[(n, np.float64) for n in ("time", "step_size", "estimated_error")])
         history["time"], history["step_size"], history["estimated_error"] = self.times, self.sizes, self.errors
         return history

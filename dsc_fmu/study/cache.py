@@ -47,7 +47,7 @@ from .. import __version__
 from ..identity import fmu_build_id
 from ..files import atomic_write
 from ..registry import fmu_files
-from ..scenario import TABLES, Scenario
+from ..scenario import TABLES, Reference, Scenario
 from .cases import Case, SweepError, apply
 
 __all__ = [
@@ -168,7 +168,7 @@ def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     content["simulation"] = {"stop_time": content["simulation"]["stop_time"]}
     content["controller"] = {k: v for k, v in content["controller"].items() if k != "discretization"}
     key = {"reference": content, "grid": REFERENCE_GRID, "solver": REFERENCE_SETTINGS, "code": _code_hash()}
-    if kind == "model-exchange":
+    if Reference(kind).through_fmus:
         key.update({"through": kind, "fmus": dict(sorted(fmu_build_ids.items()))})
     return _digest(key)
 

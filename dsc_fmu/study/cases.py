@@ -26,7 +26,7 @@ import numpy as np
 
 from ..models.parameters import DISCRETIZATIONS, Variable
 from ..errors import DscFmuError
-from ..scenario import COUPLINGS, ORDERS, TABLES, Scenario, ScenarioError
+from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Scenario, ScenarioError
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
@@ -412,7 +412,7 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
         apply(scenario, Case(steps[0], orders[0], chosen[0], overrides, sample))
     fixed = [Case(h, order, name, overrides, sample, coupling) for h in steps for order in orders for name in chosen
              for coupling in couplings for overrides, sample in physical]
-    best = max(couplings, key=COUPLINGS.index)
+    best = max(couplings, key=lambda coupling: Coupling(coupling).order)
     return fixed + [Case(scenario.simulation.step_size, order, name, overrides, sample, best, tolerance)
                     for tolerance in tolerances for order in orders for name in chosen
                     for overrides, sample in physical]
@@ -459,7 +459,7 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
     changed = dataclasses.replace(scenario, **tables)
     if case.coupling not in COUPLINGS:
         raise ScenarioError(f"{where}: coupling {case.coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
-    routed = changed.simulation.input_derivatives and case.coupling == "linear" and case.tolerance is None
+    routed = changed.simulation.input_derivatives and case.coupling == Coupling.LINEAR and case.tolerance is None
     changed = dataclasses.replace(changed, simulation=dataclasses.replace(
         changed.simulation, tolerance=case.tolerance, input_derivatives=routed))
     return changed.with_simulation(step_size=case.step_size, order=case.order, coupling=case.coupling)

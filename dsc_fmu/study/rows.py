@@ -178,7 +178,7 @@ def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple
     from ..cosim.model_exchange import simulate_model_exchange  # scipy: only where references are computed
     from ..cosim.reference_solution import output_times, reference_solution
 
-    through_fmus = applied.simulation.reference == "model-exchange"
+    through_fmus = applied.simulation.reference.through_fmus
     if through_fmus and fmu_paths is None:
         raise ValueError("a reference solution through model exchange needs the FMUs (fmu_paths)")
     try:

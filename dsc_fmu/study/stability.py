@@ -15,7 +15,7 @@ from ..models.plant import PlantCoefficients, initial_plant_state, plant_coeffic
 from ..models.parameters import DISCRETIZATIONS, PROFILES
 from ..models.reference import initial_reference_state
 from ..errors import DscFmuError
-from ..scenario import COUPLINGS, ORDERS, Scenario
+from ..scenario import COUPLINGS, ORDERS, Coupling, Scenario
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
@@ -556,6 +556,9 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     return np.vstack([Xp, Xc, U, Y])
 
 
+_TRANSITION = {Coupling.HOLD: transition_matrix, Coupling.LINEAR: linear_transition_matrix}
+
+
 def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str | None = None,
                     coupling: str = "hold") -> float:
     """The spectral radius of the sampled loop: it is stable where this is below 1.
@@ -587,7 +590,7 @@ def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str 
     """
     if coupling not in COUPLINGS:
         raise ValueError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
-    matrix = (transition_matrix if coupling == "hold" else linear_transition_matrix)(loop, h, order, discretization)
+    matrix = _TRANSITION[coupling](loop, h, order, discretization)
     return float(np.max(np.abs(np.linalg.eigvals(matrix))))
 
 
