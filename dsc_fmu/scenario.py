@@ -16,9 +16,32 @@ from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
-    "ScenarioError", "Simulation", "Scenario", "Coupling", "Interface", "Reference", "ORDERS", "COUPLINGS",
+    "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Interface", "Reference", "ORDERS", "COUPLINGS",
     "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "scenario_names", "SCENARIO_DIR",
 ]
+
+
+class Order(enum.StrEnum):
+    """In what order the FMUs step and exchange within a communication step.
+
+    ``"gauss-seidel"``: the reference and the plant step, the controller's inputs are set from their
+    new outputs, then the controller steps. ``"jacobi"``: all three step from the values of the step's
+    start, and exchange at its end.
+
+    Attributes
+    ----------
+    sequential : bool
+        Whether the controller steps after the plant with its inputs at the step's end (Gauss-Seidel).
+    """
+
+    GAUSS_SEIDEL = "gauss-seidel", True
+    JACOBI = "jacobi", False
+
+    def __new__(cls, value: str, sequential: bool):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.sequential = sequential
+        return member
 
 
 class Coupling(enum.StrEnum):
@@ -92,7 +115,8 @@ class Reference(enum.StrEnum):
         return member
 
 
-ORDERS = ("gauss-seidel", "jacobi")
+ORDERS = tuple(order.value for order in Order)
+"""The names of the coupling orders (``Order``)."""
 COUPLINGS = tuple(coupling.value for coupling in Coupling)
 """The names of the couplings (``Coupling``), as scenarios and the command line give them."""
 STABILITIES = ("settled", "local")
@@ -120,8 +144,8 @@ class ScenarioError(DscFmuError, ValueError):
 class Simulation:
     """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
 
-    Names of couplings and references become ``Coupling`` and ``Reference``; ``check`` says whether
-    the settings are allowed.
+    Names of orders, couplings and references become ``Order``, ``Coupling`` and ``Reference``;
+    ``check`` says whether the settings are allowed.
 
     Parameters
     ----------
@@ -129,8 +153,8 @@ class Simulation:
         s. Default 30.
     step_size : float, optional
         Communication step in s (the first one of an error-controlled run). Default 1e-3.
-    order : {"gauss-seidel", "jacobi"}, optional
-        Coupling order (``ORDERS``). Default "gauss-seidel".
+    order : Order or {"gauss-seidel", "jacobi"}, optional
+        Coupling order. Default "gauss-seidel".
     output_interval : float, optional
         Recording interval in s. Default 0.01.
     bound : float, optional
@@ -157,7 +181,7 @@ class Simulation:
 
     stop_time: float = 30.0
     step_size: float = 1e-3
-    order: str = "gauss-seidel"
+    order: Order = Order.GAUSS_SEIDEL
     output_interval: float = 0.01
     bound: float = 1e6
     coupling: Coupling = Coupling.HOLD
@@ -170,7 +194,7 @@ class Simulation:
     reference: Reference = Reference.MONOLITHIC
 
     def __post_init__(self):
-        for key, kind in (("coupling", Coupling), ("reference", Reference)):  # a name that is none: ``check`` says so
+        for key, kind in (("order", Order), ("coupling", Coupling), ("reference", Reference)):  # a name that is none: ``check`` says so
             try:
                 object.__setattr__(self, key, kind(getattr(self, key)))
             except ValueError:
@@ -230,7 +254,7 @@ class Simulation:
         """
         if fmu == REFERENCE:
             return None
-        ends = fmu == CONTROLLER and self.order == "gauss-seidel"  # its inputs set for the step's end
+        ends = fmu == CONTROLLER and self.order.sequential  # its inputs set for the step's end
         return INPUT_COUPLINGS.index(self.coupling.to_end if ends else self.coupling.from_start)
 
 

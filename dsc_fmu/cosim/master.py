@@ -397,7 +397,7 @@ class _Run:
         and the plant step, then (Gauss-Seidel) the controller's inputs are set from their new outputs,
         the controller steps, and its ``u`` goes to the plant. Returns the measurements at ``end``."""
         wiring, ramps = self.wiring, self.ramps
-        jacobi = self.settings.order == "jacobi"
+        jacobi = not self.settings.order.sequential
         if ramps is not None:
             ramps.before_plant()
         self.reference.doStep(t, step)
@@ -416,7 +416,7 @@ class _Run:
         """The master's input derivatives for the linear coupling (FMI 2.0 FMUs: ``_check_interfaces``)."""
         wiring = self.wiring
         return InputRamps(self.plant, wiring.plant_u, self.controller, wiring.controller_in,
-                          self.settings.order == "jacobi")
+                          not self.settings.order.sequential)
 
     def _controlled(self) -> ControlledSteps:
         """An error-controlled run (``step_control``): each step's position error estimated from the

@@ -15,7 +15,7 @@ from ..models.plant import PlantCoefficients, initial_plant_state, plant_coeffic
 from ..models.parameters import DISCRETIZATIONS, PROFILES
 from ..models.reference import initial_reference_state
 from ..errors import DscFmuError
-from ..scenario import COUPLINGS, ORDERS, Coupling, Scenario
+from ..scenario import COUPLINGS, ORDERS, Coupling, Order, Scenario
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
@@ -426,6 +426,14 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
     return plant.A, plant.B, ctl.A, ctl.B
 
 
+def _order(name: str) -> Order:
+    """The coupling order named ``name``; a ValueError naming the allowed ones if there is none."""
+    try:
+        return Order(name)
+    except ValueError:
+        raise ValueError(f"order {name!r} is not allowed; allowed: {', '.join(ORDERS)}") from None
+
+
 def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
     """The transition matrix of the sampled loop with held inputs over one communication step.
 
@@ -461,12 +469,11 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
     ValueError
         If ``order`` or ``discretization`` is not one of the allowed names.
     """
-    if order not in ORDERS:
-        raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    order = _order(order)
     Phi_p, Gamma_p, Phi_c, Gamma_c = sampled_pieces(loop, h, discretization or loop.discretization)
     Kp = Phi_p + Gamma_p @ loop.Dc @ loop.Cp
     Kc = Gamma_p @ loop.Cc
-    if order == "jacobi":
+    if not order.sequential:
         bottom = [Gamma_c @ loop.Cp, Phi_c]
     else:
         bottom = [Gamma_c @ loop.Cp @ Kp, Phi_c + Gamma_c @ loop.Cp @ Kc]
@@ -533,8 +540,7 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     ValueError
         If ``order`` is not one of the allowed names.
     """
-    if order not in ORDERS:
-        raise ValueError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    order = _order(order)
     Phi_p, G0_p, G1_p = ramp_pieces(loop.Ap, loop.Bp, h)
     nc, ny = loop.Bc.shape
     if (discretization or loop.discretization) == "euler":
@@ -549,7 +555,7 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     Y_before = np.hstack([np.zeros((ny, n_p + nc + nu)), np.eye(ny)])
     Xp = np.hstack([Phi_p, np.zeros((n_p, nc + nu + ny))]) + (G0_p + G1_p) @ U - G1_p @ U_before
     Xc = np.hstack([np.zeros((nc, n_p)), Phi_c, np.zeros((nc, nu + ny))])
-    if order == "jacobi":
+    if not order.sequential:
         Xc = Xc + (G0_c + G1_c) @ Y - G1_c @ Y_before
     else:
         Xc = Xc + (G0_c - G1_c) @ Y + G1_c @ Cp @ Xp
