@@ -21,6 +21,7 @@ import sysconfig
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 from ..errors import DscFmuError
 from ..fmu.native_bridge import CAUSALITIES, TYPES, VARIABILITIES
@@ -37,7 +38,7 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 # build's private package.
 ENTRY_FILE = "dsc_fmu_entry.txt"
 _SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
-_HEADERS = ("instance.h", "pyhost.h", "slave.h", "platform.h")
+_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "platform.h")
 
 
 class BinaryBuildError(DscFmuError, RuntimeError):
@@ -122,11 +123,37 @@ def _c_string(text: str) -> str:
     return json.dumps(text)
 
 
+def _status_category(status) -> str:
+    """The log category pythonfmu gives a message of ``status`` (``Fmi2Slave.log``, which owns the rule)."""
+    from pythonfmu import Fmi2Slave
+
+    probe = SimpleNamespace(log_categories=Fmi2Slave.log_categories, log_queue=[])
+    Fmi2Slave.log(probe, "", status)
+    return probe.log_queue[0].category
+
+
+def _log_categories() -> list[str]:
+    """The log categories of the model descriptions and of each status, as pythonfmu writes and gives them."""
+    from pythonfmu import Fmi2Slave
+    from pythonfmu.enums import Fmi2Status
+    from pythonfmu3 import Fmi3Slave
+
+    declared = list(Fmi2Slave.log_categories)
+    if list(Fmi3Slave.log_categories) != declared:
+        raise BinaryBuildError(f"pythonfmu and pythonfmu3 declare different log categories: {declared}, "
+                               f"{list(Fmi3Slave.log_categories)}")
+    by_status = [_status_category(status) for status in sorted(Fmi2Status)]
+    return [f"-DDSC_LOG_CATEGORIES={', '.join(map(_c_string, declared))}",
+            f"-DDSC_STATUS_CATEGORIES={', '.join(map(_c_string, by_status))}"]
+
+
 def _contract() -> list[str]:
-    """The codes of ``fmu/native_bridge.py``, their owner, as the defines ``slave.h`` takes them."""
+    """What the binary and the Python side must agree on, owned by the Python side, as the defines
+    ``slave.h`` takes: the codes of ``fmu/native_bridge.py``, the entry file, the log categories."""
     tables = {"TYPE": TYPES, "CAUSALITY": CAUSALITIES, "VARIABILITY": VARIABILITIES}
     named = {(kind, code): name for kind, table in tables.items() for name, code in reversed(table.items())}
-    return [f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()]
+    return [*(f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()),
+            f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}", *_log_categories()]
 
 
 def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path) -> list[str]:
@@ -137,7 +164,6 @@ def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: P
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
         f"-DDSC_BUILD_LIBPYTHON={_c_string(runtime.library)}",
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
-        f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
         *([f"-DDSC_SYSTEM_PYTHON={_c_string(runtime.system_name)}"] if runtime.system_name else []),
         *_contract(),
         *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], target.platform_source)),
