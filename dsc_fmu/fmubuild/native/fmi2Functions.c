@@ -46,8 +46,6 @@ static void host_log(Instance *instance, int status, const char *category, const
 /* Warnings, errors and fatal errors are shown whatever the debug logging (section 2.1.3); OK and
    discard messages only in the categories enabled. */
 static const Standard FMI2 = {
-    {{"get_real", "get_integer", "get_boolean"}, {"set_real", "set_integer", "set_boolean"},
-     {"Real", "Integer", "Boolean", "String"}},
     Error, StepFailed, 1 << STATUS_WARNING | 1 << STATUS_ERROR | 1 << STATUS_FATAL, host_log,
 };
 

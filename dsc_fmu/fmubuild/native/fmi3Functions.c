@@ -37,8 +37,6 @@ static void host_log(Instance *instance, int status, const char *category, const
 
 /* With loggingOn = fmi3False, or a category switched off, logMessage is never called (FMI 3.0.2, 2.3.1). */
 static const Standard FMI3 = {
-    {{"get_float64", "get_int32", "get_boolean"}, {"set_float64", "set_int32", "set_boolean"},
-     {"Float64", "Int32", "Boolean", "String"}},
     Terminated, StepMode, 0, host_log,
 };
 
@@ -170,27 +168,19 @@ SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
 SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
 SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
 
-ABSENT(fmi3GetFloat32, "Float32", fmi3Float32 values[], size_t nValues)
-ABSENT(fmi3GetInt8, "Int8", fmi3Int8 values[], size_t nValues)
-ABSENT(fmi3GetUInt8, "UInt8", fmi3UInt8 values[], size_t nValues)
-ABSENT(fmi3GetInt16, "Int16", fmi3Int16 values[], size_t nValues)
-ABSENT(fmi3GetUInt16, "UInt16", fmi3UInt16 values[], size_t nValues)
-ABSENT(fmi3GetUInt32, "UInt32", fmi3UInt32 values[], size_t nValues)
-ABSENT(fmi3GetInt64, "Int64", fmi3Int64 values[], size_t nValues)
-ABSENT(fmi3GetUInt64, "UInt64", fmi3UInt64 values[], size_t nValues)
-ABSENT(fmi3GetString, "String", fmi3String values[], size_t nValues)
+/* Both for the FMI 3.0 type T. */
+#define ABSENT_VALUES(T)                                                                                       \
+    ABSENT(fmi3Get##T, #T, fmi3##T values[], size_t nValues)                                                   \
+    ABSENT(fmi3Set##T, #T, const fmi3##T values[], size_t nValues)
+
+ABSENT_VALUES(Float32) ABSENT_VALUES(UInt32)
+ABSENT_VALUES(Int8) ABSENT_VALUES(UInt8)
+ABSENT_VALUES(Int16) ABSENT_VALUES(UInt16)
+ABSENT_VALUES(Int64) ABSENT_VALUES(UInt64)
+ABSENT_VALUES(String)
 ABSENT(fmi3GetBinary, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
-ABSENT(fmi3GetClock, "Clock", fmi3Clock values[])
-ABSENT(fmi3SetFloat32, "Float32", const fmi3Float32 values[], size_t nValues)
-ABSENT(fmi3SetInt8, "Int8", const fmi3Int8 values[], size_t nValues)
-ABSENT(fmi3SetUInt8, "UInt8", const fmi3UInt8 values[], size_t nValues)
-ABSENT(fmi3SetInt16, "Int16", const fmi3Int16 values[], size_t nValues)
-ABSENT(fmi3SetUInt16, "UInt16", const fmi3UInt16 values[], size_t nValues)
-ABSENT(fmi3SetUInt32, "UInt32", const fmi3UInt32 values[], size_t nValues)
-ABSENT(fmi3SetInt64, "Int64", const fmi3Int64 values[], size_t nValues)
-ABSENT(fmi3SetUInt64, "UInt64", const fmi3UInt64 values[], size_t nValues)
-ABSENT(fmi3SetString, "String", const fmi3String values[], size_t nValues)
 ABSENT(fmi3SetBinary, "Binary", const size_t valueSizes[], const fmi3Binary values[], size_t nValues)
+ABSENT(fmi3GetClock, "Clock", fmi3Clock values[])
 ABSENT(fmi3SetClock, "Clock", const fmi3Clock values[])
 
 /* --- model exchange ------------------------------------------------------------------------------------ */

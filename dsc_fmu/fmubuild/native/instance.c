@@ -38,16 +38,8 @@ static const struct {
 } FUNCTIONS[] = {FMI_FUNCTIONS(FUNCTION_ROW)};
 
 static const char *state_name(ModelState state) {
-    switch (state) {
-    case Instantiated: return "instantiated";
-    case InitializationMode: return "initialization mode";
-    case StepMode: return "step mode";
-    case StepFailed: return "step failed";
-    case EventMode: return "event mode";
-    case ContinuousTimeMode: return "continuous-time mode";
-    case Terminated: return "terminated";
-    case Error: return "error";
-    }
+#define STATE_NAME(state_, bit, name) if (state == state_) return name;
+    MODEL_STATES(STATE_NAME)
     return "unknown";
 }
 
@@ -112,7 +104,7 @@ int instance_start(Instance *instance, const char *function, const char *resourc
                      function, resources ? resources : "(null)");
         return -1;
     }
-    return slave_create(&instance->slave, folder, token, visible, &instance->standard->names);
+    return slave_create(&instance->slave, folder, token, visible);
 }
 
 void instance_free(Instance *instance) {
@@ -246,8 +238,8 @@ static int check(Instance *instance, int type, const char *type_name, const unsi
         const char *wrong = NULL;
         if (actual == NO_VARIABLE || actual > TYPES) wrong = "is not a variable of this FMU";
         else if (actual != type) {
-            instance_fail(instance, STATUS_ERROR, "value reference %u is a %s variable, not %s", vr[i],
-                          instance->slave.names->type[actual], type_name);
+            instance_fail(instance, STATUS_ERROR, "value reference %u is a %s variable, not %s", vr[i], TYPE_NAMES[actual],
+                          type_name);
             return -1;
         } else if (setting) wrong = not_settable(instance, vr[i]);
         if (wrong) {
@@ -265,7 +257,7 @@ static int check(Instance *instance, int type, const char *type_name, const unsi
 int instance_get(Instance *instance, int type, const unsigned int vr[], size_t nvr, void *values, size_t nvalues,
                  CType ctype) {
     if (!arrays_given(instance, nvr, vr, values, nvalues) ||
-        check(instance, type, instance->slave.names->type[type], vr, nvr, 0)) {
+        check(instance, type, TYPE_NAMES[type], vr, nvr, 0)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_get(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
@@ -274,7 +266,7 @@ int instance_get(Instance *instance, int type, const unsigned int vr[], size_t n
 int instance_set(Instance *instance, int type, const unsigned int vr[], size_t nvr, const void *values,
                  size_t nvalues, CType ctype) {
     if (!arrays_given(instance, nvr, vr, values, nvalues) ||
-        check(instance, type, instance->slave.names->type[type], vr, nvr, 1)) {
+        check(instance, type, TYPE_NAMES[type], vr, nvr, 1)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;

@@ -11,20 +11,21 @@
 #include "slave.h"
 
 /* The states of the standards' state machines that these FMUs reach (no asynchronous step, no
-   configuration mode, no event mode in co-simulation). */
-typedef enum {
-    Instantiated = 1 << 0,
-    InitializationMode = 1 << 1,
-    StepMode = 1 << 2,           /* co-simulation: FMI 2.0 stepComplete; FMI 3.0 Step Mode */
-    StepFailed = 1 << 3,         /* co-simulation: FMI 2.0 stepFailed, fmi2DoStep returned fmi2Discard */
-    EventMode = 1 << 4,          /* model exchange */
-    ContinuousTimeMode = 1 << 5, /* model exchange */
-    Terminated = 1 << 6,
-    Error = 1 << 7,              /* FMI 2.0 error: a call returned fmi2Error (FMI 3.0 enters Terminated instead) */
-} ModelState;
+   configuration mode, no event mode in co-simulation): STATE(state, bit, name in messages). */
+#define MODEL_STATES(STATE)                                                                                    \
+    STATE(Instantiated, 0, "instantiated")                                                                     \
+    STATE(InitializationMode, 1, "initialization mode")                                                        \
+    STATE(StepMode, 2, "step mode")      /* co-simulation: FMI 2.0 stepComplete; FMI 3.0 Step Mode */          \
+    STATE(StepFailed, 3, "step failed")  /* co-simulation: FMI 2.0 stepFailed, fmi2DoStep returned fmi2Discard */ \
+    STATE(EventMode, 4, "event mode")    /* model exchange */                                                  \
+    STATE(ContinuousTimeMode, 5, "continuous-time mode") /* model exchange */                                  \
+    STATE(Terminated, 6, "terminated")                                                                         \
+    STATE(Error, 7, "error") /* FMI 2.0 error: a call returned fmi2Error (FMI 3.0 enters Terminated instead) */
 
-#define ANY_STATE (Instantiated | InitializationMode | StepMode | StepFailed | EventMode | ContinuousTimeMode | \
-                   Terminated | Error)
+#define STATE_BIT(state, bit, name) state = 1 << bit,
+typedef enum { MODEL_STATES(STATE_BIT) } ModelState;
+#define STATE_OR(state, bit, name) | state
+#define ANY_STATE (0 MODEL_STATES(STATE_OR))
 
 /* The interface a function belongs to (functions.h); an instance of the other refuses it. */
 typedef enum { CS_ME, CS, ME } Interface;
@@ -36,9 +37,8 @@ typedef struct Instance Instance;
 /* Hand `message` to the importer's logger as text. */
 typedef void (*HostLog)(Instance *instance, int status, const char *category, const char *message);
 
-/* What the two standards do differently beyond their names. */
+/* What the two standards do differently beyond their names and types. */
 typedef struct {
-    MethodNames names;
     ModelState after_error;   /* FMI 2.0 Error, FMI 3.0 Terminated */
     ModelState after_discard; /* FMI 2.0 StepFailed, FMI 3.0 StepMode (the state before the call) */
     int always_logged;        /* statuses (bit 1 << status) logged whatever the categories: FMI 2.0 warnings,

@@ -22,6 +22,9 @@
 #define MAX_VALUE_REFERENCE 100000
 #define MAX_VARIABLES 1024
 
+const char *const TYPE_NAMES[TYPES + 1] = {DSC_TYPE_NAMES};
+static const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
+static const char *const SET_METHODS[TYPES] = {DSC_SET_METHODS};
 static const char *const STATUS_CATEGORIES[] = {DSC_STATUS_CATEGORIES};
 _Static_assert(sizeof STATUS_CATEGORIES / sizeof STATUS_CATEGORIES[0] == STATUS_FATAL + 1,
                "DSC_STATUS_CATEGORIES names the category of every status, OK to fatal");
@@ -297,8 +300,8 @@ static const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_even
                                                      "get_continuous_states", "get_nominals"};
 
 static const char *bound_name(const Slave *s, int i) {
-    if (i < TYPES) return s->names->get[i];
-    if (i < 2 * TYPES) return s->names->set[i - TYPES];
+    if (i < TYPES) return GET_METHODS[i];
+    if (i < 2 * TYPES) return SET_METHODS[i - TYPES];
     if (i >= BOUND_VECTORS && i < BOUND_SET_POINT) return VECTOR_METHODS[i - BOUND_VECTORS];
     return i == BOUND_DO_STEP ? "do_step" : "set_point";
 }
@@ -422,8 +425,7 @@ void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context
     s->last = &s->messages;
 }
 
-int slave_create(Slave *s, const char *resources, const char *token, int visible, const MethodNames *names) {
-    s->names = names;
+int slave_create(Slave *s, const char *resources, const char *token, int visible) {
     s->visible = visible;
     snprintf(s->resources, sizeof s->resources, "%s", resources);
     size_t length = strlen(s->resources);
@@ -532,7 +534,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
     Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
     int status = STATUS_ERROR;
     if (size >= 0 && size != (Py_ssize_t)n) {
-        say(s, STATUS_ERROR, "%s returned %zd values for %zu value references", s->names->get[type], size, n);
+        say(s, STATUS_ERROR, "%s returned %zd values for %zu value references", GET_METHODS[type], size, n);
     } else if (size >= 0) {
         for (size_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
             PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
@@ -541,7 +543,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
         }
         if (!py.PyErr_Occurred()) status = STATUS_OK;
     }
-    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, s->names->get[type]);
+    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, GET_METHODS[type]);
     clear(&result);
     drain_log(s);
     leave(s, gil);
@@ -549,8 +551,8 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
 }
 
 /* The status of a slave call that returned `result` (NULL: it raised; `failure` after logging the
-   exception as `what`); releases `result` and forwards the slave's queued log messages. */
-static int finished(Slave *s, PyObject *result, int failure, const char *what) {
+   exception as `what`); releases `result`, queues the slave's log messages and leaves (`gil`). */
+static int finished(Slave *s, PyGILState_STATE gil, PyObject *result, int failure, const char *what) {
     int status = STATUS_OK;
     if (!result) {
         log_exception(s, failure, what);
@@ -558,6 +560,7 @@ static int finished(Slave *s, PyObject *result, int failure, const char *what) {
     }
     clear(&result);
     drain_log(s);
+    leave(s, gil);
     return status;
 }
 
@@ -567,9 +570,7 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
     PyObject *items[] = {references(vr, n), list};
     PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
-    int status = finished(s, result, STATUS_ERROR, s->names->set[type]);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, SET_METHODS[type]);
 }
 
 int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
@@ -582,9 +583,7 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
     }
     PyObject *items[] = {references(vr, n), orders, given};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
-    int status = finished(s, result, STATUS_ERROR, "set_input_derivatives");
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, "set_input_derivatives");
 }
 
 /* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
@@ -606,9 +605,7 @@ static int call_logged(Slave *s, const char *method, PyObject *cached, int n, co
     PyObject *args = n ? doubles(n, values, defined) : NULL;
     PyObject *result = call(function, args);
     if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
-    int status = finished(s, result, failure, method);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, failure, method);
 }
 
 int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined) {
@@ -669,26 +666,18 @@ int slave_get_double(Slave *s, const char *attribute, double *value) {
     return status;
 }
 
+/* `finished` releases a reference of its own: the caller keeps the state (also in slave_deserialize). */
 int slave_get_state(Slave *s, PyObject **state) {
     PyGILState_STATE gil = enter(s);
     *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
-    int status = STATUS_OK;
-    if (!*state) {
-        log_exception(s, STATUS_ERROR, "getting the FMU state");
-        status = STATUS_ERROR;
-    }
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "getting the FMU state");
 }
 
 int slave_set_state(Slave *s, PyObject *state) {
     PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
-    int status = finished(s, result, STATUS_ERROR, "setting the FMU state");
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, "setting the FMU state");
 }
 
 void slave_release(PyObject *object) {
@@ -724,14 +713,7 @@ int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state
     PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
     *state = bridge_call(s, "state_from_bytes", pack(2, items));
-    int status = STATUS_OK;
-    if (!*state) {
-        log_exception(s, STATUS_ERROR, "deserializing the FMU state");
-        status = STATUS_ERROR;
-    }
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "deserializing the FMU state");
 }
 
 static int hex(char c) {

@@ -16,18 +16,23 @@
 /* Statuses, the same numbers in FMI 2.0 and 3.0. */
 enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, STATUS_FATAL = 4 };
 
-/* What the build passes (binary.py): the codes of native_bridge.py, which owns them, as DSC_<KIND>_<NAME>;
-   the log categories of the model descriptions and of each status, pythonfmu's. */
+/* What the build passes (binary.py): the codes of native_bridge.py, which owns them, as DSC_<KIND>_<NAME>,
+   and its names of the types for the FMI version built (DSC_TYPE_NAMES) with the slave's get and set method
+   of each (DSC_GET_METHODS, DSC_SET_METHODS); the log categories of the model descriptions and of each
+   status, pythonfmu's. */
 #if !defined(DSC_TYPE_REAL) || !defined(DSC_TYPE_INTEGER) || !defined(DSC_TYPE_BOOLEAN) ||                  \
     !defined(DSC_TYPE_STRING) || !defined(DSC_CAUSALITY_PARAMETER) || !defined(DSC_CAUSALITY_INPUT) ||          \
     !defined(DSC_CAUSALITY_OUTPUT) || !defined(DSC_VARIABILITY_CONSTANT) || !defined(DSC_VARIABILITY_FIXED) ||  \
-    !defined(DSC_VARIABILITY_TUNABLE) || !defined(DSC_LOG_CATEGORIES) || !defined(DSC_STATUS_CATEGORIES)
+    !defined(DSC_VARIABILITY_TUNABLE) || !defined(DSC_TYPE_NAMES) || !defined(DSC_GET_METHODS) ||                 \
+    !defined(DSC_SET_METHODS) || !defined(DSC_LOG_CATEGORIES) || !defined(DSC_STATUS_CATEGORIES)
 #error the codes of native_bridge.py (DSC_TYPE_REAL, ...) and the log categories must be defined
 #endif
 enum { TYPE_REAL = DSC_TYPE_REAL, TYPE_INTEGER = DSC_TYPE_INTEGER, TYPE_BOOLEAN = DSC_TYPE_BOOLEAN,
        TYPE_STRING = DSC_TYPE_STRING, TYPES = 3, NO_VARIABLE = -1 };
 _Static_assert(TYPE_REAL == 0 && TYPE_INTEGER == 1 && TYPE_BOOLEAN == 2 && TYPE_STRING == TYPES,
                "the type codes index the get and set methods: Real, Integer, Boolean, then String");
+/* The FMI version's name of each type (Real or Float64, ...), by code. */
+extern const char *const TYPE_NAMES[TYPES + 1];
 
 /* Model exchange: the vectors of the slave's model, each read by one method of the slave. */
 typedef enum { VECTOR_DERIVATIVES, VECTOR_INDICATORS, VECTOR_STATES, VECTOR_NOMINALS, VECTORS } Vector;
@@ -56,12 +61,6 @@ typedef struct Message {
 } Message;
 
 typedef struct {
-    const char *get[TYPES];
-    const char *set[TYPES];
-    const char *type[TYPES + 1]; /* the FMI version's names of the types */
-} MethodNames;
-
-typedef struct {
     PyObject *bridge;
     PyObject *slave;
     PyObject *log_queue;
@@ -72,7 +71,6 @@ typedef struct {
     char resources[4096];
     const char *instance_name;  /* the instance's, which outlives the slave */
     int visible;
-    const MethodNames *names;
     size_t nx;                  /* continuous states (model exchange) */
     size_t nz;                  /* event indicators */
     int pending;                /* PENDING_TIME, PENDING_STATES: set here, handed to the slave at its next call */
@@ -95,7 +93,7 @@ void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context
 /* Check `token` against the FMU's, then start Python if needed and create the slave of the FMU
    whose resources folder is `resources` (a path). 0, or -1 after logging why (the Slave is then
    empty). */
-int slave_create(Slave *s, const char *resources, const char *token, int visible, const MethodNames *names);
+int slave_create(Slave *s, const char *resources, const char *token, int visible);
 void slave_free(Slave *s);
 
 /* A new Python slave in place of the current one (fmiReset). */
