@@ -65,7 +65,8 @@
     FMI3_VALUES(FUNCTION, Int32, FMI3_SET) FMI3_VALUES(FUNCTION, UInt32, FMI3_SET)                             \
     FMI3_VALUES(FUNCTION, Int64, FMI3_SET) FMI3_VALUES(FUNCTION, UInt64, FMI3_SET)                             \
     FMI3_VALUES(FUNCTION, Boolean, FMI3_SET) FMI3_VALUES(FUNCTION, String, FMI3_SET)                           \
-    FMI3_VALUES(FUNCTION, Binary, FMI3_SET) FMI3_VALUES(FUNCTION, Clock, 0) /* clocks: event mode only */     \
+    FMI3_VALUES(FUNCTION, Binary, FMI3_SET)                                                                    \
+    FUNCTION(fmi3GetClock, 3, CS_ME, 0) FUNCTION(fmi3SetClock, 3, CS_ME, 0) /* these FMUs have no clocks */   \
     FUNCTION(fmi3GetFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetFMUState, 3, CS_ME, ANY_STATE)              \
     FUNCTION(fmi3FreeFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SerializedFMUStateSize, 3, CS_ME, ANY_STATE)  \
     FUNCTION(fmi3SerializeFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3DeserializeFMUState, 3, CS_ME, ANY_STATE) \

@@ -25,8 +25,8 @@ typedef struct {
     ModelState state;
 } State;
 
-/* The log categories the model descriptions declare, and the category of each status (pythonfmu's; the
-   build passes them); a message of any other category counts as one of the category of OK messages. */
+/* The log categories the model descriptions declare (pythonfmu's, passed by the build); a message of any
+   other category counts as one of the category of OK messages (logAll). */
 static const char *const CATEGORIES[] = {DSC_LOG_CATEGORIES};
 enum { CATEGORY_COUNT = sizeof CATEGORIES / sizeof CATEGORIES[0], ALL_CATEGORIES = (1 << CATEGORY_COUNT) - 1 };
 
@@ -60,26 +60,22 @@ static void forward(void *context, int status, const char *category, const char 
     instance->standard->log(instance, status, category, message);
 }
 
-/* The instance's messages: through the slave's formatter, handed on at once (no GIL is held here). */
-static int log_now(Instance *instance, int status, const char *call, const char *format, va_list args) {
-    slave_vlog(&instance->slave, status, call, format, args);
-    slave_deliver(&instance->slave);
-    return status;
-}
-
+/* The instance's own messages go through the slave's formatter and on at once (no GIL is held here). */
 int instance_log(Instance *instance, int status, const char *format, ...) {
     va_list args;
     va_start(args, format);
-    log_now(instance, status, NULL, format, args);
+    slave_vlog(&instance->slave, status, NULL, format, args);
     va_end(args);
+    slave_deliver(&instance->slave);
     return status;
 }
 
 int instance_fail(Instance *instance, int status, const char *format, ...) {
     va_list args;
     va_start(args, format);
-    log_now(instance, status, FUNCTIONS[instance->function].name, format, args);
+    slave_vlog(&instance->slave, status, FUNCTIONS[instance->function].name, format, args);
     va_end(args);
+    slave_deliver(&instance->slave);
     return status;
 }
 
@@ -256,8 +252,7 @@ static int check(Instance *instance, int type, const char *type_name, const unsi
 
 int instance_get(Instance *instance, int type, const unsigned int vr[], size_t nvr, void *values, size_t nvalues,
                  CType ctype) {
-    if (!arrays_given(instance, nvr, vr, values, nvalues) ||
-        check(instance, type, TYPE_NAMES[type], vr, nvr, 0)) {
+    if (!arrays_given(instance, nvr, vr, values, nvalues) || check(instance, type, TYPE_NAMES[type], vr, nvr, 0)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_get(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
@@ -265,8 +260,7 @@ int instance_get(Instance *instance, int type, const unsigned int vr[], size_t n
 
 int instance_set(Instance *instance, int type, const unsigned int vr[], size_t nvr, const void *values,
                  size_t nvalues, CType ctype) {
-    if (!arrays_given(instance, nvr, vr, values, nvalues) ||
-        check(instance, type, TYPE_NAMES[type], vr, nvr, 1)) {
+    if (!arrays_given(instance, nvr, vr, values, nvalues) || check(instance, type, TYPE_NAMES[type], vr, nvr, 1)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
