@@ -1,11 +1,14 @@
-/* The FMI functions that behave alike in FMI 2.0 and 3.0, written once for both adapters.
-
-   fmi2Functions.c and fmi3Functions.c include this file after the standard's header, having defined
-   FMI_VERSION (2, 3), FMI(F) (the standard's name or type F: fmi2##F, fmi3##F), the types Component,
-   Float and FMUState, and the names the standards spell differently (GET_FMU_STATE, ...,
-   GET_DERIVATIVES). Every function of an instance starts with BEGIN(F): a call that functions.h does
-   not allow in the instance's interface and state is refused there with fmiError (logged); and ends with
-   END(status): an error moves the instance to the standard's error state. */
+/* The FMI functions that behave alike in FMI 2.0 and 3.0, written once: fmi2Functions.c and
+   fmi3Functions.c each include this file, after the standard's header and these definitions:
+     FMI_VERSION                           2 or 3
+     FMI(F)                                the standard's name of the function or type F: fmi2##F, fmi3##F
+     Component, Float, FMUState            the standard's types of these
+     GET_FMU_STATE, ..., GET_DERIVATIVES   the names the two standards spell differently
+     NVALUES, COUNT                        the getters' and setters' parameter for the number of values
+                                           (empty if there is none) and that number
+   Every function of an instance begins with BEGIN(F), which refuses with fmiError (logged) a call that
+   functions.h does not allow in the instance's interface and state, and ends with END(status): an
+   error moves the instance to the standard's error state. */
 
 #ifndef DSC_ADAPTER_H
 #define DSC_ADAPTER_H
@@ -102,6 +105,20 @@ VECTOR_FUNCTION(GET_DERIVATIVES, VECTOR_DERIVATIVES)
 VECTOR_FUNCTION(FMI(GetEventIndicators), VECTOR_INDICATORS)
 VECTOR_FUNCTION(FMI(GetContinuousStates), VECTOR_STATES)
 VECTOR_FUNCTION(FMI(GetNominalsOfContinuousStates), VECTOR_NOMINALS)
+
+/* --- values: the getter and setter of the type T, whose code is `type` and whose values sit in the
+   caller's array as `ctype`, the standard's C type `cvalue` ------------------------------------------------ */
+
+#define GET_AND_SET(T, type, ctype, cvalue)                                                                    \
+    FMI(Status) FMI(Get##T)(Component c, const FMI(ValueReference) vr[], size_t nvr, cvalue values[] NVALUES) { \
+        BEGIN(FMI(Get##T));                                                                                    \
+        END(instance_get(instance, type, vr, nvr, values, COUNT, ctype));                                      \
+    }                                                                                                          \
+    FMI(Status) FMI(Set##T)(Component c, const FMI(ValueReference) vr[], size_t nvr, const cvalue values[]     \
+                            NVALUES) {                                                                         \
+        BEGIN(FMI(Set##T));                                                                                    \
+        END(instance_set(instance, type, vr, nvr, values, COUNT, ctype));                                      \
+    }
 
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 

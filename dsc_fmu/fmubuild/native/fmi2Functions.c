@@ -20,6 +20,8 @@ typedef fmi2FMUstate FMUState;
 #define SERIALIZE_FMU_STATE fmi2SerializeFMUstate
 #define DESERIALIZE_FMU_STATE fmi2DeSerializeFMUstate
 #define GET_DERIVATIVES fmi2GetDerivatives
+#define NVALUES            /* one value per value reference */
+#define COUNT nvr
 
 #include "adapter.h"
 
@@ -136,26 +138,10 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
-#define GETTER(F, type, ctype, cvalue)                                                                         \
-    fmi2Status F(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, cvalue value[]) {                 \
-        BEGIN(F);                                                                                              \
-        END(instance_get(instance, type, vr, nvr, value, nvr, ctype));                                         \
-    }
-
-#define SETTER(F, type, ctype, cvalue)                                                                         \
-    fmi2Status F(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const cvalue value[]) {           \
-        BEGIN(F);                                                                                              \
-        END(instance_set(instance, type, vr, nvr, value, nvr, ctype));                                         \
-    }
-
-GETTER(fmi2GetReal, TYPE_REAL, C_DOUBLE, fmi2Real)
-GETTER(fmi2GetInteger, TYPE_INTEGER, C_INT, fmi2Integer)
-GETTER(fmi2GetBoolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
-GETTER(fmi2GetString, TYPE_STRING, C_DOUBLE, fmi2String)
-SETTER(fmi2SetReal, TYPE_REAL, C_DOUBLE, fmi2Real)
-SETTER(fmi2SetInteger, TYPE_INTEGER, C_INT, fmi2Integer)
-SETTER(fmi2SetBoolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
-SETTER(fmi2SetString, TYPE_STRING, C_DOUBLE, fmi2String)
+GET_AND_SET(Real, TYPE_REAL, C_DOUBLE, fmi2Real)
+GET_AND_SET(Integer, TYPE_INTEGER, C_INT, fmi2Integer)
+GET_AND_SET(Boolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
+GET_AND_SET(String, TYPE_STRING, C_DOUBLE, fmi2String)
 
 /* --- status: fmi2DoStep never returns fmi2Pending ------------------------------------------------------ */
 

@@ -21,6 +21,8 @@ typedef fmi3FMUState FMUState;
 #define SERIALIZE_FMU_STATE fmi3SerializeFMUState
 #define DESERIALIZE_FMU_STATE fmi3DeserializeFMUState
 #define GET_DERIVATIVES fmi3GetContinuousStateDerivatives
+#define NVALUES , size_t nValues
+#define COUNT nValues
 
 #include "adapter.h"
 
@@ -141,18 +143,9 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
-#define GETTER(F, type, ctype, cvalue)                                                                         \
-    fmi3Status F(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, cvalue values[], size_t nValues) { \
-        BEGIN(F);                                                                                              \
-        END(instance_get(instance, type, vr, nvr, values, nValues, ctype));                                    \
-    }
-
-#define SETTER(F, type, ctype, cvalue)                                                                         \
-    fmi3Status F(fmi3Instance c, const fmi3ValueReference vr[], size_t nvr, const cvalue values[],            \
-                 size_t nValues) {                                                                             \
-        BEGIN(F);                                                                                              \
-        END(instance_set(instance, type, vr, nvr, values, nValues, ctype));                                    \
-    }
+GET_AND_SET(Float64, TYPE_REAL, C_DOUBLE, fmi3Float64)
+GET_AND_SET(Int32, TYPE_INTEGER, C_INT32, fmi3Int32)
+GET_AND_SET(Boolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
 
 /* A type these FMUs have no variables of: only an empty call succeeds. */
 #define ABSENT(F, type_name, ...)                                                                              \
@@ -161,14 +154,7 @@ fmi3Status fmi3DoStep(fmi3Instance c, fmi3Float64 currentCommunicationPoint, fmi
         END(instance_no_variables_of(instance, type_name, vr, nvr));                                           \
     }
 
-GETTER(fmi3GetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
-GETTER(fmi3GetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
-GETTER(fmi3GetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
-SETTER(fmi3SetFloat64, TYPE_REAL, C_DOUBLE, fmi3Float64)
-SETTER(fmi3SetInt32, TYPE_INTEGER, C_INT32, fmi3Int32)
-SETTER(fmi3SetBoolean, TYPE_BOOLEAN, C_BOOL_BYTE, fmi3Boolean)
-
-/* Both for the FMI 3.0 type T. */
+/* Getter and setter of the type T. */
 #define ABSENT_VALUES(T)                                                                                       \
     ABSENT(fmi3Get##T, #T, fmi3##T values[], size_t nValues)                                                   \
     ABSENT(fmi3Set##T, #T, const fmi3##T values[], size_t nValues)
