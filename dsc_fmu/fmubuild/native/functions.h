@@ -100,7 +100,7 @@
     FUNCTION(fmi3ActivateModelPartition, 3, CS_ME, ANY_STATE)
 
 #define FUNCTION_ID(name, version, interface, states) FN_##name,
-typedef enum { FMI_FUNCTIONS(FUNCTION_ID) FUNCTION_COUNT } Function;
+typedef enum { FMI_FUNCTIONS(FUNCTION_ID) } Function;
 #undef FUNCTION_ID
 
 /* VERSION_<name>: the FMI version of each function, which the adapters check at compile time. */
