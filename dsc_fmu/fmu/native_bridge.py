@@ -152,7 +152,7 @@ def variables(slave) -> list:
     -------
     list of tuple of int
         ``(value reference, type, causality, variability)`` of every variable, as the codes of ``TYPES``,
-        ``CAUSALITIES`` and ``VARIABILITIES`` (9 for any other).
+        ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other).
     """
     return [
         (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability))
