@@ -25,12 +25,6 @@ CHECKS = {
     "RT01", "RT03", "YD01",
 }
 
-# Modules whose docstrings are not numpydoc yet (issue 20, point 5): emptied as they are converted.
-NOT_YET = {
-    "dsc_fmu.fmu.native_bridge",
-    "dsc_fmu.fmubuild.binary",
-}
-
 MODULES = sorted(
     info.name for info in pkgutil.walk_packages(dsc_fmu.__path__, "dsc_fmu.")
     if not info.ispkg and info.name != "dsc_fmu.__main__"
@@ -64,7 +58,7 @@ def _problems(dotted: str) -> list[str]:
     return [f"{code} {message}" for code, message in found["errors"] if code in checks]
 
 
-@pytest.mark.parametrize("module_name", [name for name in MODULES if name not in NOT_YET])
+@pytest.mark.parametrize("module_name", MODULES)
 def test_public_docstrings_are_numpydoc(module_name):
     found = {dotted: _problems(dotted) for dotted in _public(module_name)}
     assert {dotted: problems for dotted, problems in found.items() if problems} == {}

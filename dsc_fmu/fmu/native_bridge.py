@@ -18,11 +18,13 @@ import sys
 
 __all__ = [
     "acquire", "release", "instantiate", "variables", "dimensions", "drain_log", "state_to_bytes", "state_from_bytes",
-    "TYPES",
+    "TYPE_NAMES", "TYPES", "CAUSALITIES", "VARIABILITIES",
 ]
 
-# Codes the binary uses too: the build passes them to native/slave.h (binary._contract).
-TYPES = {"Real": 0, "Float64": 0, "Integer": 1, "Int32": 1, "Boolean": 2, "String": 3}
+# Codes and names the binary uses too: the build passes them to native/slave.h (binary._contract). The
+# type names of each FMI version by code: Real, Integer, Boolean, then String.
+TYPE_NAMES = {2: ("Real", "Integer", "Boolean", "String"), 3: ("Float64", "Int32", "Boolean", "String")}
+TYPES = {name: code for names in TYPE_NAMES.values() for code, name in enumerate(names)}
 CAUSALITIES = {"parameter": 0, "input": 1, "output": 2, "independent": 3, "local": 4}
 VARIABILITIES = {"constant": 0, "fixed": 1, "tunable": 2, "discrete": 3, "continuous": 4}
 OTHER = 9
@@ -47,9 +49,16 @@ def _load(name: str, path: str):
 
 
 def acquire(resources: str) -> None:
-    """One more slave of this FMU build in this process, from the FMU extracted to ``resources``: the
-    build's package is imported from there by its location if this process has not got it. The
-    binary calls this, and ``release``, holding the import lock."""
+    """Count one more slave of this FMU build in this process.
+
+    The build's package is imported from ``resources`` by its location if this process has not got it.
+    The binary calls this, and ``release``, holding the import lock.
+
+    Parameters
+    ----------
+    resources : str
+        The resources folder of the extracted FMU.
+    """
     global _users
     if PACKAGE not in sys.modules:
         _load(PACKAGE, os.path.join(resources, PACKAGE, "__init__.py"))
@@ -63,8 +72,11 @@ def _inside(path: str, folders) -> bool:
 
 
 def release() -> None:
-    """One slave less; with the last, this build's modules leave ``sys.modules`` and the import
-    system's caches of every folder it was loaded from: the process is as before the first."""
+    """Count one slave of this FMU build less.
+
+    With the last, this build's modules leave ``sys.modules`` and the import system's caches of every
+    folder it was loaded from: the process is as before the first.
+    """
     global _users
     _users -= 1
     if _users > 0:
@@ -83,13 +95,43 @@ def _slave_module(name: str, resources: str):
 
 
 def instantiate(slave_module: str, class_name: str, instance_name: str, resources: str, visible: bool):
-    """A new slave of ``class_name`` in ``slave_module`` (the slave script in the FMU's resources)."""
+    """Create a slave of the FMU.
+
+    Parameters
+    ----------
+    slave_module : str
+        The slave script's name in the FMU's resources, without ``.py``.
+    class_name : str
+        The slave class in that script.
+    instance_name : str
+        The instance name the importer gave.
+    resources : str
+        The resources folder of the extracted FMU.
+    visible : bool
+        Whether the importer asked for a visible instance.
+
+    Returns
+    -------
+    object
+        The new slave (a pythonfmu ``Fmi2Slave`` or ``Fmi3Slave``).
+    """
     cls = getattr(_slave_module(slave_module, resources), class_name)
     return cls(instance_name=instance_name, resources=resources, visible=visible)
 
 
 def dimensions(slave) -> tuple:
-    """``(continuous states, event indicators)`` of the slave's model, for model exchange."""
+    """Sizes of the slave's model for model exchange.
+
+    Parameters
+    ----------
+    slave : object
+        A slave made by ``instantiate``.
+
+    Returns
+    -------
+    tuple of int
+        ``(continuous states, event indicators)``.
+    """
     return len(slave.STATES), len(slave.INDICATORS)
 
 
@@ -99,7 +141,19 @@ def _code(table: dict, value) -> int:
 
 
 def variables(slave) -> list:
-    """``(value reference, type, causality, variability)`` of every variable, as the codes above."""
+    """The variable table that guards every get and set of the binary.
+
+    Parameters
+    ----------
+    slave : object
+        A slave made by ``instantiate``.
+
+    Returns
+    -------
+    list of tuple of int
+        ``(value reference, type, causality, variability)`` of every variable, as the codes of ``TYPES``,
+        ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other).
+    """
     return [
         (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability))
         for vr, v in slave.vars.items()
@@ -107,7 +161,18 @@ def variables(slave) -> list:
 
 
 def drain_log(slave) -> list:
-    """``(status, category, message)`` of every message the slave queued since the last call; empties the queue."""
+    """Take the messages the slave queued since the last call, emptying its queue.
+
+    Parameters
+    ----------
+    slave : object
+        A slave made by ``instantiate``.
+
+    Returns
+    -------
+    list of tuple
+        ``(status, category, message)`` of every message: the FMI status as an int, two strings.
+    """
     queue = slave.log_queue
     messages = [(int(getattr(m.status, "value", m.status)), str(m.category), str(m.msg)) for m in queue]
     del queue[:]
@@ -119,13 +184,44 @@ def _identity(slave) -> str:
 
 
 def state_to_bytes(slave, state) -> bytes:
-    """``state`` (from ``_get_fmu_state``) as bytes: a header, a SHA-256 of the body, the body in JSON."""
+    """Serialize an FMU state of the slave.
+
+    Parameters
+    ----------
+    slave : object
+        The slave that made ``state``.
+    state : object
+        What the slave's ``_get_fmu_state`` returned (JSON-serializable).
+
+    Returns
+    -------
+    bytes
+        A header, a SHA-256 of the body, then the body: the slave's class and ``state`` in JSON.
+    """
     body = json.dumps([_identity(slave), state], allow_nan=True).encode("utf-8")
     return MAGIC + hashlib.sha256(body).digest() + body
 
 
 def state_from_bytes(slave, data: bytes):
-    """The state that ``state_to_bytes`` wrote for this build of this model; ValueError for anything else."""
+    """Deserialize an FMU state that ``state_to_bytes`` wrote for this build of this model.
+
+    Parameters
+    ----------
+    slave : object
+        The slave the state is for.
+    data : bytes
+        What ``state_to_bytes`` returned.
+
+    Returns
+    -------
+    object
+        The state, for the slave's ``_set_fmu_state``.
+
+    Raises
+    ------
+    ValueError
+        If ``data`` has no header, its checksum does not match or it belongs to another slave class.
+    """
     if not data.startswith(MAGIC) or len(data) < len(MAGIC) + DIGEST:
         raise ValueError(f"not a serialized FMU state of dsc-fmu ({len(data)} bytes without its header)")
     digest, body = data[len(MAGIC):len(MAGIC) + DIGEST], data[len(MAGIC) + DIGEST:]

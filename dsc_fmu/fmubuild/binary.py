@@ -21,9 +21,10 @@ import sysconfig
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 from ..errors import DscFmuError
-from ..fmu.native_bridge import CAUSALITIES, TYPES, VARIABILITIES
+from ..fmu.native_bridge import CAUSALITIES, TYPE_NAMES, TYPES, VARIABILITIES
 
 __all__ = [
     "BinaryBuildError", "PythonRuntime", "Target", "TARGETS", "LINUX", "WINDOWS", "build_python", "compile_binary",
@@ -37,17 +38,34 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 # build's private package.
 ENTRY_FILE = "dsc_fmu_entry.txt"
 _SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
-_HEADERS = ("instance.h", "pyhost.h", "slave.h", "platform.h")
+_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "platform.h")
 
 
 class BinaryBuildError(DscFmuError, RuntimeError):
-    """The FMU binary could not be compiled (the message names the command and the compiler's output)."""
+    """The FMU binary could not be compiled; the message names the command and the compiler's output."""
 
 
 @dataclass(frozen=True)
 class Target:
-    """An OS the binary is built for: Zig's target, the FMI platform folders (FMI 2.0, 3.0), the file
-    suffix, the platform seam's source and what it links."""
+    """An operating system the binary is built for.
+
+    Parameters
+    ----------
+    os : {"linux", "windows"}
+        The system's name.
+    zig_target : str
+        Zig's target triple (for Linux with the oldest glibc the binary runs on).
+    folders : tuple of str
+        The FMI platform folders of FMI 2.0 and 3.0 (``linux64``, ``x86_64-linux``).
+    suffix : str
+        The binary's file suffix (``.so``, ``.dll``).
+    platform_source : str
+        The platform seam's source in ``native/`` (``platform.h``).
+    flags : tuple of str
+        Compiler flags for this system.
+    libraries : tuple of str
+        What the binary links.
+    """
 
     os: str
     zig_target: str
@@ -58,11 +76,35 @@ class Target:
     libraries: tuple[str, ...]
 
     def folder(self, fmi_version: int) -> str:
-        """The FMI platform folder of the binary of FMI ``fmi_version``."""
+        """The FMI platform folder of the binary.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version of the binary.
+
+        Returns
+        -------
+        str
+            The folder's name under ``binaries/``.
+        """
         return self.folders[fmi_version - 2]
 
     def file(self, fmi_version: int, model_identifier: str) -> str:
-        """The binary's path in an FMU."""
+        """The binary's path in an FMU.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version of the binary.
+        model_identifier : str
+            The FMU's model identifier, the binary's file name without suffix.
+
+        Returns
+        -------
+        str
+            The path inside the FMU archive, with ``/``.
+        """
         return f"binaries/{self.folder(fmi_version)}/{model_identifier}{self.suffix}"
 
 
@@ -74,9 +116,21 @@ TARGETS = (LINUX, WINDOWS)
 
 @dataclass(frozen=True)
 class PythonRuntime:
-    """The Python the binary prefers: its minor version, the shared library (or "") and home of the
-    Python that built it; ``system_name``, if not empty, the file name of the system's CPython
-    libraries with ``%d`` for the minor version (default: ``libpython3.%d.so.1.0``, ``python3%d.dll``)."""
+    """The Python a binary prefers (``native/pyhost.c`` has the order in which it looks).
+
+    Parameters
+    ----------
+    version : str
+        Its version, major and minor (``"3.11"``): its candidates come first among the system's.
+    library : str
+        The shared library of the Python that built the binary, or "" if it has none (or runs on
+        another system).
+    home : str
+        That Python's home (``sys.base_prefix``), or "".
+    system_name : str, optional
+        The file name of the system's CPython libraries with ``%d`` for the minor version. Default "":
+        ``libpython3.%d.so.1.0`` on Linux, ``python3%d.dll`` on Windows.
+    """
 
     version: str
     library: str
@@ -85,8 +139,13 @@ class PythonRuntime:
 
 
 def build_python() -> PythonRuntime:
-    """The running Python: the one that builds the FMUs and that a binary for this OS looks for first
-    after the override."""
+    """The running Python, which builds the FMUs.
+
+    Returns
+    -------
+    PythonRuntime
+        What a binary for this system looks for first after the override (``OVERRIDE_VARIABLE``).
+    """
     library = ""
     if sys.platform == "win32":
         candidate = Path(sys.base_prefix) / f"python{sys.version_info.major}{sys.version_info.minor}.dll"
@@ -106,7 +165,18 @@ def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
-    """Every file the binaries of ``fmi_version`` are compiled from."""
+    """The files the binaries of one FMI version are compiled from.
+
+    Parameters
+    ----------
+    fmi_version : {2, 3}
+        The FMI version of the binaries.
+
+    Returns
+    -------
+    list of pathlib.Path
+        The sources and headers in ``native/``, for every target (the standard's headers excluded).
+    """
     platforms = tuple(target.platform_source for target in TARGETS)
     return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *platforms, *_HEADERS)]
 
@@ -122,11 +192,50 @@ def _c_string(text: str) -> str:
     return json.dumps(text)
 
 
-def _contract() -> list[str]:
-    """The codes of ``fmu/native_bridge.py``, their owner, as the defines ``slave.h`` takes them."""
+def _status_category(status) -> str:
+    """The log category pythonfmu gives a message of ``status`` (``Fmi2Slave.log``, which owns the rule)."""
+    from pythonfmu import Fmi2Slave
+
+    probe = SimpleNamespace(log_categories=Fmi2Slave.log_categories, log_queue=[])
+    Fmi2Slave.log(probe, "", status)
+    return probe.log_queue[0].category
+
+
+def _log_categories() -> list[str]:
+    """The log categories of the model descriptions and of each status, as pythonfmu writes and gives them."""
+    from pythonfmu import Fmi2Slave
+    from pythonfmu.enums import Fmi2Status
+    from pythonfmu3 import Fmi3Slave
+
+    declared = list(Fmi2Slave.log_categories)
+    if list(Fmi3Slave.log_categories) != declared:
+        raise BinaryBuildError(f"pythonfmu and pythonfmu3 declare different log categories: {declared}, "
+                               f"{list(Fmi3Slave.log_categories)}")
+    by_status = [_status_category(status) for status in sorted(Fmi2Status)]
+    return [f"-DDSC_LOG_CATEGORIES={_c_strings(declared)}", f"-DDSC_STATUS_CATEGORIES={_c_strings(by_status)}"]
+
+
+def _c_strings(texts) -> str:
+    return ", ".join(map(_c_string, texts))
+
+
+def _contract(fmi_version: int) -> list[str]:
+    """What the binary of ``fmi_version`` and the Python side agree on, owned by the Python side, as the
+    defines the native sources take: the codes and type names of ``fmu/native_bridge.py`` (the slave's get
+    and set method of each type follows from its name), the entry file, the environment variable that names
+    a Python, the log categories."""
     tables = {"TYPE": TYPES, "CAUSALITY": CAUSALITIES, "VARIABILITY": VARIABILITIES}
     named = {(kind, code): name for kind, table in tables.items() for name, code in reversed(table.items())}
-    return [f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()]
+    values = [name.lower() for name in TYPE_NAMES[fmi_version][:-1]]  # String values are not supported
+    return [
+        *(f"-DDSC_{kind}_{name.upper()}={code}" for (kind, code), name in named.items()),
+        f"-DDSC_TYPE_NAMES={_c_strings(TYPE_NAMES[fmi_version])}",
+        f"-DDSC_GET_METHODS={_c_strings(f'get_{name}' for name in values)}",
+        f"-DDSC_SET_METHODS={_c_strings(f'set_{name}' for name in values)}",
+        f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
+        f"-DDSC_OVERRIDE_VARIABLE={_c_string(OVERRIDE_VARIABLE)}",
+        *_log_categories(),
+    ]
 
 
 def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path) -> list[str]:
@@ -137,9 +246,8 @@ def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: P
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
         f"-DDSC_BUILD_LIBPYTHON={_c_string(runtime.library)}",
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
-        f"-DDSC_ENTRY_FILE={_c_string(ENTRY_FILE)}",
         *([f"-DDSC_SYSTEM_PYTHON={_c_string(runtime.system_name)}"] if runtime.system_name else []),
-        *_contract(),
+        *_contract(fmi_version),
         *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], target.platform_source)),
         "-o", str(output), *target.libraries,
     ]
@@ -154,10 +262,32 @@ def _compiler_environment() -> dict:
 
 
 def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None) -> bytes:
-    """The shared library of the FMI ``fmi_version`` layer for ``target``, preferring ``runtime``
-    (default: ``build_python()``, whose library a binary for another OS does not know)."""
+    """Compile the binary layer of one FMI version for one system.
+
+    Compiled once per process for the same sources and arguments.
+
+    Parameters
+    ----------
+    fmi_version : {2, 3}
+        The FMI version of the binary.
+    target : Target, optional
+        The system it runs on. Default ``LINUX``.
+    runtime : PythonRuntime, optional
+        The Python it prefers. Default ``build_python()``, whose library a binary for another system
+        does not know.
+
+    Returns
+    -------
+    bytes
+        The shared library (``.so`` or ``.dll``).
+
+    Raises
+    ------
+    BinaryBuildError
+        If the compiler cannot be run or fails.
+    """
     runtime = _runtime_for(target, runtime or build_python())
-    digest = hashlib.sha256(repr((fmi_version, target, runtime, _contract())).encode())
+    digest = hashlib.sha256(repr((fmi_version, target, runtime, _contract(fmi_version))).encode())
     for path in binary_sources(fmi_version):
         digest.update(path.read_bytes())
     return _compile(fmi_version, target, runtime, digest.hexdigest())

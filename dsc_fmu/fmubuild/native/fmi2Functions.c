@@ -1,72 +1,34 @@
 /* The FMI 2.0 API of every dsc-fmu FMU, co-simulation and model exchange: each call guarded by the
-   interface and the states the standard's state tables (FMI 2.0.4, sections 3.2.3 and 4.2.4) allow it
-   in, then handed to instance.c; every fmi2Error moves the instance to the error state. Nothing
-   returns fmi2Fatal. */
+   interface and the states functions.h allows it in, then handed to instance.c; every fmi2Error moves
+   the instance to the error state. Nothing returns fmi2Fatal. The functions FMI 3.0 has alike are in
+   adapter.h. */
 
 #include <math.h>
+#include <stdio.h>
 
 #include "fmi2Functions.h"
-#include "instance.h"
 
-/* The interface and states each function is allowed in (no stepInProgress, stepCanceled: fmi2DoStep is
-   synchronous). */
-#define MASK_fmi2SetDebugLogging ANY_STATE
-#define MASK_fmi2SetupExperiment Instantiated
-#define MASK_fmi2EnterInitializationMode Instantiated
-#define MASK_fmi2ExitInitializationMode InitializationMode
-#define MASK_fmi2Terminate (StepMode | StepFailed | EventMode | ContinuousTimeMode)
-#define MASK_fmi2Reset ANY_STATE
-#define MASK_fmi2DoStep (CS_ONLY | StepMode)
-#define MASK_fmi2CancelStep CS_ONLY
-#define MASK_GET (InitializationMode | StepMode | StepFailed | EventMode | ContinuousTimeMode | Terminated | Error)
-#define MASK_SET (Instantiated | InitializationMode | StepMode | EventMode)
-#define MASK_fmi2GetReal MASK_GET
-#define MASK_fmi2GetInteger MASK_GET
-#define MASK_fmi2GetBoolean MASK_GET
-#define MASK_fmi2GetString MASK_GET
-#define MASK_fmi2SetReal (MASK_SET | ContinuousTimeMode)
-#define MASK_fmi2SetInteger MASK_SET
-#define MASK_fmi2SetBoolean MASK_SET
-#define MASK_fmi2SetString MASK_SET
-#define MASK_fmi2GetDirectionalDerivative MASK_GET
-#define MASK_fmi2SetRealInputDerivatives (CS_ONLY | Instantiated | InitializationMode | StepMode)
-#define MASK_fmi2GetRealOutputDerivatives (CS_ONLY | StepMode | StepFailed | Terminated | Error)
-#define MASK_STATUS (CS_ONLY | StepMode | StepFailed | Terminated)
-#define MASK_fmi2GetStatus MASK_STATUS
-#define MASK_fmi2GetRealStatus MASK_STATUS
-#define MASK_fmi2GetIntegerStatus MASK_STATUS
-#define MASK_fmi2GetBooleanStatus MASK_STATUS
-#define MASK_fmi2GetStringStatus MASK_STATUS
-#define MASK_fmi2GetFMUstate ANY_STATE
-#define MASK_fmi2SetFMUstate ANY_STATE
-#define MASK_fmi2FreeFMUstate ANY_STATE
-#define MASK_fmi2SerializedFMUstateSize ANY_STATE
-#define MASK_fmi2SerializeFMUstate ANY_STATE
-#define MASK_fmi2DeSerializeFMUstate ANY_STATE
-#define MASK_fmi2EnterEventMode (ME_ONLY | EventMode | ContinuousTimeMode)
-#define MASK_fmi2NewDiscreteStates (ME_ONLY | EventMode)
-#define MASK_fmi2EnterContinuousTimeMode (ME_ONLY | EventMode)
-#define MASK_fmi2CompletedIntegratorStep (ME_ONLY | ContinuousTimeMode)
-#define MASK_fmi2SetTime (ME_ONLY | EventMode | ContinuousTimeMode)
-#define MASK_fmi2SetContinuousStates (ME_ONLY | ContinuousTimeMode)
-#define MASK_ME_GET (ME_ONLY | InitializationMode | EventMode | ContinuousTimeMode | Terminated | Error)
-#define MASK_fmi2GetDerivatives MASK_ME_GET
-#define MASK_fmi2GetEventIndicators MASK_ME_GET
-#define MASK_fmi2GetContinuousStates MASK_ME_GET
-#define MASK_fmi2GetNominalsOfContinuousStates (MASK_ME_GET | Instantiated)
+#define FMI_VERSION 2
+#define FMI(F) fmi2##F
+typedef fmi2Component Component;
+typedef fmi2Real Float;
+typedef fmi2FMUstate FMUState;
+#define GET_FMU_STATE fmi2GetFMUstate
+#define SET_FMU_STATE fmi2SetFMUstate
+#define FREE_FMU_STATE fmi2FreeFMUstate
+#define SERIALIZED_FMU_STATE_SIZE fmi2SerializedFMUstateSize
+#define SERIALIZE_FMU_STATE fmi2SerializeFMUstate
+#define DESERIALIZE_FMU_STATE fmi2DeSerializeFMUstate
+#define GET_DERIVATIVES fmi2GetDerivatives
+#define NVALUES            /* one value per value reference */
+#define COUNT nvr
+
+#include "adapter.h"
 
 typedef struct {
     Instance base;
     fmi2CallbackFunctions functions;
 } Fmi2Instance;
-
-/* The function's name and mask from one token; a refused call returns fmi2Error. */
-#define BEGIN(F)                                                                                                     \
-    Instance *instance = (Instance *)c;                                                                              \
-    if (instance_refused(instance, #F, MASK_##F)) return fmi2Error
-
-/* The call's status; fmi2Error moves the instance to the error state. */
-#define END(call) return (fmi2Status)instance_status(instance, (call))
 
 /* The logger takes a printf format: the message goes as a format with every '%' doubled and no
    arguments, so loggers that format and loggers that do not both show the text. */
@@ -86,26 +48,20 @@ static void host_log(Instance *instance, int status, const char *category, const
 /* Warnings, errors and fatal errors are shown whatever the debug logging (section 2.1.3); OK and
    discard messages only in the categories enabled. */
 static const Standard FMI2 = {
-    {{"get_real", "get_integer", "get_boolean"}, {"set_real", "set_integer", "set_boolean"},
-     {"Real", "Integer", "Boolean", "String"}},
     Error, StepFailed, 1 << STATUS_WARNING | 1 << STATUS_ERROR | 1 << STATUS_FATAL, host_log,
 };
 
-/* --- inquiry, logging, creation ------------------------------------------------------------------------ */
+/* --- inquiry, creation ------------------------------------------------------------------------------------ */
 
 const char *fmi2GetTypesPlatform(void) { return fmi2TypesPlatform; }
 
-const char *fmi2GetVersion(void) { return fmi2Version; }
-
-fmi2Status fmi2SetDebugLogging(fmi2Component c, fmi2Boolean loggingOn, size_t nCategories, const fmi2String categories[]) {
-    BEGIN(fmi2SetDebugLogging);
-    END(instance_set_logging(instance, "fmi2SetDebugLogging", loggingOn, nCategories, categories));
-}
-
-/* `why` holds no '%'. */
-static fmi2Component refuse_instantiation(const fmi2CallbackFunctions *functions, fmi2String name, const char *why) {
+/* NULL after logging "<function>: <why>". */
+static fmi2Component refuse_instantiation(const fmi2CallbackFunctions *functions, fmi2String name,
+                                          const char *function, const char *why) {
     if (functions && functions->logger) {
-        functions->logger(functions->componentEnvironment, name ? name : "", fmi2Error, "logStatusError", why);
+        char text[256];
+        snprintf(text, sizeof text, "%s: %s", function, why); /* no '%': the logger's format */
+        functions->logger(functions->componentEnvironment, name ? name : "", fmi2Error, slave_category(STATUS_ERROR), text);
     }
     return NULL;
 }
@@ -114,26 +70,24 @@ fmi2Component fmi2Instantiate(fmi2String instanceName, fmi2Type fmuType, fmi2Str
                               fmi2String fmuResourceLocation, const fmi2CallbackFunctions *functions,
                               fmi2Boolean visible, fmi2Boolean loggingOn) {
     if (!instanceName || !*instanceName) {
-        return refuse_instantiation(functions, instanceName, "fmi2Instantiate: the instance name is missing or empty");
+        return refuse_instantiation(functions, instanceName, __func__, "the instance name is missing or empty");
     }
     if (fmuType != fmi2CoSimulation && fmuType != fmi2ModelExchange) {
-        return refuse_instantiation(functions, instanceName, "fmi2Instantiate: the FMU type is neither fmi2ModelExchange "
-                                    "nor fmi2CoSimulation");
+        return refuse_instantiation(functions, instanceName, __func__,
+                                    "the FMU type is neither fmi2ModelExchange nor fmi2CoSimulation");
     }
     Fmi2Instance *instance = (Fmi2Instance *)instance_alloc(sizeof(Fmi2Instance), instanceName, loggingOn,
                                                             fmuType == fmi2ModelExchange, &FMI2);
-    if (!instance) return refuse_instantiation(functions, instanceName, "fmi2Instantiate: out of memory");
+    if (!instance) return refuse_instantiation(functions, instanceName, __func__, "out of memory");
     if (functions) instance->functions = *functions;
-    if (instance_start(&instance->base, "fmi2Instantiate", fmuResourceLocation, fmuGUID, visible) != 0) {
+    if (instance_start(&instance->base, __func__, fmuResourceLocation, fmuGUID, visible) != 0) {
         instance_free(&instance->base);
         return NULL;
     }
     return instance;
 }
 
-void fmi2FreeInstance(fmi2Component c) { instance_free((Instance *)c); }
-
-/* --- initialisation, stepping, termination --------------------------------------------------------------- */
+/* --- initialisation, stepping ----------------------------------------------------------------------------- */
 
 fmi2Status fmi2SetupExperiment(fmi2Component c, fmi2Boolean toleranceDefined, fmi2Real tolerance,
                                fmi2Real startTime, fmi2Boolean stopTimeDefined, fmi2Real stopTime) {
@@ -149,43 +103,29 @@ fmi2Status fmi2EnterInitializationMode(fmi2Component c) {
     END(instance_call(instance, "enter_initialization_mode", 0, NULL, NULL, InitializationMode));
 }
 
-fmi2Status fmi2ExitInitializationMode(fmi2Component c) {
-    BEGIN(fmi2ExitInitializationMode);
-    END(instance_exit_initialization(instance));
-}
-
-fmi2Status fmi2Terminate(fmi2Component c) {
-    BEGIN(fmi2Terminate);
-    END(instance_call(instance, "terminate", 0, NULL, NULL, Terminated));
-}
-
-fmi2Status fmi2Reset(fmi2Component c) {
-    BEGIN(fmi2Reset);
-    END(instance_reset(instance));
-}
-
 fmi2Status fmi2DoStep(fmi2Component c, fmi2Real currentCommunicationPoint, fmi2Real communicationStepSize,
                       fmi2Boolean noSetFMUStatePriorToCurrentPoint) {
     BEGIN(fmi2DoStep);
-    END(instance_do_step(instance, "fmi2DoStep", currentCommunicationPoint, communicationStepSize));
+    END(instance_do_step(instance, currentCommunicationPoint, communicationStepSize));
 }
 
-/* Allowed only while a step is pending, which never happens: fmi2DoStep returns when the step is done. */
+/* Allowed in no state (BEGIN refuses every call): fmi2DoStep returns when the step is done. */
 fmi2Status fmi2CancelStep(fmi2Component c) {
-    instance_refused((Instance *)c, "fmi2CancelStep", MASK_fmi2CancelStep);
-    return fmi2Error;
+    BEGIN(fmi2CancelStep);
+    END(STATUS_ERROR);
+}
+
+fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
+                                       const fmi2Integer order[], const fmi2Real value[]) {
+    BEGIN(fmi2SetRealInputDerivatives);
+    END(instance_set_input_derivatives(instance, vr, nvr, order, value));
 }
 
 /* --- model exchange ------------------------------------------------------------------------------------ */
 
-MODEL_EXCHANGE_FUNCTIONS(fmi2Status, fmi2Component, fmi2Boolean, fmi2Real, fmi2EnterEventMode,
-                         fmi2EnterContinuousTimeMode, fmi2CompletedIntegratorStep, fmi2SetTime, fmi2SetContinuousStates,
-                         fmi2GetDerivatives, fmi2GetEventIndicators, fmi2GetContinuousStates,
-                         fmi2GetNominalsOfContinuousStates)
-
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
     BEGIN(fmi2NewDiscreteStates);
-    if (!instance_given(instance, "fmi2NewDiscreteStates", eventInfo, "event info")) END(STATUS_ERROR);
+    if (!instance_given(instance, eventInfo, "event info")) END(STATUS_ERROR);
     int status = instance_update_discrete_states(instance);
     eventInfo->newDiscreteStatesNeeded = fmi2False;
     eventInfo->terminateSimulation = fmi2False;
@@ -198,87 +138,44 @@ fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
-#define GETTER(function, type, ctype, cvalue)                                                                          \
-    fmi2Status function(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, cvalue value[]) {                \
-        BEGIN(function);                                                                                             \
-        END(instance_get(instance, #function, type, vr, nvr, value, nvr, ctype));                                    \
-    }
-
-#define SETTER(function, type, ctype, cvalue)                                                                          \
-    fmi2Status function(fmi2Component c, const fmi2ValueReference vr[], size_t nvr, const cvalue value[]) {          \
-        BEGIN(function);                                                                                             \
-        END(instance_set(instance, #function, type, vr, nvr, value, nvr, ctype));                                    \
-    }
-
-GETTER(fmi2GetReal, TYPE_REAL, C_DOUBLE, fmi2Real)
-GETTER(fmi2GetInteger, TYPE_INTEGER, C_INT, fmi2Integer)
-GETTER(fmi2GetBoolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
-GETTER(fmi2GetString, TYPE_STRING, C_DOUBLE, fmi2String)
-SETTER(fmi2SetReal, TYPE_REAL, C_DOUBLE, fmi2Real)
-SETTER(fmi2SetInteger, TYPE_INTEGER, C_INT, fmi2Integer)
-SETTER(fmi2SetBoolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
-SETTER(fmi2SetString, TYPE_STRING, C_DOUBLE, fmi2String)
-
-/* --- what these FMUs do not offer ------------------------------------------------------------------------- */
-
-fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
-                                        const fmi2ValueReference vKnown_ref[], size_t nKnown,
-                                        const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    BEGIN(fmi2GetDirectionalDerivative);
-    END(instance_unsupported(instance, "fmi2GetDirectionalDerivative", "providesDirectionalDerivative is false"));
-}
-
-fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                       const fmi2Integer order[], const fmi2Real value[]) {
-    BEGIN(fmi2SetRealInputDerivatives);
-    END(instance_set_input_derivatives(instance, "fmi2SetRealInputDerivatives", vr, nvr, order, value));
-}
-
-fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
-                                        const fmi2Integer order[], fmi2Real value[]) {
-    BEGIN(fmi2GetRealOutputDerivatives);
-    END(instance_unsupported(instance, "fmi2GetRealOutputDerivatives", "maxOutputDerivativeOrder is 0"));
-}
+GET_AND_SET(Real, TYPE_REAL, C_DOUBLE, fmi2Real)
+GET_AND_SET(Integer, TYPE_INTEGER, C_INT, fmi2Integer)
+GET_AND_SET(Boolean, TYPE_BOOLEAN, C_BOOL_INT, fmi2Boolean)
+GET_AND_SET(String, TYPE_STRING, C_DOUBLE, fmi2String)
 
 /* --- status: fmi2DoStep never returns fmi2Pending ------------------------------------------------------ */
 
-static fmi2Status no_status(Instance *instance, const char *function) {
-    instance_log(instance, STATUS_DISCARD, "%s: %s: this status is not available (fmi2DoStep never returns "
-                 "fmi2Pending)", instance->name, function);
-    return fmi2Discard;
-}
+#define NOT_AVAILABLE "this status is not available (fmi2DoStep never returns fmi2Pending)"
 
-fmi2Status fmi2GetStatus(fmi2Component c, const fmi2StatusKind s, fmi2Status *value) {
-    BEGIN(fmi2GetStatus);
-    return no_status(instance, "fmi2GetStatus");
-}
+#define NO_STATUS(F, type)                                                                                     \
+    fmi2Status F(fmi2Component c, const fmi2StatusKind s, type *value) {                                      \
+        BEGIN(F);                                                                                              \
+        END(instance_fail(instance, STATUS_DISCARD, NOT_AVAILABLE));                                           \
+    }
 
-fmi2Status fmi2GetIntegerStatus(fmi2Component c, const fmi2StatusKind s, fmi2Integer *value) {
-    BEGIN(fmi2GetIntegerStatus);
-    return no_status(instance, "fmi2GetIntegerStatus");
-}
-
-fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2String *value) {
-    BEGIN(fmi2GetStringStatus);
-    return no_status(instance, "fmi2GetStringStatus");
-}
+NO_STATUS(fmi2GetStatus, fmi2Status)
+NO_STATUS(fmi2GetIntegerStatus, fmi2Integer)
+NO_STATUS(fmi2GetStringStatus, fmi2String)
 
 fmi2Status fmi2GetRealStatus(fmi2Component c, const fmi2StatusKind s, fmi2Real *value) {
     BEGIN(fmi2GetRealStatus);
-    if (s != fmi2LastSuccessfulTime) return no_status(instance, "fmi2GetRealStatus");
-    if (!instance_given(instance, "fmi2GetRealStatus", value, "place for the value")) END(STATUS_ERROR);
+    if (s != fmi2LastSuccessfulTime) END(instance_fail(instance, STATUS_DISCARD, NOT_AVAILABLE));
+    if (!instance_given(instance, value, "place for the value")) END(STATUS_ERROR);
     END(slave_get_double(&instance->slave, "time", value));
 }
 
 fmi2Status fmi2GetBooleanStatus(fmi2Component c, const fmi2StatusKind s, fmi2Boolean *value) {
     BEGIN(fmi2GetBooleanStatus);
-    if (s != fmi2Terminated) return no_status(instance, "fmi2GetBooleanStatus");
-    if (!instance_given(instance, "fmi2GetBooleanStatus", value, "place for the value")) END(STATUS_ERROR);
+    if (s != fmi2Terminated) END(instance_fail(instance, STATUS_DISCARD, NOT_AVAILABLE));
+    if (!instance_given(instance, value, "place for the value")) END(STATUS_ERROR);
     *value = fmi2False; /* these FMUs never ask to end the simulation */
-    return fmi2OK;
+    END(STATUS_OK);
 }
 
-/* --- FMU states ------------------------------------------------------------------------------------------- */
+/* --- what these FMUs do not offer ------------------------------------------------------------------------- */
 
-FMU_STATE_FUNCTIONS(fmi2Status, fmi2Component, fmi2FMUstate, fmi2Byte, fmi2GetFMUstate, fmi2SetFMUstate,
-                    fmi2FreeFMUstate, fmi2SerializedFMUstateSize, fmi2SerializeFMUstate, fmi2DeSerializeFMUstate)
+UNSUPPORTED(fmi2GetDirectionalDerivative, "providesDirectionalDerivative is false",
+            const fmi2ValueReference vUnknown_ref[], size_t nUnknown, const fmi2ValueReference vKnown_ref[],
+            size_t nKnown, const fmi2Real dvKnown[], fmi2Real dvUnknown[])
+UNSUPPORTED(fmi2GetRealOutputDerivatives, "maxOutputDerivativeOrder is 0", const fmi2ValueReference vr[],
+            size_t nvr, const fmi2Integer order[], fmi2Real value[])

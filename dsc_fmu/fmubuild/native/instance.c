@@ -25,21 +25,21 @@ typedef struct {
     ModelState state;
 } State;
 
-/* The log categories of the model descriptions; messages of any other category count as logAll. */
-static const char *CATEGORIES[] = {"logStatusWarning", "logStatusDiscard", "logStatusError", "logStatusFatal", "logAll"};
+/* The log categories the model descriptions declare (pythonfmu's, passed by the build); a message of any
+   other category counts as one of the category of OK messages (logAll). */
+static const char *const CATEGORIES[] = {DSC_LOG_CATEGORIES};
 enum { CATEGORY_COUNT = sizeof CATEGORIES / sizeof CATEGORIES[0], ALL_CATEGORIES = (1 << CATEGORY_COUNT) - 1 };
 
+#define FUNCTION_ROW(name, version, interface, states) {#name, interface, states},
+static const struct {
+    const char *name;
+    Interface interface;
+    int states;
+} FUNCTIONS[] = {FMI_FUNCTIONS(FUNCTION_ROW)};
+
 static const char *state_name(ModelState state) {
-    switch (state) {
-    case Instantiated: return "instantiated";
-    case InitializationMode: return "initialization mode";
-    case StepMode: return "step mode";
-    case StepFailed: return "step failed";
-    case EventMode: return "event mode";
-    case ContinuousTimeMode: return "continuous-time mode";
-    case Terminated: return "terminated";
-    case Error: return "error";
-    }
+#define STATE_NAME(state_, bit, name) if (state == state_) return name;
+    MODEL_STATES(STATE_NAME)
     return "unknown";
 }
 
@@ -55,18 +55,28 @@ static void forward(void *context, int status, const char *category, const char 
     Instance *instance = context;
     if (status < STATUS_OK || status > STATUS_FATAL) status = STATUS_ERROR;
     int bit = category_bit(category);
-    int enabled = instance->categories & (bit > 0 ? bit : 1 << (CATEGORY_COUNT - 1));
+    int enabled = instance->categories & (bit > 0 ? bit : category_bit(slave_category(STATUS_OK)));
     if (!enabled && !(instance->standard->always_logged & (1 << status))) return;
     instance->standard->log(instance, status, category, message);
 }
 
-void instance_log(Instance *instance, int status, const char *format, ...) {
-    char message[2048];
+/* The instance's own messages go through the slave's formatter and on at once (no GIL is held here). */
+int instance_log(Instance *instance, int status, const char *format, ...) {
     va_list args;
     va_start(args, format);
-    vsnprintf(message, sizeof message, format, args);
+    slave_vlog(&instance->slave, status, NULL, format, args);
     va_end(args);
-    forward(instance, status, slave_category(status), message);
+    slave_deliver(&instance->slave);
+    return status;
+}
+
+int instance_fail(Instance *instance, int status, const char *format, ...) {
+    va_list args;
+    va_start(args, format);
+    slave_vlog(&instance->slave, status, FUNCTIONS[instance->function].name, format, args);
+    va_end(args);
+    slave_deliver(&instance->slave);
+    return status;
 }
 
 Instance *instance_alloc(size_t size, const char *name, int logging_on, int model_exchange, const Standard *standard) {
@@ -79,18 +89,18 @@ Instance *instance_alloc(size_t size, const char *name, int logging_on, int mode
     instance->categories = logging_on ? ALL_CATEGORIES : 0;
     instance->standard = standard;
     snprintf(instance->name, sizeof instance->name, "%s", name);
+    slave_init(&instance->slave, instance->name, forward, instance);
     return instance;
 }
 
 int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible) {
     char folder[4096];
     if (slave_uri_to_path(resources, folder, sizeof folder) != 0) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the resource location %s is not a file URI or an absolute path",
-                     instance->name, function, resources ? resources : "(null)");
+        instance_log(instance, STATUS_ERROR, "%s: the resource location %s is not a file URI or an absolute path",
+                     function, resources ? resources : "(null)");
         return -1;
     }
-    return slave_create(&instance->slave, folder, token, instance->name, visible, &instance->standard->names, forward,
-                        instance);
+    return slave_create(&instance->slave, folder, token, visible);
 }
 
 void instance_free(Instance *instance) {
@@ -109,16 +119,18 @@ static const char *interface_name(int model_exchange) {
     return model_exchange ? "model exchange" : "co-simulation";
 }
 
-int instance_refused(Instance *instance, const char *function, int mask) {
+int instance_refused(Instance *instance, Function function) {
     if (!instance || instance->magic != INSTANCE_MAGIC) return 1;
-    int wrong_interface = (mask & CS_ONLY && instance->model_exchange) || (mask & ME_ONLY && !instance->model_exchange);
-    if (!wrong_interface && instance->state & mask) return 0;
+    instance->function = function;
+    Interface interface = FUNCTIONS[function].interface;
+    int wrong_interface = interface == (instance->model_exchange ? CS : ME);
+    if (!wrong_interface && instance->state & FUNCTIONS[function].states) return 0;
     if (wrong_interface) {
-        instance_log(instance, STATUS_ERROR, "%s: %s is a function of %s; this instance was instantiated for %s",
-                     instance->name, function, interface_name(!instance->model_exchange),
+        instance_log(instance, STATUS_ERROR, "%s is a function of %s; this instance was instantiated for %s",
+                     FUNCTIONS[function].name, interface_name(!instance->model_exchange),
                      interface_name(instance->model_exchange));
     } else {
-        instance_log(instance, STATUS_ERROR, "%s: %s is not allowed in state %s", instance->name, function,
+        instance_log(instance, STATUS_ERROR, "%s is not allowed in state %s", FUNCTIONS[function].name,
                      state_name(instance->state));
     }
     instance_status(instance, STATUS_ERROR);
@@ -145,16 +157,14 @@ int instance_exit_initialization(Instance *instance) {
     return settle(instance, status, EventMode);
 }
 
-int instance_do_step(Instance *instance, const char *function, double time, double step) {
+int instance_do_step(Instance *instance, double time, double step) {
     if (!isfinite(time) || !isfinite(step) || !(step > 0)) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: current time %g, step size %g; allowed: a finite time and a finite "
-                     "step size > 0", instance->name, function, time, step);
-        return STATUS_ERROR;
+        return instance_fail(instance, STATUS_ERROR, "current time %g, step size %g; allowed: a finite time and a "
+                             "finite step size > 0", time, step);
     }
     if (time + step > instance->stop_time + 1e-9 * fmax(1.0, fabs(instance->stop_time))) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the step from t = %.17g s by %g s ends after the stop time "
-                     "%.17g s of the experiment", instance->name, function, time, step, instance->stop_time);
-        return STATUS_ERROR;
+        return instance_fail(instance, STATUS_ERROR, "the step from t = %.17g s by %g s ends after the stop time "
+                             "%.17g s of the experiment", time, step, instance->stop_time);
     }
     int accepted = 0;
     int status = slave_step(&instance->slave, time, step, &accepted);
@@ -163,19 +173,18 @@ int instance_do_step(Instance *instance, const char *function, double time, doub
     return status;
 }
 
-int instance_set_logging(Instance *instance, const char *function, int logging_on, size_t n, const char *const categories[]) {
-    if (n > 0 && !categories) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu categories but no array", instance->name, function, n);
-        return STATUS_ERROR;
-    }
+int instance_set_logging(Instance *instance, int logging_on, size_t n, const char *const categories[]) {
+    if (n > 0 && !categories) return instance_fail(instance, STATUS_ERROR, "%zu categories but no array", n);
     int chosen = n ? 0 : ALL_CATEGORIES;
     for (size_t i = 0; i < n; i++) {
         int bit = category_bit(categories[i]);
         if (bit < 0) {
-            instance_log(instance, STATUS_ERROR, "%s: %s: unknown log category %s; allowed: logStatusWarning, "
-                         "logStatusDiscard, logStatusError, logStatusFatal, logAll", instance->name, function,
-                         categories[i] ? categories[i] : "(null)");
-            return STATUS_ERROR;
+            char allowed[256] = "";
+            for (int k = 0, used = 0; k < CATEGORY_COUNT && used < (int)sizeof allowed; k++) {
+                used += snprintf(allowed + used, sizeof allowed - used, "%s%s", k ? ", " : "", CATEGORIES[k]);
+            }
+            return instance_fail(instance, STATUS_ERROR, "unknown log category %s; allowed: %s",
+                                 categories[i] ? categories[i] : "(null)", allowed);
         }
         chosen |= bit;
     }
@@ -185,17 +194,16 @@ int instance_set_logging(Instance *instance, const char *function, int logging_o
 
 /* --- values ------------------------------------------------------------------------------------------- */
 
-static int arrays_given(Instance *instance, const char *function, size_t nvr, const void *vr, const void *values,
-                        size_t nvalues) {
+static int arrays_given(Instance *instance, size_t nvr, const void *vr, const void *values, size_t nvalues) {
     if (nvr == 0) return 1;
     if (!vr || !values) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no %s array", instance->name, function,
-                     nvr, vr ? "value" : "value reference");
+        instance_fail(instance, STATUS_ERROR, "%zu value references but no %s array", nvr,
+                      vr ? "value" : "value reference");
         return 0;
     }
     if (nvalues != nvr) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but %zu values (every variable is a scalar)",
-                     instance->name, function, nvr, nvalues);
+        instance_fail(instance, STATUS_ERROR, "%zu value references but %zu values (every variable is a scalar)", nvr,
+                      nvalues);
         return 0;
     }
     return 1;
@@ -217,61 +225,58 @@ static const char *not_settable(const Instance *instance, unsigned int vr) {
     return NULL;
 }
 
-/* Whether every `vr` is a variable of `type` (named `type_name`) that may be set now if `setting`; logs the first that is not. */
-static int check(Instance *instance, const char *function, int type, const char *type_name, const unsigned int vr[],
-                 size_t nvr, int setting) {
+/* Whether every `vr` is a variable of `type` (named `type_name`) that may be set now if `setting`; logs the
+   first that is not. */
+static int check(Instance *instance, int type, const char *type_name, const unsigned int vr[], size_t nvr,
+                 int setting) {
     for (size_t i = 0; i < nvr; i++) {
         int actual = slave_type_of(&instance->slave, vr[i]);
         const char *wrong = NULL;
         if (actual == NO_VARIABLE || actual > TYPES) wrong = "is not a variable of this FMU";
         else if (actual != type) {
-            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is a %s variable, not %s", instance->name,
-                         function, vr[i], instance->slave.names->type[actual], type_name);
+            instance_fail(instance, STATUS_ERROR, "value reference %u is a %s variable, not %s", vr[i], TYPE_NAMES[actual],
+                          type_name);
             return -1;
         } else if (setting) wrong = not_settable(instance, vr[i]);
         if (wrong) {
-            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u %s", instance->name, function, vr[i], wrong);
+            instance_fail(instance, STATUS_ERROR, "value reference %u %s", vr[i], wrong);
             return -1;
         }
     }
     if (nvr && type == TYPE_STRING) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: String variables are not supported", instance->name, function);
+        instance_fail(instance, STATUS_ERROR, "String variables are not supported");
         return -1;
     }
     return 0;
 }
 
-int instance_get(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr, void *values,
-                 size_t nvalues, CType ctype) {
-    if (!arrays_given(instance, function, nvr, vr, values, nvalues) ||
-        check(instance, function, type, instance->slave.names->type[type], vr, nvr, 0)) {
+int instance_get(Instance *instance, int type, const unsigned int vr[], size_t nvr, void *values, size_t nvalues,
+                 CType ctype) {
+    if (!arrays_given(instance, nvr, vr, values, nvalues) || check(instance, type, TYPE_NAMES[type], vr, nvr, 0)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_get(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
 }
 
-int instance_set(Instance *instance, const char *function, int type, const unsigned int vr[], size_t nvr,
-                 const void *values, size_t nvalues, CType ctype) {
-    if (!arrays_given(instance, function, nvr, vr, values, nvalues) ||
-        check(instance, function, type, instance->slave.names->type[type], vr, nvr, 1)) {
+int instance_set(Instance *instance, int type, const unsigned int vr[], size_t nvr, const void *values,
+                 size_t nvalues, CType ctype) {
+    if (!arrays_given(instance, nvr, vr, values, nvalues) || check(instance, type, TYPE_NAMES[type], vr, nvr, 1)) {
         return STATUS_ERROR;
     }
     return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
 }
 
-int instance_set_input_derivatives(Instance *instance, const char *function, const unsigned int vr[], size_t nvr,
-                                   const int order[], const double value[]) {
+int instance_set_input_derivatives(Instance *instance, const unsigned int vr[], size_t nvr, const int order[],
+                                   const double value[]) {
     if (nvr == 0) return STATUS_OK;
     if (!vr || !order || !value) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no %s array", instance->name, function,
-                     nvr, !vr ? "value reference" : !order ? "order" : "value");
-        return STATUS_ERROR;
+        return instance_fail(instance, STATUS_ERROR, "%zu value references but no %s array", nvr,
+                             !vr ? "value reference" : !order ? "order" : "value");
     }
     for (size_t i = 0; i < nvr; i++) {
         if (slave_type_of(&instance->slave, vr[i]) != TYPE_REAL || instance->slave.causality[vr[i]] != CAUSALITY_INPUT) {
-            instance_log(instance, STATUS_ERROR, "%s: %s: value reference %u is not a Real input; allowed: the value "
-                         "references of Real inputs", instance->name, function, vr[i]);
-            return STATUS_ERROR;
+            return instance_fail(instance, STATUS_ERROR, "value reference %u is not a Real input; allowed: the value "
+                                 "references of Real inputs", vr[i]);
         }
     }
     return slave_set_input_derivatives(&instance->slave, vr, nvr, order, value);
@@ -279,22 +284,18 @@ int instance_set_input_derivatives(Instance *instance, const char *function, con
 
 /* --- model exchange --------------------------------------------------------------------------------------- */
 
-int instance_set_time(Instance *instance, const char *function, double time) {
-    if (!isfinite(time)) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: time %g; allowed: a finite time", instance->name, function, time);
-        return STATUS_ERROR;
-    }
+int instance_set_time(Instance *instance, double time) {
+    if (!isfinite(time)) return instance_fail(instance, STATUS_ERROR, "time %g; allowed: a finite time", time);
     return slave_set_time(&instance->slave, time);
 }
 
 /* Whether `values` is given with `n` entries, the length of the vector (if not, logged). */
-static int vector_given(Instance *instance, const char *function, const void *values, size_t n, size_t length) {
+static int vector_given(Instance *instance, const void *values, size_t n, size_t length) {
     if (n != length) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu values; allowed: %zu, this model's number", instance->name,
-                     function, n, length);
+        instance_fail(instance, STATUS_ERROR, "%zu values; allowed: %zu, this model's number", n, length);
         return 0;
     }
-    return n == 0 || instance_given(instance, function, values, "array");
+    return n == 0 || instance_given(instance, values, "array");
 }
 
 /* The index of the first value of `values` that is not finite, or -1. */
@@ -305,28 +306,26 @@ static long first_not_finite(const double values[], size_t n) {
     return -1;
 }
 
-int instance_set_states(Instance *instance, const char *function, const double x[], size_t nx) {
-    if (!vector_given(instance, function, x, nx, instance->slave.nx)) return STATUS_ERROR;
+int instance_set_states(Instance *instance, const double x[], size_t nx) {
+    if (!vector_given(instance, x, nx, instance->slave.nx)) return STATUS_ERROR;
     long bad = first_not_finite(x, nx);
     if (bad >= 0) {
-        instance_log(instance, STATUS_DISCARD, "%s: %s: state %ld is %g; allowed: finite; the states are refused",
-                     instance->name, function, bad, x[bad]);
-        return STATUS_DISCARD;
+        return instance_fail(instance, STATUS_DISCARD, "state %ld is %g; allowed: finite; the states are refused", bad,
+                             x[bad]);
     }
     return nx ? slave_set_states(&instance->slave, x, nx) : STATUS_OK;
 }
 
-int instance_get_vector(Instance *instance, const char *function, Vector which, double values[], size_t n) {
+int instance_get_vector(Instance *instance, Vector which, double values[], size_t n) {
     size_t length = which == VECTOR_INDICATORS ? instance->slave.nz : instance->slave.nx;
-    if (!vector_given(instance, function, values, n, length)) return STATUS_ERROR;
+    if (!vector_given(instance, values, n, length)) return STATUS_ERROR;
     if (n == 0) return STATUS_OK;
     int model = which == VECTOR_DERIVATIVES || which == VECTOR_INDICATORS;
     int status = slave_get_vector(&instance->slave, which, values, n, model ? STATUS_DISCARD : STATUS_ERROR);
     long bad = status == STATUS_OK && model ? first_not_finite(values, n) : -1;
     if (bad >= 0) {
-        instance_log(instance, STATUS_DISCARD, "%s: %s: value %ld is %g; the model is not defined at this time, state "
-                     "and inputs", instance->name, function, bad, values[bad]);
-        status = STATUS_DISCARD;
+        status = instance_fail(instance, STATUS_DISCARD, "value %ld is %g; the model is not defined at this time, "
+                               "state and inputs", bad, values[bad]);
     }
     return status;
 }
@@ -340,39 +339,33 @@ int instance_enter(Instance *instance, ModelState next) {
     return STATUS_OK;
 }
 
-int instance_count(Instance *instance, const char *function, size_t *count, size_t value) {
-    if (!instance_given(instance, function, count, "place for the number")) return STATUS_ERROR;
+int instance_count(Instance *instance, size_t *count, size_t value) {
+    if (!instance_given(instance, count, "place for the number")) return STATUS_ERROR;
     *count = value;
     return STATUS_OK;
 }
 
-int instance_no_variables_of(Instance *instance, const char *function, const char *type_name, const unsigned int vr[],
-                              size_t nvr) {
-    if (nvr && !vr) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: %zu value references but no array", instance->name, function, nvr);
-        return STATUS_ERROR;
-    }
-    return check(instance, function, TYPES + 1, type_name, vr, nvr, 0) ? STATUS_ERROR : STATUS_OK;
+int instance_no_variables_of(Instance *instance, const char *type_name, const unsigned int vr[], size_t nvr) {
+    if (nvr && !vr) return instance_fail(instance, STATUS_ERROR, "%zu value references but no array", nvr);
+    return check(instance, TYPES + 1, type_name, vr, nvr, 0) ? STATUS_ERROR : STATUS_OK;
 }
 
-int instance_unsupported(Instance *instance, const char *function, const char *why) {
-    instance_log(instance, STATUS_ERROR, "%s: %s is not supported: %s", instance->name, function, why);
-    return STATUS_ERROR;
+int instance_unsupported(Instance *instance, const char *why) {
+    return instance_log(instance, STATUS_ERROR, "%s is not supported: %s", FUNCTIONS[instance->function].name, why);
 }
 
 /* --- FMU states ------------------------------------------------------------------------------------------- */
 
-static State *valid_state(Instance *instance, const char *function, void *pointer) {
+static State *valid_state(Instance *instance, void *pointer) {
     State *state = pointer;
     if (state && state->magic == STATE_MAGIC) return state;
-    instance_log(instance, STATUS_ERROR, "%s: %s: not an FMU state that this FMU returned (or one already freed)",
-                 instance->name, function);
+    instance_fail(instance, STATUS_ERROR, "not an FMU state that this FMU returned (or one already freed)");
     return NULL;
 }
 
-int instance_get_state(Instance *instance, const char *function, void **pointer) {
-    if (!instance_given(instance, function, pointer, "place for the FMU state")) return STATUS_ERROR;
-    State *state = *pointer ? valid_state(instance, function, *pointer) : calloc(1, sizeof(State));
+int instance_get_state(Instance *instance, void **pointer) {
+    if (!instance_given(instance, pointer, "place for the FMU state")) return STATUS_ERROR;
+    State *state = *pointer ? valid_state(instance, *pointer) : calloc(1, sizeof(State));
     if (!state) return STATUS_ERROR;
     PyObject *object = NULL;
     if (slave_get_state(&instance->slave, &object) != STATUS_OK) {
@@ -387,23 +380,22 @@ int instance_get_state(Instance *instance, const char *function, void **pointer)
     return STATUS_OK;
 }
 
-int instance_set_state(Instance *instance, const char *function, void *pointer) {
-    State *state = valid_state(instance, function, pointer);
+int instance_set_state(Instance *instance, void *pointer) {
+    State *state = valid_state(instance, pointer);
     if (!state) return STATUS_ERROR;
     if (state->state & (instance->model_exchange ? (StepMode | StepFailed) : (EventMode | ContinuousTimeMode))) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the FMU state is one of %s, in state %s; this instance is for %s",
-                     instance->name, function, interface_name(!instance->model_exchange), state_name(state->state),
-                     interface_name(instance->model_exchange));
-        return STATUS_ERROR;
+        return instance_fail(instance, STATUS_ERROR, "the FMU state is one of %s, in state %s; this instance is for %s",
+                             interface_name(!instance->model_exchange), state_name(state->state),
+                             interface_name(instance->model_exchange));
     }
     int status = slave_set_state(&instance->slave, state->object);
     if (status == STATUS_OK) instance->state = state->state;
     return status;
 }
 
-int instance_free_state(Instance *instance, const char *function, void **pointer) {
+int instance_free_state(Instance *instance, void **pointer) {
     if (!pointer || !*pointer) return STATUS_OK;
-    State *state = valid_state(instance, function, *pointer);
+    State *state = valid_state(instance, *pointer);
     if (!state) return STATUS_ERROR;
     slave_release(state->object);
     state->magic = 0;
@@ -423,21 +415,21 @@ static int serialize(Instance *instance, State *state, char **bytes, size_t *siz
         memcpy(*bytes + 1, body, length);
         *size = length + 1;
     } else {
-        instance_log(instance, STATUS_ERROR, "%s: out of memory for the serialized FMU state", instance->name);
+        instance_log(instance, STATUS_ERROR, "out of memory for the serialized FMU state");
     }
     free(body);
     return *bytes ? 0 : -1;
 }
 
-int instance_given(Instance *instance, const char *function, const void *pointer, const char *what) {
-    if (!pointer) instance_log(instance, STATUS_ERROR, "%s: %s: no %s (NULL)", instance->name, function, what);
+int instance_given(Instance *instance, const void *pointer, const char *what) {
+    if (!pointer) instance_fail(instance, STATUS_ERROR, "no %s (NULL)", what);
     return pointer != NULL;
 }
 
-int instance_serialized_size(Instance *instance, const char *function, void *pointer, size_t *size) {
-    State *state = valid_state(instance, function, pointer);
+int instance_serialized_size(Instance *instance, void *pointer, size_t *size) {
+    State *state = valid_state(instance, pointer);
     char *bytes = NULL;
-    if (!state || !instance_given(instance, function, size, "place for the size") ||
+    if (!state || !instance_given(instance, size, "place for the size") ||
         serialize(instance, state, &bytes, size) != 0) {
         return STATUS_ERROR;
     }
@@ -445,19 +437,17 @@ int instance_serialized_size(Instance *instance, const char *function, void *poi
     return STATUS_OK;
 }
 
-int instance_serialize(Instance *instance, const char *function, void *pointer, char *buffer, size_t size) {
-    State *state = valid_state(instance, function, pointer);
+int instance_serialize(Instance *instance, void *pointer, char *buffer, size_t size) {
+    State *state = valid_state(instance, pointer);
     char *bytes = NULL;
     size_t needed = 0;
-    if (!state || !instance_given(instance, function, buffer, "buffer") ||
+    if (!state || !instance_given(instance, buffer, "buffer") ||
         serialize(instance, state, &bytes, &needed) != 0) {
         return STATUS_ERROR;
     }
     int status = STATUS_OK;
     if (size < needed) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: the buffer holds %zu bytes, the state needs %zu", instance->name,
-                     function, size, needed);
-        status = STATUS_ERROR;
+        status = instance_fail(instance, STATUS_ERROR, "the buffer holds %zu bytes, the state needs %zu", size, needed);
     } else {
         memcpy(buffer, bytes, needed);
     }
@@ -465,12 +455,10 @@ int instance_serialize(Instance *instance, const char *function, void *pointer, 
     return status;
 }
 
-int instance_deserialize(Instance *instance, const char *function, const char *buffer, size_t size, void **pointer) {
+int instance_deserialize(Instance *instance, const char *buffer, size_t size, void **pointer) {
     int saved = buffer && size > 0 ? (unsigned char)buffer[0] : 0;
     if (!pointer || saved == 0 || (saved & ~ANY_STATE) || (saved & (saved - 1))) {
-        instance_log(instance, STATUS_ERROR, "%s: %s: not a serialized FMU state of dsc-fmu (or no place for it)",
-                     instance->name, function);
-        return STATUS_ERROR;
+        return instance_fail(instance, STATUS_ERROR, "not a serialized FMU state of dsc-fmu (or no place for it)");
     }
     PyObject *object = NULL;
     if (slave_deserialize(&instance->slave, buffer + 1, size - 1, &object) != STATUS_OK) return STATUS_ERROR;

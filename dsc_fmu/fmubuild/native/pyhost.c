@@ -32,8 +32,8 @@
 
 #include "platform.h"
 
-#ifndef DSC_PYTHON_VERSION
-#error DSC_PYTHON_VERSION (for example "3.11") must be defined
+#if !defined(DSC_PYTHON_VERSION) || !defined(DSC_OVERRIDE_VARIABLE)
+#error DSC_PYTHON_VERSION (for example "3.11") and DSC_OVERRIDE_VARIABLE ("DSC_FMU_PYTHON") must be defined
 #endif
 #ifndef DSC_BUILD_LIBPYTHON
 #define DSC_BUILD_LIBPYTHON ""
@@ -42,7 +42,6 @@
 #define DSC_BUILD_PYTHON_HOME ""
 #endif
 
-#define OVERRIDE_VARIABLE "DSC_FMU_PYTHON"
 #define OLDEST_MINOR 9
 #define MAX_CANDIDATES 48
 
@@ -79,28 +78,13 @@ typedef struct {
     int count;
 } Candidates;
 
-typedef struct {
+static const struct {
     const char *name;
     size_t offset;
-} Symbol;
-
-#define SYMBOL(name) {#name, offsetof(PyApi, name)}
-static const Symbol SYMBOLS[] = {
-    SYMBOL(Py_IsInitialized), SYMBOL(_PyConfig_InitCompatConfig), SYMBOL(Py_InitializeFromConfig),
-    SYMBOL(PyConfig_Clear), SYMBOL(Py_SetPythonHome), SYMBOL(Py_DecodeLocale), SYMBOL(Py_GetVersion),
-    SYMBOL(PyEval_SaveThread), SYMBOL(PyEval_RestoreThread), SYMBOL(PyGILState_Ensure), SYMBOL(PyGILState_Release),
-    SYMBOL(PyGILState_GetThisThreadState), SYMBOL(PyInterpreterState_Main), SYMBOL(PyThreadState_New),
-    SYMBOL(PyThreadState_Clear), SYMBOL(PyThreadState_Delete), SYMBOL(PyThreadState_DeleteCurrent),
-    SYMBOL(PyImport_ImportModule), SYMBOL(PyObject_GetAttrString), SYMBOL(PyObject_CallObject), SYMBOL(PyObject_Str),
-    SYMBOL(PyObject_IsTrue), SYMBOL(PyUnicode_AsUTF8), SYMBOL(PyUnicode_FromString), SYMBOL(PyLong_FromLong),
-    SYMBOL(PyLong_AsLong), SYMBOL(PyFloat_FromDouble), SYMBOL(PyFloat_AsDouble), SYMBOL(PyBool_FromLong),
-    SYMBOL(PyTuple_New), SYMBOL(PyTuple_SetItem), SYMBOL(PyList_New), SYMBOL(PyList_SetItem), SYMBOL(PyList_Size),
-    SYMBOL(PyDict_GetItemString), SYMBOL(PyDict_SetItemString), SYMBOL(PyDict_DelItemString),
-    SYMBOL(PyBytes_FromStringAndSize), SYMBOL(PyBytes_AsStringAndSize), SYMBOL(PyErr_Occurred), SYMBOL(PyErr_Fetch),
-    SYMBOL(PyErr_Restore), SYMBOL(PyErr_Clear), SYMBOL(Py_DecRef), SYMBOL(Py_IncRef), SYMBOL(PySequence_Size),
-    SYMBOL(PySequence_GetItem), SYMBOL(PySys_GetObject), {"_Py_NoneStruct", offsetof(PyApi, None)},
-    SYMBOL(Py_IgnoreEnvironmentFlag), SYMBOL(Py_NoSiteFlag), SYMBOL(Py_NoUserSiteDirectory),
-    SYMBOL(Py_DontWriteBytecodeFlag), SYMBOL(PyExc_KeyboardInterrupt), SYMBOL(PyErr_SetInterrupt),
+} SYMBOLS[] = {
+#define SYMBOL_OF_FUNCTION(type, name, parameters) {#name, offsetof(PyApi, name)},
+#define SYMBOL_OF_DATA(type, name, symbol) {#symbol, offsetof(PyApi, name)},
+    PY_API(SYMBOL_OF_FUNCTION, SYMBOL_OF_DATA)
 };
 
 /* PyConfig's leading int fields (Include/cpython/initconfig.h, 3.8 and later). */
@@ -270,11 +254,11 @@ static int find_and_start(void) {
     static Candidate items[MAX_CANDIDATES];
     Candidates list = {items, 0};
     char override[PLATFORM_PATH_MAX];
-    if (platform_getenv(OVERRIDE_VARIABLE, override, sizeof override)) {
-        add_candidate(&list, override, NULL, OVERRIDE_VARIABLE " =", -1);
+    if (platform_getenv(DSC_OVERRIDE_VARIABLE, override, sizeof override)) {
+        add_candidate(&list, override, NULL, DSC_OVERRIDE_VARIABLE " =", -1);
         return try_candidate(&items[0]);
     }
-    append(start_error, sizeof start_error, OVERRIDE_VARIABLE " not set; ");
+    append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " not set; ");
     gather(&list);
     if (list.count == 0) append(start_error, sizeof start_error, "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
     for (int i = 0; i < list.count && !start_attempted; i++) {
@@ -361,7 +345,7 @@ static void start_once(void) {
 int pyhost_start(char *error, size_t size) {
     platform_once(start_once);
     if (start_result != 0) {
-        snprintf(error, size, "no usable Python (CPython 3.%d or newer): %sset " OVERRIDE_VARIABLE
+        snprintf(error, size, "no usable Python (CPython 3.%d or newer): %sset " DSC_OVERRIDE_VARIABLE
                  " to the path of a CPython shared library (libpython3.X.so.1.0 on Linux, python3X.dll on Windows)",
                  OLDEST_MINOR, start_error);
     }

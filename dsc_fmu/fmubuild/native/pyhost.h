@@ -24,63 +24,68 @@ typedef struct {
     int exitcode;
 } PyStatus;
 
-typedef struct {
-    int (*Py_IsInitialized)(void);
-    void (*_PyConfig_InitCompatConfig)(void *config);
-    PyStatus (*Py_InitializeFromConfig)(const void *config);
-    void (*PyConfig_Clear)(void *config);
-    void (*Py_SetPythonHome)(const wchar_t *);
-    wchar_t *(*Py_DecodeLocale)(const char *, size_t *);
-    const char *(*Py_GetVersion)(void);
-    PyThreadState *(*PyEval_SaveThread)(void);
-    void (*PyEval_RestoreThread)(PyThreadState *);
-    PyGILState_STATE (*PyGILState_Ensure)(void);
-    void (*PyGILState_Release)(PyGILState_STATE);
-    PyThreadState *(*PyGILState_GetThisThreadState)(void);
-    PyInterpreterState *(*PyInterpreterState_Main)(void);
-    PyThreadState *(*PyThreadState_New)(PyInterpreterState *);
-    void (*PyThreadState_Clear)(PyThreadState *);
-    void (*PyThreadState_Delete)(PyThreadState *);
-    void (*PyThreadState_DeleteCurrent)(void);
-    PyObject *(*PyImport_ImportModule)(const char *);
-    PyObject *(*PyObject_GetAttrString)(PyObject *, const char *);
-    PyObject *(*PyObject_CallObject)(PyObject *, PyObject *);
-    PyObject *(*PyObject_Str)(PyObject *);
-    int (*PyObject_IsTrue)(PyObject *);
-    const char *(*PyUnicode_AsUTF8)(PyObject *);
-    PyObject *(*PyUnicode_FromString)(const char *);
-    PyObject *(*PyLong_FromLong)(long);
-    long (*PyLong_AsLong)(PyObject *);
-    PyObject *(*PyFloat_FromDouble)(double);
-    double (*PyFloat_AsDouble)(PyObject *);
-    PyObject *(*PyBool_FromLong)(long);
-    PyObject *(*PyTuple_New)(Py_ssize_t);
-    int (*PyTuple_SetItem)(PyObject *, Py_ssize_t, PyObject *);
-    PyObject *(*PyList_New)(Py_ssize_t);
-    int (*PyList_SetItem)(PyObject *, Py_ssize_t, PyObject *);
-    Py_ssize_t (*PyList_Size)(PyObject *);
-    PyObject *(*PyDict_GetItemString)(PyObject *, const char *);
-    int (*PyDict_SetItemString)(PyObject *, const char *, PyObject *);
-    int (*PyDict_DelItemString)(PyObject *, const char *);
-    PyObject *(*PyBytes_FromStringAndSize)(const char *, Py_ssize_t);
-    int (*PyBytes_AsStringAndSize)(PyObject *, char **, Py_ssize_t *);
-    PyObject *(*PyErr_Occurred)(void);
-    void (*PyErr_Fetch)(PyObject **, PyObject **, PyObject **);
-    void (*PyErr_Restore)(PyObject *, PyObject *, PyObject *);
-    void (*PyErr_Clear)(void);
-    void (*Py_DecRef)(PyObject *);
-    void (*Py_IncRef)(PyObject *);
-    Py_ssize_t (*PySequence_Size)(PyObject *);
-    PyObject *(*PySequence_GetItem)(PyObject *, Py_ssize_t);
-    PyObject *(*PySys_GetObject)(const char *);
-    PyObject *None;
-    PyObject **PyExc_KeyboardInterrupt;
-    void (*PyErr_SetInterrupt)(void);
-    int *Py_IgnoreEnvironmentFlag;
-    int *Py_NoSiteFlag;
-    int *Py_NoUserSiteDirectory;
-    int *Py_DontWriteBytecodeFlag;
-} PyApi;
+/* The functions of the Python C API the binary calls, FUNCTION(return type, name, parameters), and the data it
+   reads, DATA(type of the field, field, exported name): the fields of PyApi and the symbols resolved. */
+#define PY_API(FUNCTION, DATA)                                                                                       \
+    FUNCTION(int, Py_IsInitialized, (void))                                                                          \
+    FUNCTION(void, _PyConfig_InitCompatConfig, (void *config))                                                       \
+    FUNCTION(PyStatus, Py_InitializeFromConfig, (const void *config))                                                \
+    FUNCTION(void, PyConfig_Clear, (void *config))                                                                   \
+    FUNCTION(void, Py_SetPythonHome, (const wchar_t *))                                                              \
+    FUNCTION(wchar_t *, Py_DecodeLocale, (const char *, size_t *))                                                   \
+    FUNCTION(const char *, Py_GetVersion, (void))                                                                    \
+    FUNCTION(PyThreadState *, PyEval_SaveThread, (void))                                                             \
+    FUNCTION(void, PyEval_RestoreThread, (PyThreadState *))                                                          \
+    FUNCTION(PyGILState_STATE, PyGILState_Ensure, (void))                                                            \
+    FUNCTION(void, PyGILState_Release, (PyGILState_STATE))                                                           \
+    FUNCTION(PyThreadState *, PyGILState_GetThisThreadState, (void))                                                 \
+    FUNCTION(PyInterpreterState *, PyInterpreterState_Main, (void))                                                  \
+    FUNCTION(PyThreadState *, PyThreadState_New, (PyInterpreterState *))                                             \
+    FUNCTION(void, PyThreadState_Clear, (PyThreadState *))                                                           \
+    FUNCTION(void, PyThreadState_Delete, (PyThreadState *))                                                          \
+    FUNCTION(void, PyThreadState_DeleteCurrent, (void))                                                              \
+    FUNCTION(PyObject *, PyImport_ImportModule, (const char *))                                                      \
+    FUNCTION(PyObject *, PyObject_GetAttrString, (PyObject *, const char *))                                         \
+    FUNCTION(PyObject *, PyObject_CallObject, (PyObject *, PyObject *))                                              \
+    FUNCTION(PyObject *, PyObject_Str, (PyObject *))                                                                 \
+    FUNCTION(int, PyObject_IsTrue, (PyObject *))                                                                     \
+    FUNCTION(const char *, PyUnicode_AsUTF8, (PyObject *))                                                           \
+    FUNCTION(PyObject *, PyUnicode_FromString, (const char *))                                                       \
+    FUNCTION(PyObject *, PyLong_FromLong, (long))                                                                    \
+    FUNCTION(long, PyLong_AsLong, (PyObject *))                                                                      \
+    FUNCTION(PyObject *, PyFloat_FromDouble, (double))                                                               \
+    FUNCTION(double, PyFloat_AsDouble, (PyObject *))                                                                 \
+    FUNCTION(PyObject *, PyBool_FromLong, (long))                                                                    \
+    FUNCTION(PyObject *, PyTuple_New, (Py_ssize_t))                                                                  \
+    FUNCTION(int, PyTuple_SetItem, (PyObject *, Py_ssize_t, PyObject *))                                             \
+    FUNCTION(PyObject *, PyList_New, (Py_ssize_t))                                                                   \
+    FUNCTION(int, PyList_SetItem, (PyObject *, Py_ssize_t, PyObject *))                                              \
+    FUNCTION(Py_ssize_t, PyList_Size, (PyObject *))                                                                  \
+    FUNCTION(PyObject *, PyDict_GetItemString, (PyObject *, const char *))                                           \
+    FUNCTION(int, PyDict_SetItemString, (PyObject *, const char *, PyObject *))                                      \
+    FUNCTION(int, PyDict_DelItemString, (PyObject *, const char *))                                                  \
+    FUNCTION(PyObject *, PyBytes_FromStringAndSize, (const char *, Py_ssize_t))                                      \
+    FUNCTION(int, PyBytes_AsStringAndSize, (PyObject *, char **, Py_ssize_t *))                                      \
+    FUNCTION(PyObject *, PyErr_Occurred, (void))                                                                     \
+    FUNCTION(void, PyErr_Fetch, (PyObject **, PyObject **, PyObject **))                                             \
+    FUNCTION(void, PyErr_Restore, (PyObject *, PyObject *, PyObject *))                                              \
+    FUNCTION(void, PyErr_Clear, (void))                                                                              \
+    FUNCTION(void, Py_DecRef, (PyObject *))                                                                          \
+    FUNCTION(void, Py_IncRef, (PyObject *))                                                                          \
+    FUNCTION(Py_ssize_t, PySequence_Size, (PyObject *))                                                              \
+    FUNCTION(PyObject *, PySequence_GetItem, (PyObject *, Py_ssize_t))                                               \
+    FUNCTION(PyObject *, PySys_GetObject, (const char *))                                                            \
+    DATA(PyObject *, None, _Py_NoneStruct)                                                                           \
+    DATA(int *, Py_IgnoreEnvironmentFlag, Py_IgnoreEnvironmentFlag)                                                  \
+    DATA(int *, Py_NoSiteFlag, Py_NoSiteFlag)                                                                        \
+    DATA(int *, Py_NoUserSiteDirectory, Py_NoUserSiteDirectory)                                                      \
+    DATA(int *, Py_DontWriteBytecodeFlag, Py_DontWriteBytecodeFlag)                                                  \
+    DATA(PyObject **, PyExc_KeyboardInterrupt, PyExc_KeyboardInterrupt)                                              \
+    FUNCTION(void, PyErr_SetInterrupt, (void))
+
+#define PY_FUNCTION(type, name, parameters) type(*name) parameters;
+#define PY_DATA(type, name, symbol) type name;
+typedef struct { PY_API(PY_FUNCTION, PY_DATA) } PyApi;
 
 /* The resolved API; valid once pyhost_start returned 0. */
 extern PyApi py;

@@ -22,14 +22,15 @@
 #define MAX_VALUE_REFERENCE 100000
 #define MAX_VARIABLES 1024
 
+const char *const TYPE_NAMES[TYPES + 1] = {DSC_TYPE_NAMES};
+static const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
+static const char *const SET_METHODS[TYPES] = {DSC_SET_METHODS};
+static const char *const STATUS_CATEGORIES[] = {DSC_STATUS_CATEGORIES};
+_Static_assert(sizeof STATUS_CATEGORIES / sizeof STATUS_CATEGORIES[0] == STATUS_FATAL + 1,
+               "DSC_STATUS_CATEGORIES names the category of every status, OK to fatal");
+
 const char *slave_category(int status) {
-    switch (status) {
-    case STATUS_OK: return "logAll";
-    case STATUS_WARNING: return "logStatusWarning";
-    case STATUS_DISCARD: return "logStatusDiscard";
-    case STATUS_ERROR: return "logStatusError";
-    }
-    return "logStatusFatal";
+    return STATUS_CATEGORIES[status >= STATUS_OK && status <= STATUS_FATAL ? status : STATUS_FATAL];
 }
 
 static void queue(Slave *s, int status, const char *category, const char *text) {
@@ -44,8 +45,7 @@ static void queue(Slave *s, int status, const char *category, const char *text) 
     s->last = &message->next;
 }
 
-/* Hand the queued messages to the logger, in order; call without the GIL. */
-static void deliver(Slave *s) {
+void slave_deliver(Slave *s) {
     Message *message = s->messages;
     s->messages = NULL;
     s->last = &s->messages;
@@ -60,20 +60,26 @@ static void deliver(Slave *s) {
 /* Release the GIL, then deliver what was queued under it. */
 static void leave(Slave *s, PyGILState_STATE gil) {
     pyhost_leave(gil);
-    deliver(s);
+    slave_deliver(s);
     if (s->interrupted) { /* last: Python run before (a logger on ctypes) would swallow it */
         s->interrupted = 0;
         py.PyErr_SetInterrupt();
     }
 }
 
-static void say(Slave *s, int status, const char *format, ...) {
+void slave_vlog(Slave *s, int status, const char *call, const char *format, va_list args) {
     char message[2048];
+    int k = call ? snprintf(message, sizeof message, "%s: %s: ", s->instance_name, call)
+                 : snprintf(message, sizeof message, "%s: ", s->instance_name);
+    vsnprintf(message + k, sizeof message - k, format, args);
+    queue(s, status, slave_category(status), message);
+}
+
+static void say(Slave *s, int status, const char *format, ...) {
     va_list args;
     va_start(args, format);
-    vsnprintf(message, sizeof message, format, args);
+    slave_vlog(s, status, NULL, format, args);
     va_end(args);
-    queue(s, status, slave_category(status), message);
 }
 
 static void clear(PyObject **object) {
@@ -107,10 +113,10 @@ static int exception_text(char *text, size_t size) {
 static void log_exception(Slave *s, int status, const char *doing) {
     char text[1536];
     if (exception_text(text, sizeof text)) {
-        say(s, status, "%s: %s interrupted: the KeyboardInterrupt goes on to the host", s->instance_name, doing);
+        say(s, status, "%s interrupted: the KeyboardInterrupt goes on to the host", doing);
         s->interrupted = 1;
     } else {
-        say(s, status, "%s: %s failed: %s", s->instance_name, doing, text);
+        say(s, status, "%s failed: %s", doing, text);
     }
 }
 
@@ -199,13 +205,13 @@ static int read_entry(Slave *s, char bridge[256]) {
     snprintf(path, sizeof path, "%s/%s", s->resources, DSC_ENTRY_FILE);
     FILE *file = platform_open_file(path, "r");
     if (!file) {
-        say(s, STATUS_ERROR, "%s: cannot read %s: the FMU's resources are incomplete", s->instance_name, path);
+        say(s, STATUS_ERROR, "cannot read %s: the FMU's resources are incomplete", path);
         return -1;
     }
     int found = fscanf(file, "%255s %255s %127s %127s", bridge, s->module, s->class_name, s->token);
     fclose(file);
     if (found != 4 || !strchr(bridge, '.')) {
-        say(s, STATUS_ERROR, "%s: %s does not name the bridge, module, class and token", s->instance_name, path);
+        say(s, STATUS_ERROR, "%s does not name the bridge, module, class and token", path);
         return -1;
     }
     return 0;
@@ -294,8 +300,8 @@ static const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_even
                                                      "get_continuous_states", "get_nominals"};
 
 static const char *bound_name(const Slave *s, int i) {
-    if (i < TYPES) return s->names->get[i];
-    if (i < 2 * TYPES) return s->names->set[i - TYPES];
+    if (i < TYPES) return GET_METHODS[i];
+    if (i < 2 * TYPES) return SET_METHODS[i - TYPES];
     if (i >= BOUND_VECTORS && i < BOUND_SET_POINT) return VECTOR_METHODS[i - BOUND_VECTORS];
     return i == BOUND_DO_STEP ? "do_step" : "set_point";
 }
@@ -340,7 +346,7 @@ static int read_dimensions(Slave *s) {
     s->nx = (size_t)states;
     s->nz = (size_t)indicators;
     s->x = calloc(s->nx ? s->nx : 1, sizeof *s->x);
-    if (!s->x) say(s, STATUS_ERROR, "%s: out of memory for the continuous states", s->instance_name);
+    if (!s->x) say(s, STATUS_ERROR, "out of memory for the continuous states");
     return s->x ? 0 : -1;
 }
 
@@ -352,8 +358,7 @@ static int read_variables(Slave *s) {
     if (n < 0 || n > MAX_VARIABLES) {
         clear(&table);
         if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
-        else say(s, STATUS_ERROR, "%s: the slave has %zd variables; allowed: at most %d", s->instance_name, n,
-                 MAX_VARIABLES);
+        else say(s, STATUS_ERROR, "the slave has %zd variables; allowed: at most %d", n, MAX_VARIABLES);
         return -1;
     }
     long largest = -1;
@@ -370,7 +375,7 @@ static int read_variables(Slave *s) {
     clear(&table);
     if (py.PyErr_Occurred() || largest >= MAX_VALUE_REFERENCE) {
         py.PyErr_Clear();
-        say(s, STATUS_ERROR, "%s: the variable table of the slave is not valid", s->instance_name);
+        say(s, STATUS_ERROR, "the variable table of the slave is not valid");
         return -1;
     }
     if (read_dimensions(s) != 0) return -1;
@@ -379,7 +384,7 @@ static int read_variables(Slave *s) {
     s->causality = malloc(s->size ? s->size : 1);
     s->variability = malloc(s->size ? s->size : 1);
     if (!s->type || !s->causality || !s->variability) {
-        say(s, STATUS_ERROR, "%s: out of memory for the variable table", s->instance_name);
+        say(s, STATUS_ERROR, "out of memory for the variable table");
         return -1;
     }
     memset(s->type, NO_VARIABLE, s->size);
@@ -413,27 +418,26 @@ static void unlock_imports(Slave *s) {
     if (import_lock(0) != 0) log_exception(s, STATUS_WARNING, "releasing the import lock");
 }
 
-int slave_create(Slave *s, const char *resources, const char *token, const char *instance_name, int visible,
-                 const MethodNames *names, SlaveLog log, void *context) {
-    memset(s, 0, sizeof *s);
-    s->last = &s->messages;
+void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context) {
+    s->instance_name = instance_name;
     s->log = log;
     s->context = context;
-    s->names = names;
+    s->last = &s->messages;
+}
+
+int slave_create(Slave *s, const char *resources, const char *token, int visible) {
     s->visible = visible;
-    snprintf(s->instance_name, sizeof s->instance_name, "%s", instance_name);
     snprintf(s->resources, sizeof s->resources, "%s", resources);
     size_t length = strlen(s->resources);
     while (length > 1 && s->resources[length - 1] == '/') s->resources[--length] = '\0';
     char bridge[256] = "", error[3072];
     int result = read_entry(s, bridge);
     if (result == 0 && (!token || strcmp(token, s->token) != 0)) {
-        say(s, STATUS_ERROR, "%s: the token %s does not match this FMU's %s", s->instance_name,
-            token ? token : "(null)", s->token);
+        say(s, STATUS_ERROR, "the token %s does not match this FMU's %s", token ? token : "(null)", s->token);
         result = -1;
     }
     if (result == 0 && pyhost_start(error, sizeof error) != 0) {
-        say(s, STATUS_ERROR, "%s: %s", s->instance_name, error);
+        say(s, STATUS_ERROR, "%s", error);
         result = -1;
     }
     if (result == 0) {
@@ -451,7 +455,7 @@ int slave_create(Slave *s, const char *resources, const char *token, const char 
         pyhost_leave(gil);
     }
     if (result != 0) slave_free(s);
-    deliver(s);
+    slave_deliver(s);
     return result;
 }
 
@@ -530,8 +534,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
     Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
     int status = STATUS_ERROR;
     if (size >= 0 && size != (Py_ssize_t)n) {
-        say(s, STATUS_ERROR, "%s: %s returned %zd values for %zu value references", s->instance_name,
-            s->names->get[type], size, n);
+        say(s, STATUS_ERROR, "%s returned %zd values for %zu value references", GET_METHODS[type], size, n);
     } else if (size >= 0) {
         for (size_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
             PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
@@ -540,7 +543,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
         }
         if (!py.PyErr_Occurred()) status = STATUS_OK;
     }
-    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, s->names->get[type]);
+    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, GET_METHODS[type]);
     clear(&result);
     drain_log(s);
     leave(s, gil);
@@ -548,8 +551,8 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
 }
 
 /* The status of a slave call that returned `result` (NULL: it raised; `failure` after logging the
-   exception as `what`); releases `result` and forwards the slave's queued log messages. */
-static int finished(Slave *s, PyObject *result, int failure, const char *what) {
+   exception as `what`); releases `result`, queues the slave's log messages and leaves (`gil`). */
+static int finished(Slave *s, PyGILState_STATE gil, PyObject *result, int failure, const char *what) {
     int status = STATUS_OK;
     if (!result) {
         log_exception(s, failure, what);
@@ -557,6 +560,7 @@ static int finished(Slave *s, PyObject *result, int failure, const char *what) {
     }
     clear(&result);
     drain_log(s);
+    leave(s, gil);
     return status;
 }
 
@@ -566,9 +570,7 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
     for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
     PyObject *items[] = {references(vr, n), list};
     PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
-    int status = finished(s, result, STATUS_ERROR, s->names->set[type]);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, SET_METHODS[type]);
 }
 
 int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
@@ -581,9 +583,7 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
     }
     PyObject *items[] = {references(vr, n), orders, given};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
-    int status = finished(s, result, STATUS_ERROR, "set_input_derivatives");
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, "set_input_derivatives");
 }
 
 /* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
@@ -605,9 +605,7 @@ static int call_logged(Slave *s, const char *method, PyObject *cached, int n, co
     PyObject *args = n ? doubles(n, values, defined) : NULL;
     PyObject *result = call(function, args);
     if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
-    int status = finished(s, result, failure, method);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, failure, method);
 }
 
 int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined) {
@@ -631,7 +629,7 @@ int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failu
     PyObject *result = call(borrowed(s->bound[BOUND_VECTORS + which]), NULL);
     Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
     if (size >= 0 && size != (Py_ssize_t)n) {
-        say(s, STATUS_ERROR, "%s: %s returned %zd values; expected %zu", s->instance_name, method, size, n);
+        say(s, STATUS_ERROR, "%s returned %zd values; expected %zu", method, size, n);
         failure = STATUS_ERROR;
     }
     for (Py_ssize_t i = 0; size == (Py_ssize_t)n && i < size && !py.PyErr_Occurred(); i++) {
@@ -668,26 +666,18 @@ int slave_get_double(Slave *s, const char *attribute, double *value) {
     return status;
 }
 
+/* `finished` releases a reference of its own: the caller keeps the state (also in slave_deserialize). */
 int slave_get_state(Slave *s, PyObject **state) {
     PyGILState_STATE gil = enter(s);
     *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
-    int status = STATUS_OK;
-    if (!*state) {
-        log_exception(s, STATUS_ERROR, "getting the FMU state");
-        status = STATUS_ERROR;
-    }
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "getting the FMU state");
 }
 
 int slave_set_state(Slave *s, PyObject *state) {
     PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
-    int status = finished(s, result, STATUS_ERROR, "setting the FMU state");
-    leave(s, gil);
-    return status;
+    return finished(s, gil, result, STATUS_ERROR, "setting the FMU state");
 }
 
 void slave_release(PyObject *object) {
@@ -711,7 +701,7 @@ int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
         *size = (size_t)length;
         status = STATUS_OK;
     } else {
-        say(s, STATUS_ERROR, "%s: out of memory for the serialized FMU state", s->instance_name);
+        say(s, STATUS_ERROR, "out of memory for the serialized FMU state");
     }
     clear(&data);
     drain_log(s);
@@ -723,14 +713,7 @@ int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state
     PyGILState_STATE gil = enter(s);
     PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
     *state = bridge_call(s, "state_from_bytes", pack(2, items));
-    int status = STATUS_OK;
-    if (!*state) {
-        log_exception(s, STATUS_ERROR, "deserializing the FMU state");
-        status = STATUS_ERROR;
-    }
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "deserializing the FMU state");
 }
 
 static int hex(char c) {

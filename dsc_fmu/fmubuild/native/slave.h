@@ -8,6 +8,7 @@
 #ifndef DSC_SLAVE_H
 #define DSC_SLAVE_H
 
+#include <stdarg.h>
 #include <stddef.h>
 
 #include "pyhost.h"
@@ -15,17 +16,23 @@
 /* Statuses, the same numbers in FMI 2.0 and 3.0. */
 enum { STATUS_OK = 0, STATUS_WARNING = 1, STATUS_DISCARD = 2, STATUS_ERROR = 3, STATUS_FATAL = 4 };
 
-/* The codes of native_bridge.py, which owns them: the build passes them as DSC_<KIND>_<NAME>. */
+/* What the build passes (binary.py): the codes of native_bridge.py, which owns them, as DSC_<KIND>_<NAME>,
+   and its names of the types for the FMI version built (DSC_TYPE_NAMES) with the slave's get and set method
+   of each (DSC_GET_METHODS, DSC_SET_METHODS); the log categories of the model descriptions and of each
+   status, pythonfmu's. */
 #if !defined(DSC_TYPE_REAL) || !defined(DSC_TYPE_INTEGER) || !defined(DSC_TYPE_BOOLEAN) ||                  \
     !defined(DSC_TYPE_STRING) || !defined(DSC_CAUSALITY_PARAMETER) || !defined(DSC_CAUSALITY_INPUT) ||          \
     !defined(DSC_CAUSALITY_OUTPUT) || !defined(DSC_VARIABILITY_CONSTANT) || !defined(DSC_VARIABILITY_FIXED) ||  \
-    !defined(DSC_VARIABILITY_TUNABLE)
-#error the codes of native_bridge.py (DSC_TYPE_REAL, ...) must be defined
+    !defined(DSC_VARIABILITY_TUNABLE) || !defined(DSC_TYPE_NAMES) || !defined(DSC_GET_METHODS) ||                 \
+    !defined(DSC_SET_METHODS) || !defined(DSC_LOG_CATEGORIES) || !defined(DSC_STATUS_CATEGORIES)
+#error the codes of native_bridge.py (DSC_TYPE_REAL, ...) and the log categories must be defined
 #endif
 enum { TYPE_REAL = DSC_TYPE_REAL, TYPE_INTEGER = DSC_TYPE_INTEGER, TYPE_BOOLEAN = DSC_TYPE_BOOLEAN,
        TYPE_STRING = DSC_TYPE_STRING, TYPES = 3, NO_VARIABLE = -1 };
 _Static_assert(TYPE_REAL == 0 && TYPE_INTEGER == 1 && TYPE_BOOLEAN == 2 && TYPE_STRING == TYPES,
                "the type codes index the get and set methods: Real, Integer, Boolean, then String");
+/* The FMI version's name of each type (Real or Float64, ...), by code. */
+extern const char *const TYPE_NAMES[TYPES + 1];
 
 /* Model exchange: the vectors of the slave's model, each read by one method of the slave. */
 typedef enum { VECTOR_DERIVATIVES, VECTOR_INDICATORS, VECTOR_STATES, VECTOR_NOMINALS, VECTORS } Vector;
@@ -54,12 +61,6 @@ typedef struct Message {
 } Message;
 
 typedef struct {
-    const char *get[TYPES];
-    const char *set[TYPES];
-    const char *type[TYPES + 1]; /* the FMI version's names of the types */
-} MethodNames;
-
-typedef struct {
     PyObject *bridge;
     PyObject *slave;
     PyObject *log_queue;
@@ -68,9 +69,8 @@ typedef struct {
     char class_name[128];
     char token[128];            /* the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
     char resources[4096];
-    char instance_name[256];
+    const char *instance_name;  /* the instance's, which outlives the slave */
     int visible;
-    const MethodNames *names;
     size_t nx;                  /* continuous states (model exchange) */
     size_t nz;                  /* event indicators */
     int pending;                /* PENDING_TIME, PENDING_STATES: set here, handed to the slave at its next call */
@@ -87,11 +87,13 @@ typedef struct {
     Message **last;
 } Slave;
 
+/* An empty slave of the instance `instance_name` (which must outlive it) whose messages go to `log`. */
+void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context);
+
 /* Check `token` against the FMU's, then start Python if needed and create the slave of the FMU
    whose resources folder is `resources` (a path). 0, or -1 after logging why (the Slave is then
    empty). */
-int slave_create(Slave *s, const char *resources, const char *token, const char *instance_name, int visible,
-                 const MethodNames *names, SlaveLog log, void *context);
+int slave_create(Slave *s, const char *resources, const char *token, int visible);
 void slave_free(Slave *s);
 
 /* A new Python slave in place of the current one (fmiReset). */
@@ -135,6 +137,13 @@ int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state
 
 /* The log category of a message with `status` (logStatusWarning, ..., logAll for OK). */
 const char *slave_category(int status);
+
+/* The one formatter of the binary's messages: "<instance name>: ", then "<call>: " if `call` is not NULL,
+   then `format` (printf's) with `args`, queued with `status` and its category. */
+void slave_vlog(Slave *s, int status, const char *call, const char *format, va_list args);
+
+/* Hand the queued messages to the logger, in order; call without the GIL. */
+void slave_deliver(Slave *s);
 
 /* The native path of a file URI (file:///C:/x, file:/x, file://localhost/x, file://server/share/x
    for a share, percent-escapes decoded) or of an absolute path, in `path`; 0, or -1 if it is neither. */
