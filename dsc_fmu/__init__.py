@@ -2,8 +2,8 @@
 
 The names a user needs, imported when first used (so that ``import dsc_fmu`` and ``dsc-fmu --help``
 stay fast): ``load_scenario``, ``build_fmus``, ``ensure_fmus``, ``cosimulate``, ``Cosimulator``,
-``simulate_model_exchange``, ``reference_solution``, ``run_scenario``, ``run_sweep``, ``DscFmuError`` and
-``CosimulationError``.
+``simulate_model_exchange``, ``reference_solution``, ``run_scenario``, ``run_sweep`` with its ``Grid`` and
+``Runner``, ``DscFmuError`` and ``CosimulationError``.
 """
 
 import importlib
@@ -20,6 +20,8 @@ _EXPORTS = {
     "reference_solution": "dsc_fmu.cosim.reference_solution",
     "run_scenario": "dsc_fmu.cosim.run",
     "run_sweep": "dsc_fmu.study.sweep",
+    "Grid": "dsc_fmu.study.cases",
+    "Runner": "dsc_fmu.study.cases",
     "DscFmuError": "dsc_fmu.errors",
     "CosimulationError": "dsc_fmu.errors",
 }

@@ -2,7 +2,8 @@
 own validator.
 
 Public means named in a module's ``__all__`` and defined there; a class's public methods and properties
-are those it defines itself (not inherited, no leading underscore). The checks below are the ones that
+are those it defines itself (not inherited, no leading underscore); an override without a docstring
+shows its base's (``inspect.getdoc``), checked where the base defines it. The checks below are the ones that
 make a docstring scannable: a one-line summary, every parameter listed with its type and meaning, a
 Returns (or Yields) section for what comes back, known sections in numpydoc's order.
 """
@@ -31,6 +32,13 @@ MODULES = sorted(
 )
 
 
+def _inherits_doc(cls: type, member: str, value) -> bool:
+    """Whether ``member`` overrides a base class's documented method without a docstring of its own
+    (``inspect.getdoc`` then shows the base's, which is checked where it is defined)."""
+    return getattr(value, "__doc__", None) is None and any(
+        getattr(getattr(base, member, None), "__doc__", None) for base in cls.__mro__[1:])
+
+
 def _public(module_name: str) -> list[str]:
     """The dotted names of the public functions, classes and class members that ``module_name`` defines."""
     module = importlib.import_module(module_name)
@@ -44,7 +52,7 @@ def _public(module_name: str) -> list[str]:
         elif inspect.isclass(obj):
             names.append(f"{module_name}.{name}")
             for member, value in vars(obj).items():
-                if member.startswith("_"):
+                if member.startswith("_") or _inherits_doc(obj, member, value):
                     continue
                 if inspect.isfunction(value) or isinstance(value, (property, staticmethod, classmethod)):
                     names.append(f"{module_name}.{name}.{member}")

@@ -25,7 +25,7 @@ from ..scenario import Scenario
 from .cache import CacheEntryError, CacheWarning, SweepCache, case_key, fmu_identities, reference_key
 from .cases import Case, Runner, SweepError, apply, check_scheduler
 from .rows import Outcome, make_row
-from .tasks import Reference, Run, Task
+from .tasks import ReferenceSolution, Run, Task
 
 __all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep_folder"]
 
@@ -318,7 +318,7 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     _remove_stale_work(out_dir / ".work")
     lost = []
     if todo or missing:
-        tasks = [Reference(k, applied) for k, applied in missing.items()]
+        tasks = [ReferenceSolution(k, applied) for k, applied in missing.items()]
         runs = sorted(todo, key=lambda k: -todo[k][1].simulation.stop_time / todo[k][1].simulation.step_size)
         tasks += [Run(key, todo[key][1]) for key in runs]  # the longest first, for an even load
         with _results(tasks, out_dir, fmu_paths, runner, events) as results:

@@ -16,7 +16,7 @@ from ..cosim.master import Cosimulator
 from ..scenario import Scenario
 from .rows import Outcome, compute_reference, simulate
 
-__all__ = ["Task", "Run", "Reference"]
+__all__ = ["Task", "Run", "ReferenceSolution"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -84,7 +84,10 @@ class Task(ABC):
 
 
 class Run(Task):
-    """A co-simulation of one case: its value is an ``Outcome``; a run whose workers were lost is a lost outcome.
+    """A co-simulation of one case (``rows.simulate``).
+
+    Its value is an ``Outcome``, taken by ``sweep.take_run``. A run whose workers were lost is not run
+    again: it is recorded as lost (``Outcome.of_lost``).
 
     Parameters
     ----------
@@ -97,56 +100,20 @@ class Run(Task):
     needs_simulator = True
 
     def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> Outcome:
-        """Run the case with this process's Cosimulator.
-
-        Parameters
-        ----------
-        fmu_paths : dict
-            The FMU files there, by name (loaded by ``simulator``).
-        simulator : callable
-            Returns the Cosimulator of the process it runs in.
-
-        Returns
-        -------
-        Outcome
-            The run's outcome (``rows.simulate``).
-        """
         return simulate(self.applied, simulator())
 
     def lost(self, reason: str, fmu_paths: dict) -> Outcome:
-        """A run whose workers were lost is not run again here: it is recorded as lost.
-
-        Parameters
-        ----------
-        reason : str
-            Why, on one line: the row's ``diverged_reason``.
-        fmu_paths : dict
-            Not used.
-
-        Returns
-        -------
-        Outcome
-            ``Outcome.of_lost(reason)``.
-        """
         return Outcome.of_lost(reason)
 
     def hand_over(self, value: Outcome, sweep) -> None:
-        """Give the outcome to ``sweep.take_run``.
-
-        Parameters
-        ----------
-        value : Outcome
-            The run's outcome.
-        sweep : object
-            The collector of the sweep's results.
-        """
         sweep.take_run(self.tag, value)
 
 
-class Reference(Task):
-    """The reference solution of one physical case, computed in this process if its workers were lost.
+class ReferenceSolution(Task):
+    """The reference solution of one physical case (``rows.compute_reference``).
 
-    Its value is ``(solution or None, why it failed or None)`` (``rows.compute_reference``).
+    Its value is ``(solution or None, why the solver failed or None)``, taken by
+    ``sweep.take_reference``. A solution whose workers were lost is computed in this process.
 
     Parameters
     ----------
@@ -157,47 +124,10 @@ class Reference(Task):
     """
 
     def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> tuple:
-        """Solve the reference, with the FMUs there if it goes through model exchange.
-
-        Parameters
-        ----------
-        fmu_paths : dict
-            The FMU files there, by name.
-        simulator : callable
-            Not used.
-
-        Returns
-        -------
-        tuple
-            The solution (``cache.REFERENCE_COLUMNS``) or None, and why the solver failed or None.
-        """
         return compute_reference(self.applied, fmu_paths)
 
     def lost(self, reason: str, fmu_paths: dict) -> tuple:
-        """Solve the reference in this process after all.
-
-        Parameters
-        ----------
-        reason : str
-            Not used: the reference is computed all the same.
-        fmu_paths : dict
-            The FMU files of this process, by name.
-
-        Returns
-        -------
-        tuple
-            As ``compute``.
-        """
         return compute_reference(self.applied, fmu_paths)
 
     def hand_over(self, value: tuple, sweep) -> None:
-        """Give the solution to ``sweep.take_reference``.
-
-        Parameters
-        ----------
-        value : tuple
-            The solution or None, and why the solver failed or None.
-        sweep : object
-            The collector of the sweep's results.
-        """
         sweep.take_reference(self.tag, value)
