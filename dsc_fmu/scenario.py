@@ -16,7 +16,7 @@ from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
-    "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Interface", "Reference", "ORDERS", "COUPLINGS",
+    "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Stability", "Interface", "Reference", "ORDERS", "COUPLINGS",
     "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "scenario_names", "SCENARIO_DIR",
 ]
 
@@ -92,6 +92,29 @@ class Interface(enum.StrEnum):
         return member
 
 
+class Stability(enum.StrEnum):
+    """What a step-size study calls a stable run (``study.rows.stability_definition``).
+
+    ``"settled"`` judges where the run ends up; ``"local"``, for a scenario that starts in steady
+    tracking, also asks that the run stay with the reference solution from its start (the stability
+    of steady tracking, what the linearised prediction predicts).
+
+    Attributes
+    ----------
+    from_start : bool
+        Whether a stable run must stay with the reference solution from its start.
+    """
+
+    SETTLED = "settled", False
+    LOCAL = "local", True
+
+    def __new__(cls, value: str, from_start: bool):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        member.from_start = from_start
+        return member
+
+
 class Reference(enum.StrEnum):
     """What a step-size study measures its runs against.
 
@@ -119,11 +142,8 @@ ORDERS = tuple(order.value for order in Order)
 """The names of the coupling orders (``Order``)."""
 COUPLINGS = tuple(coupling.value for coupling in Coupling)
 """The names of the couplings (``Coupling``), as scenarios and the command line give them."""
-STABILITIES = ("settled", "local")
-"""What a step-size study calls a stable run (``study.rows.stability_definition``): "settled" judges where
-the run ends up; "local", for a scenario that starts in steady tracking, also asks that the run stay
-with the reference solution from its start (the stability of steady tracking, what the linearised
-prediction predicts)."""
+STABILITIES = tuple(stability.value for stability in Stability)
+"""The names of the definitions of a stable run (``Stability``)."""
 INTERFACES = tuple(interface.value for interface in Interface)
 """The names of the interfaces (``Interface``)."""
 REFERENCES = tuple(reference.value for reference in Reference)
@@ -144,8 +164,8 @@ class ScenarioError(DscFmuError, ValueError):
 class Simulation:
     """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
 
-    Names of orders, couplings and references become ``Order``, ``Coupling`` and ``Reference``;
-    ``check`` says whether the settings are allowed.
+    Names of orders, couplings, stabilities and references become ``Order``, ``Coupling``, ``Stability``
+    and ``Reference``; ``check`` says whether the settings are allowed.
 
     Parameters
     ----------
@@ -173,8 +193,8 @@ class Simulation:
         Realise the linear coupling through the standard route instead of the FMUs' ``coupling``
         parameters: the master sets the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold
         (``cosim.derivatives``; FMI 2.0 FMUs, a fixed step). Default False.
-    stability : {"settled", "local"}, optional
-        How a step-size study judges a run (``STABILITIES``). Default "settled".
+    stability : Stability or {"settled", "local"}, optional
+        How a step-size study judges a run. Default "settled".
     reference : Reference or {"monolithic", "model-exchange"}, optional
         What a step-size study measures the runs' deviations against. Default "monolithic".
     """
@@ -190,11 +210,12 @@ class Simulation:
     h_max: float = 0.02
     error_gain: float = 0.02
     input_derivatives: bool = False
-    stability: str = "settled"
+    stability: Stability = Stability.SETTLED
     reference: Reference = Reference.MONOLITHIC
 
     def __post_init__(self):
-        for key, kind in (("order", Order), ("coupling", Coupling), ("reference", Reference)):  # a name that is none: ``check`` says so
+        # Names become their types; a name that is none stays as given, for ``check`` to name.
+        for key, kind in (("order", Order), ("coupling", Coupling), ("stability", Stability), ("reference", Reference)):
             try:
                 object.__setattr__(self, key, kind(getattr(self, key)))
             except ValueError:

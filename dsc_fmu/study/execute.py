@@ -411,7 +411,7 @@ class _Collector:
                  bar: tqdm, lost: list):
         self.rows, self._waiting = {}, defaultdict(list)
         self._remaining = Counter(ref_key for _, _, ref_key in todo.values())
-        self._local = scenario.simulation.stability == "local"
+        self._local = scenario.simulation.stability.from_start
         self._todo, self._references, self._cache, self._identities = todo, references, cache, identities
         self._bar, self._lost = bar, lost
 

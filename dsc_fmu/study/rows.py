@@ -11,7 +11,7 @@ import numpy as np
 
 from ..cosim.master import CosimulationError, Cosimulator
 from ..cosim.metrics import tracking_metrics
-from ..scenario import Scenario
+from ..scenario import Scenario, Stability
 from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key
 from .cases import Case, apply
 
@@ -295,15 +295,15 @@ def stability_definition(stability: str) -> str:
 
     Parameters
     ----------
-    stability : {"settled", "local"}
-        The definition's name (``scenario.STABILITIES``).
+    stability : Stability or {"settled", "local"}
+        The definition.
 
     Returns
     -------
     str
         ``SETTLED_DEFINITION`` or ``LOCAL_DEFINITION``.
     """
-    return {"settled": SETTLED_DEFINITION, "local": LOCAL_DEFINITION}[stability]
+    return LOCAL_DEFINITION if Stability(stability).from_start else SETTLED_DEFINITION
 
 
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
@@ -360,7 +360,7 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outc
     diverged = outcome.metrics is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome.metrics
     usable = not diverged and reference is not None and len(outcome.trajectory)
-    local = bool(usable and applied.simulation.stability == "local" and case.tolerance is None
+    local = bool(usable and applied.simulation.stability.from_start and case.tolerance is None
                  and seed_window(outcome.trajectory["time"]) is not None)
     row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
@@ -368,7 +368,7 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outc
            "reference_key": keys[1],
            "diverged": diverged, "diverged_time": outcome.diverged_time,
            "diverged_signal": outcome.diverged_signal, "diverged_reason": outcome.diverged_reason,
-           "stability": "local" if local else "settled",
+           "stability": Stability.LOCAL if local else Stability.SETTLED,
            "stable": not diverged and metrics["max_position_error_m"] < STABLE_POSITION_ERROR
            and not error_grows(outcome.trajectory)
            and not (local and deviation_grows(outcome.trajectory, reference))}

@@ -11,7 +11,7 @@ import numpy as np
 
 from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
 from .report import write_report
-from ..scenario import Scenario
+from ..scenario import Scenario, Stability
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
 from .cases import Grid, Runner, SweepError, apply, check_scheduler
 from .cache import load_trajectory
@@ -48,7 +48,7 @@ def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[
         Predicted boundaries in s, by series label.
     boundaries : dict
         Refined boundaries (``analysis.Boundary``), by series label.
-    stability : {"settled", "local"}
+    stability : Stability or {"settled", "local"}
         The definition the runs were judged by.
 
     Returns
@@ -61,7 +61,7 @@ def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[
     ratios = [predicted / boundaries[label].h_stable for label, predicted in predictions.items()
               if label in boundaries and math.isfinite(predicted) and predicted > 0]
     return ([TRANSIENT_NOTE] if any(ratio > 1.2 for ratio in ratios) else []) + (
-        [RECOVERY_NOTE] if stability == "settled" and any(ratio < 0.8 for ratio in ratios) else [])
+        [RECOVERY_NOTE] if not Stability(stability).from_start and any(ratio < 0.8 for ratio in ratios) else [])
 
 
 def write_rows_csv(path: Path, rows: list[dict]) -> Path:
