@@ -109,7 +109,7 @@ fmi3Instance fmi3InstantiateScheduledExecution(fmi3String instanceName, fmi3Stri
                                                fmi3LockPreemptionCallback lockPreemption,
                                                fmi3UnlockPreemptionCallback unlockPreemption) {
     return refuse_instantiation(instanceEnvironment, logMessage, loggingOn, __func__,
-                                "these FMUs are co-simulation FMUs only");
+                                "these FMUs offer co-simulation and model exchange only");
 }
 
 /* --- initialisation, stepping ----------------------------------------------------------------------------- */
@@ -166,8 +166,6 @@ ABSENT_VALUES(Int64) ABSENT_VALUES(UInt64)
 ABSENT_VALUES(String)
 ABSENT(fmi3GetBinary, "Binary", size_t valueSizes[], fmi3Binary values[], size_t nValues)
 ABSENT(fmi3SetBinary, "Binary", const size_t valueSizes[], const fmi3Binary values[], size_t nValues)
-ABSENT(fmi3GetClock, "Clock", fmi3Clock values[])
-ABSENT(fmi3SetClock, "Clock", const fmi3Clock values[])
 
 /* --- model exchange ------------------------------------------------------------------------------------ */
 
@@ -206,6 +204,12 @@ fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicato
 #define NO_STRUCTURAL_PARAMETERS "these FMUs have no structural parameters"
 #define NO_DEPENDENCIES "providesPerElementDependencies is false; see ModelStructure"
 #define NO_CLOCKS "these FMUs have no clocks"
+
+/* These FMUs have no clocks: functions.h allows these two in no state, so BEGIN refuses every call. */
+UNSUPPORTED(fmi3GetClock, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3Clock values[])
+UNSUPPORTED(fmi3SetClock, NO_CLOCKS, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3Clock values[])
 
 /* The functions without arguments but the instance. */
 #define UNSUPPORTED_CALL(F, why)                                                                               \

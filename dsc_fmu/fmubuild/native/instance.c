@@ -25,8 +25,8 @@ typedef struct {
     ModelState state;
 } State;
 
-/* The log categories the model descriptions declare (pythonfmu's, passed by the build); a message of any
-   other category counts as one of the category of OK messages (logAll). */
+/* The log categories the model descriptions declare (pythonfmu's, passed by the build). A message of a
+   category not among them is shown when the category of OK messages (logAll) is enabled. */
 static const char *const CATEGORIES[] = {DSC_LOG_CATEGORIES};
 enum { CATEGORY_COUNT = sizeof CATEGORIES / sizeof CATEGORIES[0], ALL_CATEGORIES = (1 << CATEGORY_COUNT) - 1 };
 

@@ -69,10 +69,12 @@ void instance_free(Instance *instance);
 
 /* Log "<instance name>: <message>" (printf's `format`) now; returns `status`. */
 int instance_log(Instance *instance, int status, const char *format, ...);
-/* The same for the call in progress: "<instance name>: <function>: <message>". */
+/* The same for the call in progress, the one BEGIN admitted last (instance_refused):
+   "<instance name>: <function>: <message>". Only for use after BEGIN. */
 int instance_fail(Instance *instance, int status, const char *format, ...);
 
-/* Whether `pointer`, an argument of the call that must not be NULL, is given (if not, logged as `what`). */
+/* Whether `pointer`, an argument of the call in progress that must not be NULL, is given (if not, logged
+   as `what`). Only for use after BEGIN. */
 int instance_given(Instance *instance, const void *pointer, const char *what);
 
 /* Whether the call of `function` is refused: a foreign pointer (silently), a function of the other
