@@ -180,38 +180,15 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False)
     all_rows, refining = on_grid.rows, []
     write_rows_csv(out_dir / "sweep.csv", all_rows)
-    rows = [row for row in all_rows if row.get("tolerance") is None]  # the fixed-step series
+    rows = _fixed_step(all_rows)
 
-    boundaries = {}
-    if refine:
-        bisecting = dataclasses.replace(runner, jobs=1, progress=False)  # one run at a time
-        template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
-        for label, bracket in grid_brackets(rows).items():
-            if bracket is not None:
-                def is_stable(h, case=template[label]):
-                    run = [dataclasses.replace(case, step_size=h)]
-                    refining.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False))
-                    return refining[-1].rows[0]["stable"]
-                boundaries[label] = refine_boundary(is_stable, *bracket)
+    boundaries = _refined_boundaries(scenario, cases, all_rows, out_dir, fmu_paths, runner, refining) if refine else {}
     done = sum(refining, on_grid)
     done.warn()
 
-    from .figures import (  # matplotlib: slow to import
-        plot_deviation, plot_spectral_radius, plot_tracking_and_cost, plot_work_precision,
-    )
-
     steps = np.geomspace(1e-4, 0.2, 300)
     predictions, curves, notes = _predictions(apply(scenario, cases[0]) if cases else scenario, rows, steps)
-    settings = {"scenario": scenario.name, "scenario_source": scenario.source, "cases": len(cases),
-                "step_sizes": sorted({c.step_size for c in cases}), "orders": sorted({c.order for c in cases}),
-                "discretizations": sorted({c.discretization for c in cases}),
-                "couplings": sorted({c.coupling for c in cases if c.tolerance is None}),
-                "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}),
-                "sets": [list(s) for s in grid.sets], "perturbations": [str(p) for p in grid.perturbations],
-                "samples": grid.samples, "seed": grid.seed,
-                "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval,
-                "stability": scenario.simulation.stability, "reference": scenario.simulation.reference}
-    measured = {label: b.h_stable for label, b in boundaries.items()}
+    settings = _settings(scenario, grid, cases)
     notes += boundary_notes(predictions, boundaries, scenario.simulation.stability)
     summary = summarise(rows, stability_definition=stability_definition(scenario.simulation.stability),
                         settings=settings, boundaries=boundaries, fits=fit_orders(rows), predictions=predictions,
@@ -220,26 +197,85 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
                                    for row in all_rows if row.get("tolerance") is not None]
     write_summary_json(out_dir, summary)
 
-    finished = [row for row in rows if row["key"] not in done.lost]  # the runs that did not finish have no data
-    figures = {} if not finished else {
-        "deviation": plot_deviation(finished, fit_orders(finished), out_dir / "deviation.png"),
-        "tracking_and_cost": plot_tracking_and_cost(finished, out_dir / "tracking_and_cost.png"),
-        "work_precision": plot_work_precision([row for row in all_rows if row["key"] not in done.lost],
-                                              out_dir / "work_precision.png"),
-    }
-    paths = _path_figure(out_dir, finished)
-    if paths is not None:
-        figures["paths"] = paths
-    if curves:
-        figures["spectral_radius"] = plot_spectral_radius(curves, measured, out_dir / "spectral_radius.png",
-                                                          predicted=predictions)
+    finished = [row for row in all_rows if row["key"] not in done.lost]  # the runs that did not finish have no data
+    figures = _figures(out_dir, finished, curves, boundaries, predictions)
     report = write_report(out_dir, summary, all_rows, figures)
     if done.lost:
         raise SweepError(f"{len(done.lost)} of {len(done.rows)} runs did not finish (their worker process was lost, "
                          f"killed or crashed): their rows carry the reason and are not cached; everything else is "
                          f"written to {out_dir}; run the sweep again to retry them")
-    lines = [f"sweep of {scenario.name}: {len(all_rows)} runs, {sum(not r['stable'] for r in all_rows)} not stable",
-             f"  runs: {_counts(on_grid, refining, done)}"]
+    return "\n".join([
+        f"sweep of {scenario.name}: {len(all_rows)} runs, {sum(not r['stable'] for r in all_rows)} not stable",
+        f"  runs: {_counts(on_grid, refining, done)}",
+        *_summary_lines(summary),
+        f"  written: {out_dir / 'sweep.csv'}, {out_dir / 'sweep.json'}, {report}",
+    ])
+
+
+def _refined_boundaries(scenario: Scenario, cases: list, all_rows: list[dict], out_dir: Path, fmu_paths: dict,
+                        runner: Runner, refining: list) -> dict:
+    """The stability boundary of each fixed-step series, bisected one run at a time between its last stable
+    and first unstable grid step (``analysis.refine_boundary``); each bisection's ``Execution`` is
+    appended to ``refining``."""
+    from .execute import execute
+
+    bisecting = dataclasses.replace(runner, jobs=1, progress=False)
+    template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
+    boundaries = {}
+    for label, bracket in grid_brackets(_fixed_step(all_rows)).items():
+        if bracket is not None:
+            def is_stable(h, case=template[label]):
+                run = [dataclasses.replace(case, step_size=h)]
+                refining.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False))
+                return refining[-1].rows[0]["stable"]
+            boundaries[label] = refine_boundary(is_stable, *bracket)
+    return boundaries
+
+
+def _figures(out_dir: Path, finished: list[dict], curves: dict, boundaries: dict, predictions: dict) -> dict:
+    """The sweep's figures, by name: of the ``finished`` runs (the work-precision figure of all of them, the
+    others of the fixed-step series) and, with prediction ``curves``, the spectral radius."""
+    from .figures import (  # matplotlib: slow to import
+        plot_deviation, plot_spectral_radius, plot_tracking_and_cost, plot_work_precision,
+    )
+
+    fixed = _fixed_step(finished)
+    figures = {} if not fixed else {
+        "deviation": plot_deviation(fixed, fit_orders(fixed), out_dir / "deviation.png"),
+        "tracking_and_cost": plot_tracking_and_cost(fixed, out_dir / "tracking_and_cost.png"),
+        "work_precision": plot_work_precision(finished, out_dir / "work_precision.png"),
+    }
+    paths = _path_figure(out_dir, fixed)
+    if paths is not None:
+        figures["paths"] = paths
+    if curves:
+        measured = {label: b.h_stable for label, b in boundaries.items()}
+        figures["spectral_radius"] = plot_spectral_radius(curves, measured, out_dir / "spectral_radius.png",
+                                                          predicted=predictions)
+    return figures
+
+
+def _fixed_step(rows: list[dict]) -> list[dict]:
+    """The rows of the fixed-step series (no tolerance)."""
+    return [row for row in rows if row.get("tolerance") is None]
+
+
+def _settings(scenario: Scenario, grid: Grid, cases: list) -> dict:
+    """What the sweep varied and how its runs were simulated, for ``sweep.json``."""
+    return {"scenario": scenario.name, "scenario_source": scenario.source, "cases": len(cases),
+            "step_sizes": sorted({c.step_size for c in cases}), "orders": sorted({c.order for c in cases}),
+            "discretizations": sorted({c.discretization for c in cases}),
+            "couplings": sorted({c.coupling for c in cases if c.tolerance is None}),
+            "tolerances": sorted({c.tolerance for c in cases if c.tolerance is not None}),
+            "sets": [list(s) for s in grid.sets], "perturbations": [str(p) for p in grid.perturbations],
+            "samples": grid.samples, "seed": grid.seed,
+            "stop_time": scenario.simulation.stop_time, "output_interval": scenario.simulation.output_interval,
+            "stability": scenario.simulation.stability, "reference": scenario.simulation.reference}
+
+
+def _summary_lines(summary: dict) -> list[str]:
+    """One line per fixed-step series (observed order, boundary, prediction) and per error-controlled run."""
+    lines = []
     for label, group in summary["groups"].items():
         fit = group["observed_order"].get("max_position_deviation_m", {})
         order = f"{fit['slope']:.2f}" if "slope" in fit else "n/a"
@@ -250,8 +286,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
                    f"max deviation {entry['max_position_deviation_m']:.3g} m, {entry['steps']} steps "
                    f"({entry['steps_rejected']} taken again), {entry['wall_time_s']:.2f} s")
         lines.append(f"  {entry['series']}, tolerance {entry['tolerance']:g} m: {outcome}")
-    lines.append(f"  written: {out_dir / 'sweep.csv'}, {out_dir / 'sweep.json'}, {report}")
-    return "\n".join(lines)
+    return lines
 
 
 def _counts(on_grid, refining: list, done) -> str:
