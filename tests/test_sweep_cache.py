@@ -253,7 +253,7 @@ def test_runs_whose_worker_is_lost_twice_are_rows_with_the_reason_and_not_cached
     status = sweep(out, fmu_dir, "2e-4,4e-4", "1", "2")
     killer.stop()
     captured = capsys.readouterr()
-    assert status == 1 and len(killer.killed) >= 4
+    assert status == 1 and len(killer.killed) >= 2  # one death breaks the whole pool: at least one per round
     warning, error = captured.err.splitlines()
     assert re.fullmatch(rf"{WARNING}a worker process was lost \(killed or crashed\) \d+ times; \d+ computations in "
                         r"flight retried on a new pool; 2 runs did not finish: rows with the reason, not cached",
