@@ -21,7 +21,17 @@ __all__ = [
 ]
 
 
-class Order(enum.StrEnum):
+class _Named(enum.StrEnum):
+    """A closed set of names with attributes: a member is ``NAME = "name", *attributes``, its value the
+    name (as scenarios and the command line give it) and its ``__init__`` keeping the attributes."""
+
+    def __new__(cls, value: str, *attributes):
+        member = str.__new__(cls, value)
+        member._value_ = value
+        return member
+
+
+class Order(_Named):
     """In what order the FMUs step and exchange within a communication step.
 
     ``"gauss-seidel"``: the reference and the plant step, the controller's inputs are set from their
@@ -37,14 +47,11 @@ class Order(enum.StrEnum):
     GAUSS_SEIDEL = "gauss-seidel", True
     JACOBI = "jacobi", False
 
-    def __new__(cls, value: str, sequential: bool):
-        member = str.__new__(cls, value)
-        member._value_ = value
-        member.sequential = sequential
-        return member
+    def __init__(self, value: str, sequential: bool):
+        self.sequential = sequential
 
 
-class Coupling(enum.StrEnum):
+class Coupling(_Named):
     """How the exchanged signals vary over a communication step.
 
     ``"hold"``: held over the step (zero-order hold). ``"linear"``: on a line (first-order hold): the
@@ -65,14 +72,11 @@ class Coupling(enum.StrEnum):
     HOLD = "hold", 1, "hold", "hold"
     LINEAR = "linear", 2, "extrapolate", "interpolate"
 
-    def __new__(cls, value: str, order: int, from_start: str, to_end: str):
-        member = str.__new__(cls, value)
-        member._value_ = value
-        member.order, member.from_start, member.to_end = order, from_start, to_end
-        return member
+    def __init__(self, value: str, order: int, from_start: str, to_end: str):
+        self.order, self.from_start, self.to_end = order, from_start, to_end
 
 
-class Interface(enum.StrEnum):
+class Interface(_Named):
     """How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange.
 
     Attributes
@@ -85,14 +89,11 @@ class Interface(enum.StrEnum):
                                       "tolerance", "h_min", "h_max", "error_gain", "input_derivatives")
     MODEL_EXCHANGE = "model-exchange", ("tolerance", "stop_time", "output_interval", "bound")
 
-    def __new__(cls, value: str, settings: tuple):
-        member = str.__new__(cls, value)
-        member._value_ = value
-        member.settings = settings
-        return member
+    def __init__(self, value: str, settings: tuple):
+        self.settings = settings
 
 
-class Stability(enum.StrEnum):
+class Stability(_Named):
     """What a step-size study calls a stable run (``study.rows.stability_definition``).
 
     ``"settled"`` judges where the run ends up; ``"local"``, for a scenario that starts in steady
@@ -108,14 +109,11 @@ class Stability(enum.StrEnum):
     SETTLED = "settled", False
     LOCAL = "local", True
 
-    def __new__(cls, value: str, from_start: bool):
-        member = str.__new__(cls, value)
-        member._value_ = value
-        member.from_start = from_start
-        return member
+    def __init__(self, value: str, from_start: bool):
+        self.from_start = from_start
 
 
-class Reference(enum.StrEnum):
+class Reference(_Named):
     """What a step-size study measures its runs against.
 
     ``"monolithic"``: the monolithic ODE of the equations (``cosim.reference_solution``);
@@ -131,11 +129,8 @@ class Reference(enum.StrEnum):
     MONOLITHIC = "monolithic", False
     MODEL_EXCHANGE = "model-exchange", True
 
-    def __new__(cls, value: str, through_fmus: bool):
-        member = str.__new__(cls, value)
-        member._value_ = value
-        member.through_fmus = through_fmus
-        return member
+    def __init__(self, value: str, through_fmus: bool):
+        self.through_fmus = through_fmus
 
 
 ORDERS = tuple(order.value for order in Order)
