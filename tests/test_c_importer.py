@@ -149,16 +149,6 @@ def test_any_cpython_from_3_9_on_serves(importer, fmu_paths, fmu3_paths, tmp_pat
     assert parse_rows(other.stdout) == parse_rows(built.stdout)
 
 
-def test_a_cpython_older_than_3_9_is_refused_by_name(importer, fmu_paths, tmp_path):
-    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
-    library = shared_cpython(8)
-    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(library)})
-    assert run.returncode == 2
-    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
-    assert f"{OVERRIDE_VARIABLE} = {library}: Python 3.8." in message and "older than 3.9" in message
-
-
 def cpython_home(minor: int) -> Path:
     """The installation folder (prefix) of a shared CPython 3.``minor``: its library's ``lib/`` folder's parent."""
     return shared_cpython(minor).parent.parent
@@ -173,6 +163,28 @@ def virtual_environment(minor: int, folder: Path) -> Path:
     subprocess.run([str(python), "-m", "venv", "--without-pip", str(folder)], check=True, capture_output=True,
                    timeout=300)
     return folder
+
+
+def refusal(importer, fmu_paths, tmp_path, env: dict, folder: Path | None = None) -> str:
+    """The one message of a ReferenceRobot (FMI 2.0) that finds no Python to serve it, in ``env`` (added
+    to the empty environment), unzipped into ``folder`` if given."""
+    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
+    folder = folder or extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
+    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, **env})
+    assert run.returncode == 2, run.stderr
+    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    return message
+
+
+@pytest.mark.parametrize("form", ("library", "folder"))
+def test_a_cpython_older_than_3_9_is_refused_by_name(importer, fmu_paths, tmp_path, form):
+    """Named by the override, as its library or as its installation's folder: refused with its file and
+    version."""
+    library = shared_cpython(8)
+    named, said = (library, f"{OVERRIDE_VARIABLE} =") if form == "library" else (
+        cpython_home(8), f"{OVERRIDE_VARIABLE} folder:")
+    message = refusal(importer, fmu_paths, tmp_path, {OVERRIDE_VARIABLE: str(named)})
+    assert f"{said} {library}: Python 3.8." in message and "older than 3.9" in message
 
 
 @pytest.mark.parametrize("form", ("installation", "virtual environment"))
@@ -190,25 +202,11 @@ def test_the_override_may_name_a_cpythons_folder(importer, fmu_paths, tmp_path, 
 
 
 def test_a_folder_without_a_cpython_is_one_message_naming_it_and_what_was_looked_for(importer, fmu_paths, tmp_path):
-    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
     empty = tmp_path / "no python here"
     (empty / "lib").mkdir(parents=True)
-    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(empty)})
-    assert run.returncode == 2
-    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    message = refusal(importer, fmu_paths, tmp_path, {OVERRIDE_VARIABLE: str(empty)})
     assert f"{OVERRIDE_VARIABLE} = {empty}: a folder without a CPython library" in message
     assert "looked for lib/libpython3.X.so.1.0 or lib/x86_64-linux-gnu/libpython3.X.so.1.0" in message
-
-
-def test_a_folder_holding_only_a_cpython_older_than_3_9_names_it_with_its_version(importer, fmu_paths, tmp_path):
-    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
-    home = cpython_home(8)
-    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(home)})
-    assert run.returncode == 2
-    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
-    assert f"{OVERRIDE_VARIABLE} folder: {shared_cpython(8)}: Python 3.8." in message and "older than 3.9" in message
 
 
 def test_a_cpython_older_than_3_9_that_the_loader_finds_is_named_with_its_file_and_version(importer, fmu_paths,
@@ -221,10 +219,7 @@ def test_a_cpython_older_than_3_9_that_the_loader_finds_is_named_with_its_file_a
     loader = tmp_path / "loader"
     loader.mkdir()
     (loader / "libdsc-test-python3.8.so").symlink_to(shared_cpython(8))
-    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, "LD_LIBRARY_PATH": str(loader)})
-    assert run.returncode == 2, run.stderr
-    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    message = refusal(importer, fmu_paths, tmp_path, {"LD_LIBRARY_PATH": str(loader)}, folder)
     assert (f"the system's libdsc-test-python3.8.so ({shared_cpython(8).resolve()}): Python 3.8." in message
             and "older than 3.9" in message), message
     assert "libdsc-test-python3.9.so" in message and "libdsc-test-python3.7.so" not in message  # not found: 3.9+
