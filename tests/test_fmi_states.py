@@ -22,6 +22,7 @@ import pytest
 from fmpy import extract, read_model_description
 
 from fmi_ctypes import Fmi2Slave, Fmi3Slave, FmiCallError
+from dsc_fmu.fmubuild.binary import NATIVE_DIR
 
 ERROR, DISCARD = 3, 2
 FMI2_STATES = "INSFTE"
@@ -247,6 +248,19 @@ def test_the_tables_name_every_function_the_binary_exports(folders):
         assert set(cosimulation) | set(model_exchange) <= names
         if version == 2:
             assert set(cosimulation) | set(model_exchange) == names
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_every_function_is_defined_under_its_own_name(version):
+    """Greppable: each function of the standard's header has its signature written out in
+    native/fmi<version>Functions.c (the return type, then the name at the start of a line)."""
+    import fmpy
+
+    header = (Path(fmpy.__file__).parent / "c-code" / f"fmi{version}Functions.h").read_text()
+    names = re.findall(rf"^#define (fmi{version}\w+) +fmi{version}FullName", header, flags=re.M)
+    source = (NATIVE_DIR / f"fmi{version}Functions.c").read_text()
+    assert len(names) > 40
+    assert [name for name in names if not re.search(rf"^[\w ]+\*?{name}\(", source, flags=re.M)] == []
 
 
 @pytest.mark.parametrize("model_exchange", (False, True), ids=("co-simulation", "model-exchange"))
