@@ -103,7 +103,7 @@
 typedef enum { FMI_FUNCTIONS(FUNCTION_ID) } Function;
 #undef FUNCTION_ID
 
-/* VERSION_<name>: the FMI version of each function, which the adapters check at compile time. */
+/* VERSION_<name>: the FMI version of each function, which BEGIN checks at compile time. */
 #define FUNCTION_VERSION(name, version, interface, states) VERSION_##name = version,
 enum { FMI_FUNCTIONS(FUNCTION_VERSION) };
 #undef FUNCTION_VERSION
