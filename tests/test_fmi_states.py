@@ -420,8 +420,9 @@ def test_the_clock_functions_say_that_these_fmus_have_no_clocks(folders, name):
 
 @pytest.mark.parametrize("version", (2, 3))
 def test_the_string_getter_and_setter_know_these_fmus_have_no_string_variables(folders, version):
-    """In initialization mode, where both are allowed. No variable is a String: no value references is fmiOK with nothing touched; a Real's value
-    reference is fmiError naming its type, and so is one of no variable."""
+    """In initialization mode, where both are allowed. No variable is a String: no value references is
+    fmiOK with nothing touched; a Real's value reference is fmiError naming its type, and so is one of
+    no variable."""
     strings = (c_char_p * 1)(b"untouched")
     count = lambda n: () if version == 2 else (c_size_t(n),)  # noqa: E731 (FMI 3.0: nValues)
     for function in (f"fmi{version}GetString", f"fmi{version}SetString"):

@@ -273,7 +273,8 @@ def test_a_python_too_old_or_broken_is_one_message_and_no_instance(importers, wi
     (empty_stdlib / f"python3{BUILD_MINOR}.zip").write_bytes(b"PK\x05\x06" + bytes(18))
     too_old = windows_path(pythons(8) / "python38.dll")
     expected = [({OVERRIDE_VARIABLE: too_old}, too_old, "Python 3.8."),
-                ({OVERRIDE_VARIABLE: windows_path(pythons(8))}, f"{OVERRIDE_VARIABLE} folder: {too_old}", "Python 3.8."),
+                ({OVERRIDE_VARIABLE: windows_path(pythons(8))}, f"{OVERRIDE_VARIABLE} folder: {too_old}",
+                 "Python 3.8."),
                 ({"WINEPATH": windows_path(pythons(8))}, f"on PATH: {too_old}", "Python 3.8."),
                 ({"WINEPATH": windows_path(no_stdlib)}, windows_path(no_stdlib), "no standard library in"),
                 ({"WINEPATH": windows_path(empty_stdlib)}, windows_path(empty_stdlib), "Python did not start")]
@@ -298,7 +299,8 @@ def test_the_override_may_name_a_cpythons_folder(importers, wine, pythons, fmu_p
     _, run = runs(importers, wine, 2, folder, md, {OVERRIDE_VARIABLE: windows_path(empty)})
     assert run.returncode == 2, run.stderr
     (message,) = errors(run)
-    assert f"{OVERRIDE_VARIABLE} = {windows_path(empty)}: a folder without a CPython library (looked for python3X.dll" in message
+    said = f"{OVERRIDE_VARIABLE} = {windows_path(empty)}: a folder without a CPython library (looked for python3X.dll"
+    assert said in message, message
 
 
 URIS = ("file:///", "file:/", "file://localhost/")

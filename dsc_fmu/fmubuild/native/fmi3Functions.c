@@ -465,7 +465,8 @@ fmi3Status fmi3GetIntervalDecimal(fmi3Instance c, const fmi3ValueReference value
 }
 
 fmi3Status fmi3GetIntervalFraction(fmi3Instance c, const fmi3ValueReference valueReferences[], size_t nValueReferences,
-                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[], fmi3IntervalQualifier qualifiers[]) {
+                                   fmi3UInt64 counters[], fmi3UInt64 resolutions[],
+                                   fmi3IntervalQualifier qualifiers[]) {
     UNSUPPORTED(fmi3GetIntervalFraction, NO_CLOCKS);
 }
 

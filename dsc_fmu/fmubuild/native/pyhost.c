@@ -374,7 +374,10 @@ static int find_and_start(void) {
     gather(&list);
     int supported = 0;
     for (int i = 0; i < list.count; i++) supported += items[i].minor >= OLDEST_MINOR;
-    if (supported == 0) append(start_error, sizeof start_error, "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
+    if (supported == 0) {
+        append(start_error, sizeof start_error,
+               "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
+    }
     int result = try_in_turn(&list);
     if (result != 0 && *not_found) append(start_error, sizeof start_error, "the system's, not found: %s; ", not_found);
     return result;
