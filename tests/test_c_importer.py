@@ -3,6 +3,7 @@ and ``c_model_exchange.c`` (model exchange, RK4 in C) and the paper's loop in ``
 an empty environment from another working directory, against fmpy and our master; where the binary looks
 for its Python, and what it says when there is none."""
 
+import subprocess
 import sysconfig
 from pathlib import Path
 
@@ -148,14 +149,80 @@ def test_any_cpython_from_3_9_on_serves(importer, fmu_paths, fmu3_paths, tmp_pat
     assert parse_rows(other.stdout) == parse_rows(built.stdout)
 
 
-def test_a_cpython_older_than_3_9_is_refused_by_name(importer, fmu_paths, tmp_path):
+def cpython_home(minor: int) -> Path:
+    """The installation folder (prefix) of a shared CPython 3.``minor``: its library's ``lib/`` folder's parent."""
+    return shared_cpython(minor).parent.parent
+
+
+def virtual_environment(minor: int, folder: Path) -> Path:
+    """A virtual environment of the shared CPython 3.``minor`` in ``folder`` (its pyvenv.cfg names the
+    installation's bin folder)."""
+    python = cpython_home(minor) / "bin" / f"python3.{minor}"
+    if not python.is_file():
+        required(f"no {python} to make a virtual environment with")
+    subprocess.run([str(python), "-m", "venv", "--without-pip", str(folder)], check=True, capture_output=True,
+                   timeout=300)
+    return folder
+
+
+def refusal(importer, fmu_paths, tmp_path, env: dict, folder: Path | None = None) -> str:
+    """The one message of a ReferenceRobot (FMI 2.0) that finds no Python to serve it, in ``env`` (added
+    to the empty environment), unzipped into ``folder`` if given."""
     md = read_model_description(str(fmu_paths["ReferenceRobot"]))
-    folder = extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
-    library = shared_cpython(8)
-    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(library)})
-    assert run.returncode == 2
+    folder = folder or extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r")
+    run = c_run(importer, 2, folder, md, [10], tmp_path, {**EMPTY_ENVIRONMENT, **env})
+    assert run.returncode == 2, run.stderr
     (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
-    assert f"{OVERRIDE_VARIABLE} = {library}: Python 3.8." in message and "older than 3.9" in message
+    return message
+
+
+@pytest.mark.parametrize("form", ("library", "folder"))
+def test_a_cpython_older_than_3_9_is_refused_by_name(importer, fmu_paths, tmp_path, form):
+    """Named by the override, as its library or as its installation's folder: refused with its file and
+    version."""
+    library = shared_cpython(8)
+    named, said = (library, f"{OVERRIDE_VARIABLE} =") if form == "library" else (
+        cpython_home(8), f"{OVERRIDE_VARIABLE} folder:")
+    message = refusal(importer, fmu_paths, tmp_path, {OVERRIDE_VARIABLE: str(named)})
+    assert f"{said} {library}: Python 3.8." in message and "older than 3.9" in message
+
+
+@pytest.mark.parametrize("form", ("installation", "virtual environment"))
+def test_the_override_may_name_a_cpythons_folder(importer, fmu_paths, tmp_path, form):
+    """DSC_FMU_PYTHON as users write it: an installation's folder (its home), or a virtual environment's;
+    the library is found in it, and the rows are the building Python's."""
+    minor = OTHER_MINORS[-1]
+    named = cpython_home(minor) if form == "installation" else virtual_environment(minor, tmp_path / "venv")
+    md = read_model_description(str(fmu_paths["DSCController"]))
+    folder = Path(extract(str(fmu_paths["DSCController"]), unzipdir=tmp_path / "c"))
+    built = c_run(importer, 2, folder, md, outputs(md), tmp_path)
+    other = c_run(importer, 2, folder, md, outputs(md), tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(named)})
+    assert built.returncode == 0 and other.returncode == 0, other.stderr
+    assert parse_rows(other.stdout) == parse_rows(built.stdout)
+
+
+def test_a_folder_without_a_cpython_is_one_message_naming_it_and_what_was_looked_for(importer, fmu_paths, tmp_path):
+    empty = tmp_path / "no python here"
+    (empty / "lib").mkdir(parents=True)
+    message = refusal(importer, fmu_paths, tmp_path, {OVERRIDE_VARIABLE: str(empty)})
+    assert f"{OVERRIDE_VARIABLE} = {empty}: a folder without a CPython library" in message
+    assert "looked for lib/libpython3.X.so.1.0 or lib/x86_64-linux-gnu/libpython3.X.so.1.0" in message
+
+
+def test_a_cpython_older_than_3_9_that_the_loader_finds_is_named_with_its_file_and_version(importer, fmu_paths,
+                                                                                          tmp_path):
+    """No building Python, and the dynamic loader's search meets only a CPython 3.8 (under a name of this
+    test's, so that the machine's own libpython3.X stays out of it): the message names its file and version."""
+    built = build_python()
+    runtime = PythonRuntime(built.version, "/nonexistent/lib/libpython.so", "/nonexistent", "libdsc-test-python3.%d.so")
+    folder = _with_binary(fmu_paths["ReferenceRobot"], tmp_path / "r", runtime)
+    loader = tmp_path / "loader"
+    loader.mkdir()
+    (loader / "libdsc-test-python3.8.so").symlink_to(shared_cpython(8))
+    message = refusal(importer, fmu_paths, tmp_path, {"LD_LIBRARY_PATH": str(loader)}, folder)
+    assert (f"the system's libdsc-test-python3.8.so ({shared_cpython(8).resolve()}): Python 3.8." in message
+            and "older than 3.9" in message), message
+    assert "libdsc-test-python3.9.so" in message and "libdsc-test-python3.7.so" not in message  # not found: 3.9+
 
 
 def _with_binary(fmu: Path, folder: Path, runtime: PythonRuntime) -> Path:

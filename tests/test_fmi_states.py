@@ -22,6 +22,7 @@ import pytest
 from fmpy import extract, read_model_description
 
 from fmi_ctypes import Fmi2Slave, Fmi3Slave, FmiCallError
+from dsc_fmu.fmubuild.binary import NATIVE_DIR
 
 ERROR, DISCARD = 3, 2
 FMI2_STATES = "INSFTE"
@@ -249,6 +250,19 @@ def test_the_tables_name_every_function_the_binary_exports(folders):
             assert set(cosimulation) | set(model_exchange) == names
 
 
+@pytest.mark.parametrize("version", (2, 3))
+def test_every_function_is_defined_under_its_own_name(version):
+    """Greppable: each function of the standard's header has its signature written out in
+    native/fmi<version>Functions.c (the return type, then the name at the start of a line)."""
+    import fmpy
+
+    header = (Path(fmpy.__file__).parent / "c-code" / f"fmi{version}Functions.h").read_text()
+    names = re.findall(rf"^#define (fmi{version}\w+) +fmi{version}FullName", header, flags=re.M)
+    source = (NATIVE_DIR / f"fmi{version}Functions.c").read_text()
+    assert len(names) > 40
+    assert [name for name in names if not re.search(rf"^[\w ]+\*?{name}\(", source, flags=re.M)] == []
+
+
 @pytest.mark.parametrize("model_exchange", (False, True), ids=("co-simulation", "model-exchange"))
 @pytest.mark.parametrize("version", (2, 3))
 def test_every_function_in_every_state_is_allowed_exactly_where_the_standard_allows_it(folders, version,
@@ -391,3 +405,36 @@ def test_no_step_may_end_after_the_stop_time(folders, version, end, status):
     assert walk.step(end) == status
     assert any("ends after the stop time" in m for m in walk.messages()) == (status == ERROR)
     walk.close()
+
+
+@pytest.mark.parametrize("name", ("fmi3GetClock", "fmi3SetClock"))
+def test_the_clock_functions_say_that_these_fmus_have_no_clocks(folders, name):
+    """In every state: fmi3Error, the error state, and why (not a state refusal)."""
+    for state in FMI3_STATES:
+        walk = Walk(folders[3], 3, state)
+        refs = (ctypes.c_uint * 1)(walk.fmu.variables["x_r"][0])
+        assert walk.raw(name, refs, c_size_t(1), (c_bool * 1)()) == ERROR and walk.in_error_state()
+        assert f"{name} is not supported: these FMUs have no clocks" in walk.messages()[0], walk.messages()
+        walk.close()
+
+
+@pytest.mark.parametrize("version", (2, 3))
+def test_the_string_getter_and_setter_know_these_fmus_have_no_string_variables(folders, version):
+    """In initialization mode, where both are allowed. No variable is a String: no value references is
+    fmiOK with nothing touched; a Real's value reference is fmiError naming its type, and so is one of
+    no variable."""
+    strings = (c_char_p * 1)(b"untouched")
+    count = lambda n: () if version == 2 else (c_size_t(n),)  # noqa: E731 (FMI 3.0: nValues)
+    for function in (f"fmi{version}GetString", f"fmi{version}SetString"):
+        walk = Walk(folders[version], version, "N")
+        real = walk.fmu.variables["x_r"][0]
+        assert walk.raw(function, (ctypes.c_uint * 1)(real), c_size_t(0), strings, *count(0)) == 0
+        assert strings[0] == b"untouched"
+        assert walk.raw(function, (ctypes.c_uint * 1)(real), c_size_t(1), strings, *count(1)) == ERROR
+        kind = "Real" if version == 2 else "Float64"
+        assert f"{function}: value reference {real} is a {kind} variable, not String" in walk.messages()[0]
+        walk.close()
+        walk = Walk(folders[version], version, "N")
+        assert walk.raw(function, (ctypes.c_uint * 1)(99999), c_size_t(1), strings, *count(1)) == ERROR
+        assert "value reference 99999 is not a variable of this FMU" in walk.messages()[0]
+        walk.close()

@@ -259,9 +259,10 @@ def test_no_python_is_one_message_and_no_instance(importers, wine, fmu_paths, tm
 
 
 def test_a_python_too_old_or_broken_is_one_message_and_no_instance(importers, wine, pythons, fmu3_paths, tmp_path):
-    """CPython 3.8 named by the override is refused before it starts (on PATH it is not looked for);
-    one whose standard library is missing is refused before it starts; one whose standard library is
-    empty fails to start: each a NULL and one message, and the host goes on."""
+    """CPython 3.8, named by the override, in the override's folder or the only one on PATH, is refused
+    before it starts and named with its file and version; one whose standard library is missing is
+    refused before it starts; one whose standard library is empty fails to start: each a NULL and one
+    message, and the host goes on."""
     version = 3
     md = read_model_description(str(fmu3_paths["ReferenceRobot"]))
     folder = Path(extract(str(fmu3_paths["ReferenceRobot"]), unzipdir=tmp_path / "r"))
@@ -272,6 +273,9 @@ def test_a_python_too_old_or_broken_is_one_message_and_no_instance(importers, wi
     (empty_stdlib / f"python3{BUILD_MINOR}.zip").write_bytes(b"PK\x05\x06" + bytes(18))
     too_old = windows_path(pythons(8) / "python38.dll")
     expected = [({OVERRIDE_VARIABLE: too_old}, too_old, "Python 3.8."),
+                ({OVERRIDE_VARIABLE: windows_path(pythons(8))}, f"{OVERRIDE_VARIABLE} folder: {too_old}",
+                 "Python 3.8."),
+                ({"WINEPATH": windows_path(pythons(8))}, f"on PATH: {too_old}", "Python 3.8."),
                 ({"WINEPATH": windows_path(no_stdlib)}, windows_path(no_stdlib), "no standard library in"),
                 ({"WINEPATH": windows_path(empty_stdlib)}, windows_path(empty_stdlib), "Python did not start")]
     for env, named, said in expected:
@@ -280,6 +284,23 @@ def test_a_python_too_old_or_broken_is_one_message_and_no_instance(importers, wi
         (message,) = errors(run)
         assert said in message and named in message, message
         assert "older than 3.9" in message or said != "Python 3.8."
+
+
+def test_the_override_may_name_a_cpythons_folder(importers, wine, pythons, fmu_paths, tmp_path):
+    """DSC_FMU_PYTHON as users write it, the folder of python3X.dll (here an embeddable package's): the
+    same rows as on Linux. A folder without one is a NULL and one message naming it and what was looked for."""
+    md = read_model_description(str(fmu_paths["ReferenceRobot"]))
+    folder = Path(extract(str(fmu_paths["ReferenceRobot"]), unzipdir=tmp_path / "r"))
+    linux, windows = runs(importers, wine, 2, folder, md, {OVERRIDE_VARIABLE: windows_path(pythons(BUILD_MINOR))})
+    assert windows.returncode == 0, windows.stderr
+    assert_like_linux(parse_rows(windows.stdout), linux)
+    empty = tmp_path / "no python here"
+    empty.mkdir()
+    _, run = runs(importers, wine, 2, folder, md, {OVERRIDE_VARIABLE: windows_path(empty)})
+    assert run.returncode == 2, run.stderr
+    (message,) = errors(run)
+    said = f"{OVERRIDE_VARIABLE} = {windows_path(empty)}: a folder without a CPython library (looked for python3X.dll"
+    assert said in message, message
 
 
 URIS = ("file:///", "file:/", "file://localhost/")

@@ -37,8 +37,11 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 # "<bridge module> <slave module> <slave class> <GUID or token>"; the bridge's top level is the
 # build's private package.
 ENTRY_FILE = "dsc_fmu_entry.txt"
-_SOURCES = {2: ("fmi2Functions.c", "instance.c", "slave.c", "pyhost.c"), 3: ("fmi3Functions.c", "instance.c", "slave.c", "pyhost.c")}
-_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "platform.h")
+# What the binaries of both versions share: the instance, the slave (by job), the resource URI, the Python.
+_CORE = ("instance.c", "slave.c", "slave_queue.c", "slave_calls.c", "slave_values.c", "slave_states.c", "uri.c",
+         "pyhost.c")
+_SOURCES = {2: ("fmi2Functions.c", *_CORE), 3: ("fmi3Functions.c", *_CORE)}
+_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "slave_calls.h", "uri.h", "platform.h")
 
 
 class BinaryBuildError(DscFmuError, RuntimeError):

@@ -24,7 +24,7 @@ from ..identity import BUILD_ID_FILE, fmu_build_id
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
-from .model_description import complete_model_description, complete_model_description3, documentation
+from .model_description import complete_model_description, documentation
 
 __all__ = [
     "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmu", "build_fmus", "ensure_fmus", "current_fmus",
@@ -250,7 +250,6 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
     out_dir.mkdir(parents=True, exist_ok=True)
     digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
-    complete = complete_model_description3 if fmi_version == 3 else complete_model_description
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
         tmp = Path(tmp)
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
@@ -265,7 +264,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
                     continue
                 data = src.read(item)
                 if item.filename == "modelDescription.xml":
-                    root = complete(data, spec)
+                    root = complete_model_description(data, spec, fmi_version)
                     ET.indent(root)
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
                     dst.writestr(DOCUMENTATION_FILE, documentation(root, spec))

@@ -4,6 +4,8 @@ start values, ranges, nominals, derivatives and ModelStructure with the dependen
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from xml.etree import ElementTree as ET
 
 from ..models.parameters import NONNEGATIVE
@@ -11,7 +13,7 @@ from ..registry import FmuSpec
 from .documentation import documentation_html
 from .structure import TIME, continuous_dependencies, initial_dependencies
 
-__all__ = ["UNITS", "complete_model_description", "complete_model_description3", "documentation"]
+__all__ = ["UNITS", "complete_model_description", "documentation"]
 
 # Exponents of the SI base units (kg, m, s, A, rad) of every unit the FMUs use.
 UNITS = {
@@ -106,7 +108,8 @@ def _structure(spec: FmuSpec, reference: dict, discrete: list) -> dict:
     unknowns.update({s.derivative.name: refs(initial[s.derivative.name]) for s in spec.states})
     unknowns.update({name: None for name, _ in discrete})
     indicators = [(v.name, refs(continuous[v.name])) for v in spec.indicators]
-    return {"outputs": outputs + discrete, "derivatives": derivatives, "initial": unknowns, "indicators": indicators}
+    return {"outputs": outputs + discrete, "derivatives": derivatives, "initial": list(unknowns.items()),
+            "indicators": indicators}
 
 
 def _discrete_outputs(variables: ET.Element, spec: FmuSpec) -> list:
@@ -119,111 +122,123 @@ def _unknown(parent: ET.Element, tag: str, key: str, ref: str, dependencies: str
     ET.SubElement(parent, tag, attributes)
 
 
-def complete_model_description(xml: bytes, spec: FmuSpec) -> ET.Element:
-    """Complete the FMI 2.0 model description that pythonfmu writes.
+@dataclass(frozen=True)
+class _Version:
+    """What the FMI 2.0 and 3.0 model descriptions spell differently, for the one completer.
 
-    Adds what pythonfmu does not write: model exchange beside co-simulation, units, exact start
-    values, ranges, nominals, derivatives, the number of event indicators and ModelStructure with its
-    dependencies (``structure``). An FMU with inputs declares ``canInterpolateInputs`` (the project's
-    binary takes input derivatives).
-
-    Parameters
-    ----------
-    xml : bytes
-        ``modelDescription.xml`` as pythonfmu wrote it.
-    spec : registry.FmuSpec
-        The FMU it describes.
-
-    Returns
-    -------
-    xml.etree.ElementTree.Element
-        The completed root element, not indented.
+    ``scalar_wrapped``: a variable's type and attributes sit in a child element (FMI 2.0
+    ``ScalarVariable``), not on the variable; ``real``: the tag of a real variable; ``key``: how
+    ModelStructure refers to a variable, by position from 1 (``index``) or by ``valueReference``;
+    ``structure``: ModelStructure's parts as ``(group element or None, element, part of _structure,
+    sorted by reference)``; ``indicator_count``: the number of event indicators is a root attribute;
+    ``cosimulation``: the CoSimulation attributes to set for a spec.
     """
-    root = ET.fromstring(xml)
-    tables = spec.variables
-    cosimulation = root.find("CoSimulation")
-    if spec.inputs:
-        cosimulation.set("canInterpolateInputs", "true")
-    _model_exchange(root, cosimulation, 2)
-    root.set("numberOfEventIndicators", str(len(spec.indicators)))
-    position = list(root).index(cosimulation) + 1
-    root.insert(position, _unit_definitions({v.unit for v in tables.values() if not v.integer}))
 
-    variables = root.find("ModelVariables")
-    index = {scalar.get("name"): str(i) for i, scalar in enumerate(variables, start=1)}
-    for scalar in variables:
-        name = scalar.get("name")
-        v = tables.get(name)
-        if v is not None:
-            _complete_variable(scalar[0], v, scalar[0].tag == "Real")
-        _declare_states(scalar, scalar[0], name, spec, index)
-
-    parts = _structure(spec, index, _discrete_outputs(variables, spec))
-    structure = root.find("ModelStructure")
-    structure.clear()
-    for tag, key in (("Outputs", "outputs"), ("Derivatives", "derivatives")):
-        element = ET.SubElement(structure, tag)
-        for name, dependencies in sorted(parts[key], key=lambda item: int(index[item[0]])):
-            _unknown(element, "Unknown", "index", index[name], dependencies)
-    initial = ET.SubElement(structure, "InitialUnknowns")
-    for name, dependencies in sorted(parts["initial"].items(), key=lambda item: int(index[item[0]])):
-        _unknown(initial, "Unknown", "index", index[name], dependencies)
-    return root
+    number: int
+    scalar_wrapped: bool
+    real: str
+    key: str
+    structure: tuple
+    indicator_count: bool
+    cosimulation: Callable[[FmuSpec], dict]
 
 
-def complete_model_description3(xml: bytes, spec: FmuSpec) -> ET.Element:
-    """Complete the FMI 3.0 model description that pythonfmu3 writes.
+_VERSIONS = {
+    2: _Version(2, True, "Real", "index", (("Outputs", "Unknown", "outputs", True),
+                                           ("Derivatives", "Unknown", "derivatives", True),
+                                           ("InitialUnknowns", "Unknown", "initial", True)), True,
+                # The project's binary takes input derivatives.
+                lambda spec: {"canInterpolateInputs": "true"} if spec.inputs else {}),
+    3: _Version(3, False, "Float64", "valueReference", ((None, "Output", "outputs", True),
+                                                         (None, "ContinuousStateDerivative", "derivatives", True),
+                                                         (None, "InitialUnknown", "initial", True),
+                                                         (None, "EventIndicator", "indicators", False)), False,
+                # pythonfmu3 0.3.4 copies the last common option's value into this one.
+                lambda spec: {"canHandleVariableCommunicationStepSize": "true"}),
+}
 
-    Adds model exchange, units (pythonfmu3 writes them only if registered), exact start values,
-    ranges, nominals, derivatives and ModelStructure with its dependencies (by value reference, the
-    time included; pythonfmu3 writes none) and event indicators.
 
-    Parameters
-    ----------
-    xml : bytes
-        ``modelDescription.xml`` as pythonfmu3 wrote it.
-    spec : registry.FmuSpec
-        The FMU it describes.
+def _references(variables: ET.Element, version: _Version) -> dict:
+    """How ModelStructure refers to each variable by name, the time (``structure.TIME``) included where
+    the model description declares it."""
+    if version.key == "index":
+        references = {variable.get("name"): str(i) for i, variable in enumerate(variables, start=1)}
+    else:
+        references = {variable.get("name"): variable.get("valueReference") for variable in variables}
+    for variable in variables:
+        if variable.get("causality") == "independent":
+            references[TIME] = references[variable.get("name")]
+    return references
 
-    Returns
-    -------
-    xml.etree.ElementTree.Element
-        The completed root element, not indented.
-    """
-    root = ET.fromstring(xml)
-    tables = spec.variables
-    cosimulation = root.find("CoSimulation")
-    # pythonfmu3 0.3.4 copies the last common option's value into canHandleVariableCommunicationStepSize.
-    cosimulation.set("canHandleVariableCommunicationStepSize", "true")
-    _model_exchange(root, cosimulation, 3)
-    for old in root.findall("UnitDefinitions"):
-        root.remove(old)
-    position = list(root).index(cosimulation) + 1
-    root.insert(position, _unit_definitions({"s"} | {v.unit for v in tables.values() if not v.integer}))
 
-    variables = root.find("ModelVariables")
-    refs = {variable.get("name"): variable.get("valueReference") for variable in variables}
-    refs[TIME] = next(variable.get("valueReference") for variable in variables
-                      if variable.get("causality") == "independent")
+def _complete_variables(variables: ET.Element, spec: FmuSpec, version: _Version, references: dict) -> None:
+    """Units, exact start values, ranges, nominals and derivatives of every variable; the time's unit."""
     for variable in variables:
         name = variable.get("name")
+        typed = variable[0] if version.scalar_wrapped else variable
         if variable.get("causality") == "independent":
-            variable.set("unit", "s")
-        v = tables.get(name)
+            typed.set("unit", "s")
+        v = spec.variables.get(name)
         if v is not None:
-            _complete_variable(variable, v, variable.tag == "Float64")
-        _declare_states(variable, variable, name, spec, refs)
+            _complete_variable(typed, v, typed.tag == version.real)
+        _declare_states(variable, typed, name, spec, references)
 
-    parts = _structure(spec, refs, _discrete_outputs(variables, spec))
+
+def _write_structure(root: ET.Element, spec: FmuSpec, version: _Version, references: dict) -> None:
+    """ModelStructure with the dependencies the model code has, in the version's layout."""
+    parts = _structure(spec, references, _discrete_outputs(root.find("ModelVariables"), spec))
     structure = root.find("ModelStructure")
     structure.clear()
-    for tag, key in (("Output", "outputs"), ("ContinuousStateDerivative", "derivatives")):
-        for name, dependencies in sorted(parts[key], key=lambda item: int(refs[item[0]])):
-            _unknown(structure, tag, "valueReference", refs[name], dependencies)
-    for name, dependencies in sorted(parts["initial"].items(), key=lambda item: int(refs[item[0]])):
-        _unknown(structure, "InitialUnknown", "valueReference", refs[name], dependencies)
-    for name, dependencies in parts["indicators"]:
-        _unknown(structure, "EventIndicator", "valueReference", refs[name], dependencies)
+    for group, tag, part, ordered in version.structure:
+        parent = structure if group is None else ET.SubElement(structure, group)
+        unknowns = parts[part]
+        if ordered:
+            unknowns = sorted(unknowns, key=lambda item: int(references[item[0]]))
+        for name, dependencies in unknowns:
+            _unknown(parent, tag, version.key, references[name], dependencies)
+
+
+def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) -> ET.Element:
+    """Complete the model description that pythonfmu (FMI 2.0) or pythonfmu3 (FMI 3.0) writes.
+
+    Adds what they do not write: model exchange beside co-simulation, units (the time's too, where the
+    model description declares it), exact start values, ranges, nominals, derivatives and ModelStructure
+    with its dependencies (``structure``; FMI 3.0 by value reference, the time included, and event
+    indicators; FMI 2.0 by index, and the number of event indicators). An FMI 2.0 FMU with inputs
+    declares ``canInterpolateInputs`` (the project's binary takes input derivatives).
+
+    Parameters
+    ----------
+    xml : bytes
+        ``modelDescription.xml`` as pythonfmu or pythonfmu3 wrote it.
+    spec : registry.FmuSpec
+        The FMU it describes.
+    fmi_version : {2, 3}, optional
+        The FMI version of ``xml``. Default 2.
+
+    Returns
+    -------
+    xml.etree.ElementTree.Element
+        The completed root element, not indented.
+    """
+    version = _VERSIONS[fmi_version]
+    root = ET.fromstring(xml)
+    cosimulation = root.find("CoSimulation")
+    for attribute, value in version.cosimulation(spec).items():
+        cosimulation.set(attribute, value)
+    _model_exchange(root, cosimulation, version.number)
+    if version.indicator_count:
+        root.set("numberOfEventIndicators", str(len(spec.indicators)))
+    for old in root.findall("UnitDefinitions"):
+        root.remove(old)
+    variables = root.find("ModelVariables")
+    used = {v.unit for v in spec.variables.values() if not v.integer}
+    if any(variable.get("causality") == "independent" for variable in variables):
+        used.add("s")
+    root.insert(list(root).index(cosimulation) + 1, _unit_definitions(used))
+    references = _references(variables, version)
+    _complete_variables(variables, spec, version, references)
+    _write_structure(root, spec, version, references)
     return root
 
 
@@ -233,8 +248,7 @@ def documentation(root: ET.Element, spec: FmuSpec) -> bytes:
     Parameters
     ----------
     root : xml.etree.ElementTree.Element
-        The FMU's completed model description (``complete_model_description`` or
-        ``complete_model_description3``).
+        The FMU's completed model description (``complete_model_description``).
     spec : registry.FmuSpec
         The FMU it describes.
 

@@ -1,9 +1,9 @@
 /* Every FMI function that checks its instance: name, FMI version, interface (CS co-simulation, ME model
    exchange, CS_ME both) and the states it is allowed in, from the standards' state tables (FMI 2.0.4,
    sections 3.2.3 and 4.2.4; FMI 3.0.2, sections 2.3, 3.2 and 4.2). A function of the other interface is
-   refused whatever the state; one allowed in no state (0) belongs to a capability these FMUs lack.
+   refused whatever the state; fmi2CancelStep is allowed in none (fmi2DoStep is synchronous).
 
-   The adapters' BEGIN(F) looks F up here (FN_<name>); its name is the one in every message of the call.
+   BEGIN(F) (adapter.h) looks F up here (FN_<name>); its name is the one in every message of the call.
    Not here: the functions that take no instance (fmiGetVersion, the instantiation functions) or accept
    any (fmiFreeInstance). */
 
@@ -66,7 +66,6 @@
     FMI3_VALUES(FUNCTION, Int64, FMI3_SET) FMI3_VALUES(FUNCTION, UInt64, FMI3_SET)                             \
     FMI3_VALUES(FUNCTION, Boolean, FMI3_SET) FMI3_VALUES(FUNCTION, String, FMI3_SET)                           \
     FMI3_VALUES(FUNCTION, Binary, FMI3_SET)                                                                    \
-    FUNCTION(fmi3GetClock, 3, CS_ME, 0) FUNCTION(fmi3SetClock, 3, CS_ME, 0) /* these FMUs have no clocks */   \
     FUNCTION(fmi3GetFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetFMUState, 3, CS_ME, ANY_STATE)              \
     FUNCTION(fmi3FreeFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SerializedFMUStateSize, 3, CS_ME, ANY_STATE)  \
     FUNCTION(fmi3SerializeFMUState, 3, CS_ME, ANY_STATE) FUNCTION(fmi3DeserializeFMUState, 3, CS_ME, ANY_STATE) \
@@ -93,6 +92,7 @@
     FUNCTION(fmi3GetDirectionalDerivative, 3, CS_ME, ANY_STATE)                                                \
     FUNCTION(fmi3GetAdjointDerivative, 3, CS_ME, ANY_STATE)                                                    \
     FUNCTION(fmi3GetOutputDerivatives, 3, CS_ME, ANY_STATE)                                                    \
+    FUNCTION(fmi3GetClock, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetClock, 3, CS_ME, ANY_STATE)                    \
     FUNCTION(fmi3GetIntervalDecimal, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetIntervalDecimal, 3, CS_ME, ANY_STATE) \
     FUNCTION(fmi3GetIntervalFraction, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetIntervalFraction, 3, CS_ME, ANY_STATE) \
     FUNCTION(fmi3GetShiftDecimal, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetShiftDecimal, 3, CS_ME, ANY_STATE)      \
@@ -103,7 +103,7 @@
 typedef enum { FMI_FUNCTIONS(FUNCTION_ID) } Function;
 #undef FUNCTION_ID
 
-/* VERSION_<name>: the FMI version of each function, which the adapters check at compile time. */
+/* VERSION_<name>: the FMI version of each function, which BEGIN checks at compile time. */
 #define FUNCTION_VERSION(name, version, interface, states) VERSION_##name = version,
 enum { FMI_FUNCTIONS(FUNCTION_VERSION) };
 #undef FUNCTION_VERSION

@@ -10,6 +10,8 @@
 
 #include "instance.h"
 
+#include "uri.h"
+
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -95,7 +97,7 @@ Instance *instance_alloc(size_t size, const char *name, int logging_on, int mode
 
 int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible) {
     char folder[4096];
-    if (slave_uri_to_path(resources, folder, sizeof folder) != 0) {
+    if (uri_to_path(resources, folder, sizeof folder) != 0) {
         instance_log(instance, STATUS_ERROR, "%s: the resource location %s is not a file URI or an absolute path",
                      function, resources ? resources : "(null)");
         return -1;
@@ -242,10 +244,6 @@ static int check(Instance *instance, int type, const char *type_name, const unsi
             instance_fail(instance, STATUS_ERROR, "value reference %u %s", vr[i], wrong);
             return -1;
         }
-    }
-    if (nvr && type == TYPE_STRING) {
-        instance_fail(instance, STATUS_ERROR, "String variables are not supported");
-        return -1;
     }
     return 0;
 }

@@ -83,10 +83,10 @@ int instance_given(Instance *instance, const void *pointer, const char *what);
 int instance_refused(Instance *instance, Function function);
 
 /* `status`, the result of the call that the functions below made; STATUS_ERROR moves the instance to
-   its error state. The adapters end every call with it. */
+   its error state. END (adapter.h) ends every call with it. */
 int instance_status(Instance *instance, int status);
 
-/* The functions below serve the call in progress, whose state the adapter has checked. */
+/* The functions below serve the call in progress, whose state BEGIN has checked. */
 
 /* setup, enter, exit, terminate: call `method` with `n` floats; on success the state becomes `next`. */
 int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next);

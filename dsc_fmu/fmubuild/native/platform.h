@@ -10,6 +10,8 @@
 #include <wchar.h>
 
 #define PLATFORM_PATH_MAX 4096
+/* The newest CPython minor version looked for by name. */
+#define NEWEST_MINOR 20
 
 /* A loaded shared library. */
 typedef void *Library;
@@ -29,6 +31,7 @@ int platform_library_file(const void *address, char *path, size_t size);
 int platform_keep_loaded(const void *address);
 
 int platform_is_file(const char *path);
+int platform_is_folder(const char *path);
 FILE *platform_open_file(const char *path, const char *mode);
 /* The value of the environment variable `name` in `value` (UTF-8); 1 if set and not empty. */
 int platform_getenv(const char *name, char *value, size_t size);
@@ -46,6 +49,12 @@ wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, s
 void platform_registered_pythons(void (*visit)(void *context, const char *library, const char *home,
                                                const char *label, int minor),
                                  void *context, int oldest);
+/* The `place`-th place (from 0) where the installation in `folder` keeps the shared library of CPython
+   3.`minor`, in `path`: on Linux <folder>/lib/libpython3.X.so.1.0, then <folder>/lib/x86_64-linux-gnu/
+   libpython3.X.so.1.0 (Debian's layout); on Windows <folder>\python3X.dll. 0, or -1 past the last place. */
+int platform_library_in(const char *folder, int place, int minor, char *path, size_t size);
+/* Those places, for messages. */
+extern const char PLATFORM_LIBRARY_PLACES[];
 /* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
    checked; else found from the library's folder. HOME_TO_SET; HOME_FIXED where the installation
    fixes its paths itself (Windows' embeddable CPython: a python3X._pth file beside the library,

@@ -11,8 +11,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-/* The newest CPython minor version looked for by name, and the name (the minor version for %d). */
-#define NEWEST_MINOR 20
+/* The name of the system's CPython library (the minor version for %d). */
 #ifndef DSC_SYSTEM_PYTHON
 #define DSC_SYSTEM_PYTHON "libpython3.%d.so.1.0"
 #endif
@@ -67,6 +66,11 @@ int platform_is_file(const char *path) {
     return stat(path, &info) == 0 && S_ISREG(info.st_mode);
 }
 
+int platform_is_folder(const char *path) {
+    struct stat info;
+    return stat(path, &info) == 0 && S_ISDIR(info.st_mode);
+}
+
 FILE *platform_open_file(const char *path, const char *mode) {
     return fopen(path, mode);
 }
@@ -96,6 +100,17 @@ void platform_registered_pythons(void (*visit)(void *, const char *, const char 
         snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
         visit(context, name, NULL, "", minor);
     }
+}
+
+static const char *const LIBRARY_PLACES[] = {"lib/", "lib/x86_64-linux-gnu/"};
+const char PLATFORM_LIBRARY_PLACES[] = "lib/" DSC_SYSTEM_PYTHON " or lib/x86_64-linux-gnu/" DSC_SYSTEM_PYTHON;
+
+int platform_library_in(const char *folder, int place, int minor, char *path, size_t size) {
+    if (place < 0 || place >= (int)(sizeof LIBRARY_PLACES / sizeof LIBRARY_PLACES[0])) return -1;
+    char name[64];
+    snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
+    snprintf(path, size, "%s/%s%s", folder, LIBRARY_PLACES[place], name);
+    return 0;
 }
 
 static int has_stdlib(const char *home, int minor) {

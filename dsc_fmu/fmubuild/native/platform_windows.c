@@ -12,8 +12,7 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The newest CPython minor version looked for by name, and the name (the minor version for %d). */
-#define NEWEST_MINOR 20
+/* The name of a CPython library (the minor version for %d). */
 #ifndef DSC_SYSTEM_PYTHON
 #define DSC_SYSTEM_PYTHON "python3%d.dll"
 #endif
@@ -141,6 +140,11 @@ int platform_is_file(const char *path) {
     return found != INVALID_FILE_ATTRIBUTES && !(found & FILE_ATTRIBUTE_DIRECTORY);
 }
 
+int platform_is_folder(const char *path) {
+    DWORD found = attributes(path);
+    return found != INVALID_FILE_ATTRIBUTES && (found & FILE_ATTRIBUTE_DIRECTORY);
+}
+
 FILE *platform_open_file(const char *path, const char *mode) {
     wchar_t *name = wide(path), *how = wide(mode);
     FILE *file = name && how ? _wfopen(name, how) : NULL;
@@ -216,6 +220,14 @@ static void join(char *path, size_t size, const char *folder, int minor) {
     size_t n = strlen(folder);
     snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
     snprintf(path, size, "%s%s%s", folder, n && folder[n - 1] != '\\' && folder[n - 1] != '/' ? "\\" : "", name);
+}
+
+const char PLATFORM_LIBRARY_PLACES[] = DSC_SYSTEM_PYTHON;
+
+int platform_library_in(const char *folder, int place, int minor, char *path, size_t size) {
+    if (place != 0) return -1;
+    join(path, size, folder, minor);
+    return 0;
 }
 
 /* The CPythons under `root`\Software\Python\PythonCore, newest first. */

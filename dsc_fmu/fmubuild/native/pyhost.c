@@ -3,13 +3,17 @@
    Any CPython from 3.9 on will do (the bundled Python code is version-neutral, and the binary calls
    only functions every such CPython exports). Order (docs/other-tools.md, "What the importing machine needs"):
      0. a CPython already in the process (fmpy, libcosimpy, PyFMI): used as it is;
-     1. DSC_FMU_PYTHON, the path of a CPython shared library (libpython3.X.so.1.0, python3X.dll): if
-        set, the only candidate;
+     1. DSC_FMU_PYTHON, if set, the only place looked at: the path of a CPython shared library
+        (libpython3.X.so.1.0, python3X.dll), or a folder: an installation's (on Linux its prefix, whose
+        lib/ holds the library; on Windows the folder of python3X.dll), or a virtual environment's,
+        which stands for the installation its pyvenv.cfg names (`home`, or on Linux home's parent);
      2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
         exists;
      3. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on Windows the
         installs registered under PEP 514, then the folders on PATH (platform.h).
-   Among the candidates of 2 and 3, those of the minor version that built the FMU come first.
+   Among the candidates of a folder, 2 and 3, those of the minor version that built the FMU come first,
+   then the newest. Every CPython 3 is looked for, older ones too: one older than 3.9 is refused before
+   it starts, and named with its version in the message if nothing serves.
    A Python this binary starts gets its home set explicitly, ignores PYTHON* environment variables,
    imports no site packages, writes no bytecode and installs no signal handlers. It is started as
    Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose status says why it
@@ -43,6 +47,7 @@
 #endif
 
 #define OLDEST_MINOR 9
+#define OLDEST_LOOKED_FOR 0 /* older than OLDEST_MINOR: looked for, to be named if nothing serves */
 #define MAX_CANDIDATES 48
 
 PyApi py;
@@ -162,9 +167,32 @@ static int initialize(const char *home, int set_home, const char *what) {
     return start_python(what, home);
 }
 
+/* The minor version of the CPython in `library`, asked before anything else is resolved, so that one too
+   old for the rest is named with its version; -1 (logged as `what`) if it is older than 3.OLDEST_MINOR or
+   says none. */
+static int old_version(Library library, const char *what) {
+    const char *(*get_version)(void);
+    void *address = platform_symbol(library, "Py_GetVersion");
+    if (!address) {
+        append(start_error, sizeof start_error, "%s: no symbol Py_GetVersion (not a CPython library); ", what);
+        return -1;
+    }
+    memcpy(&get_version, &address, sizeof address);
+    const char *version = get_version();
+    int minor = minor_of(version);
+    if (minor < OLDEST_MINOR) {
+        append(start_error, sizeof start_error, "%s: Python %.*s, older than 3.%d; ", what, (int)strcspn(version, " "),
+               version, OLDEST_MINOR);
+        return -1;
+    }
+    return minor;
+}
+
 /* Use the Python that `library` holds (initialised already, or started here with `home`, found
    from the library's file if empty). */
 static int adopt(Library library, const char *home, const char *what) {
+    int minor = old_version(library, what);
+    if (minor < 0) return -1;
     const char *missing = resolve(library);
     if (missing) {
         append(start_error, sizeof start_error, "%s: no symbol %s; ", what, missing);
@@ -173,13 +201,6 @@ static int adopt(Library library, const char *home, const char *what) {
     void *finalizing = platform_symbol(library, "Py_IsFinalizing");
     if (!finalizing) finalizing = platform_symbol(library, "_Py_IsFinalizing");
     memcpy(&is_finalizing, &finalizing, sizeof finalizing);
-    const char *version = py.Py_GetVersion();
-    int minor = minor_of(version);
-    if (minor < OLDEST_MINOR) {
-        append(start_error, sizeof start_error, "%s: Python %.*s, older than 3.%d; ", what, (int)strcspn(version, " "),
-               version, OLDEST_MINOR);
-        return -1;
-    }
     if (py.Py_IsInitialized()) return 0;
     char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256] = "";
     if (platform_library_file((const void *)py.Py_IsInitialized, file, sizeof file) != 0) file[0] = '\0';
@@ -194,12 +215,18 @@ static int adopt(Library library, const char *home, const char *what) {
 /* Load, check and start the candidate, then share its symbols (extension modules such as math
    resolve the C API from the global scope on Linux). */
 static int try_candidate(const Candidate *candidate) {
-    char label[PLATFORM_PATH_MAX + 64], why[512] = "";
+    char label[2 * PLATFORM_PATH_MAX + 64], why[512] = "", file[PLATFORM_PATH_MAX];
     snprintf(label, sizeof label, "%s %s", *candidate->label ? candidate->label : "the system's", candidate->library);
     Library library = platform_load(candidate->library, why, sizeof why);
     if (!library && !*candidate->label) {
-        append(not_found, sizeof not_found, "%s%s", *not_found ? ", " : "", candidate->library);
+        if (candidate->minor >= OLDEST_MINOR) {
+            append(not_found, sizeof not_found, "%s%s", *not_found ? ", " : "", candidate->library);
+        }
         return -1;
+    }
+    void *version = library && !*candidate->label ? platform_symbol(library, "Py_GetVersion") : NULL;
+    if (version && platform_library_file(version, file, sizeof file) == 0) {
+        append(label, sizeof label, " (%s)", file); /* the loader found it: where */
     }
     if (!library) {
         append(start_error, sizeof start_error, "%s: %s; ", label, why);
@@ -229,22 +256,106 @@ static void add_candidate(void *context, const char *library, const char *home, 
     c->minor = minor;
 }
 
-/* The Python that built the FMU, then the system's, those of the building minor first; the rest in
-   the order found. */
-static void gather(Candidates *list) {
-    int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
-    if (*DSC_BUILD_LIBPYTHON) {
-        add_candidate(list, DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,", preferred);
-    } else {
-        append(start_error, sizeof start_error, "the Python that built the FMU is not on this system; ");
+/* The candidates in turn, until one starts or one has been started (and failed); 0, or -1. */
+static int try_in_turn(const Candidates *list) {
+    for (int i = 0; i < list->count && !start_attempted; i++) {
+        if (try_candidate(&list->items[i]) == 0) return 0;
     }
-    platform_registered_pythons(add_candidate, list, OLDEST_MINOR);
+    return -1;
+}
+
+/* The candidates of the minor version that built the FMU first; the rest in the order found. */
+static void prefer_building_minor(Candidates *list) {
+    int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
     for (int i = 0; i < list->count; i++) {
         if (list->items[i].minor != preferred) continue;
         Candidate moved = list->items[i];
         memmove(&list->items[first + 1], &list->items[first], (size_t)(i - first) * sizeof moved);
         list->items[first++] = moved;
     }
+}
+
+/* The Python that built the FMU, then the system's. */
+static void gather(Candidates *list) {
+    if (*DSC_BUILD_LIBPYTHON) {
+        add_candidate(list, DSC_BUILD_LIBPYTHON, DSC_BUILD_PYTHON_HOME, "the Python that built the FMU,",
+                      minor_of(DSC_PYTHON_VERSION));
+    } else {
+        append(start_error, sizeof start_error, "the Python that built the FMU is not on this system; ");
+    }
+    platform_registered_pythons(add_candidate, list, OLDEST_LOOKED_FOR);
+    prefer_building_minor(list);
+}
+
+/* The `home` of the virtual environment in `folder` (its pyvenv.cfg's "home = ..."); 1 if there is one. */
+static int venv_home(const char *folder, char *home, size_t size) {
+    char path[PLATFORM_PATH_MAX + 16], line[PLATFORM_PATH_MAX + 16];
+    snprintf(path, sizeof path, "%s/pyvenv.cfg", folder);
+    FILE *file = platform_open_file(path, "r");
+    if (!file) return 0;
+    *home = '\0';
+    while (!*home && fgets(line, sizeof line, file)) {
+        char *p = line + strspn(line, " \t");
+        if (strncmp(p, "home", 4) != 0) continue;
+        p += 4 + strspn(p + 4, " \t");
+        if (*p != '=') continue;
+        p += 1 + strspn(p + 1, " \t");
+        size_t length = strlen(p);
+        while (length > 0 && isspace((unsigned char)p[length - 1])) p[--length] = '\0';
+        snprintf(home, size, "%s", p);
+    }
+    fclose(file);
+    return *home != '\0';
+}
+
+/* The CPython libraries of the installation in `folder`, newest first. */
+static void add_installation(Candidates *list, const char *folder) {
+    char library[PLATFORM_PATH_MAX];
+    for (int minor = NEWEST_MINOR; minor >= OLDEST_LOOKED_FOR; minor--) {
+        for (int place = 0; platform_library_in(folder, place, minor, library, sizeof library) == 0; place++) {
+            if (platform_is_file(library)) add_candidate(list, library, NULL, DSC_OVERRIDE_VARIABLE " folder:", minor);
+        }
+    }
+}
+
+/* The candidates of the folder that DSC_FMU_PYTHON names: its installation's, or those of the installation
+   its virtual environment names (home, and home's parent: on Linux home is the installation's bin). */
+static void gather_folder(Candidates *list, const char *folder) {
+    char home[PLATFORM_PATH_MAX];
+    if (!venv_home(folder, home, sizeof home)) {
+        add_installation(list, folder);
+    } else {
+        add_installation(list, home);
+        char *separator = strrchr(home, '/'), *other = strrchr(home, '\\');
+        if (other > separator) separator = other;
+        if (separator && separator != home) {
+            *separator = '\0';
+            add_installation(list, home);
+        }
+    }
+    prefer_building_minor(list);
+}
+
+/* `pattern` with every "%d" written "X", appended to start_error. */
+static void append_pattern(const char *pattern) {
+    for (const char *p = pattern; *p; p++) {
+        int minor = p[0] == '%' && p[1] == 'd';
+        append(start_error, sizeof start_error, "%c", minor ? 'X' : *p);
+        p += minor;
+    }
+}
+
+/* The candidates of the folder `folder` tried in turn; -1 (logged) if none serves or there is none. */
+static int start_from_folder(Candidates *list, const char *folder) {
+    gather_folder(list, folder);
+    if (list->count == 0) {
+        append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " = %s: a folder without a CPython library "
+               "(looked for ", folder);
+        append_pattern(PLATFORM_LIBRARY_PLACES);
+        append(start_error, sizeof start_error, " in it, or in the installation its pyvenv.cfg names); ");
+        return -1;
+    }
+    return try_in_turn(list);
 }
 
 static int find_and_start(void) {
@@ -255,17 +366,21 @@ static int find_and_start(void) {
     Candidates list = {items, 0};
     char override[PLATFORM_PATH_MAX];
     if (platform_getenv(DSC_OVERRIDE_VARIABLE, override, sizeof override)) {
+        if (platform_is_folder(override)) return start_from_folder(&list, override);
         add_candidate(&list, override, NULL, DSC_OVERRIDE_VARIABLE " =", -1);
         return try_candidate(&items[0]);
     }
     append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " not set; ");
     gather(&list);
-    if (list.count == 0) append(start_error, sizeof start_error, "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
-    for (int i = 0; i < list.count && !start_attempted; i++) {
-        if (try_candidate(&items[i]) == 0) return 0;
+    int supported = 0;
+    for (int i = 0; i < list.count; i++) supported += items[i].minor >= OLDEST_MINOR;
+    if (supported == 0) {
+        append(start_error, sizeof start_error,
+               "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
     }
-    if (*not_found) append(start_error, sizeof start_error, "the system's, not found: %s; ", not_found);
-    return -1;
+    int result = try_in_turn(&list);
+    if (result != 0 && *not_found) append(start_error, sizeof start_error, "the system's, not found: %s; ", not_found);
+    return result;
 }
 
 static void free_ended(Ended *list) {
@@ -346,7 +461,7 @@ int pyhost_start(char *error, size_t size) {
     platform_once(start_once);
     if (start_result != 0) {
         snprintf(error, size, "no usable Python (CPython 3.%d or newer): %sset " DSC_OVERRIDE_VARIABLE
-                 " to the path of a CPython shared library (libpython3.X.so.1.0 on Linux, python3X.dll on Windows)",
+                 " to a CPython's folder or shared library (libpython3.X.so.1.0 on Linux, python3X.dll on Windows)",
                  OLDEST_MINOR, start_error);
     }
     return start_result;

@@ -1,17 +1,10 @@
-/* One Python slave behind an FMU instance, for both FMI versions (see slave.h).
+/* One Python slave behind an FMU instance, for both FMI versions (see slave.h): its creation from the
+   FMU's resources, its variable table, its reset and its end. */
 
-   Every function that touches Python takes the GIL itself, queues what the slave logged and turns
-   a Python exception into a queued message, and hands the queue to the logger once the GIL is
-   released: nothing here raises, aborts, frees what the slave still uses or calls back into the
-   importer with the GIL held. */
-
-#include "slave.h"
+#include "slave_calls.h"
 
 #include "platform.h"
 
-#include <stdarg.h>
-#include <stdbool.h>
-#include <stdint.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
@@ -23,180 +16,8 @@
 #define MAX_VARIABLES 1024
 
 const char *const TYPE_NAMES[TYPES + 1] = {DSC_TYPE_NAMES};
-static const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
-static const char *const SET_METHODS[TYPES] = {DSC_SET_METHODS};
-static const char *const STATUS_CATEGORIES[] = {DSC_STATUS_CATEGORIES};
-_Static_assert(sizeof STATUS_CATEGORIES / sizeof STATUS_CATEGORIES[0] == STATUS_FATAL + 1,
-               "DSC_STATUS_CATEGORIES names the category of every status, OK to fatal");
-
-const char *slave_category(int status) {
-    return STATUS_CATEGORIES[status >= STATUS_OK && status <= STATUS_FATAL ? status : STATUS_FATAL];
-}
-
-static void queue(Slave *s, int status, const char *category, const char *text) {
-    size_t length = strlen(text);
-    Message *message = malloc(sizeof *message + length + 1);
-    if (!message) return;
-    message->next = NULL;
-    message->status = status;
-    snprintf(message->category, sizeof message->category, "%s", category);
-    memcpy(message->text, text, length + 1);
-    *s->last = message;
-    s->last = &message->next;
-}
-
-void slave_deliver(Slave *s) {
-    Message *message = s->messages;
-    s->messages = NULL;
-    s->last = &s->messages;
-    while (message) {
-        Message *next = message->next;
-        s->log(s->context, message->status, message->category, message->text);
-        free(message);
-        message = next;
-    }
-}
-
-/* Release the GIL, then deliver what was queued under it. */
-static void leave(Slave *s, PyGILState_STATE gil) {
-    pyhost_leave(gil);
-    slave_deliver(s);
-    if (s->interrupted) { /* last: Python run before (a logger on ctypes) would swallow it */
-        s->interrupted = 0;
-        py.PyErr_SetInterrupt();
-    }
-}
-
-void slave_vlog(Slave *s, int status, const char *call, const char *format, va_list args) {
-    char message[2048];
-    int k = call ? snprintf(message, sizeof message, "%s: %s: ", s->instance_name, call)
-                 : snprintf(message, sizeof message, "%s: ", s->instance_name);
-    vsnprintf(message + k, sizeof message - k, format, args);
-    queue(s, status, slave_category(status), message);
-}
-
-static void say(Slave *s, int status, const char *format, ...) {
-    va_list args;
-    va_start(args, format);
-    slave_vlog(s, status, NULL, format, args);
-    va_end(args);
-}
-
-static void clear(PyObject **object) {
-    if (*object) py.Py_DecRef(*object);
-    *object = NULL;
-}
-
-/* The pending exception as "Type: message" in `text`; clears it. 1 if it was a KeyboardInterrupt. */
-static int exception_text(char *text, size_t size) {
-    PyObject *type = NULL, *value = NULL, *traceback = NULL;
-    py.PyErr_Fetch(&type, &value, &traceback);
-    int interrupt = type && type == *py.PyExc_KeyboardInterrupt;
-    PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
-    const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
-    PyObject *str = value ? py.PyObject_Str(value) : NULL;
-    const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
-    if (type) snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
-    else snprintf(text, size, "no Python exception was raised");
-    py.PyErr_Clear();
-    clear(&str);
-    clear(&type_name);
-    clear(&type);
-    clear(&value);
-    clear(&traceback);
-    return interrupt;
-}
-
-/* Log the pending exception as the failure of `doing` and clear it. A KeyboardInterrupt (the host's
-   Ctrl-C arriving while the model code ran) is not the model's failure: the call still fails, and
-   the interrupt is raised again in the host's Python once the call has returned (``leave``). */
-static void log_exception(Slave *s, int status, const char *doing) {
-    char text[1536];
-    if (exception_text(text, sizeof text)) {
-        say(s, status, "%s interrupted: the KeyboardInterrupt goes on to the host", doing);
-        s->interrupted = 1;
-    } else {
-        say(s, status, "%s failed: %s", doing, text);
-    }
-}
-
-/* A tuple of `n` new references, which it steals; NULL (the exception set) if any is NULL. */
-static PyObject *pack(int n, PyObject **items) {
-    int complete = 1;
-    for (int i = 0; i < n; i++) complete = complete && items[i];
-    PyObject *tuple = complete ? py.PyTuple_New(n) : NULL;
-    for (int i = 0; i < n; i++) {
-        if (tuple) py.PyTuple_SetItem(tuple, i, items[i]);
-        else if (items[i]) py.Py_DecRef(items[i]);
-    }
-    return tuple;
-}
-
-static PyObject *borrowed(PyObject *object) {
-    py.Py_IncRef(object);
-    return object;
-}
-
-/* Call `function` (a new reference, which it steals) with `args` (stolen; NULL for none, unless an
-   exception is set: then the arguments failed and nothing is called). */
-static PyObject *call(PyObject *function, PyObject *args) {
-    PyObject *result = function && (args || !py.PyErr_Occurred()) ? py.PyObject_CallObject(function, args) : NULL;
-    if (function) py.Py_DecRef(function);
-    if (args) py.Py_DecRef(args);
-    return result;
-}
-
-static PyObject *bridge_call(Slave *s, const char *name, PyObject *args) {
-    return call(py.PyObject_GetAttrString(s->bridge, name), args);
-}
-
-/* Hand the time and states set since the slave's last call to its set_point (the GIL held). */
-static void apply_pending(Slave *s) {
-    PyObject *states = s->pending & PENDING_STATES ? py.PyList_New((Py_ssize_t)s->nx) : borrowed(py.None);
-    for (size_t i = 0; states && s->pending & PENDING_STATES && i < s->nx; i++) {
-        py.PyList_SetItem(states, (Py_ssize_t)i, py.PyFloat_FromDouble(s->x[i]));
-    }
-    PyObject *items[] = {s->pending & PENDING_TIME ? py.PyFloat_FromDouble(s->time) : borrowed(py.None), states};
-    PyObject *result = call(borrowed(s->bound[BOUND_SET_POINT]), pack(2, items));
-    if (!result) log_exception(s, STATUS_ERROR, "set_point");
-    clear(&result);
-    s->pending = 0;
-}
-
-/* Take the GIL for a call of the slave, which first sees what model exchange set since its last call. */
-static PyGILState_STATE enter(Slave *s) {
-    PyGILState_STATE gil = pyhost_enter();
-    if (s->pending) apply_pending(s);
-    return gil;
-}
-
-/* Queue the messages the slave logged (cheap when there are none). */
-static void drain_log(Slave *s) {
-    if (!s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
-        py.PyErr_Clear();
-        return;
-    }
-    PyObject *items[] = {borrowed(s->slave)};
-    PyObject *messages = bridge_call(s, "drain_log", pack(1, items));
-    Py_ssize_t n = messages ? py.PySequence_Size(messages) : 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *message = py.PySequence_GetItem(messages, i);
-        PyObject *status = message ? py.PySequence_GetItem(message, 0) : NULL;
-        PyObject *category = message ? py.PySequence_GetItem(message, 1) : NULL;
-        PyObject *text = message ? py.PySequence_GetItem(message, 2) : NULL;
-        const char *category_text = category ? py.PyUnicode_AsUTF8(category) : NULL;
-        const char *message_text = text ? py.PyUnicode_AsUTF8(text) : NULL;
-        if (status && category_text && message_text) {
-            queue(s, (int)py.PyLong_AsLong(status), category_text, message_text);
-        }
-        clear(&text);
-        clear(&category);
-        clear(&status);
-        clear(&message);
-    }
-    clear(&messages);
-    py.PyErr_Clear();
-}
+const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
+const char *const SET_METHODS[TYPES] = {DSC_SET_METHODS};
 
 /* The entry file: the bridge module (its top level the build's private package), the slave's
    module and class, and the token; read before Python is started. */
@@ -296,7 +117,7 @@ static void clear_slave(Slave *s) {
     clear(&s->slave);
 }
 
-static const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_event_indicators",
+const char *const VECTOR_METHODS[VECTORS] = {"get_derivatives", "get_event_indicators",
                                                      "get_continuous_states", "get_nominals"};
 
 static const char *bound_name(const Slave *s, int i) {
@@ -350,6 +171,23 @@ static int read_dimensions(Slave *s) {
     return s->x ? 0 : -1;
 }
 
+/* Row `i` of the variable table: value reference, type, causality and variability, in `cells`; 0, or -1
+   (the exception set, or a cell that is not a number) with every cell -1. */
+static int read_row(PyObject *table, Py_ssize_t i, long cells[4]) {
+    PyObject *row = py.PySequence_GetItem(table, i);
+    int complete = row != NULL;
+    for (int k = 0; k < 4; k++) {
+        PyObject *cell = complete ? py.PySequence_GetItem(row, k) : NULL;
+        cells[k] = cell ? py.PyLong_AsLong(cell) : -1;
+        complete = cell && !py.PyErr_Occurred();
+        clear(&cell);
+    }
+    clear(&row);
+    if (complete) return 0;
+    for (int k = 0; k < 4; k++) cells[k] = -1;
+    return -1;
+}
+
 static int read_variables(Slave *s) {
     PyObject *items[] = {borrowed(s->slave)};
     PyObject *table = bridge_call(s, "variables", pack(1, items));
@@ -362,18 +200,13 @@ static int read_variables(Slave *s) {
         return -1;
     }
     long largest = -1;
-    for (Py_ssize_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
-        PyObject *row = py.PySequence_GetItem(table, i);
-        for (int k = 0; k < 4 && row && !py.PyErr_Occurred(); k++) {
-            PyObject *cell = py.PySequence_GetItem(row, k);
-            rows[4 * i + k] = cell ? py.PyLong_AsLong(cell) : -1;
-            clear(&cell);
-        }
-        clear(&row);
-        if (rows[4 * i] > largest) largest = rows[4 * i];
+    int valid = 1;
+    for (Py_ssize_t i = 0; i < n && valid; i++) {
+        valid = read_row(table, i, &rows[4 * i]) == 0;
+        if (valid && rows[4 * i] > largest) largest = rows[4 * i];
     }
     clear(&table);
-    if (py.PyErr_Occurred() || largest >= MAX_VALUE_REFERENCE) {
+    if (!valid || largest >= MAX_VALUE_REFERENCE) {
         py.PyErr_Clear();
         say(s, STATUS_ERROR, "the variable table of the slave is not valid");
         return -1;
@@ -494,255 +327,4 @@ int slave_reset(Slave *s) {
     drain_log(s);
     leave(s, gil);
     return status;
-}
-
-int slave_type_of(const Slave *s, unsigned int vr) {
-    return vr < s->size ? s->type[vr] : NO_VARIABLE;
-}
-
-static PyObject *references(const unsigned int *vr, size_t n) {
-    PyObject *list = py.PyList_New((Py_ssize_t)n);
-    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyLong_FromLong((long)vr[i]));
-    return list;
-}
-
-static PyObject *to_python(const void *values, size_t i, CType ctype) {
-    switch (ctype) {
-    case C_DOUBLE: return py.PyFloat_FromDouble(((const double *)values)[i]);
-    case C_INT: return py.PyLong_FromLong(((const int *)values)[i]);
-    case C_INT32: return py.PyLong_FromLong(((const int32_t *)values)[i]);
-    case C_BOOL_INT: return py.PyBool_FromLong(((const int *)values)[i] != 0);
-    case C_BOOL_BYTE: return py.PyBool_FromLong(((const bool *)values)[i]);
-    }
-    return NULL;
-}
-
-static void from_python(PyObject *item, void *values, size_t i, CType ctype) {
-    switch (ctype) {
-    case C_DOUBLE: ((double *)values)[i] = py.PyFloat_AsDouble(item); break;
-    case C_INT: ((int *)values)[i] = (int)py.PyLong_AsLong(item); break;
-    case C_INT32: ((int32_t *)values)[i] = (int32_t)py.PyLong_AsLong(item); break;
-    case C_BOOL_INT: ((int *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
-    case C_BOOL_BYTE: ((bool *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
-    }
-}
-
-int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *items[] = {references(vr, n)};
-    PyObject *result = call(borrowed(s->bound[type]), pack(1, items));
-    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
-    int status = STATUS_ERROR;
-    if (size >= 0 && size != (Py_ssize_t)n) {
-        say(s, STATUS_ERROR, "%s returned %zd values for %zu value references", GET_METHODS[type], size, n);
-    } else if (size >= 0) {
-        for (size_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
-            PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
-            if (item) from_python(item, values, i, ctype);
-            clear(&item);
-        }
-        if (!py.PyErr_Occurred()) status = STATUS_OK;
-    }
-    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, GET_METHODS[type]);
-    clear(&result);
-    drain_log(s);
-    leave(s, gil);
-    return status;
-}
-
-/* The status of a slave call that returned `result` (NULL: it raised; `failure` after logging the
-   exception as `what`); releases `result`, queues the slave's log messages and leaves (`gil`). */
-static int finished(Slave *s, PyGILState_STATE gil, PyObject *result, int failure, const char *what) {
-    int status = STATUS_OK;
-    if (!result) {
-        log_exception(s, failure, what);
-        status = failure;
-    }
-    clear(&result);
-    drain_log(s);
-    leave(s, gil);
-    return status;
-}
-
-int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *list = py.PyList_New((Py_ssize_t)n);
-    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
-    PyObject *items[] = {references(vr, n), list};
-    PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
-    return finished(s, gil, result, STATUS_ERROR, SET_METHODS[type]);
-}
-
-int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *orders = py.PyList_New((Py_ssize_t)n);
-    PyObject *given = py.PyList_New((Py_ssize_t)n);
-    for (size_t i = 0; orders && given && i < n; i++) {
-        py.PyList_SetItem(orders, (Py_ssize_t)i, py.PyLong_FromLong(order[i]));
-        py.PyList_SetItem(given, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
-    }
-    PyObject *items[] = {references(vr, n), orders, given};
-    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
-    return finished(s, gil, result, STATUS_ERROR, "set_input_derivatives");
-}
-
-/* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
-static PyObject *doubles(int n, const double *values, const int *defined) {
-    PyObject *items[8] = {NULL};
-    for (int i = 0; i < n && i < 8; i++) {
-        items[i] = !defined || defined[i] ? py.PyFloat_FromDouble(values[i]) : borrowed(py.None);
-    }
-    return pack(n < 8 ? n : 8, items);
-}
-
-/* Call the method `method` of the slave (`cached`, its bound method, if not NULL) with `n` floats;
-   STATUS_OK, or `failure` after logging the exception. `truth` (if not NULL) receives whether the
-   result is true. */
-static int call_logged(Slave *s, const char *method, PyObject *cached, int n, const double *values,
-                       const int *defined, int failure, int *truth) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *function = cached ? borrowed(cached) : py.PyObject_GetAttrString(s->slave, method);
-    PyObject *args = n ? doubles(n, values, defined) : NULL;
-    PyObject *result = call(function, args);
-    if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
-    return finished(s, gil, result, failure, method);
-}
-
-int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined) {
-    return call_logged(s, method, NULL, n, values, defined, STATUS_ERROR, NULL);
-}
-
-int slave_step(Slave *s, double time, double step, int *accepted) {
-    double values[] = {time, step};
-    return call_logged(s, "do_step", s->bound[BOUND_DO_STEP], 2, values, NULL, STATUS_DISCARD, accepted);
-}
-
-int slave_set_time(Slave *s, double time) {
-    s->time = time;
-    s->pending |= PENDING_TIME;
-    return STATUS_OK;
-}
-
-int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure) {
-    PyGILState_STATE gil = enter(s);
-    const char *method = VECTOR_METHODS[which];
-    PyObject *result = call(borrowed(s->bound[BOUND_VECTORS + which]), NULL);
-    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
-    if (size >= 0 && size != (Py_ssize_t)n) {
-        say(s, STATUS_ERROR, "%s returned %zd values; expected %zu", method, size, n);
-        failure = STATUS_ERROR;
-    }
-    for (Py_ssize_t i = 0; size == (Py_ssize_t)n && i < size && !py.PyErr_Occurred(); i++) {
-        PyObject *item = py.PySequence_GetItem(result, i);
-        if (item) values[i] = py.PyFloat_AsDouble(item);
-        clear(&item);
-    }
-    int status = result && size == (Py_ssize_t)n && !py.PyErr_Occurred() ? STATUS_OK : failure;
-    if (status != STATUS_OK && py.PyErr_Occurred()) log_exception(s, failure, method);
-    py.PyErr_Clear();
-    clear(&result);
-    drain_log(s);
-    leave(s, gil);
-    return status;
-}
-
-int slave_set_states(Slave *s, const double *values, size_t n) {
-    memcpy(s->x, values, n * sizeof *values);
-    s->pending |= PENDING_STATES;
-    return STATUS_OK;
-}
-
-int slave_get_double(Slave *s, const char *attribute, double *value) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *object = py.PyObject_GetAttrString(s->slave, attribute);
-    int status = STATUS_OK;
-    if (object) *value = py.PyFloat_AsDouble(object);
-    if (!object || py.PyErr_Occurred()) {
-        log_exception(s, STATUS_ERROR, attribute);
-        status = STATUS_ERROR;
-    }
-    clear(&object);
-    leave(s, gil);
-    return status;
-}
-
-/* `finished` releases a reference of its own: the caller keeps the state (also in slave_deserialize). */
-int slave_get_state(Slave *s, PyObject **state) {
-    PyGILState_STATE gil = enter(s);
-    *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
-    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "getting the FMU state");
-}
-
-int slave_set_state(Slave *s, PyObject *state) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *items[] = {borrowed(state)};
-    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
-    return finished(s, gil, result, STATUS_ERROR, "setting the FMU state");
-}
-
-void slave_release(PyObject *object) {
-    if (!object) return;
-    PyGILState_STATE gil = pyhost_enter();
-    py.Py_DecRef(object);
-    pyhost_leave(gil);
-}
-
-int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *items[] = {borrowed(s->slave), borrowed(state)};
-    PyObject *data = bridge_call(s, "state_to_bytes", pack(2, items));
-    char *buffer = NULL;
-    Py_ssize_t length = 0;
-    int status = STATUS_ERROR;
-    if (!data || py.PyBytes_AsStringAndSize(data, &buffer, &length) != 0) {
-        log_exception(s, STATUS_ERROR, "serializing the FMU state");
-    } else if ((*bytes = malloc((size_t)length)) != NULL) {
-        memcpy(*bytes, buffer, (size_t)length);
-        *size = (size_t)length;
-        status = STATUS_OK;
-    } else {
-        say(s, STATUS_ERROR, "out of memory for the serialized FMU state");
-    }
-    clear(&data);
-    drain_log(s);
-    leave(s, gil);
-    return status;
-}
-
-int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state) {
-    PyGILState_STATE gil = enter(s);
-    PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
-    *state = bridge_call(s, "state_from_bytes", pack(2, items));
-    return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "deserializing the FMU state");
-}
-
-static int hex(char c) {
-    if (c >= '0' && c <= '9') return c - '0';
-    if (c >= 'a' && c <= 'f') return c - 'a' + 10;
-    if (c >= 'A' && c <= 'F') return c - 'A' + 10;
-    return -1;
-}
-
-int slave_uri_to_path(const char *uri, char *path, size_t size) {
-    if (!uri || !*uri) return -1;
-    const char *p = uri;
-    int encoded = strncmp(p, "file:", 5) == 0;
-    if (encoded) {
-        p += 5;
-        if (strncmp(p, "//localhost/", 12) == 0) p += 11;
-        else if (strncmp(p, "///", 3) == 0) p += 2;
-    }
-    size_t k = 0;
-    for (; *p && k + 1 < size; p++) {
-        if (encoded && *p == '%' && hex(p[1]) >= 0 && hex(p[2]) >= 0) {
-            path[k++] = (char)(hex(p[1]) * 16 + hex(p[2]));
-            p += 2;
-        } else {
-            path[k++] = *p;
-        }
-    }
-    path[k] = '\0';
-    if (*p) return -1;
-    platform_native_path(path);
-    return platform_is_absolute(path) ? 0 : -1;
 }

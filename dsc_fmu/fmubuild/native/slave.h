@@ -1,5 +1,7 @@
-/* One Python slave behind an FMU instance, for both FMI versions: creation, guarded typed get and
-   set, calls whose exceptions become logged messages, FMU states, the slave's log queue.
+/* One Python slave behind an FMU instance, for both FMI versions: its creation and variable table
+   (slave.c), its log queue (slave_queue.c), calls whose exceptions become logged messages
+   (slave_calls.c), typed get and set and the model-exchange vectors (slave_values.c), FMU states
+   (slave_states.c).
 
    Messages that arise while the GIL is held (the slave's own log, a Python exception) are queued
    and handed to the importer's logger after the GIL is released, in order, on the calling thread,
@@ -144,9 +146,5 @@ void slave_vlog(Slave *s, int status, const char *call, const char *format, va_l
 
 /* Hand the queued messages to the logger, in order; call without the GIL. */
 void slave_deliver(Slave *s);
-
-/* The native path of a file URI (file:///C:/x, file:/x, file://localhost/x, file://server/share/x
-   for a share, percent-escapes decoded) or of an absolute path, in `path`; 0, or -1 if it is neither. */
-int slave_uri_to_path(const char *uri, char *path, size_t size);
 
 #endif

@@ -1,0 +1,133 @@
+/* The slave's values (slave.h): typed get and set by value reference, input derivatives, and the
+   vectors of model exchange, whose time and states wait here for the slave's next call. */
+
+#include "slave_calls.h"
+
+#include <stdbool.h>
+#include <stdint.h>
+#include <string.h>
+
+int slave_type_of(const Slave *s, unsigned int vr) {
+    return vr < s->size ? s->type[vr] : NO_VARIABLE;
+}
+
+static PyObject *references(const unsigned int *vr, size_t n) {
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyLong_FromLong((long)vr[i]));
+    return list;
+}
+
+static PyObject *to_python(const void *values, size_t i, CType ctype) {
+    switch (ctype) {
+    case C_DOUBLE: return py.PyFloat_FromDouble(((const double *)values)[i]);
+    case C_INT: return py.PyLong_FromLong(((const int *)values)[i]);
+    case C_INT32: return py.PyLong_FromLong(((const int32_t *)values)[i]);
+    case C_BOOL_INT: return py.PyBool_FromLong(((const int *)values)[i] != 0);
+    case C_BOOL_BYTE: return py.PyBool_FromLong(((const bool *)values)[i]);
+    }
+    return NULL;
+}
+
+static void from_python(PyObject *item, void *values, size_t i, CType ctype) {
+    switch (ctype) {
+    case C_DOUBLE: ((double *)values)[i] = py.PyFloat_AsDouble(item); break;
+    case C_INT: ((int *)values)[i] = (int)py.PyLong_AsLong(item); break;
+    case C_INT32: ((int32_t *)values)[i] = (int32_t)py.PyLong_AsLong(item); break;
+    case C_BOOL_INT: ((int *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
+    case C_BOOL_BYTE: ((bool *)values)[i] = py.PyObject_IsTrue(item) == 1; break;
+    }
+}
+
+int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
+    PyGILState_STATE gil = enter(s);
+    PyObject *items[] = {references(vr, n)};
+    PyObject *result = call(borrowed(s->bound[type]), pack(1, items));
+    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
+    int status = STATUS_ERROR;
+    if (size >= 0 && size != (Py_ssize_t)n) {
+        say(s, STATUS_ERROR, "%s returned %zd values for %zu value references", GET_METHODS[type], size, n);
+    } else if (size >= 0) {
+        for (size_t i = 0; i < n && !py.PyErr_Occurred(); i++) {
+            PyObject *item = py.PySequence_GetItem(result, (Py_ssize_t)i);
+            if (item) from_python(item, values, i, ctype);
+            clear(&item);
+        }
+        if (!py.PyErr_Occurred()) status = STATUS_OK;
+    }
+    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, GET_METHODS[type]);
+    clear(&result);
+    drain_log(s);
+    leave(s, gil);
+    return status;
+}
+
+int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
+    PyGILState_STATE gil = enter(s);
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, to_python(values, i, ctype));
+    PyObject *items[] = {references(vr, n), list};
+    PyObject *result = call(borrowed(s->bound[TYPES + type]), pack(2, items));
+    return finished(s, gil, result, STATUS_ERROR, SET_METHODS[type]);
+}
+
+int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values) {
+    PyGILState_STATE gil = enter(s);
+    PyObject *orders = py.PyList_New((Py_ssize_t)n);
+    PyObject *given = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; orders && given && i < n; i++) {
+        py.PyList_SetItem(orders, (Py_ssize_t)i, py.PyLong_FromLong(order[i]));
+        py.PyList_SetItem(given, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
+    }
+    PyObject *items[] = {references(vr, n), orders, given};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "set_input_derivatives"), pack(3, items));
+    return finished(s, gil, result, STATUS_ERROR, "set_input_derivatives");
+}
+
+int slave_set_time(Slave *s, double time) {
+    s->time = time;
+    s->pending |= PENDING_TIME;
+    return STATUS_OK;
+}
+
+int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure) {
+    PyGILState_STATE gil = enter(s);
+    const char *method = VECTOR_METHODS[which];
+    PyObject *result = call(borrowed(s->bound[BOUND_VECTORS + which]), NULL);
+    Py_ssize_t size = result ? py.PySequence_Size(result) : -1;
+    if (size >= 0 && size != (Py_ssize_t)n) {
+        say(s, STATUS_ERROR, "%s returned %zd values; expected %zu", method, size, n);
+        failure = STATUS_ERROR;
+    }
+    for (Py_ssize_t i = 0; size == (Py_ssize_t)n && i < size && !py.PyErr_Occurred(); i++) {
+        PyObject *item = py.PySequence_GetItem(result, i);
+        if (item) values[i] = py.PyFloat_AsDouble(item);
+        clear(&item);
+    }
+    int status = result && size == (Py_ssize_t)n && !py.PyErr_Occurred() ? STATUS_OK : failure;
+    if (status != STATUS_OK && py.PyErr_Occurred()) log_exception(s, failure, method);
+    py.PyErr_Clear();
+    clear(&result);
+    drain_log(s);
+    leave(s, gil);
+    return status;
+}
+
+int slave_set_states(Slave *s, const double *values, size_t n) {
+    memcpy(s->x, values, n * sizeof *values);
+    s->pending |= PENDING_STATES;
+    return STATUS_OK;
+}
+
+int slave_get_double(Slave *s, const char *attribute, double *value) {
+    PyGILState_STATE gil = enter(s);
+    PyObject *object = py.PyObject_GetAttrString(s->slave, attribute);
+    int status = STATUS_OK;
+    if (object) *value = py.PyFloat_AsDouble(object);
+    if (!object || py.PyErr_Occurred()) {
+        log_exception(s, STATUS_ERROR, attribute);
+        status = STATUS_ERROR;
+    }
+    clear(&object);
+    leave(s, gil);
+    return status;
+}
