@@ -60,20 +60,6 @@ def _through_bytes(inst, state):
     return native_bridge.state_from_bytes(inst.slave, native_bridge.state_to_bytes(inst.slave, state))
 
 
-@pytest.mark.parametrize("name", NAMES)
-def test_serialized_fmu_state_round_trips_into_a_new_instance(new, name):
-    """After JSON: the parameters carried over, the step's history, the guard's count and its last step."""
-    integer, inputs, schedule = DRIVES[name]
-    inst = new(name, integer=integer)
-    h = 2e-3
-    replay(inst, inputs, schedule, 0.0, 5, h)
-    blob = native_bridge.state_to_bytes(inst.slave, inst.get_state())
-    first = replay(inst, inputs, schedule, 5 * h, 6, h)
-    other = new(name)  # default parameters: the state carries them over
-    other.set_state(native_bridge.state_from_bytes(other.slave, blob))
-    assert replay(other, inputs, schedule, 5 * h, 6, h) == first
-
-
 def test_input_derivatives_given_for_the_next_step_are_part_of_the_fmu_state(new):
     """Given by input index; JSON gives the indices back as strings and the restored state takes them."""
     plant = new("MobileRobot")

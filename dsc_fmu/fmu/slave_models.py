@@ -364,14 +364,7 @@ class DSCControllerModel:
             True if taken (or waited), False if discarded (see ``SlaveCore.do_step``).
         """
         if self.waiting():
-            if not self.waited_steps:
-                self.log(
-                    f"{self.instance_name}: waits for valid inputs from t = {current_time:.6g} s with u = 0 "
-                    f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}",
-                    self.library.status.warning,
-                )
-            self.waited_steps += 1
-            self._stepped(current_time + step_size)
+            self._wait(current_time, step_size)
             return True
         if self.state is None and self.waited_steps and not self.rejected:
             self.log(
@@ -381,6 +374,22 @@ class DSCControllerModel:
             )
         self._guard_seen = None
         ok = super().do_step(current_time, step_size)
+        self._count_guard()
+        return ok
+
+    def _wait(self, current_time, step_size):
+        """A step waited for valid inputs; the first is logged."""
+        if not self.waited_steps:
+            self.log(
+                f"{self.instance_name}: waits for valid inputs from t = {current_time:.6g} s with u = 0 "
+                f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}",
+                self.library.status.warning,
+            )
+        self.waited_steps += 1
+        self._stepped(current_time + step_size)
+
+    def _count_guard(self):
+        """Count a step in which the guard acted; log the first of a run of such steps."""
         if self._guard_seen is not None:
             self.beta_guard_count += 1
             if not self._guarded_last_step:
@@ -390,7 +399,6 @@ class DSCControllerModel:
                     "h2 divides by beta_min (outside the region of Remark 3)", self.library.status.warning,
                 )
         self._guarded_last_step = self._guard_seen is not None
-        return ok
 
     def outputs(self, x):
         """The outputs at state ``x`` and the inputs set: u = 0 and the surfaces zero while waiting.
