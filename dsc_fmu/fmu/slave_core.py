@@ -18,10 +18,6 @@ __all__ = ["SlaveCore"]
 HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
 
 
-def _same(value):
-    return value
-
-
 def _optional_list(value):
     return None if value is None else list(value)
 
@@ -49,7 +45,12 @@ class SlaveCore:
     A value outside its allowed range is refused without raising, so that the set call succeeds and
     the importer can correct it: the refusal is logged as an error naming the variable and its
     range, the variable keeps its last valid value, and every ``do_step`` returns False
-    (fmiDiscard) until a valid value is set.
+    (fmiDiscard) until a valid value is set. Messages go through the FMI library's
+    ``log(msg, status)`` with a status of ``library.status``.
+
+    The FMU state (``_get_fmu_state``, ``_set_fmu_state``) is the attributes that ``FMU_STATE``
+    names; a model with more state extends the table. The outputs and ``constants`` are cached;
+    ``_stale`` says what they are computed from and is called at every change of it.
 
     The same slave serves model exchange (docs/model-exchange.md): the binary hands it the time and
     the states the importer sets (``set_point``) and reads the vectors of ``STATES`` (derivatives,
@@ -67,7 +68,7 @@ class SlaveCore:
     INDICATORS: tuple = ()  # the variables of ``indicator_values``
     # The FMU state: each attribute saved and restored, and the function that copies its value (also
     # out of a JSON round trip).
-    FMU_STATE = {"p": dict, "u": list, "time": _same, "rejected": dict, "state": _optional_list, "history": _history,
+    FMU_STATE = {"p": dict, "u": list, "time": float, "rejected": dict, "state": _optional_list, "history": _history,
                  "derivatives_given": _by_index}
 
     def _init_core(self) -> None:
