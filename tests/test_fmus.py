@@ -1,8 +1,11 @@
-"""The three FMUs through fmpy: model descriptions, behaviour, state, errors, coexistence.
+"""The three FMUs through fmpy: model descriptions, and what only the binary does with the slaves.
 
-Expectations come from the variable tables (dsc_fmu.models.parameters), the FMI 2.0 standard,
-the interface names of the issue and closed-form solutions of the equations in docs/model.md; never
-from numbers copied from the FMUs' own output.
+What the binary adds to a slave: the importer's logger, fmi2DoStep's statuses and the state after a
+discarded step, FMU states serialized through ctypes, a Python exception turned into a discarded step,
+the FMUs' modules in one process. What the slaves decide and compute is tested in this process
+(test_slave_behaviour.py, test_slave_physics.py). Expectations come from the variable tables
+(dsc_fmu.models.parameters), the FMI 2.0 standard, the interface names of the issue and the models;
+never from numbers copied from the FMUs' own output.
 """
 
 import gc
@@ -30,9 +33,8 @@ from fmpy.validation import validate_fmu
 from dsc_fmu.identity import fmu_build_id
 from dsc_fmu.registry import FMUS
 from dsc_fmu.models import parameters as P
-from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
+from drives import CONTROLLER_IN, DRIVES, M_GUARD, M_PAPER, NAMES, replay
 
-NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
 FMI2_OK, FMI2_WARNING, FMI2_DISCARD, FMI2_ERROR, FMI2_FATAL = range(5)
 
 # --- the interface of the issue (part of the product) -------------------------------------------
@@ -81,18 +83,8 @@ TABLES = {
 # Outputs registered outside the tables (docs/model.md §5: the beta guard made visible), with their FMI type.
 EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"}}
 
-PLANT = P.defaults(P.PLANT_PARAMETERS)
-REFERENCE = P.defaults(P.REFERENCE_PARAMETERS)
-CONTROLLER = P.defaults(P.CONTROLLER_PARAMETERS)
 PLANT_OUT = tuple(v.name for v in P.PLANT_OUTPUTS)
 REFERENCE_OUT = tuple(v.name for v in P.REFERENCE_OUTPUTS)
-CONTROLLER_IN = tuple(v.name for v in P.CONTROLLER_INPUTS)
-
-# Measurements at the paper's initial condition (robot at (2.5, 1, pi/2), reference at (2, 2, 0)).
-M_PAPER = [2.5, 1.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0, 0.0, 1.0, 0.2, 0.0]
-M_OTHER = [2.4, 1.1, 1.4, 0.1, 0.5, 0.4, 0.2, 0.1, 2.05, 2.0, 0.02, 0.9, 0.25, 0.1]
-# Robot 1 m ahead of the reference on its heading: S11 = -1, beta = 1 - k1 vr = -1 < beta_min.
-M_GUARD = [3.0, 2.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0, 0.0, 1.0, 0.2, 0.0]
 
 
 # --- logging and instances ----------------------------------------------------------------------
@@ -403,413 +395,55 @@ def test_controller_voltages_feed_through_every_input_but_the_other_wheels_curre
     assert inputs == sorted(set(EXPECTED["DSCController"]["input"]) - {other_current})
 
 
-def test_plant_outputs_do_not_move_with_the_inputs(new):
-    plant = new("MobileRobot")
-    plant.set(("u1", "u2"), (3.0, -2.0))
-    plant.step(0.0, 0.01)
-    before = plant.outputs()
-    plant.set(("u1", "u2"), (50.0, 40.0))
-    assert plant.outputs() == before
-
-
-def test_controller_outputs_move_only_with_their_declared_inputs(md, new):
-    """Perturb each input: outputs that do not list it among their dependencies must not change."""
-    deps = {u.variable.name: {d.name for d in u.dependencies} for u in md["DSCController"].outputs}
-    ctrl = new("DSCController")
-    ctrl.set(CONTROLLER_IN, M_OTHER)
-    for k in range(3):
-        ctrl.step(k * 1e-3, 1e-3)
-    base = ctrl.outputs()
-    assert all(math.isfinite(float(v)) for v in base.values())
-    moved = {name: set() for name in base}
-    for i, name in enumerate(CONTROLLER_IN):
-        m = list(M_OTHER)
-        m[i] += 0.05
-        ctrl.set(CONTROLLER_IN, m)
-        now = ctrl.outputs()
-        for out in base:
-            if now[out] != base[out]:
-                moved[out].add(name)
-        ctrl.set(CONTROLLER_IN, M_OTHER)
-    assert ctrl.outputs() == base
-    assert {out: sorted(moved[out] - deps[out]) for out in base} == {out: [] for out in base}
-    # The voltages do react to the pose and the reference within the same communication point.
-    assert {"x", "y", "theta", "x_r", "y_r", "theta_r", "v_r", "i1", "i2"} <= moved["u1"] | moved["u2"]
-
-
-# --- behaviour ----------------------------------------------------------------------------------
-
-
-def test_controller_direct_feedthrough(new):
-    """Once stepped, the filter states are fixed by the first step (docs/model.md §5: the first measurements
-    seen); from then on u follows every new input vector at the current state."""
-    ctrl = new("DSCController")
-    g = gains(CONTROLLER)
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    ctrl.step(0.0, 1e-3)
-    state = [ctrl.get1(name) for name in ("a1_hat", "a2_hat")]
-    results = []
-    for m in (M_PAPER, M_OTHER):
-        ctrl.set(CONTROLLER_IN, m)
-        u = ctrl.get(("u1", "u2"))
-        assert [ctrl.get1(name) for name in ("a1_hat", "a2_hat")] == state
-        assert all(math.isfinite(x) for x in u)
-        results.append(u)
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    assert ctrl.get(("u1", "u2")) == results[0]
-    fresh = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), M_OTHER), M_OTHER)
-    assert results[1] != pytest.approx([fresh.u1, fresh.u2], rel=1e-9)
-    assert results[0][0] != results[1][0] and results[0][1] != results[1][1]
-
-
-def test_controller_state_follows_inputs_until_the_first_step(md, fmu_unzipped):
-    """Until the first fmi2DoStep, x2f = x2bar and x3f = x3bar of the current inputs, in
-    initialisation mode and after it, whatever was read before; the first step starts from the
-    inputs it holds (so no order of sets and reads can latch stale start values)."""
-    inst = Instance(md["DSCController"], fmu_unzipped["DSCController"], "init")
-    g = gains(CONTROLLER)
-    inst.fmu.setupExperiment(startTime=0.0)
-    inst.fmu.enterInitializationMode()
-
-    def expect(m, state=None):
-        x = state or start_filters(g, initial_controller_state(CONTROLLER), m)
-        law = control_law(g, x, m)
-        assert inst.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12, abs=1e-12)
-
-    for m in (M_PAPER, M_OTHER):
-        inst.set(CONTROLLER_IN, m)
-        expect(m)
-    inst.fmu.exitInitializationMode()
-    for m in (M_PAPER, M_OTHER):
-        inst.set(CONTROLLER_IN, m)
-        expect(m)
-    assert inst.outputs()["started"] is False
-    inst.step(0.0, 1e-3)
-    assert inst.outputs()["started"] is True
-    inst.close()
-
-
 def test_controller_input_start_values_are_the_default_scenarios_initial_state(md):
     """The inputs' start values describe the paper's start: u before any set is the paper's u(0)."""
     starts = {v.name: v.start for v in md["DSCController"].modelVariables if v.causality == "input"}
     assert [float(starts[name]) for name in CONTROLLER_IN] == list(M_PAPER)
 
 
-def test_euler_discretization_takes_one_explicit_euler_step(new):
-    """discretization = 1: the controller state after a step is x + h f(x) with the inputs held."""
-    h = 5e-3
-    g = gains(CONTROLLER)
-    state = start_filters(g, initial_controller_state(CONTROLLER), M_PAPER)
-    euler = [x + h * d for x, d in zip(state, control_law(g, state, M_PAPER).derivative)]
-    expected = control_law(g, euler, M_PAPER)
-    ctrl = new("DSCController", integer={"discretization": 1})
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    ctrl.step(0.0, h)
-    assert ctrl.get(("u1", "u2", "a1_hat", "a2_hat")) == pytest.approx(
-        [expected.u1, expected.u2, euler[0], euler[1]], rel=1e-12, abs=1e-12)
-    rk4 = new("DSCController")
-    rk4.set(CONTROLLER_IN, M_PAPER)
-    rk4.step(0.0, h)
-    assert rk4.get1("a1_hat") != pytest.approx(euler[0], rel=1e-9)
-
-
-def test_initial_state_parameters_set_the_state_at_t0(new):
-    """omega1_0 ... i2_0 and a1_hat0 ... W2_hat0_6 start the plant and the estimates (docs/model.md §5 defaults: 0)."""
-    plant = new("MobileRobot", real={"omega1_0": 7.5, "omega2_0": 5.5, "i1_0": 2.0, "i2_0": -1.0})
-    assert plant.get(("omega1", "omega2", "i1", "i2")) == [7.5, 5.5, 2.0, -1.0]
-    assert plant.get1("theta_dot") == pytest.approx(0.5 * PLANT["r"] / PLANT["R"] * 2.0, rel=1e-15)
-    estimates = {"a1_hat0": 8.0, "a2_hat0": 6.0, "W1_hat0_3": 0.05, "W2_hat0_1": 1.6}
-    ctrl = new("DSCController", real=estimates)
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    assert ctrl.get(("a1_hat", "a2_hat", "W1_hat_3", "W2_hat_1")) == list(estimates.values())
-    state = start_filters(gains(CONTROLLER), initial_controller_state({**CONTROLLER, **estimates}), M_PAPER)
-    law = control_law(gains(CONTROLLER), state, M_PAPER)
-    assert ctrl.get(("u1", "u2")) == pytest.approx([law.u1, law.u2], rel=1e-12)
-
-
-def _steady_speed(U, wheel):
-    """Steady wheel speed and current under constant voltage U with equal wheels (docs/model.md §1)."""
-    nkt = PLANT[f"N{wheel}"] * PLANT[f"KT{wheel}"]
-    nke = PLANT[f"N{wheel}"] * PLANT[f"KE{wheel}"]
-    ra, damping = PLANT[f"Ra{wheel}"], PLANT[f"d{wheel}{wheel}"]
-    v = nkt * U / (ra * damping + nkt * nke)
-    return v, (U - nke * v) / ra
-
-
-@pytest.mark.parametrize("U,theta0", [(10.0, None), (-6.0, 0.7)], ids=["U=10,theta0=table", "U=-6,theta0=0.7"])
-def test_plant_reaches_the_analytic_steady_state(new, U, theta0):
-    real = {} if theta0 is None else {"theta0": theta0}
-    heading = PLANT["theta0"] if theta0 is None else theta0
-    plant = new("MobileRobot", real=real)
-    plant.set(("u1", "u2"), (U, U))
-    h = 0.01
-    for k in range(200):
-        plant.step(k * h, h)
-    at2 = dict(zip(PLANT_OUT, plant.get(PLANT_OUT)))
-    for k in range(200, 300):
-        plant.step(k * h, h)
-    at3 = dict(zip(PLANT_OUT, plant.get(PLANT_OUT)))
-    for wheel in (1, 2):
-        v, i = _steady_speed(U, wheel)
-        assert at3[f"omega{wheel}"] == pytest.approx(v, rel=1e-9)
-        assert at3[f"i{wheel}"] == pytest.approx(i, rel=1e-9)
-    v = _steady_speed(U, 1)[0]
-    assert at3["theta_dot"] == pytest.approx(0.0, abs=1e-12)
-    assert at3["theta"] == pytest.approx(heading, abs=1e-12)
-    # Over the last second it moves along its heading at r v.
-    distance = PLANT["r"] * v * 1.0
-    assert at3["x"] - at2["x"] == pytest.approx(distance * math.cos(heading), rel=1e-9, abs=1e-12)
-    assert at3["y"] - at2["y"] == pytest.approx(distance * math.sin(heading), rel=1e-9, abs=1e-12)
-
-
-def test_plant_turns_in_place_without_offset_mass(new):
-    """u1 = -u2 with d = 0 (no Coriolis coupling): v1 = -v2, the axle midpoint stays put."""
-    plant = new("MobileRobot", real={"d": 0.0})
-    plant.set(("u1", "u2"), (10.0, -10.0))
-    for k in range(50):
-        plant.step(k * 0.01, 0.01)
-    out = dict(zip(PLANT_OUT, plant.get(PLANT_OUT)))
-    assert out["x"] == pytest.approx(PLANT["x0"], abs=1e-12)
-    assert out["y"] == pytest.approx(PLANT["y0"], abs=1e-12)
-    assert out["omega1"] == pytest.approx(-out["omega2"], abs=1e-12)
-    assert out["omega1"] > 0 and out["theta_dot"] > 0 and out["theta"] > PLANT["theta0"] + 0.01
-    # theta_dot = r / (2R) (v1 - v2), eq. (1)
-    assert out["theta_dot"] == pytest.approx(PLANT["r"] / (2 * PLANT["R"]) * (out["omega1"] - out["omega2"]), rel=1e-12)
-
-
-def test_plant_short_turn_with_paper_parameters(new):
-    """With the paper's d > 0 a short u1 = -u2 step still turns essentially in place."""
-    plant = new("MobileRobot")
-    plant.set(("u1", "u2"), (10.0, -10.0))
-    for k in range(10):
-        plant.step(k * 0.005, 0.005)
-    out = dict(zip(PLANT_OUT, plant.get(PLANT_OUT)))
-    turned = out["theta"] - PLANT["theta0"]
-    moved = math.hypot(out["x"] - PLANT["x0"], out["y"] - PLANT["y0"])
-    assert turned > 1e-3
-    assert moved < 1e-3 * PLANT["R"] * turned
-
-
-def _circle(t, x0, y0, theta0, v, w):
-    return (
-        x0 + v / w * (math.sin(theta0 + w * t) - math.sin(theta0)),
-        y0 - v / w * (math.cos(theta0 + w * t) - math.cos(theta0)),
-        theta0 + w * t,
-    )
-
-
-@pytest.mark.parametrize("real", [{}, {"vr0": 0.5, "wr0": -0.4, "theta0": 1.0, "x0": -1.0, "y0": 0.5}],
-                         ids=["table", "custom"])
-def test_reference_constant_profile_follows_the_circle(new, real):
-    p = {**REFERENCE, **real}
-    ref = new("ReferenceRobot", real=real)
-    h, t, checked = 0.05, 0.0, 0
-    assert ref.get(REFERENCE_OUT[:3]) == pytest.approx([p["x0"], p["y0"], p["theta0"]], abs=1e-15)
-    for k in range(1, 401):
-        ref.step(t, h)
-        t = k * h
-        if k % 50 == 0:
-            out = dict(zip(REFERENCE_OUT, ref.get(REFERENCE_OUT)))
-            expected = _circle(t, p["x0"], p["y0"], p["theta0"], p["vr0"], p["wr0"])
-            assert [out["x_r"], out["y_r"], out["theta_r"]] == pytest.approx(expected, abs=1e-9)
-            assert (out["v_r"], out["omega_r"], out["v_r_dot"]) == (p["vr0"], p["wr0"], 0.0)
-            checked += 1
-    assert checked == 8
-
-
-def _eight(t, A, B, T):
-    W = 2 * math.pi / T
-    x, y = A * math.sin(W * t), B * math.sin(2 * W * t)
-    xd, yd = A * W * math.cos(W * t), 2 * B * W * math.cos(2 * W * t)
-    return x, y, math.hypot(xd, yd)
-
-
-def test_reference_figure_eight_traces_the_curve(new):
-    """Started on the curve's initial tangent, the reference robot traces x0 + A sin(Wt), y0 + B sin(2Wt)."""
-    A, B, T = REFERENCE["eight_A"], REFERENCE["eight_B"], REFERENCE["eight_T"]
-    theta0 = math.atan2(2 * B, A)
-    ref = new("ReferenceRobot", real={"theta0": theta0}, integer={"profile": 1})
-    h, accelerating = 0.1, []
-    for k in range(int(round(T / h))):
-        ref.step(k * h, h)
-        t = (k + 1) * h
-        out = dict(zip(REFERENCE_OUT, ref.get(REFERENCE_OUT)))
-        x, y, speed = _eight(t, A, B, T)
-        assert out["v_r"] > 0
-        assert out["v_r"] == pytest.approx(speed, rel=1e-12)
-        if (k + 1) % 25 == 0:
-            assert [out["x_r"] - REFERENCE["x0"], out["y_r"] - REFERENCE["y0"]] == pytest.approx([x, y], abs=1e-8)
-        accelerating.append(abs(out["v_r_dot"]) > 1e-3)
-    assert any(accelerating)
-
-
-def test_reference_profile_starts_at_the_experiments_start_time(md, fmu_unzipped):
-    A, B, T = REFERENCE["eight_A"], REFERENCE["eight_B"], REFERENCE["eight_T"]
-    ref = Instance(md["ReferenceRobot"], fmu_unzipped["ReferenceRobot"], "t5")
-    ref.initialize(integer={"profile": 1}, start_time=5.0)
-    assert ref.get(REFERENCE_OUT[:3]) == [REFERENCE["x0"], REFERENCE["y0"], REFERENCE["theta0"]]
-    assert ref.get1("v_r") == pytest.approx(_eight(5.0, A, B, T)[2], rel=1e-12)
-    ref.step(5.0, 0.1)
-    assert ref.get1("v_r") == pytest.approx(_eight(5.1, A, B, T)[2], rel=1e-12)
-    ref.close()
-
-
-def test_reference_figure_eight_closes_after_one_period(new):
-    T = REFERENCE["eight_T"]
-    ref = new("ReferenceRobot", integer={"profile": 1})
-    start = ref.get(REFERENCE_OUT)
-    h = 0.1
-    quarter = None
-    for k in range(int(round(T / h))):
-        ref.step(k * h, h)
-        if k + 1 == int(round(T / h)) // 4:
-            quarter = ref.get(REFERENCE_OUT)  # the tip of a lobe, A away from the centre
-    end = ref.get(REFERENCE_OUT)
-    assert end[:3] == pytest.approx(start[:3], abs=1e-8)
-    assert end[3:5] == pytest.approx(start[3:5], rel=1e-9, abs=1e-12)
-    # ... and it went somewhere in between (a figure, not a point).
-    assert math.hypot(quarter[0] - start[0], quarter[1] - start[1]) == pytest.approx(REFERENCE["eight_A"], rel=1e-6)
-
-
 # --- FMU state ----------------------------------------------------------------------------------
-
-DRIVES = {
-    "ReferenceRobot": ({"profile": 1}, [], lambda k: []),
-    "MobileRobot": ({}, ["u1", "u2"], lambda k: [10.0 + k, 8.0 - 0.5 * k]),
-    "DSCController": ({}, list(CONTROLLER_IN), lambda k: [m + 0.01 * k for m in M_GUARD]),
-}
-
-
-def _replay(instance, inputs, schedule, t0, steps, h):
-    rows = []
-    for k in range(steps):
-        if inputs:
-            instance.set(inputs, schedule(k))
-        rows.append(instance.outputs())
-        instance.step(t0 + k * h, h)
-    rows.append(instance.outputs())
-    return rows
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_get_and_set_fmu_state_replays_identically(new, name):
-    integer, inputs, schedule = DRIVES[name]
-    inst = new(name, integer=integer)
-    h = 2e-3
-    _replay(inst, inputs, schedule, 0.0, 5, h)
-    state = inst.fmu.getFMUstate()
-    first = _replay(inst, inputs, schedule, 5 * h, 6, h)
-    inst.fmu.setFMUstate(state)
-    second = _replay(inst, inputs, schedule, 5 * h, 6, h)
-    assert second == first
-    assert first[0] != first[-1]
-    if name == "DSCController":
-        assert first[-1]["beta_guard_count"] > first[0]["beta_guard_count"] > 0
-    inst.fmu.freeFMUstate(state)
-
-
-@pytest.mark.parametrize("name", NAMES)
-def test_fmu_state_before_the_first_step(new, name):
-    integer, inputs, schedule = DRIVES[name]
-    inst = new(name, integer=integer)
-    state = inst.fmu.getFMUstate()
-    first = _replay(inst, inputs, schedule, 0.0, 4, 1e-3)
-    inst.fmu.setFMUstate(state)
-    assert _replay(inst, inputs, schedule, 0.0, 4, 1e-3) == first
-    inst.fmu.freeFMUstate(state)
-
 
 @pytest.mark.parametrize("name", NAMES)
 def test_serialized_fmu_state_round_trips_also_into_a_new_instance(new, name):
     integer, inputs, schedule = DRIVES[name]
     inst = new(name, integer=integer)
     h = 2e-3
-    _replay(inst, inputs, schedule, 0.0, 5, h)
+    replay(inst, inputs, schedule, 0.0, 5, h)
     state = inst.fmu.getFMUstate()
     blob = inst.fmu.serializeFMUstate(state)
     assert isinstance(blob, bytes) and len(blob) > 0
-    first = _replay(inst, inputs, schedule, 5 * h, 6, h)
+    first = replay(inst, inputs, schedule, 5 * h, 6, h)
 
     restored = inst.fmu.deSerializeFMUstate(blob)
     inst.fmu.setFMUstate(restored)
-    assert _replay(inst, inputs, schedule, 5 * h, 6, h) == first
+    assert replay(inst, inputs, schedule, 5 * h, 6, h) == first
 
     other = new(name)  # default parameters: the state carries them over
     other_state = other.fmu.deSerializeFMUstate(blob)
     other.fmu.setFMUstate(other_state)
-    assert _replay(other, inputs, schedule, 5 * h, 6, h) == first
+    assert replay(other, inputs, schedule, 5 * h, 6, h) == first
     for fmu, s in ((inst.fmu, state), (inst.fmu, restored), (other.fmu, other_state)):
         fmu.freeFMUstate(s)
-
-
-def test_fmu_state_restores_inputs_and_tunable_parameters(new):
-    plant = new("MobileRobot")
-    plant.set(("u1", "u2"), (4.0, 5.0))
-    plant.step(0.0, 0.01)
-    state = plant.fmu.getFMUstate()
-    expected = plant.outputs()
-    plant.set(("u1", "u2", "max_step"), (-7.0, 9.0, 0.01))
-    plant.step(0.01, 0.01)
-    plant.fmu.setFMUstate(state)
-    assert plant.get(("u1", "u2", "max_step")) == [4.0, 5.0, PLANT["max_step"]]
-    assert plant.outputs() == expected
-    plant.fmu.freeFMUstate(state)
-
-
-# --- internal sub-steps -------------------------------------------------------------------------
-
-
-def test_max_step_sets_the_rk4_sub_steps(new):
-    one = new("MobileRobot", real={"max_step": 1e-3})
-    many = new("MobileRobot", real={"max_step": 1e-3})
-    coarse = new("MobileRobot", real={"max_step": 0.1})
-    for inst in (one, many, coarse):
-        inst.set(("u1", "u2"), (12.0, 7.0))
-    one.step(0.0, 0.1)
-    for k in range(100):
-        many.step(k * 1e-3, 1e-3)
-    coarse.step(0.0, 0.1)
-    fine = one.get(PLANT_OUT)
-    assert fine == pytest.approx(many.get(PLANT_OUT), rel=1e-12, abs=1e-12)
-    rough = coarse.get(PLANT_OUT)
-    assert all(math.isfinite(v) for v in rough)
-    assert abs(rough[4] - fine[4]) > 1e-3 * abs(fine[4])  # omega1: a single RK4 step of 0.1 s is far off
 
 
 # --- errors -------------------------------------------------------------------------------------
 
 INF, NAN = float("inf"), float("nan")
-BAD_VALUES = [
-    # (FMU, kind, variable, value): "input" set in step mode, "parameter"/"integer" in initialization mode
+# One bad value of each kind (every bad value is tried in this process: test_slave_behaviour.py).
+# (FMU, kind, variable, value): "input" and "tunable" set in step mode, "parameter"/"integer" in initialization mode
+ONE_OF_EACH_KIND = [
     ("MobileRobot", "input", "u1", NAN),
-    ("MobileRobot", "input", "u2", INF),
-    ("MobileRobot", "input", "u1", -INF),
-    ("DSCController", "input", "x", NAN),
-    ("DSCController", "input", "theta_dot", -INF),
-    ("DSCController", "input", "v_r_dot", INF),
     ("DSCController", "input", "v_r", 0.0),
-    ("DSCController", "input", "v_r", -1.0),
-    ("MobileRobot", "parameter", "mc", -1.0),
-    ("MobileRobot", "parameter", "La1", 0.0),
-    ("MobileRobot", "parameter", "max_step", -1.0),
-    ("MobileRobot", "parameter", "R", NAN),
-    ("MobileRobot", "parameter", "d", -0.1),
     ("DSCController", "parameter", "tau2", 0.0),
-    ("DSCController", "parameter", "max_step", -1.0),
-    ("DSCController", "parameter", "Gamma1_3", INF),
-    ("DSCController", "tunable", "k1", -2.0),
     ("MobileRobot", "tunable", "max_step", 0.0),
     ("ReferenceRobot", "integer", "profile", 7),
-    ("ReferenceRobot", "integer", "profile", -1),
-    ("ReferenceRobot", "parameter", "vr0", 0.0),
-    ("ReferenceRobot", "parameter", "eight_T", -30.0),
 ]
 
 
 def _healthy_run(md, unzipped, name):
     integer, inputs, schedule = DRIVES[name]
     inst = Instance(md[name], unzipped[name], "healthy").initialize(integer=integer)
-    rows = _replay(inst, inputs, schedule, 0.0, 5, 1e-3)
+    rows = replay(inst, inputs, schedule, 0.0, 5, 1e-3)
     inst.close()
     return rows
 
@@ -820,14 +454,15 @@ def healthy(md, fmu_unzipped):
     return {name: _healthy_run(md, fmu_unzipped, name) for name in NAMES}
 
 
-@pytest.mark.parametrize("name,kind,variable,value", BAD_VALUES,
-                         ids=[f"{n}-{k}-{v}={x}" for n, k, v, x in BAD_VALUES])
+@pytest.mark.parametrize("name,kind,variable,value", ONE_OF_EACH_KIND,
+                         ids=[f"{n}-{k}-{v}={x}" for n, k, v, x in ONE_OF_EACH_KIND])
 def test_bad_value_is_refused_named_and_holds_the_fmu_until_corrected(
         md, fmu_unzipped, healthy, name, kind, variable, value):
-    """The value is refused with an error naming the variable and its range, the variable keeps its
-    last valid value, and doStep returns fmi2Discard while it is refused (see DscSlave). The
-    discarded step leaves the FMU in stepFailed (FMI 2.0.4, 4.2.4), where nothing may be set: the
-    state saved before the step leads back, and a valid value set there lets the step through."""
+    """The set call succeeds, the refusal reaches the importer's logger as an error naming the
+    variable and its range, and doStep returns fmi2Discard while it is refused. The discarded step
+    leaves the FMU in stepFailed (FMI 2.0.4, 4.2.4), where nothing may be set: the state saved before
+    the step leads back, and a valid value set there lets the step through; a fixed parameter, which
+    cannot be set after initialisation, needs a reset. Freed, the FMU runs as before in this process."""
     inst = Instance(md[name], fmu_unzipped[name], "bad")
     fmu, ref = inst.fmu, inst.vr[variable]
     get = fmu.getInteger if kind == "integer" else fmu.getReal
@@ -872,10 +507,9 @@ def test_bad_value_is_refused_named_and_holds_the_fmu_until_corrected(
     assert _healthy_run(md, fmu_unzipped, name) == healthy[name]
 
 
-FREE_AFTER_FATAL = textwrap.dedent("""
+FREE_AFTER_REFUSAL = textwrap.dedent("""
     import gc, sys
     from fmpy import read_model_description
-    from fmpy.fmi1 import FMICallException
     from fmpy.fmi2 import FMU2Slave
     path, unzipped = sys.argv[1], sys.argv[2]
     md = read_model_description(path)
@@ -884,20 +518,18 @@ FREE_AFTER_FATAL = textwrap.dedent("""
         fmu = FMU2Slave(guid=md.guid, unzipDirectory=unzipped, modelIdentifier="MobileRobot", instanceName=f"m{k}")
         fmu.instantiate()
         fmu.setupExperiment(startTime=0.0); fmu.enterInitializationMode(); fmu.exitInitializationMode()
-        try:
-            fmu.setReal([vr["u1"]], [float("nan")])
-        except FMICallException:
-            pass
-        fmu.freeInstance()   # what an importer does when it gives up on a failed instance
+        fmu.setReal([vr["u1"]], [float("nan")])  # refused with fmi2OK: fmpy raises for any worse status
+        fmu.freeInstance()   # what an importer does when it gives up on an instance
         gc.collect()
         print(f"cycle {k} done", flush=True)
     print("survived")
 """)
 
 
-def test_freeing_an_instance_after_a_rejected_value_does_not_crash(fmu_paths, fmu_unzipped):
+def test_freeing_an_instance_after_a_refused_value_does_not_crash(fmu_paths, fmu_unzipped):
+    """In a process of its own, so that a crash fails the test instead of ending the session."""
     run = subprocess.run(
-        [sys.executable, "-c", FREE_AFTER_FATAL, str(fmu_paths["MobileRobot"]), str(fmu_unzipped["MobileRobot"])],
+        [sys.executable, "-c", FREE_AFTER_REFUSAL, str(fmu_paths["MobileRobot"]), str(fmu_unzipped["MobileRobot"])],
         capture_output=True, text=True, timeout=120,
     )
     assert (run.returncode, run.stdout.strip().splitlines()[-1:]) == (0, ["survived"]), (
@@ -939,81 +571,20 @@ def test_an_exception_in_the_model_discards_the_step_and_the_state_api_rolls_bac
     expected.close()
 
 
-def test_non_finite_state_discards_the_step_and_keeps_the_instance_usable(new):
-    plant = new("MobileRobot")
-    plant.set(("u1", "u2"), (1e308, 1e308))  # finite and allowed, but u / La overflows the state
-    before = plant.get(PLANT_OUT)
-    saved = plant.fmu.getFMUstate()
-    with pytest.raises(FMICallException) as failure:
-        plant.step(0.0, 0.01)
-    assert failure.value.status == FMI2_DISCARD
-    assert any("not finite" in message for _, message in plant.messages())
-    assert plant.get(PLANT_OUT) == before
-    plant.fmu.setFMUstate(saved)  # out of stepFailed, where nothing may be set
-    plant.fmu.freeFMUstate(saved)
-    plant.set(("u1", "u2"), (5.0, 5.0))
-    plant.step(0.0, 0.01)
-    assert all(math.isfinite(v) for v in plant.get(PLANT_OUT))
-
-
-def test_beta_guard_is_counted_shown_and_logged(new):
+def test_messages_reach_the_importers_logger_with_their_status_and_category(new):
+    """The guard's warning, a refusal's error and the discarded step: each through fmi2CallbackLogger,
+    with the status the slave gave it and that status's category."""
     ctrl = new("DSCController")
     ctrl.set(CONTROLLER_IN, M_GUARD)
-    out = ctrl.outputs()
-    assert out["beta"] < CONTROLLER["beta_min"] and out["beta_guard_active"] is True
-    for k in range(3):
-        ctrl.step(k * 1e-3, 1e-3)
-    out = ctrl.outputs()
-    assert out["beta_guard_count"] == 3
-    assert all(math.isfinite(out[n]) for n in ("u1", "u2"))
-    warnings = [m for s, m in ctrl.messages() if s == FMI2_WARNING and "beta" in m]
-    assert warnings
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    assert ctrl.outputs()["beta_guard_active"] is False
-
-
-def test_start_on_valid_inputs_waits_then_starts_from_the_first_valid_inputs(new):
-    """start_on = valid_inputs: all-zero inputs (v_r = 0), as a master without an initial exchange
-    gives them, make the controller wait (u = 0, steps accepted, one warning); the first valid
-    inputs start it exactly as a controller that saw them first; after that v_r = 0 is refused."""
-    h = 1e-3
-    ctrl = new("DSCController", integer={"start_on": P.START_ON.index("valid_inputs")})
-    ctrl.set(CONTROLLER_IN, [0.0] * len(CONTROLLER_IN))
-    out = ctrl.outputs()
-    assert (out["u1"], out["u2"], out["S11"], out["beta"], out["a1_hat"], out["started"]) == (0, 0, 0, 1, 0, False)
-    ctrl.step(0.0, h)
-    ctrl.step(h, h)
-    assert ctrl.outputs()["started"] is False and ctrl.get(("u1", "u2")) == [0.0, 0.0]
-    waits = [m for s, m in ctrl.messages() if s == FMI2_WARNING and "waits for valid inputs" in m]
-    assert len(waits) == 1 and "v_r = 0.0" in waits[0] and "t = 0 s" in waits[0]
-    assert not [m for s, m in ctrl.messages() if s >= FMI2_ERROR]
-    ctrl.set(CONTROLLER_IN, M_PAPER)
-    g = gains(CONTROLLER)
-    law = control_law(g, start_filters(g, initial_controller_state(CONTROLLER), M_PAPER), M_PAPER)
-    assert ctrl.get(("u1", "u2")) == [law.u1, law.u2]
-    assert ctrl.outputs()["started"] is False
-    first = new("DSCController")
-    first.set(CONTROLLER_IN, M_PAPER)
-    for inst in (ctrl, first):
-        inst.step(2 * h, h)
-    assert ctrl.outputs()["started"] is True
-    assert any("starts after waiting 2 step(s)" in m and "t = 0.002 s" in m for _, m in ctrl.messages())
-    assert ctrl.outputs() == first.outputs()
-    ctrl.set(("v_r",), (0.0,))
-    with pytest.raises(FMICallException) as failure:
-        ctrl.step(3 * h, h)
-    assert failure.value.status == FMI2_DISCARD
-    assert any(s == FMI2_ERROR and "v_r = 0.0" in m for s, m in ctrl.messages())
-
-
-def test_start_on_valid_inputs_does_not_wait_for_a_refused_parameter(new):
-    ctrl = new("DSCController", integer={"start_on": P.START_ON.index("valid_inputs")})
-    ctrl.set(("tau2",), (0.0,))
-    ctrl.set(CONTROLLER_IN, [0.0] * len(CONTROLLER_IN))
-    with pytest.raises(FMICallException) as failure:
-        ctrl.step(0.0, 1e-3)
-    assert failure.value.status == FMI2_DISCARD
-    assert any(s == FMI2_ERROR and "tau2 = 0.0" in m for s, m in ctrl.messages())
+    ctrl.step(0.0, 1e-3)
+    ctrl.set(("k1",), (-2.0,))
+    with pytest.raises(FMICallException):
+        ctrl.step(1e-3, 1e-3)
+    records = [(status, category, message) for name, status, category, message in LOG.records if name == ctrl.name]
+    assert [record[:2] for record in records] == [
+        (FMI2_WARNING, "logStatusWarning"), (FMI2_ERROR, "logStatusError"), (FMI2_DISCARD, "logStatusDiscard"),
+    ]
+    assert ["beta = " in records[0][2], "k1 = -2.0" in records[1][2], "discarded" in records[2][2]] == [True] * 3
 
 
 # --- the three FMUs together --------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""One slave glue over FMI 2.0 and 3.0: ``SlaveCore`` registered and logging through an FMI library's names.
+"""One slave glue over FMI 2.0 and 3.0: ``SlaveCore`` registered through an FMI library's names.
 
 Bundled into every FMU beside ``slave_core``, ``slave_models`` and ``models``; imports only the standard
 library and ``slave_core``. The FMI library comes as a table of its names (``FmiLibrary``): ``fmi2`` makes it from
@@ -59,9 +59,10 @@ def _ignore(value) -> None:
 
 
 class SlaveGlue(SlaveCore):
-    """``SlaveCore`` registered with and logging through the FMI library of ``library``.
+    """``SlaveCore`` registered with the FMI library of ``library``, logging with its statuses.
 
-    A class of ``fmi2`` or ``fmi3`` puts it on that library's slave class and gives ``library``.
+    A class of ``fmi2`` or ``fmi3`` puts it on that library's slave class (whose ``log`` the core calls)
+    and gives ``library``.
     Values are refused without raising, as in ``SlaveCore``; the project's binary resets by
     constructing the slave anew.
 
@@ -126,36 +127,6 @@ class SlaveGlue(SlaveCore):
             initial=library.initial.calculated, description=description, getter=getter, setter=_ignore,
         ))
 
-    def log_error(self, message: str) -> None:
-        """Log ``message`` with the status error.
-
-        Parameters
-        ----------
-        message : str
-            The message, naming the instance.
-        """
-        self.log(message, self.library.status.error)
-
-    def log_discard(self, message: str) -> None:
-        """Log ``message`` with the status discard (why a step is discarded).
-
-        Parameters
-        ----------
-        message : str
-            The message, naming the instance.
-        """
-        self.log(message, self.library.status.discard)
-
-    def log_warning(self, message: str) -> None:
-        """Log ``message`` with the status warning.
-
-        Parameters
-        ----------
-        message : str
-            The message, naming the instance.
-        """
-        self.log(message, self.library.status.warning)
-
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
         """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode).
@@ -170,3 +141,4 @@ class SlaveGlue(SlaveCore):
             The tolerance, if defined (FMI 2.0); unused.
         """
         self.time = start_time
+        self._stale()

@@ -2,7 +2,8 @@
 
 Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
 ``glue.SlaveGlue`` puts it on the FMI library's slave class (``fmi2``: pythonfmu, ``fmi3``:
-pythonfmu3) and supplies the hooks ``_register``, ``log_error``, ``log_discard`` and ``log_warning``.
+pythonfmu3), which supplies ``log(msg, status, category=None)``; the glue supplies the hook ``_register``
+and ``library``, whose ``status`` names the statuses ``log`` takes.
 """
 
 from __future__ import annotations
@@ -15,6 +16,19 @@ from ..models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
 __all__ = ["SlaveCore"]
 
 HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
+
+
+def _optional_list(value):
+    return None if value is None else list(value)
+
+
+def _history(value):
+    return None if value is None else [value[0], list(value[1])]
+
+
+def _by_index(value):
+    """Input derivatives by input index (JSON gives the indices back as strings)."""
+    return {int(index): slope for index, slope in value.items()}
 
 
 class SlaveCore:
@@ -31,7 +45,12 @@ class SlaveCore:
     A value outside its allowed range is refused without raising, so that the set call succeeds and
     the importer can correct it: the refusal is logged as an error naming the variable and its
     range, the variable keeps its last valid value, and every ``do_step`` returns False
-    (fmiDiscard) until a valid value is set.
+    (fmiDiscard) until a valid value is set. Messages go through the FMI library's
+    ``log(msg, status)`` with a status of ``library.status``.
+
+    The FMU state (``_get_fmu_state``, ``_set_fmu_state``) is the attributes that ``FMU_STATE``
+    names; a model with more state extends the table. The outputs and ``constants`` are cached;
+    ``_stale`` says what they are computed from and is called at every change of it.
 
     The same slave serves model exchange (docs/model-exchange.md): the binary hands it the time and
     the states the importer sets (``set_point``) and reads the vectors of ``STATES`` (derivatives,
@@ -47,11 +66,14 @@ class SlaveCore:
     STATES: tuple = ()  # models.states.ContinuousState of each entry of the state vector
     LOCALS: tuple = ()  # the states' variables that are not outputs
     INDICATORS: tuple = ()  # the variables of ``indicator_values``
+    # The FMU state: each attribute saved and restored, and the function that copies its value (also
+    # out of a JSON round trip).
+    FMU_STATE = {"p": dict, "u": list, "time": float, "rejected": dict, "state": _optional_list, "history": _history,
+                 "derivatives_given": _by_index}
 
     def _init_core(self) -> None:
         """Set up the values and register every variable of the tables (call from ``__init__``)."""
         self.p = {v.name: v.start for v in self.PARAMETERS}
-        self._constants = None
         self.u = [v.start for v in self.INPUTS]
         self._input_index = {v.name: i for i, v in enumerate(self.INPUTS)}
         self.state = None
@@ -61,7 +83,7 @@ class SlaveCore:
         self.derivatives_given = {}  # input index -> first derivative for the next step (fmi2SetRealInputDerivatives)
         self.rejected = {}
         self.time = 0.0
-        self._cache = None
+        self._stale(parameters=True)
         for v in self.PARAMETERS:
             self._register(v, "parameter", getter=lambda n=v.name: self.p[n],
                            setter=lambda value, v=v: self._set_parameter(v, value))
@@ -83,35 +105,20 @@ class SlaveCore:
         "input", "output" or "local") variable."""
         raise NotImplementedError
 
-    def log_error(self, message: str) -> None:
-        """Hook: log ``message`` with the status error.
+    def _stale(self, parameters: bool = False) -> None:
+        """Forget the caches: called by every change of what they are computed from.
+
+        ``output_values`` is computed from the state, the inputs, the time, the parameters, the values
+        refused and the model's switches; ``constants`` from the parameters.
 
         Parameters
         ----------
-        message : str
-            The message, naming the instance.
+        parameters : bool, optional
+            Whether the parameters changed (then ``constants`` too is computed again).
         """
-        raise NotImplementedError
-
-    def log_discard(self, message: str) -> None:
-        """Hook: log ``message`` with the status discard (why a step is discarded).
-
-        Parameters
-        ----------
-        message : str
-            The message, naming the instance.
-        """
-        raise NotImplementedError
-
-    def log_warning(self, message: str) -> None:
-        """Hook: log ``message`` with the status warning.
-
-        Parameters
-        ----------
-        message : str
-            The message, naming the instance.
-        """
-        raise NotImplementedError
+        self._cache = None
+        if parameters:
+            self._constants = None
 
     def _accept(self, kind: str, v, value) -> bool:
         """Whether ``value`` is allowed for ``v``; if not, log why and hold the FMU until it is."""
@@ -121,6 +128,7 @@ class SlaveCore:
                 self.rejected.pop(v.name, None)
             return True
         self.rejected[v.name] = f"{kind} {reason}; allowed: {v.allowed}; the value is refused"
+        self._stale()
         self.report_refusal(kind, self.rejected[v.name])
         return False
 
@@ -134,18 +142,17 @@ class SlaveCore:
         message : str
             Why, naming the variable, the value and the allowed range.
         """
-        self.log_error(f"{self.instance_name}: {message}")
+        self.log(f"{self.instance_name}: {message}", self.library.status.error)
 
     def _set_parameter(self, v, value):
         if self._accept("parameter", v, value):
             self.p[v.name] = int(value) if v.integer else float(value)
-            self._constants = None
-            self._cache = None
+            self._stale(parameters=True)
 
     def _set_input(self, index, v, value):
         if self._accept("input", v, value):
             self.u[index] = float(value)
-            self._cache = None
+            self._stale()
 
     @property
     def constants(self):
@@ -200,9 +207,10 @@ class SlaveCore:
         n = self.substep_count(step_size)
         if n <= MAX_SUBSTEPS:
             return False
-        self.log_discard(
+        self.log(
             f"{self.instance_name}: the step of {step_size} s from t = {current_time} s needs {n} sub-steps of at most "
-            f"max_step = {self.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step; the step is discarded"
+            f"max_step = {self.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step; the step is discarded",
+            self.library.status.discard,
         )
         return True
 
@@ -305,7 +313,7 @@ class SlaveCore:
 
     def exit_initialization_mode(self):
         """The end of initialization: the outputs are computed again."""
-        self._cache = None
+        self._stale()
 
     def do_step(self, current_time, step_size):
         """Take the communication step (fmi2DoStep, fmi3DoStep).
@@ -324,9 +332,9 @@ class SlaveCore:
             more than ``MAX_SUBSTEPS`` sub-steps or a state that is not finite, and then the state is unchanged.
         """
         if self.rejected:
-            self.log_discard(
+            self.log(
                 f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}; "
-                "the step is discarded"
+                "the step is discarded", self.library.status.discard,
             )
             return False
         if self.too_many_substeps(current_time, step_size):
@@ -337,9 +345,9 @@ class SlaveCore:
         finally:
             self._slope = None
         if not all(math.isfinite(value) for value in new):
-            self.log_discard(
+            self.log(
                 f"{self.instance_name}: state not finite after the step from t = {current_time} s "
-                f"of {step_size} s; the step is discarded"
+                f"of {step_size} s; the step is discarded", self.library.status.discard,
             )
             return False
         self.state = new
@@ -351,7 +359,7 @@ class SlaveCore:
         """A step taken up to ``end_time``: its input derivatives used up, the outputs to compute again."""
         self.derivatives_given = {}
         self.time = end_time
-        self._cache = None
+        self._stale()
 
     # --- model exchange: the importer integrates the state; the switches change only at events ---
 
@@ -369,7 +377,7 @@ class SlaveCore:
             self.time = t
         if x is not None:
             self.state = list(x)
-        self._cache = None
+        self._stale()
 
     def get_continuous_states(self) -> list:
         """The continuous states, for model exchange.
@@ -429,7 +437,7 @@ class SlaveCore:
 
     def update_discrete_states(self) -> None:
         """Event mode: choose the switches held until the next event."""
-        self._cache = None
+        self._stale()
 
     def indicator_values(self, x: list) -> list:
         """Hook: the event indicators at state ``x`` (none by default).
@@ -447,44 +455,12 @@ class SlaveCore:
         return []
 
     def _get_fmu_state(self):
-        return {
-            "p": dict(self.p), "u": list(self.u), "time": self.time,
-            "rejected": dict(self.rejected), "state": None if self.state is None else list(self.state),
-            "history": None if self.history is None else [self.history[0], list(self.history[1])],
-            "derivatives": [[index, value] for index, value in self.derivatives_given.items()],
-            "extra": self.extra_state(),
-        }
+        return {name: copy(getattr(self, name)) for name, copy in self.FMU_STATE.items()}
 
     def _set_fmu_state(self, saved):
-        self.p = dict(saved["p"])
-        self.u = list(saved["u"])
-        self.time = saved["time"]
-        self.rejected = dict(saved["rejected"])
-        self.state = None if saved["state"] is None else list(saved["state"])
-        self.history = None if saved["history"] is None else [saved["history"][0], list(saved["history"][1])]
-        self.derivatives_given = {int(index): value for index, value in saved["derivatives"]}
-        self.set_extra_state(saved["extra"])
-        self._constants = None
-        self._cache = None
-
-    def extra_state(self) -> dict:
-        """Hook: what else a subclass must save with the FMU state.
-
-        Returns
-        -------
-        dict
-            JSON-serialisable values; none by default.
-        """
-        return {}
-
-    def set_extra_state(self, extra: dict):
-        """Hook: restore what ``extra_state`` saved.
-
-        Parameters
-        ----------
-        extra : dict
-            What ``extra_state`` returned, after a round trip through JSON.
-        """
+        for name, copy in self.FMU_STATE.items():
+            setattr(self, name, copy(saved[name]))
+        self._stale(parameters=True)
 
     def derive(self, p: dict):
         """What the model needs from the parameters ``p``, precomputed (``constants``).

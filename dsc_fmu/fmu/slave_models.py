@@ -2,7 +2,8 @@
 
 Bundled into every FMU beside ``slave_core`` and ``models``. Each class is a mixin put before the
 glue of an FMI version (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave script of
-``fmu_sources``; the glue supplies ``register_discrete_output`` and ``log_warning``.
+``fmu_sources``; the glue supplies ``register_discrete_output`` and ``library``, the FMI library's slave
+class ``log``.
 """
 
 from ..models.controller import (
@@ -17,6 +18,7 @@ from ..models.plant import initial_plant_state, plant_coefficients, plant_deriva
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
 from ..models.rk4 import euler_step
 from ..models.states import CONTROLLER_STATES, EVENT_INDICATORS, FILTER_STATES, PLANT_STATES, REFERENCE_STATES
+from .slave_core import SlaveCore
 
 __all__ = ["MobileRobotModel", "ReferenceRobotModel", "DSCControllerModel"]
 
@@ -24,6 +26,11 @@ EULER = DISCRETIZATIONS.index("euler")
 VALID_INPUTS = START_ON.index("valid_inputs")
 _INPUT_NAMES = frozenset(v.name for v in CONTROLLER_INPUTS)
 _WAITING_LAW_OUTPUTS = [v.start for v in CONTROLLER_OUTPUTS[:6]]  # u1, u2, S11, S12, S13, beta
+
+
+def _switches(held):
+    """The held switches (a list after a JSON round trip), or None."""
+    return None if held is None else Switches(*held)
 
 
 class MobileRobotModel:
@@ -170,6 +177,8 @@ class DSCControllerModel:
     STATES = CONTROLLER_STATES
     LOCALS = FILTER_STATES
     INDICATORS = EVENT_INDICATORS
+    FMU_STATE = {**SlaveCore.FMU_STATE, "beta_guard_count": int, "_guarded_last_step": bool, "waited_steps": int,
+                 "held": _switches}
 
     def _init_core(self):
         self.held = None  # model exchange: the switches held since the last event; None: chosen at each evaluation
@@ -355,31 +364,41 @@ class DSCControllerModel:
             True if taken (or waited), False if discarded (see ``SlaveCore.do_step``).
         """
         if self.waiting():
-            if not self.waited_steps:
-                self.log_warning(
-                    f"{self.instance_name}: waits for valid inputs from t = {current_time:.6g} s with u = 0 "
-                    f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}"
-                )
-            self.waited_steps += 1
-            self._stepped(current_time + step_size)
+            self._wait(current_time, step_size)
             return True
         if self.state is None and self.waited_steps and not self.rejected:
-            self.log_warning(
+            self.log(
                 f"{self.instance_name}: every input valid at t = {current_time:.6g} s: the controller starts "
-                f"after waiting {self.waited_steps} step(s) with u = 0 (start_on = valid_inputs)"
+                f"after waiting {self.waited_steps} step(s) with u = 0 (start_on = valid_inputs)",
+                self.library.status.warning,
             )
         self._guard_seen = None
         ok = super().do_step(current_time, step_size)
+        self._count_guard()
+        return ok
+
+    def _wait(self, current_time, step_size):
+        """A step waited for valid inputs; the first is logged."""
+        if not self.waited_steps:
+            self.log(
+                f"{self.instance_name}: waits for valid inputs from t = {current_time:.6g} s with u = 0 "
+                f"(start_on = valid_inputs): {'; '.join(self.rejected.values())}",
+                self.library.status.warning,
+            )
+        self.waited_steps += 1
+        self._stepped(current_time + step_size)
+
+    def _count_guard(self):
+        """Count a step in which the guard acted; log the first of a run of such steps."""
         if self._guard_seen is not None:
             self.beta_guard_count += 1
             if not self._guarded_last_step:
                 t, beta = self._guard_seen
-                self.log_warning(
+                self.log(
                     f"{self.instance_name}: beta = {beta:.6g} < beta_min = {self.p['beta_min']:g} at t = {t:.6g} s: "
-                    "h2 divides by beta_min (outside the region of Remark 3)"
+                    "h2 divides by beta_min (outside the region of Remark 3)", self.library.status.warning,
                 )
         self._guarded_last_step = self._guard_seen is not None
-        return ok
 
     def outputs(self, x):
         """The outputs at state ``x`` and the inputs set: u = 0 and the surfaces zero while waiting.
@@ -425,33 +444,9 @@ class DSCControllerModel:
         held = switches(self.constants, self.u)
         if held.guarded and not (self.held and self.held.guarded):
             self.beta_guard_count += 1
-            self.log_warning(
+            self.log(
                 f"{self.instance_name}: beta < beta_min = {self.p['beta_min']:g} from t = {self.time:.6g} s: h2 "
-                "divides by beta_min (outside the region of Remark 3)"
+                "divides by beta_min (outside the region of Remark 3)", self.library.status.warning,
             )
         self.held = held
         super().update_discrete_states()
-
-    def extra_state(self):
-        """The guard count, the wait and the held switches, saved with the FMU state.
-
-        Returns
-        -------
-        dict
-            ``beta_guard_count``, ``guarded_last_step``, ``waited_steps`` and ``held``.
-        """
-        return {"beta_guard_count": self.beta_guard_count, "guarded_last_step": self._guarded_last_step,
-                "waited_steps": self.waited_steps, "held": self.held}
-
-    def set_extra_state(self, extra):
-        """Restore what ``extra_state`` saved.
-
-        Parameters
-        ----------
-        extra : dict
-            What ``extra_state`` returned, after a round trip through JSON.
-        """
-        self.beta_guard_count = extra["beta_guard_count"]
-        self._guarded_last_step = extra["guarded_last_step"]
-        self.waited_steps = extra["waited_steps"]
-        self.held = None if extra["held"] is None else Switches(*extra["held"])

@@ -37,11 +37,6 @@ class _Bare(SlaveCore):
     def register_discrete_output(self, name, description, getter, boolean):
         pass
 
-    def log_error(self, message):
-        pass
-
-    log_discard = log_warning = log_error
-
 
 def _models(spec: FmuSpec):
     """A bare slave of ``spec``'s model for every combination of the parameters that choose between laws."""
@@ -66,7 +61,7 @@ def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str,
     for probe in _models(spec):
         for _ in range(_POINTS):
             probe.p.update({v.name: (v.start or 1.0) * rng.uniform(0.5, 2.0) for v in spec.parameters if not v.integer})
-            probe._constants = None
+            probe._stale(parameters=True)
             probe.u = [rng.uniform(0.5, 2.0) for _ in probe.u]
             probe.state = [rng.uniform(0.5, 2.0) for _ in spec.states]
             probe.time = rng.uniform(0.5, 2.0)
@@ -88,7 +83,7 @@ def _setter(attribute: str, key):
     """A known's setter: item ``key`` of the probe's ``attribute`` (``u``, ``state`` or ``p``)."""
     def put(probe, value):
         getattr(probe, attribute)[key] = value
-        probe._constants = None
+        probe._stale(parameters=True)
     return put
 
 
