@@ -5,8 +5,9 @@ from __future__ import annotations
 import json
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
-__all__ = ["BUILD_ID_FILE", "fmu_build_id"]
+__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_fmi_version"]
 
 # Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
@@ -29,4 +30,25 @@ def fmu_build_id(fmu: Path) -> str | None:
         with zipfile.ZipFile(fmu) as archive:
             return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]
     except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+        return None
+
+
+def fmu_fmi_version(fmu: Path) -> str | None:
+    """The FMI version an FMU declares, whoever built it.
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        An FMU file.
+
+    Returns
+    -------
+    str or None
+        The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``), or None if it has
+        none (or is not readable).
+    """
+    try:
+        with zipfile.ZipFile(fmu) as archive:
+            return ET.fromstring(archive.read("modelDescription.xml")).get("fmiVersion")
+    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile):
         return None
