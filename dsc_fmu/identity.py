@@ -26,11 +26,7 @@ def fmu_build_id(fmu: Path) -> str | None:
     str or None
         The ``source_hash`` of its ``BUILD_ID_FILE``, or None if it is not one of ours (or not readable).
     """
-    try:
-        with zipfile.ZipFile(fmu) as archive:
-            return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
-        return None
+    return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data)["source_hash"])
 
 
 def fmu_fmi_version(fmu: Path) -> str | None:
@@ -47,8 +43,14 @@ def fmu_fmi_version(fmu: Path) -> str | None:
         The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``), or None if it has
         none (or is not readable).
     """
+    return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
+
+
+def _read(fmu: Path, name: str, parse):
+    """``parse`` of the file ``name`` of an FMU, or None if the FMU, the file or what ``parse`` looks for is
+    missing or not readable."""
     try:
         with zipfile.ZipFile(fmu) as archive:
-            return ET.fromstring(archive.read("modelDescription.xml")).get("fmiVersion")
-    except (OSError, KeyError, ET.ParseError, zipfile.BadZipFile):
+            return parse(archive.read(name))
+    except (OSError, KeyError, ValueError, ET.ParseError, zipfile.BadZipFile):
         return None
