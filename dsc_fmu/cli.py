@@ -1,116 +1,30 @@
-"""The ``dsc-fmu`` command line: a thin shell over one public function per command."""
+"""The ``dsc-fmu`` command line: a thin shell over one public function per command.
+
+Every option is declared once, in ``_OPTIONS``, with one help text; each command adds the options it
+takes. An option left out is not passed on, so that its default is its owner's (the scenario, ``Grid``,
+the FMU builder), and the help texts read those defaults from their owners. Only the command being run
+gets its options, so that a command imports only the owners it needs.
+"""
 
 from __future__ import annotations
 
 import argparse
+import inspect
 import sys
 import warnings
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Callable
 
-from .fmubuild.fmus import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS
-from .errors import DscFmuError
+from .errors import DscFmuError, FmiVersionError
+from .fmubuild.folders import DEFAULT_FMI_VERSION, DEFAULT_FMU_DIRS, FMI_VERSIONS, resolve_fmu_dir
 from .models.parameters import DISCRETIZATIONS
 from .scenario import (
-    COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, Coupling, Interface, ScenarioError, load_scenario,
-    scenario_names,
+    COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, Coupling, Interface, ScenarioError, Simulation,
+    load_scenario, scenario_names,
 )
 
 __all__ = ["main"]
-
-
-def _parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
-        prog="dsc-fmu", description="The adaptive DSC of a mobile robot as FMI co-simulation FMUs: build them, "
-        "co-simulate a scenario, study the communication step, export the closed loop.")
-    commands = parser.add_subparsers(dest="command", required=True)
-
-    build = commands.add_parser("build", help="build the three FMUs")
-    build.add_argument("--out", type=Path, help=f"folder for the FMUs (default: {DEFAULT_FMU_DIRS[2]}, "
-                       f"{DEFAULT_FMU_DIRS[3]} with --fmi-version 3)")
-    build.add_argument("--fmi-version", type=int, choices=FMI_VERSIONS, default=2,
-                       help="FMI version of the FMUs (default: %(default)s)")
-
-    for command, what in (("export-ssp", "an SSP 1.0 archive of the closed loop"),
-                          ("export-fmu", "one co-simulation FMU of the closed loop (fmpy's container FMU)")):
-        export = commands.add_parser(command, help=f"write {what}")
-        export.add_argument("scenario", nargs="?", default="paper", help="a scenario name or a TOML file (default: %(default)s)")
-        export.add_argument("-o", "--out", type=Path, required=True, help="the file to write")
-        export.add_argument("--step-size", type=float, help="communication step in s (default: the scenario's)")
-        export.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
-        export.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR,
-                            help="FMUs to pack if current (default: %(default)s); else they are built in a temporary folder")
-
-    run = commands.add_parser("run", help="co-simulate a scenario and write results, metrics and figures")
-    run.add_argument(
-        "scenario", nargs="?", default="paper",
-        help=f"a scenario name ({', '.join(scenario_names())}) or a path to a TOML file (default: %(default)s)",
-    )
-    run.add_argument("--step-size", type=float, help="communication step in s (default: the scenario's)")
-    run.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
-    run.add_argument("--order", choices=ORDERS, help="coupling order (default: the scenario's)")
-    run.add_argument("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); linear: "
-                     "the plant extrapolates u, the controller interpolates or extrapolates its inputs (default: the scenario's)")
-    run.add_argument("--input-derivatives", action=argparse.BooleanOptionalAction,
-                     help="with --coupling linear: the master sets the slopes with fmi2SetRealInputDerivatives "
-                          "(the standard route, FMI 2.0) instead of the FMUs' coupling parameters (default: the "
-                          "scenario's)")
-    run.add_argument("--output-interval", type=float, help="recording interval in s (default: the scenario's)")
-    run.add_argument("--interface", choices=INTERFACES, default="co-simulation",
-                     help="co-simulation: this project's master steps the three FMUs; model-exchange: the three FMUs "
-                          "as one ODE, integrated by SciPy's DOP853 with their event indicators (default: %(default)s)")
-    run.add_argument("--tolerance", type=float, metavar="TOL", help="co-simulation: error-controlled step, the "
-                     "estimated position error (m) each step may add, the step varying within [--h-min, --h-max] "
-                     "from --step-size, with the linear coupling unless --coupling says otherwise; model exchange: "
-                     "the solver's relative tolerance (default 1e-6)")
-    run.add_argument("--h-min", type=float, help="smallest error-controlled step in s (default: the scenario's, 1e-5)")
-    run.add_argument("--h-max", type=float, help="largest error-controlled step in s (default: the scenario's, 0.02)")
-    run.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
-    run.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
-    run.add_argument("--no-plots", action="store_true", help="write no figures")
-    run.add_argument("--quiet", action="store_true", help="no progress line and no forecast (errors still show)")
-
-    sweep = commands.add_parser("sweep", help="step-size sensitivity study: a grid of co-simulations and a report")
-    sweep.add_argument("scenario", nargs="?", default="paper", help="a scenario name or a TOML file (default: %(default)s)")
-    sweep.add_argument("--step-sizes", type=_floats, help="communication steps in s, comma-separated "
-                       "(default: 12 log-spaced from 1e-4 to 5e-2)")
-    sweep.add_argument("--orders", type=_names, help=f"coupling orders, comma-separated (default: {','.join(ORDERS)})")
-    sweep.add_argument("--couplings", type=_names, default=list(COUPLINGS),
-                       help=f"couplings, comma-separated: {', '.join(COUPLINGS)} (default: both)")
-    sweep.add_argument("--tolerances", type=_optional_floats, metavar="TOL,...",
-                       help="tolerances (m) of error-controlled runs, with the linear coupling if --couplings has it "
-                       "(else the hold), comma-separated, or '' for none (default: 1e-2,1e-3,1e-4)")
-    sweep.add_argument("--discretizations", type=_names,
-                       help=f"controller discretizations, comma-separated: {', '.join(DISCRETIZATIONS)} (default: rk4)")
-    sweep.add_argument("--set", action="append", default=[], metavar="TABLE.KEY=V1,V2,...",
-                       help="sweep a scenario value too, e.g. controller.k4=0.5,1,2 (repeat for a grid)")
-    sweep.add_argument("--perturb", action="append", default=[], metavar="plant.KEY=P%|LOW:HIGH",
-                       help="draw a plant parameter at random, e.g. plant.mc=20%% (Monte Carlo, with --samples)")
-    sweep.add_argument("--samples", type=int, help="number of Monte Carlo samples of the --perturb parameters")
-    sweep.add_argument("--seed", type=int, default=0, help="seed of the Monte Carlo draws (default: %(default)s)")
-    sweep.add_argument("--stop-time", type=float, help="stop time in s (default: the scenario's)")
-    sweep.add_argument("--stability", choices=STABILITIES,
-                       help="what a stable run is: settled (where it ends up) or local (it stays with the reference "
-                            "solution from its start: for a scenario starting in steady tracking); "
-                            "default: the scenario's")
-    sweep.add_argument("--reference", choices=REFERENCES,
-                       help="what the deviations are measured against: the monolithic ODE of the equations, or the "
-                            "three FMUs as one ODE through model exchange (both DOP853 at 1e-10; default: the "
-                            "scenario's, monolithic)")
-    sweep.add_argument("--jobs", type=int, help="local worker processes (default: all cores)")
-    sweep.add_argument("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786")
-    sweep.add_argument("--no-refine", action="store_true", help="do not bisect the stability boundaries")
-    sweep.add_argument("--out", type=Path, help="output folder (default: results/sweep-<scenario name>)")
-    sweep.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR, help="where the FMUs are built (default: %(default)s)")
-
-    crosscheck = commands.add_parser("crosscheck", help="write the FMI cross-check artefacts of the three FMUs")
-    crosscheck.add_argument("-o", "--out", type=Path, required=True, help="the folder to write them under")
-    crosscheck.add_argument("--step-size", type=float, help="communication step in s (default: 1e-3)")
-    crosscheck.add_argument("--stop-time", type=float, default=2.0, help="stop time in s (default: %(default)s)")
-    crosscheck.add_argument("--fmu-dir", type=Path, default=DEFAULT_FMU_DIR,
-                            help="FMUs to use if current (default: %(default)s); else built in a temporary folder")
-
-    commands.add_parser("scenarios", help="list the scenarios shipped with dsc-fmu")
-    return parser
 
 
 def _floats(text: str) -> list[float]:
@@ -124,19 +38,197 @@ def _optional_floats(text: str) -> list[float]:
     return _floats(text) if text.strip() else []
 
 
-def _option(setting: str) -> str:
-    """The command-line option of a simulation setting: ``step_size`` is ``--step-size``."""
-    return "--" + setting.replace("_", "-")
-
-
 def _names(text: str) -> list[str]:
-    return [item.strip() for item in text.split(",") if item.strip()]
+    names = [item.strip() for item in text.split(",") if item.strip()]
+    if not names:
+        raise argparse.ArgumentTypeError(f"{text!r} names none; allowed: one or more names, comma-separated")
+    return names
+
+
+@dataclass(frozen=True)
+class _Option:
+    """A command-line option: its flags, its help (its ``{fields}`` filled by each command from the
+    owners of the values) and the rest of ``add_argument``'s keywords."""
+
+    flags: tuple
+    help: str
+    keywords: dict
+
+
+def _option(*flags: str, help: str, **keywords) -> _Option:
+    return _Option(flags, help, keywords)
+
+
+_SCENARIOS = "the scenario's"
+_OPTIONS = {
+    "scenario": _option("scenario", nargs="?", help="a scenario name ({names}) or a TOML file (default: %(default)s)"),
+    "step_size": _option("--step-size", type=float, help="communication step in s (default: {default})"),
+    "stop_time": _option("--stop-time", type=float, help="stop time in s (default: {default})"),
+    "fmu_dir": _option("--fmu-dir", type=Path, help="folder of the three FMUs, {use} (default: {default})"),
+    "fmi_version": _option("--fmi-version", type=int, choices=FMI_VERSIONS, help="FMI version of the FMUs{only} "
+                           "(default: that of the FMUs in the folder, else {default}); FMUs of another version are "
+                           "never replaced"),
+    "interface": _option("--interface", choices=INTERFACES, help="co-simulation: the FMUs stepped at the "
+                         "communication step{stepped}; model-exchange: the three FMUs as one ODE{integrated} "
+                         "(default: {default})"),
+    "order": _option("--order", choices=ORDERS, help="coupling order (default: {default})"),
+    "coupling": _option("--coupling", choices=COUPLINGS, help="hold: inputs held over a step (zero-order hold); "
+                        "linear: the plant extrapolates u, the controller interpolates or extrapolates its inputs "
+                        "(default: {default})"),
+    "input_derivatives": _option("--input-derivatives", action=argparse.BooleanOptionalAction, help="with "
+                                 "--coupling linear: the master sets the slopes with fmi2SetRealInputDerivatives (the "
+                                 "standard route, FMI 2.0) instead of the FMUs' coupling parameters "
+                                 "(default: {default})"),
+    "output_interval": _option("--output-interval", type=float, help="recording interval in s (default: {default})"),
+    "tolerance": _option("--tolerance", type=float, metavar="TOL", help="co-simulation: error-controlled step, the "
+                         "estimated position error (m) each step may add, the step varying within [--h-min, --h-max] "
+                         "from --step-size, with the linear coupling unless --coupling says otherwise; model exchange: "
+                         "the solver's relative tolerance (default: {default}; model exchange: {solver} where it "
+                         "sets none)"),
+    "h_min": _option("--h-min", type=float, help="smallest error-controlled step in s (default: {default}, {unset} "
+                     "where it sets none)"),
+    "h_max": _option("--h-max", type=float, help="largest error-controlled step in s (default: {default}, {unset} "
+                     "where it sets none)"),
+    "no_plots": _option("--no-plots", action="store_true", help="write no figures"),
+    "quiet": _option("--quiet", action="store_true", help="no progress line and no forecast (errors still show)"),
+    "step_sizes": _option("--step-sizes", type=_floats, help="communication steps in s, comma-separated "
+                          "(default: {default})"),
+    "orders": _option("--orders", type=_names, help=f"coupling orders, comma-separated: {', '.join(ORDERS)} "
+                      "(default: {default})"),
+    "couplings": _option("--couplings", type=_names, help=f"couplings, comma-separated: {', '.join(COUPLINGS)} "
+                         "(default: {default})"),
+    "discretizations": _option("--discretizations", type=_names, help="controller discretizations, "
+                               f"comma-separated: {', '.join(DISCRETIZATIONS)} (default: {{default}})"),
+    "tolerances": _option("--tolerances", type=_optional_floats, metavar="TOL,...", help="tolerances (m) of "
+                          "error-controlled runs, with the linear coupling if --couplings has it (else the hold), "
+                          "comma-separated, or '' for none (default: {default})"),
+    "set": _option("--set", action="append", metavar="TABLE.KEY=V1,V2,...", help="sweep a scenario value too, e.g. "
+                   "controller.k4=0.5,1,2 (repeat for a grid)"),
+    "perturb": _option("--perturb", action="append", metavar="plant.KEY=P%|LOW:HIGH", help="draw a plant parameter "
+                       "at random, e.g. plant.mc=20%% (Monte Carlo, with --samples)"),
+    "samples": _option("--samples", type=int, help="number of Monte Carlo samples of the --perturb parameters"),
+    "seed": _option("--seed", type=int, help="seed of the Monte Carlo draws (default: {default})"),
+    "stability": _option("--stability", choices=STABILITIES, help="what a stable run is: settled (where it ends up) "
+                         "or local (it stays with the reference solution from its start: for a scenario starting in "
+                         "steady tracking) (default: {default})"),
+    "reference": _option("--reference", choices=REFERENCES, help="what the deviations are measured against: the "
+                         "monolithic ODE of the equations, or the three FMUs as one ODE through model exchange "
+                         "(default: {default})"),
+    "jobs": _option("--jobs", type=int, help="local worker processes (default: all cores)"),
+    "scheduler": _option("--scheduler", help="address of a Dask distributed scheduler, e.g. tcp://10.0.0.5:8786"),
+    "no_refine": _option("--no-refine", action="store_true", help="do not bisect the stability boundaries"),
+}
+
+
+def _add(parser: argparse.ArgumentParser, *names: str, flags: tuple = (), **fields) -> None:
+    """Add the options ``names`` of ``_OPTIONS`` (under ``flags`` if given), their help's fields filled in;
+    ``default`` is the scenario's unless given."""
+    for name in names:
+        option = _OPTIONS[name]
+        keywords = {"dest": name, **option.keywords} if option.flags[0].startswith("-") else option.keywords
+        help = option.help.format(**{"default": _SCENARIOS, **fields})
+        parser.add_argument(*(flags or option.flags), help=help, **keywords)
+
+
+def _add_fmus(parser: argparse.ArgumentParser, use: str, command: str = "", flags: tuple = ()) -> None:
+    """The FMU folder and FMI version options of ``command``, their defaults those of ``fmubuild.folders``."""
+    folders = ", ".join(f"{folder} for FMI {version}.0" for version, folder in DEFAULT_FMU_DIRS.items())
+    _add(parser, "fmu_dir", flags=flags, use=use, default=folders)
+    only = f": 2 only ({_FMI2_ONLY[command]})" if command in _FMI2_ONLY else ""
+    _add(parser, "fmi_version", only=only, default=DEFAULT_FMI_VERSION)
+
+
+def _add_scenario(parser: argparse.ArgumentParser) -> None:
+    """The scenario argument, its default ``load_scenario``'s."""
+    _add(parser, "scenario", names=", ".join(scenario_names()))
+    parser.set_defaults(scenario=inspect.signature(load_scenario).parameters["name_or_path"].default)
+
+
+_BUILT_THERE = "built there if missing or out of date"
+_USED_IF_CURRENT = "used if current, else built in a temporary folder"
+# The commands that take FMI 2.0 FMUs only, and why.
+_FMI2_ONLY = {
+    "export-ssp": "an SSP 1.0 archive types its connectors with FMI 2.0's type names",
+    "crosscheck": "the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs",
+}
+
+
+def _build_options(parser: argparse.ArgumentParser) -> None:
+    _add_fmus(parser, "built there", flags=("--out", "--fmu-dir"))
+
+
+def _run_options(parser: argparse.ArgumentParser) -> None:
+    from .cosim.model_exchange import DEFAULT_TOLERANCE, METHOD
+
+    _add_scenario(parser)
+    _add(parser, "step_size", "stop_time", "order", "coupling", "input_derivatives", "output_interval")
+    _add(parser, "interface", stepped=" by this project's master",
+         integrated=f", integrated by SciPy's {METHOD} with their event indicators", default=Interface.CO_SIMULATION)
+    _add(parser, "tolerance", solver=f"{DEFAULT_TOLERANCE:g}")
+    for name in ("h_min", "h_max"):
+        _add(parser, name, unset=f"{getattr(Simulation, name):g}")
+    parser.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
+    _add_fmus(parser, _BUILT_THERE)
+    _add(parser, "no_plots", "quiet")
+
+
+def _sweep_options(parser: argparse.ArgumentParser) -> None:
+    from .study.cases import Grid
+
+    grid = Grid()
+    _add_scenario(parser)
+    steps = grid.step_sizes
+    _add(parser, "step_sizes", default=f"{len(steps)} log-spaced from {min(steps):g} to {max(steps):g}")
+    for name in ("orders", "couplings", "discretizations"):
+        _add(parser, name, **({} if getattr(grid, name) is None else {"default": ",".join(getattr(grid, name))}))
+    _add(parser, "tolerances", default=",".join(f"{t:g}" for t in grid.tolerances))
+    _add(parser, "set", "perturb", "samples")
+    _add(parser, "seed", default=grid.seed)
+    _add(parser, "stop_time", "stability", "reference", "jobs", "scheduler", "no_refine")
+    parser.add_argument("--out", type=Path, help="output folder (default: results/sweep-<scenario name>)")
+    _add_fmus(parser, _BUILT_THERE)
+
+
+def _export_options(parser: argparse.ArgumentParser, command: str) -> None:
+    _add_scenario(parser)
+    parser.add_argument("-o", "--out", type=Path, required=True, help="the file to write")
+    _add(parser, "step_size", "stop_time")
+    if command == "export-ssp":
+        _add(parser, "interface", stepped=" by the importing tool's master", integrated=", integrated by the "
+             "importing tool", default=Interface.CO_SIMULATION)
+    _add_fmus(parser, _USED_IF_CURRENT, command)
+
+
+def _crosscheck_options(parser: argparse.ArgumentParser) -> None:
+    from .interop.crosscheck import DEFAULT_STOP_TIME
+
+    parser.add_argument("-o", "--out", type=Path, required=True, help="the folder to write them under")
+    _add(parser, "step_size")
+    _add(parser, "stop_time", default=f"{DEFAULT_STOP_TIME:g}")
+    _add_fmus(parser, _USED_IF_CURRENT, "crosscheck")
+
+
+def _given(args: argparse.Namespace, *names: str) -> dict:
+    """The options among ``names`` the user gave, by name: the others keep their owners' defaults."""
+    return {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
+
+
+def _fmus(args: argparse.Namespace) -> tuple[Path, int]:
+    """The FMU folder and FMI version of a command (``resolve_fmu_dir``), refused in one line if the
+    command does not take FMUs of that version."""
+    folder, version = resolve_fmu_dir(args.fmu_dir, args.fmi_version)
+    if version != 2 and args.command in _FMI2_ONLY:
+        raise FmiVersionError(f"{args.command} with FMI {version}.0 FMUs ({folder}) is not allowed: "
+                              f"{_FMI2_ONLY[args.command]}; allowed: FMI 2.0 FMUs (--fmi-version 2, a folder without "
+                              f"FMI {version}.0 FMUs)")
+    return folder, version
 
 
 def _build(args) -> None:
     from .fmubuild.fmus import build_fmus
 
-    for path in build_fmus(args.out, fmi_version=args.fmi_version).values():
+    folder, version = _fmus(args)
+    for path in build_fmus(folder, fmi_version=version).values():
         print(path)
 
 
@@ -147,32 +239,34 @@ def _export(args) -> None:
 
     export = {"export-ssp": export_ssp, "export-fmu": export_fmu}[args.command]
     scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
-    with current_fmus(args.fmu_dir) as fmus:
-        print(export(scenario, args.out, fmus))
+    interface = {"interface": Interface(args.interface)} if getattr(args, "interface", None) else {}  # export-ssp
+    folder, version = _fmus(args)
+    with current_fmus(folder, version) as fmus:
+        print(export(scenario, args.out, fmus, **interface))
 
 
 def _sweep(args) -> None:
-    from .study.cases import DEFAULT_TOLERANCES, Grid, Runner, parse_perturb, parse_set
+    from .study.cases import Grid, Runner, parse_perturb, parse_set
     from .study.sweep import run_sweep
 
     scenario = load_scenario(args.scenario).with_simulation(stop_time=args.stop_time, stability=args.stability,
                                                             reference=args.reference)
-    grid = Grid(step_sizes=args.step_sizes, orders=args.orders or ORDERS, discretizations=args.discretizations,
-                couplings=args.couplings,
-                tolerances=DEFAULT_TOLERANCES if args.tolerances is None else args.tolerances,
-                sets=[parse_set(text) for text in args.set],
-                perturbations=[parse_perturb(text) for text in args.perturb], samples=args.samples, seed=args.seed)
-    runner = Runner(jobs=args.jobs, scheduler=args.scheduler)
-    print(run_sweep(scenario, args.out or Path("results") / f"sweep-{scenario.name}", grid, runner,
-                    fmu_dir=args.fmu_dir, refine=not args.no_refine))
+    grid = Grid(**_given(args, "step_sizes", "orders", "discretizations", "couplings", "tolerances", "samples", "seed"),
+                sets=[parse_set(text) for text in args.set or ()],
+                perturbations=[parse_perturb(text) for text in args.perturb or ()])
+    folder, version = _fmus(args)
+    print(run_sweep(scenario, args.out or Path("results") / f"sweep-{scenario.name}", grid,
+                    Runner(**_given(args, "jobs", "scheduler")), fmu_dir=folder, fmi_version=version,
+                    refine=not args.no_refine))
 
 
 def _crosscheck(args) -> None:
     from .fmubuild.fmus import current_fmus
     from .interop.crosscheck import write_crosscheck
 
-    with current_fmus(args.fmu_dir) as fmus:
-        folders = write_crosscheck(args.out, fmus, step_size=args.step_size, stop_time=args.stop_time)
+    folder, version = _fmus(args)
+    with current_fmus(folder, version) as fmus:
+        folders = write_crosscheck(args.out, fmus, **_given(args, "step_size", "stop_time"))
     for folder in folders.values():
         print(folder)
 
@@ -208,17 +302,20 @@ def _error_controlled_coupling(args, interface: Interface, scenario) -> tuple[st
     return args.coupling, "", ""
 
 
+def _flag(name: str) -> str:
+    return _OPTIONS[name].flags[0]
+
+
 def _run(args) -> int:
     from .cosim.progress import TerminalWatch
     from .cosim.run import run_scenario
 
-    interface = Interface(args.interface)
+    interface = Interface(args.interface or Interface.CO_SIMULATION)
     given = [name for name in _SETTINGS if getattr(args, name) is not None and name not in interface.settings]
     if given:
         owners = " or ".join(other for other in Interface if given[0] in other.settings)
-        allowed = ", ".join(_option(name) for name in interface.settings if name in _SETTINGS)
-        raise ScenarioError(f"{_option(given[0])} is a {owners} setting; allowed with --interface {interface}: "
-                            f"{allowed}")
+        allowed = ", ".join(_flag(name) for name in interface.settings if name in _SETTINGS)
+        raise ScenarioError(f"{_flag(given[0])} is a {owners} setting; allowed with --interface {interface}: {allowed}")
     scenario = load_scenario(args.scenario)
     coupling, note, hint = _error_controlled_coupling(args, interface, scenario)
     scenario = scenario.with_simulation(
@@ -226,16 +323,49 @@ def _run(args) -> int:
         coupling=coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
         input_derivatives=args.input_derivatives,
     )
+    folder, version = _fmus(args)
     if note:
         print(note, file=sys.stderr)
     with TerminalWatch(scenario.simulation.stop_time, scenario.name, quiet=args.quiet, hint=hint) as watch:
-        print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=args.fmu_dir,
-                           plots=not args.no_plots, interface=interface, watch=watch))
+        print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=folder,
+                           fmi_version=version, plots=not args.no_plots, interface=interface, watch=watch))
     return 130 if watch.interrupted else 0
 
 
-COMMANDS = {"build": _build, "export-ssp": _export, "export-fmu": _export, "sweep": _sweep, "crosscheck": _crosscheck,
-            "scenarios": _scenarios, "run": _run}
+@dataclass(frozen=True)
+class _Command:
+    """A command: what it does (its help), the function that runs it and the one that adds its options."""
+
+    help: str
+    run: Callable
+    options: Callable
+
+
+COMMANDS = {
+    "build": _Command("build the three FMUs", _build, _build_options),
+    "run": _Command("co-simulate a scenario and write results, metrics and figures", _run, _run_options),
+    "sweep": _Command("step-size sensitivity study: a grid of co-simulations and a report", _sweep, _sweep_options),
+    "export-ssp": _Command("write an SSP 1.0 archive of the closed loop", _export,
+                           lambda parser: _export_options(parser, "export-ssp")),
+    "export-fmu": _Command("write one co-simulation FMU of the closed loop (fmpy's container FMU)", _export,
+                           lambda parser: _export_options(parser, "export-fmu")),
+    "crosscheck": _Command("write the FMI cross-check artefacts of the three FMUs (a closed-loop run of the paper "
+                           "scenario)", _crosscheck, _crosscheck_options),
+    "scenarios": _Command("list the scenarios shipped with dsc-fmu", _scenarios, lambda parser: None),
+}
+
+
+def _parser(command: str | None) -> argparse.ArgumentParser:
+    """The parser, with the options of ``command`` only (the others' help would import their owners)."""
+    parser = argparse.ArgumentParser(
+        prog="dsc-fmu", description="The adaptive DSC of a mobile robot as FMI co-simulation FMUs: build them, "
+        "co-simulate a scenario, study the communication step, export the closed loop.")
+    commands = parser.add_subparsers(dest="command", required=True)
+    for name, spec in COMMANDS.items():
+        subparser = commands.add_parser(name, help=spec.help, description=spec.help)
+        if name == command:
+            spec.options(subparser)
+    return parser
 
 
 def _warning(message, category, filename, lineno, file=None, line=None) -> None:
@@ -259,11 +389,12 @@ def main(argv: list[str] | None = None) -> int:
     int
         The exit status: 0 on success, 1 on an error the user can fix, 130 when interrupted.
     """
-    args = _parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    args = _parser(argv[0] if argv else None).parse_args(argv)
     shown = warnings.showwarning
     warnings.showwarning = _warning
     try:
-        status = COMMANDS[args.command](args)
+        status = COMMANDS[args.command].run(args)
     except (DscFmuError, OSError) as error:  # OSError: a file or folder the system refuses
         print(f"dsc-fmu: error: {error}", file=sys.stderr)
         return 1

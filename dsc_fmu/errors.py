@@ -1,6 +1,6 @@
 """The base of every error a user can cause: ``dsc-fmu`` catches it and prints its one-line message."""
 
-__all__ = ["DscFmuError", "FmuNotFoundError", "CosimulationError"]
+__all__ = ["DscFmuError", "FmuNotFoundError", "FmiVersionError", "CosimulationError"]
 
 
 class DscFmuError(Exception):
@@ -13,6 +13,10 @@ class DscFmuError(Exception):
 
 class FmuNotFoundError(DscFmuError, FileNotFoundError):
     """One of the three FMUs is not given or not a file."""
+
+
+class FmiVersionError(DscFmuError, ValueError):
+    """A folder holding FMUs of another FMI version than the one asked: building there would replace them."""
 
 
 class CosimulationError(DscFmuError, RuntimeError):

@@ -5,8 +5,9 @@ from __future__ import annotations
 import json
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree as ET
 
-__all__ = ["BUILD_ID_FILE", "fmu_build_id"]
+__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_fmi_version"]
 
 # Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
@@ -25,8 +26,31 @@ def fmu_build_id(fmu: Path) -> str | None:
     str or None
         The ``source_hash`` of its ``BUILD_ID_FILE``, or None if it is not one of ours (or not readable).
     """
+    return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data)["source_hash"])
+
+
+def fmu_fmi_version(fmu: Path) -> str | None:
+    """The FMI version an FMU declares, whoever built it.
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        An FMU file.
+
+    Returns
+    -------
+    str or None
+        The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``), or None if it has
+        none (or is not readable).
+    """
+    return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
+
+
+def _read(fmu: Path, name: str, parse):
+    """``parse`` of the file ``name`` of an FMU, or None if the FMU, the file or what ``parse`` looks for is
+    missing or not readable."""
     try:
         with zipfile.ZipFile(fmu) as archive:
-            return json.loads(archive.read(BUILD_ID_FILE))["source_hash"]
-    except (OSError, KeyError, ValueError, zipfile.BadZipFile):
+            return parse(archive.read(name))
+    except (OSError, KeyError, ValueError, ET.ParseError, zipfile.BadZipFile):
         return None

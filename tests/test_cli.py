@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from dsc_fmu.cli import main
-from dsc_fmu.scenario import load_scenario
+from dsc_fmu.scenario import INTERFACES, load_scenario
 from dsc_fmu.cosim.signals import COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
@@ -35,6 +35,14 @@ def console_script() -> str:
 @pytest.fixture(scope="module")
 def fmu_dir(fmu_paths):
     return next(iter(fmu_paths.values())).parent
+
+
+@pytest.fixture(scope="module")
+def fmu3_dir(tmp_path_factory):
+    """A folder of FMI 3.0 FMUs built by ``dsc-fmu build --fmi-version 3``."""
+    folder = tmp_path_factory.mktemp("cli_fmus3")
+    assert main(["build", "--fmi-version", "3", "--out", str(folder)]) == 0
+    return folder
 
 
 def test_run_writes_results_summary_and_figures(tmp_path, fmu_dir, capsys):
@@ -151,11 +159,15 @@ def test_bad_input_gives_one_line_and_writes_nothing(tmp_path, capsys, arguments
     assert not out.exists() and not (tmp_path / "fmus").exists()
 
 
-def test_bad_order_is_refused_by_the_parser(capsys):
+@pytest.mark.parametrize("arguments, message", [
+    (["run", "--order", "random"], "invalid choice: 'random'"),
+    (["sweep", "--orders", " , "], "argument --orders: ' , ' names none; allowed: one or more names, comma-separated"),
+])
+def test_bad_options_are_refused_by_the_parser(capsys, arguments, message):
     with pytest.raises(SystemExit) as exit_:
-        main(["run", "--order", "random"])
+        main(arguments)
     assert exit_.value.code == 2
-    assert "invalid choice: 'random'" in capsys.readouterr().err
+    assert message in capsys.readouterr().err
 
 
 @pytest.mark.parametrize("command", [[console_script()], [sys.executable, "-m", "dsc_fmu"]], ids=["script", "module"])
@@ -216,11 +228,118 @@ def test_export_of_a_bad_scenario_writes_nothing(tmp_path, fmu_dir, capsys, comm
     assert not out.exists()
 
 
-def test_build_fmi_3(tmp_path, capsys):
-    assert main(["build", "--fmi-version", "3", "--out", str(tmp_path)]) == 0
+def test_build_fmi_3(fmu3_dir):
     from fmpy import read_model_description
-    for path in capsys.readouterr().out.split():
-        assert read_model_description(path).fmiVersion == "3.0"
+    assert sorted(p.name for p in fmu3_dir.iterdir()) == ["DSCController.fmu", "MobileRobot.fmu", "ReferenceRobot.fmu"]
+    for path in fmu3_dir.iterdir():
+        assert read_model_description(str(path)).fmiVersion == "3.0"
+
+
+def _snapshot(folder: Path) -> dict:
+    """Every file of a folder: its bytes and modification time."""
+    return {path.name: (path.read_bytes(), path.stat().st_mtime_ns) for path in sorted(folder.iterdir())}
+
+
+def _assert_same_rows(fmi2, fmi3):
+    """FMI 3.0 results equal FMI 2.0 ones to the precision test_fmi3 asserts."""
+    assert fmi3.dtype == fmi2.dtype and len(fmi3) == len(fmi2)
+    for column in fmi2.dtype.names:
+        np.testing.assert_allclose(fmi3[column], fmi2[column], rtol=1e-12, atol=1e-12, err_msg=column)
+
+
+@pytest.mark.parametrize("interface", INTERFACES)
+def test_run_reads_the_fmi_version_of_its_folder(tmp_path, fmu_dir, fmu3_dir, interface):
+    """``run --fmu-dir`` a folder of FMI 3.0 FMUs, no --fmi-version: it runs them, with the FMI 2.0 run's
+    results, and leaves them as they were."""
+    from fmpy.util import read_csv
+
+    before = _snapshot(fmu3_dir)
+    results = {}
+    for version, folder in ((2, fmu_dir), (3, fmu3_dir)):
+        out = tmp_path / str(version)
+        assert main(["run", "--interface", interface, "--stop-time", "0.2", "--no-plots", "--quiet", "--out", str(out),
+                     "--fmu-dir", str(folder)]) == 0
+        results[version] = read_csv(out / "results.csv")
+    assert _snapshot(fmu3_dir) == before
+    assert results[3]["time"][-1] == 0.2
+    _assert_same_rows(results[2], results[3])
+
+
+def test_export_fmu_holds_fmi3_fmus(tmp_path, fmu_dir, fmu3_dir):
+    """fmpy's container FMU (FMI 2.0 itself) around FMI 3.0 FMUs validates and runs as around FMI 2.0 ones."""
+    from fmpy import simulate_fmu
+    from fmpy.validation import validate_fmu
+
+    results = {}
+    for version, folder in ((2, fmu_dir), (3, fmu3_dir)):
+        out = tmp_path / f"loop{version}.fmu"
+        assert main(["export-fmu", "on_reference", "-o", str(out), "--stop-time", "0.5", "--fmu-dir", str(folder)]) == 0
+        assert validate_fmu(str(out)) == []
+        results[version] = simulate_fmu(str(out), stop_time=0.5, output_interval=0.01)
+    _assert_same_rows(results[2], results[3])
+
+
+_REPLACED = "fmi_version = {asked} is not allowed for {folder}, which holds FMI {held}.0 FMUs (they would be replaced); " \
+    "allowed: {held}, or another folder"
+_FMI2_ONLY = "{command} with FMI 3.0 FMUs ({folder}) is not allowed: {why}; allowed: FMI 2.0 FMUs (--fmi-version 2, " \
+    "a folder without FMI 3.0 FMUs)"
+
+
+@pytest.mark.parametrize("arguments, held, message", [
+    (["build", "--fmi-version", "2", "--out"], 3, _REPLACED.format(asked=2, held=3, folder="{folder}")),
+    (["run", "--fmi-version", "2", "--fmu-dir"], 3, _REPLACED.format(asked=2, held=3, folder="{folder}")),
+    (["run", "--interface", "model-exchange", "--fmi-version", "2", "--fmu-dir"], 3,
+     _REPLACED.format(asked=2, held=3, folder="{folder}")),
+    (["run", "--fmi-version", "3", "--fmu-dir"], 2, _REPLACED.format(asked=3, held=2, folder="{folder}")),
+    (["sweep", "--fmi-version", "2", "--fmu-dir"], 3, _REPLACED.format(asked=2, held=3, folder="{folder}")),
+    (["export-fmu", "-o", "{out}", "--fmi-version", "2", "--fmu-dir"], 3,
+     _REPLACED.format(asked=2, held=3, folder="{folder}")),
+    (["export-ssp", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
+        command="export-ssp", folder="{folder}", why="an SSP 1.0 archive types its connectors with FMI 2.0's type names")),
+    (["crosscheck", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
+        command="crosscheck", folder="{folder}",
+        why="the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs")),
+], ids=["build", "run", "run-model-exchange", "run-fmi3-on-fmi2", "sweep", "export-fmu", "export-ssp", "crosscheck"])
+def test_fmus_of_another_version_are_refused_in_one_line_and_left_untouched(tmp_path, fmu_dir, fmu3_dir, capsys,
+                                                                             arguments, held, message):
+    folder = fmu3_dir if held == 3 else fmu_dir
+    out = tmp_path / "out"
+    before = _snapshot(folder)
+    arguments = [*(argument.format(out=out) for argument in arguments), str(folder)]
+    assert main([*arguments, *(["--out", str(out)] if arguments[0] in ("run", "sweep") else [])]) == 1
+    captured = capsys.readouterr()
+    assert captured.err.splitlines() == [f"dsc-fmu: error: {message.format(folder=folder)}"]
+    assert captured.out == ""
+    assert _snapshot(folder) == before
+    assert not out.exists()
+
+
+def test_a_folder_of_two_fmi_versions_is_refused(tmp_path, fmu_dir, fmu3_dir, capsys):
+    mixed = tmp_path / "mixed"
+    mixed.mkdir()
+    for name, folder in (("MobileRobot", fmu_dir), ("DSCController", fmu3_dir)):
+        (mixed / f"{name}.fmu").write_bytes((folder / f"{name}.fmu").read_bytes())
+    before = _snapshot(mixed)
+    assert main(["run", "--stop-time", "0.1", "--out", str(tmp_path / "out"), "--fmu-dir", str(mixed)]) == 1
+    assert capsys.readouterr().err.splitlines() == [
+        f"dsc-fmu: error: {mixed} holds FMUs of FMI 2.0 and 3.0; allowed: a folder whose FMUs share one FMI version"]
+    assert _snapshot(mixed) == before
+
+
+@pytest.mark.parametrize("interface, system", [("co-simulation", b"FixedStepMaster"),
+                                               ("model-exchange", b"VariableStepSolver")])
+def test_export_ssp_passes_the_interface(tmp_path, fmu_dir, interface, system):
+    """``export-ssp --interface``: the SSD's OMSimulator system is a fixed-step master or a variable-step solver."""
+    import zipfile
+
+    from dsc_fmu.interop.ssp import validate_ssp
+
+    out = tmp_path / "loop.ssp"
+    assert main(["export-ssp", "on_reference", "-o", str(out), "--interface", interface, "--stop-time", "1",
+                 "--fmu-dir", str(fmu_dir)]) == 0
+    validate_ssp(out)
+    with zipfile.ZipFile(out) as archive:
+        assert system in archive.read("SystemStructure.ssd")
 
 
 def test_export_writes_only_its_file_when_no_fmus_are_built(tmp_path, capsys):
@@ -260,3 +379,70 @@ def test_commands_import_heavy_libraries_only_when_they_need_them(tmp_path, fmu_
             f"print(status, *[name for name in {HEAVY!r} if name in sys.modules])")
     process = subprocess.run([sys.executable, "-c", code, *arguments], capture_output=True, text=True, cwd=tmp_path)
     assert process.stdout.splitlines()[-1].split() == ["0", *heavy], process.stderr
+
+
+def _help(command: str, capsys) -> str:
+    with pytest.raises(SystemExit) as exit_:
+        main([command, "--help"])
+    assert exit_.value.code == 0
+    return capsys.readouterr().out
+
+
+@pytest.fixture()
+def wide(monkeypatch):
+    """Help on lines as long as it needs: argparse wraps at the terminal's width (COLUMNS)."""
+    monkeypatch.setenv("COLUMNS", "1000")
+
+
+def test_help_names_the_owners_defaults(capsys, wide):
+    from dsc_fmu.cosim.model_exchange import DEFAULT_TOLERANCE
+    from dsc_fmu.fmubuild.folders import DEFAULT_FMU_DIRS
+    from dsc_fmu.interop.crosscheck import DEFAULT_STOP_TIME
+    from dsc_fmu.scenario import Simulation
+    from dsc_fmu.study.cases import DEFAULT_TOLERANCES, default_step_sizes
+
+    folders = f"(default: {DEFAULT_FMU_DIRS[2]} for FMI 2.0, {DEFAULT_FMU_DIRS[3]} for FMI 3.0)"
+    run = _help("run", capsys)
+    assert f"model exchange: {DEFAULT_TOLERANCE:g} where it sets none" in run
+    assert f"smallest error-controlled step in s (default: the scenario's, {Simulation.h_min:g} where" in run
+    assert f"largest error-controlled step in s (default: the scenario's, {Simulation.h_max:g} where" in run
+    assert folders in run and "(default: that of the FMUs in the folder, else 2)" in run
+    sweep = _help("sweep", capsys)
+    steps = default_step_sizes()
+    assert f"(default: {len(steps)} log-spaced from {steps[0]:g} to {steps[-1]:g})" in sweep
+    assert "coupling orders, comma-separated: gauss-seidel, jacobi (default: gauss-seidel,jacobi)" in sweep
+    assert "couplings, comma-separated: hold, linear (default: hold,linear)" in sweep
+    assert f"(default: {','.join(f'{t:g}' for t in DEFAULT_TOLERANCES)})" in sweep
+    assert "controller discretizations, comma-separated: rk4, euler (default: the scenario's)" in sweep
+    assert "seed of the Monte Carlo draws (default: 0)" in sweep
+    crosscheck = _help("crosscheck", capsys)
+    assert f"stop time in s (default: {DEFAULT_STOP_TIME:g})" in crosscheck
+    assert "FMI version of the FMUs: 2 only" in crosscheck
+    for command in ("export-ssp", "export-fmu", "build"):
+        assert folders in _help(command, capsys)
+
+
+def test_help_reads_its_defaults_from_their_owners(monkeypatch, capsys, wide):
+    """Change the owners' defaults and the help follows: nothing is copied."""
+    from types import SimpleNamespace
+
+    import dsc_fmu.cosim.model_exchange as model_exchange
+    import dsc_fmu.interop.crosscheck as crosscheck
+    import dsc_fmu.study.cases as cases
+    from dsc_fmu.fmubuild.folders import DEFAULT_FMU_DIRS
+    from dsc_fmu.scenario import Simulation
+
+    monkeypatch.setattr(cases, "Grid", lambda: SimpleNamespace(
+        step_sizes=(0.002, 0.02, 0.2), orders=("jacobi",), couplings=("linear",), discretizations=("euler",),
+        tolerances=(0.5,), seed=7))
+    monkeypatch.setattr(model_exchange, "DEFAULT_TOLERANCE", 3e-7)
+    monkeypatch.setattr(crosscheck, "DEFAULT_STOP_TIME", 4.5)
+    monkeypatch.setattr(Simulation, "h_max", 0.125)
+    monkeypatch.setitem(DEFAULT_FMU_DIRS, 3, Path("elsewhere"))
+    sweep = _help("sweep", capsys)
+    for text in ("(default: 3 log-spaced from 0.002 to 0.2)", "jacobi (default: jacobi)", "linear (default: linear)",
+                 "euler (default: euler)", "or '' for none (default: 0.5)", "draws (default: 7)", "elsewhere for FMI 3.0"):
+        assert text in sweep
+    run = _help("run", capsys)
+    assert "model exchange: 3e-07 where it sets none" in run and "(default: the scenario's, 0.125 where" in run
+    assert "stop time in s (default: 4.5)" in _help("crosscheck", capsys)

@@ -85,3 +85,14 @@ def test_libcosim_override_reaches_the_step_it_is_set_before(folders, tmp_path):
     for name in ("omega1", "omega2", "i1", "i2"):
         deviation = np.max(np.abs(result[name] - reference[name])) / np.max(np.abs(reference[name]))
         assert deviation > 1e-3, name
+
+
+def test_fmi3_fmus_are_refused_before_anything_is_written(tmp_path, fmu3_paths):
+    """The cross-check's layout (``fmus/2.0/cs/...``) knows FMI 1.0 and 2.0 FMUs only."""
+    from dsc_fmu.errors import FmiVersionError
+
+    with pytest.raises(FmiVersionError) as refusal:
+        write_crosscheck(tmp_path / "xc", fmu3_paths)
+    assert str(refusal.value) == (f"{fmu3_paths['ReferenceRobot']} is an FMI 3.0 FMU: not allowed in the FMI "
+                                  "cross-check, which takes FMI 1.0 and 2.0 FMUs; allowed: FMI 2.0 FMUs")
+    assert not (tmp_path / "xc").exists()

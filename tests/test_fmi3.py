@@ -20,8 +20,9 @@ from fmpy.fmi1 import FMICallException
 from fmpy.fmi3 import FMU3Slave
 from fmpy.validation import validate_fmu
 
+from dsc_fmu.errors import FmiVersionError
 from dsc_fmu.fmubuild.fmus import (
-    DEFAULT_FMU_DIR, build_fmus, default_fmu_dir, ensure_fmus, source_hash,
+    DEFAULT_FMU_DIR, build_fmu, build_fmus, current_fmus, default_fmu_dir, ensure_fmus, resolve_fmu_dir, source_hash,
 )
 from dsc_fmu.fmubuild.model_description import UNITS
 from dsc_fmu.identity import BUILD_ID_FILE, fmu_build_id
@@ -167,11 +168,42 @@ def test_default_folders_and_versions():
 
 def test_ensure_fmi3_builds_then_reuses_and_keeps_versions_apart(tmp_path):
     first = ensure_fmus(tmp_path, fmi_version=3)
-    stamps = {name: path.stat().st_mtime_ns for name, path in first.items()}
+    files = {path.name: (path.read_bytes(), path.stat().st_mtime_ns) for path in sorted(tmp_path.iterdir())}
     assert ensure_fmus(tmp_path, fmi_version=3) == first
-    assert {name: path.stat().st_mtime_ns for name, path in first.items()} == stamps
-    second = ensure_fmus(tmp_path, fmi_version=2)  # an FMI 3.0 FMU is stale for FMI 2.0
-    assert all(read_model_description(str(p)).fmiVersion == "2.0" for p in second.values())
+    assert ensure_fmus(tmp_path) == first  # the folder's version
+    with current_fmus(tmp_path) as current:
+        assert current == first
+    refused = (f"fmi_version = 2 is not allowed for {tmp_path}, which holds FMI 3.0 FMUs (they would be replaced); "
+               "allowed: 3, or another folder")
+    for write in (lambda: ensure_fmus(tmp_path, fmi_version=2), lambda: build_fmus(tmp_path, fmi_version=2),
+                  lambda: build_fmu(FMUS["MobileRobot"], tmp_path, fmi_version=2),
+                  lambda: current_fmus(tmp_path, fmi_version=2).__enter__()):
+        with pytest.raises(FmiVersionError) as refusal:
+            write()
+        assert str(refusal.value) == refused
+    assert {path.name: (path.read_bytes(), path.stat().st_mtime_ns) for path in sorted(tmp_path.iterdir())} == files
+
+
+@pytest.mark.parametrize("declared, message", [
+    ("1.0", "{folder} holds FMI 1.0 FMUs; allowed: a folder of FMI 2.0 or 3.0 FMUs, or one without FMUs"),
+    ("2.0", None),
+])
+def test_a_folder_is_read_by_the_fmi_version_its_fmus_declare(tmp_path, declared, message):
+    """Whoever built them: the ``fmiVersion`` of each FMU's modelDescription.xml; a file that is no FMU counts as none."""
+    with zipfile.ZipFile(tmp_path / "MobileRobot.fmu", "w") as fmu:
+        fmu.writestr("modelDescription.xml", f'<fmiModelDescription fmiVersion="{declared}" modelName="M"/>')
+    (tmp_path / "DSCController.fmu").write_text("not an FMU")
+    if message is None:
+        assert resolve_fmu_dir(tmp_path) == (tmp_path, 2)
+        with pytest.raises(FmiVersionError, match="allowed: 2, or another folder"):
+            resolve_fmu_dir(tmp_path, 3)
+    else:
+        with pytest.raises(FmiVersionError) as refusal:
+            resolve_fmu_dir(tmp_path)
+        assert str(refusal.value) == message.format(folder=tmp_path)
+    assert resolve_fmu_dir(tmp_path / "empty") == (tmp_path / "empty", 2)
+    assert resolve_fmu_dir(tmp_path / "empty", 3) == (tmp_path / "empty", 3)
+    assert resolve_fmu_dir(None, 3) == (default_fmu_dir(3), 3)
 
 
 def test_build_script_builds_fmi3(tmp_path):

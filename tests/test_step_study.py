@@ -116,3 +116,26 @@ def test_a_sweep_reports_the_linear_coupling_beside_the_hold_and_error_controlle
     assert "second order, as expected" in report
     printed = capsys.readouterr().out
     assert "linear error-controlled, tolerance 0.0001 m: max deviation" in printed
+
+
+def test_a_sweep_reads_the_fmi_version_of_its_folder(tmp_path, fmu_dir, fmu3_paths):
+    """``sweep --fmu-dir`` a folder of FMI 3.0 FMUs: its runs are the FMI 2.0 sweep's (to test_fmi3's
+    precision), its FMUs left as they were."""
+    fmu3_dir = next(iter(fmu3_paths.values())).parent
+    files = {path: (path.read_bytes(), path.stat().st_mtime_ns) for path in fmu3_dir.iterdir()}
+    rows = {}
+    for version, folder in ((2, fmu_dir), (3, fmu3_dir)):
+        out = tmp_path / f"sweep{version}"
+        assert main(["sweep", "on_reference", "--stop-time", "1", "--step-sizes", "0.01,0.02", "--orders", "jacobi",
+                     "--couplings", "hold", "--tolerances", "", "--no-refine", "--jobs", "1", "--out", str(out),
+                     "--fmu-dir", str(folder)]) == 0
+        with open(out / "sweep.csv") as file:
+            rows[version] = list(csv.DictReader(file))
+    assert {path: (path.read_bytes(), path.stat().st_mtime_ns) for path in fmu3_dir.iterdir()} == files
+    assert [row["step_size"] for row in rows[3]] == ["0.01", "0.02"]
+    deviations = [key for key in rows[2][0] if key.endswith("_m")]
+    assert "max_position_deviation_m" in deviations
+    for fmi2, fmi3 in zip(rows[2], rows[3]):
+        assert fmi3["stable"] == fmi2["stable"] == "True"
+        for key in deviations:
+            assert float(fmi3[key]) == pytest.approx(float(fmi2[key]), rel=1e-12, abs=1e-12), key

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
+from ..fmubuild.fmus import ensure_fmus
 from ..scenario import INTERFACES, Interface, Scenario, ScenarioError
 from .master import cosimulate
 from .metrics import tracking_metrics
@@ -17,8 +17,9 @@ __all__ = ["run_scenario"]
 _SIMULATE = {Interface.CO_SIMULATION: cosimulate, Interface.MODEL_EXCHANGE: simulate_model_exchange}
 
 
-def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = DEFAULT_FMU_DIR, plots: bool = True,
-                 interface: Interface | str = Interface.CO_SIMULATION, watch: Watch | None = None) -> str:
+def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str | None = None, plots: bool = True,
+                 interface: Interface | str = Interface.CO_SIMULATION, watch: Watch | None = None,
+                 fmi_version: int | None = None) -> str:
     """Simulate a scenario through the FMUs and write its results, metrics and figures.
 
     Writes ``results.csv`` and ``summary.json`` (``results.write_results``) and, with ``plots``,
@@ -31,8 +32,9 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = 
         The scenario, its settings checked.
     out_dir : pathlib.Path or str
         The folder to write into, created if missing.
-    fmu_dir : pathlib.Path or str, optional
-        Where the FMUs are, built there first if missing or out of date.
+    fmu_dir : pathlib.Path or str or None, optional
+        Where the FMUs are, built there first if missing or out of date (``ensure_fmus``). Default None:
+        ``default_fmu_dir`` of the FMI version.
     plots : bool, optional
         Draw the figures. Default True.
     interface : {"co-simulation", "model-exchange"} or Interface, optional
@@ -41,6 +43,8 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = 
     watch : progress.Watch, optional
         Sees the run go and may stop it: what was simulated until then is written, its metrics over
         that part.
+    fmi_version : {2, 3} or None, optional
+        The FMI version of the FMUs. Default None: that of the FMUs in ``fmu_dir``, else 2.
 
     Returns
     -------
@@ -51,12 +55,14 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str = 
     ------
     ScenarioError
         If ``interface`` is not one of ``INTERFACES``, or the scenario asks what the FMUs lack.
+    FmiVersionError
+        If ``fmu_dir`` holds FMUs of another FMI version than ``fmi_version``; nothing is written.
     CosimulationError
         If the run diverges or an FMU fails.
     """
     if interface not in INTERFACES:
         raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")
-    run = _SIMULATE[interface](scenario, ensure_fmus(fmu_dir), watch=watch)
+    run = _SIMULATE[interface](scenario, ensure_fmus(fmu_dir, fmi_version), watch=watch)
     metrics = tracking_metrics(run.result, run.stopped_at or scenario.simulation.stop_time)
     out_dir = Path(out_dir)
     paths = write_results(out_dir, run, scenario, metrics)

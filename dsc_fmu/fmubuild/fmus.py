@@ -24,17 +24,15 @@ from ..identity import BUILD_ID_FILE, fmu_build_id
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
+from .folders import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir
 from .model_description import complete_model_description, documentation
 
 __all__ = [
     "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmu", "build_fmus", "ensure_fmus", "current_fmus",
-    "source_hash", "default_fmu_dir",
+    "source_hash", "default_fmu_dir", "resolve_fmu_dir",
 ]
 
 PACKAGE_DIR = Path(__file__).parents[1]
-DEFAULT_FMU_DIR = Path("build") / "fmus"
-DEFAULT_FMU_DIRS = {2: DEFAULT_FMU_DIR, 3: Path("build") / "fmus3"}
-FMI_VERSIONS = (2, 3)
 ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
@@ -51,33 +49,6 @@ def _sources_dir() -> Path:
         if candidate.is_dir():
             return candidate
     raise FileNotFoundError(f"fmu_sources not found beside {PACKAGE_DIR}")
-
-
-def _check_version(fmi_version: int) -> int:
-    if fmi_version not in FMI_VERSIONS:
-        raise ValueError(f"fmi_version = {fmi_version!r} is not allowed; allowed: 2 or 3")
-    return fmi_version
-
-
-def default_fmu_dir(fmi_version: int = 2) -> Path:
-    """Where the FMUs of an FMI version are built by default.
-
-    Parameters
-    ----------
-    fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
-
-    Returns
-    -------
-    pathlib.Path
-        ``build/fmus`` (2.0) or ``build/fmus3`` (3.0), relative to the working directory.
-
-    Raises
-    ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
-    """
-    return DEFAULT_FMU_DIRS[_check_version(fmi_version)]
 
 
 def _library_version(fmi_version: int) -> str:
@@ -124,7 +95,7 @@ def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
     ValueError
         If ``fmi_version`` is not 2 or 3.
     """
-    _check_version(fmi_version)
+    check_fmi_version(fmi_version)
     library = _library_version(fmi_version)
     digest = hashlib.sha256(f"{__version__} {library} {spec.name} {build_python()}".encode())
     for path in _bundled_files(spec, fmi_version):
@@ -221,17 +192,17 @@ def _forget_staged_modules(package: str, script: str) -> None:
         del sys.modules[name]
 
 
-def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
+def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None) -> Path:
     """Build one FMU, atomically.
 
     Parameters
     ----------
     spec : registry.FmuSpec
         The FMU to build.
-    out_dir : pathlib.Path
+    out_dir : pathlib.Path or str
         The directory, created if missing; the FMU is ``out_dir/<name>.fmu``.
-    fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+    fmi_version : {2, 3} or None, optional
+        The FMI version. Default None: that of the FMUs in ``out_dir``, else 2 (``resolve_fmu_dir``).
 
     Returns
     -------
@@ -242,11 +213,13 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
     ------
     ValueError
         If ``fmi_version`` is not 2 or 3.
+    FmiVersionError
+        If ``out_dir`` holds FMUs of another FMI version; nothing is written.
     BinaryBuildError
         If the FMU's binary does not compile or a bundled module imports the FMI library by its
         public name.
     """
-    _check_version(fmi_version)
+    out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     out_dir.mkdir(parents=True, exist_ok=True)
     digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
@@ -279,17 +252,17 @@ def build_fmu(spec: FmuSpec, out_dir: Path, fmi_version: int = 2) -> Path:
         return atomic_write(target, staged.read_bytes())
 
 
-def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int = 2) -> dict[str, Path]:
+def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None) -> dict[str, Path]:
     """Build some or all of the three FMUs.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str or None, optional
-        The directory. Default None: ``default_fmu_dir(fmi_version)``.
+        The directory. Default None: ``default_fmu_dir`` of the version.
     names : iterable of str, optional
         The FMUs to build, keys of ``registry.FMUS``. Default: all three.
-    fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+    fmi_version : {2, 3} or None, optional
+        The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
 
     Returns
     -------
@@ -300,24 +273,26 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
     ------
     ValueError
         If ``fmi_version`` is not 2 or 3.
+    FmiVersionError
+        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
     KeyError
         If a name is not one of the three FMUs.
     BinaryBuildError
         If an FMU's binary does not compile.
     """
-    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
+    out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     return {name: build_fmu(FMUS[name], out_dir, fmi_version) for name in names}
 
 
-def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict[str, Path]:
+def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None) -> dict[str, Path]:
     """The three FMUs of a directory, building those that are missing or stale.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str or None, optional
-        The directory. Default None: ``default_fmu_dir(fmi_version)``.
-    fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+        The directory. Default None: ``default_fmu_dir`` of the version.
+    fmi_version : {2, 3} or None, optional
+        The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
 
     Returns
     -------
@@ -328,10 +303,12 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict
     ------
     ValueError
         If ``fmi_version`` is not 2 or 3.
+    FmiVersionError
+        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
     BinaryBuildError
         If an FMU's binary does not compile.
     """
-    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
+    out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {}
     for name, spec in FMUS.items():
         path = out_dir / f"{name}.fmu"
@@ -342,7 +319,7 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int = 2) -> dict
 
 
 @contextmanager
-def current_fmus(out_dir: Path | str | None = None, fmi_version: int = 2):
+def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None):
     """The three current FMUs, for exports, which write nothing but their output file.
 
     A context manager: those of ``out_dir`` if they are all current, else ones built into a temporary
@@ -351,10 +328,9 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int = 2):
     Parameters
     ----------
     out_dir : pathlib.Path or str or None, optional
-        The directory to look in; nothing is written there. Default None:
-        ``default_fmu_dir(fmi_version)``.
-    fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+        The directory to look in; nothing is written there. Default None: ``default_fmu_dir`` of the version.
+    fmi_version : {2, 3} or None, optional
+        The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
 
     Yields
     ------
@@ -365,10 +341,12 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int = 2):
     ------
     ValueError
         If ``fmi_version`` is not 2 or 3.
+    FmiVersionError
+        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
     BinaryBuildError
         If an FMU's binary does not compile.
     """
-    out_dir = Path(out_dir) if out_dir is not None else default_fmu_dir(fmi_version)
+    out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {name: out_dir / f"{name}.fmu" for name in FMUS}
     if all(fmu_build_id(path) == source_hash(FMUS[name], fmi_version) for name, path in paths.items()):
         yield paths

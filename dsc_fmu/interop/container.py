@@ -1,4 +1,4 @@
-"""The closed loop as one FMI 2.0 co-simulation FMU: fmpy's container FMU around our three FMUs.
+"""The closed loop as one FMI 2.0 co-simulation FMU: fmpy's container FMU around our three FMUs (FMI 2.0 or 3.0).
 
 fmpy's container (``fmpy.container_fmu``, a Rust shared library) couples its components like
 this (read from its source, ``native/container-fmu/container-fmu/src/lib.rs``):
@@ -37,6 +37,7 @@ from ..scenario import Scenario, ScenarioError
 __all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
 
 EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
+_FMI2_TYPES = {"Float64": "Real", "Int32": "Integer"}  # an FMI 3.0 component's types as the FMI 2.0 container names them
 
 
 def parameter_name(fmu: str, parameter: str) -> str:
@@ -90,8 +91,9 @@ def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict)
             inner = variables[name].get(key)
             if inner is None:
                 raise ScenarioError(f"{paths[name]}: {name} has no parameter {key!r}: not the FMU expected")
-            integer = inner.type == "Integer"
-            outer = ModelVariable(type=inner.type, variability=inner.variability, causality="parameter",
+            kind = _FMI2_TYPES.get(inner.type, inner.type)
+            integer = kind == "Integer"
+            outer = ModelVariable(type=kind, variability=inner.variability, causality="parameter",
                                   initial="exact", name=parameter_name(name, key), start=_literal(value, integer),
                                   description=inner.description)
             outer.unit = getattr(inner, "unit", None) if not integer else None
@@ -100,8 +102,9 @@ def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict)
     for name in ORDER:
         for key in signals.RECORDED[name]:
             inner = variables[name][key]
-            outer = ModelVariable(type=inner.type, variability=inner.variability, causality="output",
-                                  initial="calculated", name=key, description=f"{name}.{key}: {inner.description}")
+            outer = ModelVariable(type=_FMI2_TYPES.get(inner.type, inner.type), variability=inner.variability,
+                                  causality="output", initial="calculated", name=key,
+                                  description=f"{name}.{key}: {inner.description}")
             outer.unit = getattr(inner, "unit", None)
             model_variables.append(outer)
             mappings[outer] = [(components[name], inner)]
@@ -144,7 +147,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     out_file : pathlib.Path or str
         The FMU file to write.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0).
+        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0 or 3.0: the container, FMI
+        2.0 itself, runs either).
     step_size : float or None, optional
         The internal fixed step, in s. Default None: the scenario's.
     stop_time : float or None, optional

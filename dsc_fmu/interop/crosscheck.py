@@ -30,7 +30,9 @@ from .. import __version__
 
 from ..cosim import signals
 from ..cosim.exchange import cosimulate_exchange
-from ..registry import CONTROLLER, ORDER
+from ..errors import FmiVersionError
+from ..identity import fmu_fmi_version
+from ..registry import CONTROLLER, ORDER, fmu_files
 from ..scenario import Scenario, load_scenario
 
 __all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "model_dir", "held_inputs"]
@@ -125,7 +127,8 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
     out_dir : pathlib.Path or str
         The root of the cross-check tree; folders as ``model_dir``.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs.
+        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs (the
+        fmi-cross-check repository's layout knows FMI 1.0 and 2.0 only).
     scenario : Scenario or None, optional
         The closed loop to run. It must keep every parameter at its start value (the FMUs are replayed
         with their defaults). Default None: the paper's scenario.
@@ -145,7 +148,15 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
     ------
     ScenarioError
         If a simulation setting is bad.
+    FmuNotFoundError
+        If one of the three FMUs is not given or not a file.
+    FmiVersionError
+        If an FMU is not an FMI 2.0 FMU (the cross-check takes FMI 1.0 and 2.0 FMUs); nothing is written.
     """
+    for path in fmu_files(fmu_paths).values():
+        if fmu_fmi_version(path) not in (None, "2.0"):
+            raise FmiVersionError(f"{path} is an FMI {fmu_fmi_version(path)} FMU: not allowed in the FMI cross-check, "
+                                  "which takes FMI 1.0 and 2.0 FMUs; allowed: FMI 2.0 FMUs")
     scenario = scenario or load_scenario("paper")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time

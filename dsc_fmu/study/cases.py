@@ -491,7 +491,7 @@ class Grid:
         Seed of the draws (``numpy.random.default_rng``). Default 0.
     """
 
-    step_sizes: tuple | None = None
+    step_sizes: tuple | None = tuple(default_step_sizes())
     orders: tuple | None = ORDERS
     discretizations: tuple | None = None
     couplings: tuple | None = COUPLINGS

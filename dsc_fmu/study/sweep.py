@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..fmubuild.fmus import DEFAULT_FMU_DIR, ensure_fmus
+from ..fmubuild.fmus import ensure_fmus, resolve_fmu_dir
 from .report import write_report
 from ..scenario import Scenario, Stability
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
@@ -127,7 +127,7 @@ def _path_figure(out_dir: Path, rows: list[dict]) -> Path | None:
 
 
 def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runner: Runner = Runner(), *,
-              fmu_dir: Path | str = DEFAULT_FMU_DIR, refine: bool = True) -> str:
+              fmu_dir: Path | str | None = None, fmi_version: int | None = None, refine: bool = True) -> str:
     """Run a step-size study of a scenario and write its results, figures and report.
 
     Every case of ``grid`` runs (``execute``); each fixed-step series' stability boundary is refined
@@ -149,8 +149,10 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
         couplings and error-controlled runs at ``DEFAULT_TOLERANCES``.
     runner : Runner, optional
         Where the runs go. Default ``Runner()``: all cores, a progress bar.
-    fmu_dir : pathlib.Path or str, optional
-        Where the FMUs are built (``ensure_fmus``). Default ``DEFAULT_FMU_DIR``.
+    fmu_dir : pathlib.Path or str or None, optional
+        Where the FMUs are built (``ensure_fmus``). Default None: ``default_fmu_dir`` of the FMI version.
+    fmi_version : {2, 3} or None, optional
+        The FMI version of the FMUs. Default None: that of the FMUs in ``fmu_dir``, else 2.
     refine : bool, optional
         Bisect the stability boundaries. Default True.
 
@@ -163,6 +165,8 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     ------
     ScenarioError
         One line, if the grid does not fit the scenario; before anything runs.
+    FmiVersionError
+        One line, if ``fmu_dir`` holds FMUs of another FMI version than ``fmi_version``; before anything runs.
     SweepError
         One line, if the scheduler cannot be reached or ``out_dir`` cannot be a folder (before anything
         runs), or if runs did not finish (their worker process lost twice): then everything is
@@ -170,13 +174,14 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     """
     out_dir = Path(out_dir)
     cases = grid.cases(scenario)
+    fmu_dir, fmi_version = resolve_fmu_dir(fmu_dir, fmi_version)
     if runner.scheduler is not None:
         check_scheduler(runner.scheduler, runner.scheduler_timeout)
     from .execute import execute, prepare_sweep_folder  # fmpy: imported after the checks that fail fast
     from .rows import stability_definition
 
     prepare_sweep_folder(out_dir)
-    fmu_paths = ensure_fmus(fmu_dir)
+    fmu_paths = ensure_fmus(fmu_dir, fmi_version)
     on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False)
     all_rows, refining = on_grid.rows, []
     write_rows_csv(out_dir / "sweep.csv", all_rows)
