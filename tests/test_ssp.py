@@ -1,6 +1,7 @@
 """SSP export, libcosim and fmpy.ssp runs of it, compared with our master and the matching exchange modes."""
 
 import dataclasses
+import re
 import subprocess
 import sys
 import zipfile
@@ -11,10 +12,11 @@ from lxml import etree
 
 from dsc_fmu.cosim.exchange import cosimulate_exchange
 from dsc_fmu.cosim.master import cosimulate
+from dsc_fmu.cosim.model_exchange import DEFAULT_TOLERANCE
 from dsc_fmu.models.parameters import START_ON
-from dsc_fmu.scenario import ScenarioError, load_scenario
+from dsc_fmu.scenario import Interface, ScenarioError, load_scenario, scenario_names
 from dsc_fmu.interop.ssp import SSD_NAMESPACES as NS
-from dsc_fmu.interop.ssp import export_ssp, run_simulate_ssp, validate_ssp
+from dsc_fmu.interop.ssp import export_ssp, model_name, run_simulate_ssp, validate_ssp
 
 H, T = 1e-3, 0.2
 COMPARED = ("x", "y", "theta", "omega1", "i1", "x_r", "theta_r", "u1", "u2", "a1_hat", "a2_hat", "W1_hat_norm",
@@ -60,6 +62,90 @@ def test_archive_content_and_schema(ssp_file, paper, fmu_paths):
         for key, value in paper.parameters(name).items():
             assert float(values[key].get("value")) == value
     assert values["discretization"].tag.endswith("Integer")
+
+
+OMS_IDENT = re.compile(r"^[a-zA-Z][a-zA-Z0-9_]*$")  # OMSimulator's ComRef::isValidIdent
+
+
+def read_ssd(ssp_file):
+    with zipfile.ZipFile(ssp_file) as archive:
+        return etree.fromstring(archive.read("SystemStructure.ssd"))
+
+
+@pytest.fixture(scope="module")
+def odd_name(tmp_path_factory):
+    """A user's scenario whose name has a space, a dash and a dot (the paper's loop otherwise)."""
+    path = tmp_path_factory.mktemp("scenario") / "odd.toml"
+    path.write_text('name = "my run-2.b"\n')
+    return path
+
+
+@pytest.mark.parametrize("name", [*scenario_names(), "odd"])
+def test_names_are_identifiers_omsimulator_accepts(name, odd_name, fmu_paths, tmp_path):
+    """OMSimulator refuses a model, system or component whose name is not ``^[a-zA-Z][a-zA-Z0-9_]*$``
+    ('"dsc-fmu paper" is not a valid ident'); the scenario's own name stays in the description."""
+    scenario = load_scenario(odd_name if name == "odd" else name)
+    root = read_ssd(export_ssp(scenario, tmp_path / "loop.ssp", fmu_paths, stop_time=T))
+    names = [root.get("name"), *(e.get("name") for e in root.iterfind(".//ssd:System", NS)),
+             *(e.get("name") for e in root.iterfind(".//ssd:Component", NS))]
+    assert all(OMS_IDENT.match(n) for n in names), names
+    assert root.get("name") == model_name(scenario.name)
+    assert scenario.name in root.get("description")
+
+
+def test_model_name():
+    assert model_name("paper") == "dsc_fmu_paper"
+    assert model_name("my run-2.b") == "dsc_fmu_my_run_2_b"
+    assert model_name("2é") == "dsc_fmu_2_"
+
+
+def omsimulator_information(root):
+    """The solver element OMSimulator reads (Model::getSystemType): pugixml matches the qualified
+    names, so the prefixes count, and it takes the first ssc:Annotation of the system's annotations."""
+    annotation = root.find("ssd:System/ssd:Annotations", NS)[0]
+    assert annotation.tag == f"{{{NS['ssc']}}}Annotation" and annotation.get("type") == "org.openmodelica"
+    wrapper = annotation[0]
+    information = wrapper.find("oms:SimulationInformation", NS)
+    (solver,) = information
+    assert (wrapper.prefix, information.prefix, solver.prefix) == ("oms", "oms", "oms")
+    return etree.QName(solver).localname, dict(solver.attrib)
+
+
+def test_omsimulator_annotation_co_simulation(ssp_file):
+    assert omsimulator_information(read_ssd(ssp_file)) == ("FixedStepMaster", {"description": "oms-ma",
+                                                                                "stepSize": repr(H)})
+
+
+@pytest.mark.parametrize("tolerance", (None, 1e-8))
+def test_omsimulator_annotation_model_exchange(paper, fmu_paths, tmp_path, tolerance):
+    scenario = paper.with_simulation(tolerance=tolerance, output_interval=0.02)
+    out = export_ssp(scenario, tmp_path / "me.ssp", fmu_paths, interface="model-exchange", stop_time=T)
+    validate_ssp(out)
+    kind, attributes = omsimulator_information(read_ssd(out))
+    assert kind == "VariableStepSolver"
+    assert attributes == {"description": "cvode", "relativeTolerance": repr(tolerance or DEFAULT_TOLERANCE),
+                          "maximumStepSize": "0.02"}
+    same = export_ssp(scenario, tmp_path / "me2.ssp", fmu_paths, interface=Interface.MODEL_EXCHANGE, stop_time=T)
+    assert read_ssd(same).get("name") == read_ssd(out).get("name")
+    assert etree.tostring(read_ssd(same)) == etree.tostring(read_ssd(out))
+
+
+def test_unknown_interface_is_refused(paper, fmu_paths, tmp_path):
+    with pytest.raises(ScenarioError, match="interface 'cs' is not allowed; allowed: co-simulation, model-exchange"):
+        export_ssp(paper, tmp_path / "x.ssp", fmu_paths, interface="cs")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_fmi3_archive_uses_ssp_1_0_types(paper, fmu3_paths, tmp_path):
+    """FMI 3.0's Float64 and Int32 are SSP 1.0's Real and Integer (ssc:Float64 is not SSP 1.0)."""
+    out = export_ssp(paper, tmp_path / "fmi3.ssp", fmu3_paths, stop_time=T)
+    validate_ssp(out)
+    kinds = {etree.QName(c[0]).localname for c in read_ssd(out).iterfind(".//ssd:Connector", NS)}
+    assert kinds == {"Real", "Integer"}
+    with zipfile.ZipFile(out) as archive:
+        ssv = etree.fromstring(archive.read("resources/DSCController.ssv"))
+    start_on = ssv.find(".//ssv:Parameter[@name='start_on']", NS)
+    assert etree.QName(start_on[0]).localname == "Integer"
 
 
 def test_bad_scenario_writes_nothing(paper, fmu_paths, tmp_path):
@@ -156,6 +242,15 @@ def test_simulate_ssp_runs_the_loop_and_matches_its_mode(ssp_file, waiting, fmu_
     np.testing.assert_allclose(theirs["x_r"], p["x0"] + p["vr0"] / p["wr0"] * np.sin(p["wr0"] * end), rtol=1e-12)
     assert theirs["u1"][0] == 0.0 and theirs["u1"][1] != 0.0  # waited one step, then started
     assert theirs["x"][1] == waiting.plant["x0"] and theirs["x"][2] != waiting.plant["x0"]  # u = 0 for two steps
+
+
+def test_model_exchange_archive_co_simulates_as_the_other(ssp_file, paper, fmu_paths, tmp_path):
+    """Only OMSimulator's annotation differs: libcosim and fmpy.ssp co-simulate the model-exchange
+    archive at its fixed step, with the same results as the co-simulation archive's."""
+    me = export_ssp(paper, tmp_path / "me.ssp", fmu_paths, interface="model-exchange", step_size=H, stop_time=T)
+    assert np.array_equal(run_simulate_ssp(me, H, T), run_simulate_ssp(ssp_file, H, T))
+    assert np.array_equal(libcosim_in_its_own_process(me, H, T, tmp_path),
+                          libcosim_in_its_own_process(ssp_file, H, T, tmp_path))
 
 
 def test_simulate_ssp_refuses_an_unknown_start_on(ssp_file):

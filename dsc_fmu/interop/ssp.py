@@ -1,10 +1,13 @@
 """The closed loop as an SSP 1.0 archive, and runs of it with fmpy.ssp (libcosim's: ``interop.libcosim``).
 
 ``export_ssp`` writes ``SystemStructure.ssd`` (three components, every connection, the scenario's
-parameters as one ``.ssv`` parameter set per component, the DefaultExperiment with libcosim's
-``osp:FixedStepAlgorithm`` annotation) and the three FMUs under ``resources/``. The SSD and the
-parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from the
-Modelica Association, BSD licence) before anything is written.
+parameters as one ``.ssv`` parameter set per component, the DefaultExperiment) and the three FMUs
+under ``resources/``. Two vendor annotations say how to run it: OMSimulator's on the system (a
+``oms:FixedStepMaster`` for co-simulation, a ``oms:VariableStepSolver`` for model exchange) and
+libcosim's ``osp:FixedStepAlgorithm`` on the DefaultExperiment. The SSD is named by an
+identifier (``model_name``), as OMSimulator requires. The SSD and the parameter sets are validated
+against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from the Modelica Association, BSD
+licence) before anything is written.
 
 ``dsc_fmu.interop.libcosim.run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
 ``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
@@ -15,6 +18,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 import zipfile
 from pathlib import Path
 
@@ -25,17 +29,20 @@ from ..cosim import signals
 from ..errors import DscFmuError
 from ..models.parameters import START_ON
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
-from ..scenario import Scenario, ScenarioError
+from ..scenario import INTERFACES, Interface, Scenario, ScenarioError
 
-__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "validate_ssp", "run_simulate_ssp",
-           "SSPError"]
+__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "model_name", "validate_ssp",
+           "run_simulate_ssp", "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
                  ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
-SSD_NAMESPACES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP}
+OMS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
+SSD_NAMESPACES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP, "oms": OMS}
 SCHEMA_DIR = Path(__file__).parent / "schemas" / "ssp"
 SYSTEM_NAME = "DSCClosedLoop"
+NOT_IDENT = re.compile(r"[^A-Za-z0-9_]")
+"""A character OMSimulator refuses in a name: its identifiers match ``^[a-zA-Z][a-zA-Z0-9_]*$``."""
 
 
 class SSPError(DscFmuError, RuntimeError):
@@ -57,8 +64,57 @@ def _variables(path: Path) -> dict:
     return {v.name: v for v in read_model_description(str(path)).modelVariables}
 
 
+def _ssp_type(fmi_type: str) -> str:
+    """The SSP 1.0 type of an FMI 2.0 or 3.0 variable type: ``Float64`` is ``Real``, ``Int32`` ``Integer``."""
+    return {"Float64": "Real", "Int32": "Integer"}.get(fmi_type, fmi_type)
+
+
 def _number(value: float) -> str:
     return repr(float(value))
+
+
+def model_name(scenario_name: str) -> str:
+    """The SSD's name for a scenario: an identifier OMSimulator accepts as its model's name.
+
+    Parameters
+    ----------
+    scenario_name : str
+        The scenario's name, any text.
+
+    Returns
+    -------
+    str
+        ``dsc_fmu_`` and the scenario's name, each character that is not an ASCII letter, digit or
+        underscore replaced by ``_``: ``model_name("paper")`` is ``"dsc_fmu_paper"``,
+        ``model_name("my run-2")`` is ``"dsc_fmu_my_run_2"``.
+    """
+    return NOT_IDENT.sub("_", f"dsc_fmu_{scenario_name}")
+
+
+def _annotation(parent: etree._Element, kind: str) -> etree._Element:
+    """An ``ssd:Annotations`` holding one ``ssc:Annotation`` of ``kind``; returns the annotation."""
+    annotations = etree.SubElement(parent, f"{{{SSD}}}Annotations")
+    return etree.SubElement(annotations, f"{{{SSC}}}Annotation", type=kind)
+
+
+def _omsimulator_system(system: etree._Element, scenario: Scenario, interface: Interface) -> None:
+    """OMSimulator's simulation information, which tells its kind of system: a fixed-step master of
+    co-simulation FMUs (``oms-ma`` at the communication step) or CVode over model-exchange FMUs (at
+    the scenario's tolerance, its largest step and result interval the output interval; CVode
+    chooses the first and the smallest step)."""
+    annotation = _annotation(system, "org.openmodelica")
+    information = etree.SubElement(etree.SubElement(annotation, f"{{{OMS}}}Annotations"),
+                                   f"{{{OMS}}}SimulationInformation")
+    simulation = scenario.simulation
+    if interface is Interface.CO_SIMULATION:
+        etree.SubElement(information, f"{{{OMS}}}FixedStepMaster", description="oms-ma",
+                         stepSize=_number(simulation.step_size))
+        return
+    from ..cosim.model_exchange import DEFAULT_TOLERANCE
+
+    tolerance = DEFAULT_TOLERANCE if simulation.tolerance is None else simulation.tolerance
+    etree.SubElement(information, f"{{{OMS}}}VariableStepSolver", description="cvode",
+                     relativeTolerance=_number(tolerance), maximumStepSize=_number(simulation.output_interval))
 
 
 def _parameter_set(name: str, parameters: dict, variables: dict) -> etree._Element:
@@ -66,7 +122,7 @@ def _parameter_set(name: str, parameters: dict, variables: dict) -> etree._Eleme
     holder = etree.SubElement(root, f"{{{SSV}}}Parameters")
     for key, value in parameters.items():
         parameter = etree.SubElement(holder, f"{{{SSV}}}Parameter", name=key)
-        if variables[key].type == "Integer":
+        if _ssp_type(variables[key].type) == "Integer":
             etree.SubElement(parameter, f"{{{SSV}}}Integer", value=str(int(value)))
         else:
             etree.SubElement(parameter, f"{{{SSV}}}Real", value=_number(value))
@@ -77,23 +133,24 @@ def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
     """(connector name, kind, SSP type) of a component: its inputs and the outputs we record."""
     names = [v for v in variables.values() if v.causality == "input"]
     names += [variables[o] for o in signals.RECORDED[name]]
-    return [(v.name, v.causality, v.type) for v in names]
+    return [(v.name, v.causality, _ssp_type(v.type)) for v in names]
 
 
-def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, stop_time: float) -> tuple[bytes, dict]:
+def build_ssd(scenario: Scenario, variables: dict[str, dict],
+              interface: Interface = Interface.CO_SIMULATION) -> tuple[bytes, dict]:
     """The system structure description and the parameter sets of a scenario's closed loop.
 
     Parameters
     ----------
     scenario : Scenario
-        The closed loop; its parameters go into one parameter set per component.
+        The closed loop; its parameters go into one parameter set per component, its simulation
+        settings into the DefaultExperiment and the annotations.
     variables : dict of str to dict
         FMU name (``registry.ORDER``) -> variable name -> fmpy ``ModelVariable`` of its model
         description.
-    step_size : float
-        The communication step of the DefaultExperiment's fixed-step algorithm, in s.
-    stop_time : float
-        The DefaultExperiment's stop time, in s.
+    interface : Interface, optional
+        How OMSimulator runs the FMUs: co-simulation (default) or model exchange. libcosim's
+        fixed-step annotation is written for both: it co-simulates either archive.
 
     Returns
     -------
@@ -102,8 +159,8 @@ def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, 
     sets : dict of str to bytes
         Archive path (``resources/<FMU>.ssv``) -> parameter set.
     """
-    root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap={"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP},
-                         version="1.0", name=f"dsc-fmu {scenario.name}")
+    root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap=SSD_NAMESPACES, version="1.0",
+                         name=model_name(scenario.name), description=f"dsc-fmu, scenario {scenario.name}")
     system = etree.SubElement(root, f"{{{SSD}}}System", name=SYSTEM_NAME,
                               description=f"DSC closed loop, scenario {scenario.name}")
     elements = etree.SubElement(system, f"{{{SSD}}}Elements")
@@ -126,12 +183,12 @@ def build_ssd(scenario: Scenario, variables: dict[str, dict], step_size: float, 
     for c in CONNECTIONS:
         etree.SubElement(holder, f"{{{SSD}}}Connection", startElement=c.start, startConnector=c.signal,
                          endElement=c.end, endConnector=c.signal)
-    experiment = etree.SubElement(root, f"{{{SSD}}}DefaultExperiment", startTime="0.0", stopTime=_number(stop_time))
-    annotations = etree.SubElement(experiment, f"{{{SSD}}}Annotations")
-    annotation = etree.SubElement(annotations, f"{{{SSC}}}Annotation", type="com.opensimulationplatform")
+    _omsimulator_system(system, scenario, interface)
+    experiment = etree.SubElement(root, f"{{{SSD}}}DefaultExperiment", startTime="0.0",
+                                  stopTime=_number(scenario.simulation.stop_time))
     # declared on the root: libcosim reads every child of osp:Algorithm, attributes included, as an algorithm
-    algorithm = etree.SubElement(annotation, f"{{{OSP}}}Algorithm")
-    etree.SubElement(algorithm, f"{{{OSP}}}FixedStepAlgorithm", baseStepSize=_number(step_size))
+    algorithm = etree.SubElement(_annotation(experiment, "com.opensimulationplatform"), f"{{{OSP}}}Algorithm")
+    etree.SubElement(algorithm, f"{{{OSP}}}FixedStepAlgorithm", baseStepSize=_number(scenario.simulation.step_size))
     return etree.tostring(root, xml_declaration=True, encoding="UTF-8", pretty_print=True), sets
 
 
@@ -162,11 +219,13 @@ def validate_ssp(ssp_file: Path | str) -> None:
                 _check(archive.read(item), "SystemStructureParameterValues.xsd", f"{ssp_file}: {item}")
 
 
-def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, step_size: float | None = None,
+def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
+               interface: Interface | str = Interface.CO_SIMULATION, step_size: float | None = None,
                stop_time: float | None = None) -> Path:
     """Write the scenario's closed loop as an SSP 1.0 archive.
 
-    Only ``out_file`` is written, and only once everything has been checked.
+    Only ``out_file`` is written, and only once everything has been checked. The archive's model is
+    named ``model_name(scenario.name)``.
 
     Parameters
     ----------
@@ -176,6 +235,11 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
         The archive to write (``.ssp``).
     fmu_paths : dict
         FMU name (``registry.ORDER``) -> path of each of the three FMUs.
+    interface : {"co-simulation", "model-exchange"} or Interface, optional
+        What OMSimulator's annotation asks for. "co-simulation" (default): its fixed-step master at
+        the communication step. "model-exchange": CVode over the three FMUs at the scenario's
+        ``tolerance`` (``cosim.model_exchange.DEFAULT_TOLERANCE`` if it has none), at most one
+        ``output_interval`` per step. libcosim and fmpy co-simulate either archive.
     step_size : float or None, optional
         The communication step, in s. Default None: the scenario's.
     stop_time : float or None, optional
@@ -189,12 +253,16 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     Raises
     ------
     ScenarioError
-        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario.
+        If ``interface`` is not one of ``INTERFACES``, a simulation setting is bad or not finite, or
+        an FMU lacks a parameter of the scenario.
     FmuNotFoundError
         If one of the three FMUs is not given or not a file (a FileNotFoundError).
     SSPError
         If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
+    if interface not in INTERFACES:
+        raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")
+    interface = Interface(interface)
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     for name, value in (("step_size", scenario.simulation.step_size), ("stop_time", scenario.simulation.stop_time)):
         if not math.isfinite(value):
@@ -205,7 +273,7 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
         missing = [p for p in scenario.parameters(name) if p not in variables[name]]
         if missing:
             raise ScenarioError(f"{paths[name]}: {name} has no parameter {missing[0]!r}: not the FMU expected")
-    ssd, sets = build_ssd(scenario, variables, scenario.simulation.step_size, scenario.simulation.stop_time)
+    ssd, sets = build_ssd(scenario, variables, interface)
     _check(ssd, "SystemStructureDescription.xsd", "SystemStructure.ssd")
     for source, xml in sets.items():
         _check(xml, "SystemStructureParameterValues.xsd", source)
