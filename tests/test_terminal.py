@@ -1,0 +1,157 @@
+"""The command line on a real terminal: ``dsc-fmu run`` and ``dsc-fmu sweep`` run in a pseudo-terminal of
+their own (its controlling terminal, so that Ctrl-C typed there interrupts them as it does a user's), and
+what they write is read as a terminal shows it: one progress line rewritten in place with carriage
+returns, cleared before anything else is written, and none of it in a pipe or with ``--quiet``."""
+
+import fcntl
+import json
+import os
+import re
+import struct
+import subprocess
+import sys
+import termios
+
+import pytest
+
+from dsc_fmu.cosim.progress import TerminalWatch
+
+COLUMNS = 72
+CTRL_C = b"\x03"
+RUN = re.compile(r"paper: t = (\d+\.\d{3})/300 s, (\d+) steps, (\S+) s/s, (.+) left")
+SWEEP = ["sweep", "figure_eight", "--stop-time", "2", "--step-sizes", "0.001,0.002,0.004", "--couplings", "hold",
+         "--orders", "gauss-seidel", "--tolerances", "", "--jobs", "1", "--no-refine"]
+
+
+def in_terminal(arguments: list[str], cwd, interrupt_when=None) -> tuple[str, int]:
+    """``python -m dsc_fmu ARGUMENTS`` in a new pseudo-terminal ``COLUMNS`` wide, its standard streams and
+    controlling terminal, read until it exits; Ctrl-C is typed once when ``interrupt_when(output)``
+    (the bytes so far) is true. Returns what it wrote (the terminal writes "\\r\\n" for "\\n") and its
+    exit status."""
+    master, slave = os.openpty()
+    fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, COLUMNS, 0, 0))
+    pid = os.fork()
+    if pid == 0:  # the child: a session whose controlling terminal is the slave side
+        try:
+            os.close(master)
+            os.chdir(cwd)
+            os.login_tty(slave)
+            os.execv(sys.executable, [sys.executable, "-m", "dsc_fmu", *arguments])
+        finally:
+            os._exit(127)
+    os.close(slave)
+    output = b""
+    while True:
+        try:
+            chunk = os.read(master, 4096)
+        except OSError:  # EIO: every process holding the terminal has exited
+            break
+        if not chunk:
+            break
+        output += chunk
+        if interrupt_when is not None and interrupt_when(output):
+            os.write(master, CTRL_C)
+            interrupt_when = None
+    os.close(master)
+    _, status = os.waitpid(pid, 0)
+    return output.decode(), os.waitstatus_to_exitcode(status)
+
+
+def screen(output: str) -> list[str]:
+    """The lines a terminal shows after ``output``: a carriage return goes back to the line's start,
+    and what follows overwrites it."""
+    lines, line, column = [], [], 0
+    for char in output:
+        if char == "\n":
+            lines.append("".join(line).rstrip())
+            line, column = [], 0
+        elif char == "\r":
+            column = 0
+        else:
+            line[column:column + 1] = [char]
+            column += 1
+    return lines + ["".join(line).rstrip()]
+
+
+def drawn(output: str, label: str) -> list[str]:
+    """The progress lines drawn in ``output``: each starts after a carriage return with ``label`` (the
+    terminal's echo of Ctrl-C, "^C", left out)."""
+    return [part.rstrip().removesuffix("^C") for part in output.split("\r") if part.startswith(label)]
+
+
+@pytest.mark.slow
+def test_a_run_shows_one_line_in_place_and_stops_at_ctrl_c(tmp_path, fmu_paths):
+    """``dsc-fmu run`` of the paper's scenario for 300 s with h = 1e-4 s (minutes), Ctrl-C typed once the forecast and a
+    progress line after it have come: from a second in, lines of the simulated time, the steps (t/h),
+    the speed and the time left, each within the terminal's width; the forecast on a line of its own;
+    exit 130 and nothing of the progress line left on the screen."""
+    out = tmp_path / "out"
+
+    def forecast_then_progress(output: bytes) -> bool:
+        before, forecast, after = output.partition(b"at this pace")
+        return bool(forecast) and b"\rpaper: t = " in after
+
+    output, status = in_terminal(["run", "paper", "--stop-time", "300", "--step-size", "1e-4", "--no-plots", "--out", str(out),
+                                  "--fmu-dir", str(fmu_paths["MobileRobot"].parent)], tmp_path, forecast_then_progress)
+    assert status == 130, output
+    lines = drawn(output, "paper: t = ")
+    before_forecast = drawn(output.partition("at this pace")[0], "paper: t = ")
+    assert before_forecast and len(lines) > len(before_forecast), output
+    shown = [RUN.fullmatch(line) for line in lines]
+    assert all(shown) and all(len(line) < COLUMNS for line in lines), lines
+    times = [float(match[1]) for match in shown]
+    assert times == sorted(set(times)) and 0 < times[0]
+    assert [int(match[2]) for match in shown] == [round(time / 1e-4) for time in times]
+    stopped = json.loads((out / "summary.json").read_text())["settings"]["stopped_at"]
+    assert times[-1] <= stopped < 300
+    shows = screen(output)
+    assert shows[0].startswith("dsc-fmu: at this pace the run takes about 3,000,000 steps and "), shows
+    assert shows[1].startswith(f"stopped at t = {stopped:g} s of 300 s (interrupted)"), shows
+    assert not any("paper: t = " in line for line in shows), shows
+
+
+@pytest.mark.slow
+def test_a_quiet_run_on_a_terminal_writes_no_carriage_return(tmp_path, fmu_paths):
+    """``--quiet`` on a terminal, in a run that lasts past the second after which the line would show:
+    no carriage return but the terminal's own before each newline, and the summary alone."""
+    out = tmp_path / "out"
+    output, status = in_terminal(["run", "paper", "--stop-time", "1", "--step-size", "1e-4", "--quiet", "--no-plots",
+                                  "--out", str(out), "--fmu-dir", str(fmu_paths["MobileRobot"].parent)], tmp_path)
+    assert status == 0, output
+    assert json.loads((out / "summary.json").read_text())["settings"]["wall_time_s"] > 2 * TerminalWatch.SHOW_AFTER
+    assert "\r" not in output.replace("\r\n", "\n"), output
+    assert screen(output)[0].startswith("scenario paper: gauss-seidel"), output
+
+
+@pytest.mark.slow
+def test_a_sweep_counts_its_runs_in_place_and_keeps_them_at_ctrl_c(tmp_path, fmu_paths):
+    """``dsc-fmu sweep`` of three runs on a terminal: the line counts the finished runs from 0; Ctrl-C
+    once it shows one or two done stops it (exit 130) with the line cleared before the message. Run again, it takes
+    what finished from its cache, counts the rest and leaves the screen to its summary."""
+    command = [*SWEEP, "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_paths["MobileRobot"].parent)]
+    output, status = in_terminal(command, tmp_path, lambda output: b"/3 runs, " in output)  # one or two done
+    assert status == 130, output
+    lines = drawn(output, "sweep figure_eight: ")
+    assert lines[0] == "sweep figure_eight: 0/3 runs" and re.fullmatch(r"sweep figure_eight: [12]/3 runs, \S+ runs/s, "
+                                                                         r".+ left", lines[-1]), lines
+    assert [line for line in screen(output) if line] == ["dsc-fmu: interrupted; finished runs are kept in the cache"]
+
+    output, status = in_terminal(command, tmp_path)
+    assert status == 0, output
+    cached = int(re.search(r"runs: 3 \((\d) from the cache", output)[1])
+    lines = drawn(output, "sweep figure_eight: ")
+    assert cached >= 1 and lines[0] == f"sweep figure_eight: 0/{3 - cached} runs", output
+    assert all(len(line) < COLUMNS for line in lines), lines
+    shows = screen(output)
+    assert shows[0].startswith("sweep of figure_eight: 3 runs, "), shows
+    assert not any("sweep figure_eight: " in line for line in shows), shows
+
+
+@pytest.mark.slow
+def test_a_sweep_in_a_pipe_writes_no_carriage_return(tmp_path, fmu_paths):
+    """The same sweep with standard error to a pipe: no progress line, nothing on standard error."""
+    command = [sys.executable, "-m", "dsc_fmu", *SWEEP, "--out", str(tmp_path / "out"), "--fmu-dir",
+               str(fmu_paths["MobileRobot"].parent)]
+    done = subprocess.run(command, cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stderr == "" and done.stdout.startswith("sweep of figure_eight: 3 runs")
