@@ -106,8 +106,9 @@ class ProgressLine:
 
     It is drawn only on a terminal and not with ``quiet`` (pipes, logs and CI get nothing), from
     ``after`` seconds after it is made, at most every ``EVERY`` seconds, cut to the terminal's width
-    (80 columns if it does not say); closing it (or leaving its ``with`` block) clears it. The speed
-    and the time left are the average since it was made.
+    (80 columns if it does not say) less ``ROOM``, so that the "^C" a terminal echoes on Ctrl-C stays
+    on the line; closing it (or leaving its ``with`` block) clears it, "^C" included. The speed and the
+    time left are the average since it was made.
 
     Parameters
     ----------
@@ -129,6 +130,7 @@ class ProgressLine:
 
     EVERY = 0.2  # s of wall time between two drawings
     COLUMNS = 80  # the width of a terminal that does not say
+    ROOM = 3  # columns left free at the end: "^C" and the cursor
 
     def __init__(self, total: float, label: str, unit: str, count: str = "{done:.0f}/{total:g}", after: float = 0.0,
                  quiet: bool = False, stream=None):
@@ -170,7 +172,7 @@ class ProgressLine:
         if self.done > 0 and now > self.started:
             rate = self.done / (now - self.started)
             parts += [f"{rate:.3g} {self.unit}/s", f"{_duration((self.total - self.done) / rate)} left"]
-        self._draw(", ".join(parts)[: self._columns() - 1])
+        self._draw(", ".join(parts)[: self._columns() - self.ROOM])
 
     def write(self, line: str) -> None:
         """Write ``line`` as a line of its own; the progress line comes back below it at its next update.
@@ -188,13 +190,15 @@ class ProgressLine:
         """Clear the line (if drawn) and the "^C" a terminal may have echoed after it, leaving the cursor at
         the start of the empty line."""
         if self._width:
-            self._draw(" " * min(self._width + 2, self._columns() - 1))
+            self._draw(" " * (self._width + self.ROOM - 1))
             self.stream.write("\r")
             self.stream.flush()
             self._width = 0
 
     def _draw(self, text: str) -> None:
-        self.stream.write("\r" + text.ljust(self._width))
+        """``text`` over the line, padded to what was there: ``_width`` is where the cursor stands."""
+        text = text.ljust(self._width)
+        self.stream.write("\r" + text)
         self.stream.flush()
         self._width = len(text)
 
