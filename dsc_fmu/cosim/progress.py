@@ -187,8 +187,7 @@ class ProgressLine:
         self._due = min(self._due, clock.monotonic())
 
     def close(self) -> None:
-        """Clear the line (if drawn) and the "^C" a terminal may have echoed after it, leaving the cursor at
-        the start of the empty line."""
+        """Clear the line (if drawn) and the "^C" a terminal may have echoed after it, cursor at its start."""
         if self._width:
             self._draw(" " * (self._width + self.ROOM - 1))
             self.stream.write("\r")
