@@ -1,7 +1,8 @@
 """The command line on a real terminal: ``dsc-fmu run`` and ``dsc-fmu sweep`` run in a pseudo-terminal of
 their own (its controlling terminal, so that Ctrl-C typed there interrupts them as it does a user's), and
 what they write is read as a terminal shows it: one progress line rewritten in place with carriage
-returns, cleared before anything else is written, and none of it in a pipe or with ``--quiet``."""
+returns, cleared before anything else is written. The watch behind ``run`` writes to a real terminal
+and a real pipe too: nothing in the pipe, nothing with ``quiet``."""
 
 import fcntl
 import json
@@ -23,7 +24,7 @@ SWEEP = ["sweep", "figure_eight", "--stop-time", "2", "--step-sizes", "0.001,0.0
          "--orders", "gauss-seidel", "--tolerances", "", "--jobs", "1", "--no-refine"]
 
 
-def in_terminal(arguments: list[str], cwd, interrupt_when=None, columns: int = 80) -> tuple[str, int]:
+def in_terminal(arguments: list[str], cwd, columns: int, interrupt_when) -> tuple[str, int]:
     """``python -m dsc_fmu ARGUMENTS`` in a new pseudo-terminal ``columns`` wide (0: one that does not
     say its size, as ``script`` makes when run from a pipe), its standard streams and controlling
     terminal, read until it exits; Ctrl-C is typed once when ``interrupt_when(output)`` (the bytes so
@@ -40,21 +41,29 @@ def in_terminal(arguments: list[str], cwd, interrupt_when=None, columns: int = 8
         finally:
             os._exit(127)
     os.close(slave)
+    output = read_until_closed(master, interrupt_when)
+    _, status = os.waitpid(pid, 0)
+    return output.decode(), os.waitstatus_to_exitcode(status)
+
+
+def read_until_closed(reader: int, interrupt_when=None) -> bytes:
+    """All that comes from ``reader`` (a pipe's or a pseudo-terminal's reading side) until every writer
+    has closed it, typing Ctrl-C into it once ``interrupt_when(output)`` (the bytes so far) is true;
+    ``reader`` is closed."""
     output = b""
     while True:
         try:
-            chunk = os.read(master, 4096)
-        except OSError:  # EIO: every process holding the terminal has exited
+            chunk = os.read(reader, 4096)
+        except OSError:  # EIO: a terminal no process holds any more
             break
         if not chunk:
             break
         output += chunk
         if interrupt_when is not None and interrupt_when(output):
-            os.write(master, CTRL_C)
+            os.write(reader, CTRL_C)
             interrupt_when = None
-    os.close(master)
-    _, status = os.waitpid(pid, 0)
-    return output.decode(), os.waitstatus_to_exitcode(status)
+    os.close(reader)
+    return output
 
 
 def screen(output: str) -> list[str]:
@@ -94,7 +103,7 @@ def test_a_run_shows_one_line_in_place_and_stops_at_ctrl_c(tmp_path, fmu_paths):
 
     command = ["run", "paper", "--stop-time", "300", "--step-size", "1e-4", "--no-plots", "--out", str(out),
                "--fmu-dir", str(fmu_paths["MobileRobot"].parent)]
-    output, status = in_terminal(command, tmp_path, forecast_then_progress, columns=0)
+    output, status = in_terminal(command, tmp_path, 0, forecast_then_progress)
     assert status == 130, output
     lines = drawn(output, "paper: t = ")
     before_forecast = drawn(output.partition("at this pace")[0], "paper: t = ")
@@ -112,17 +121,21 @@ def test_a_run_shows_one_line_in_place_and_stops_at_ctrl_c(tmp_path, fmu_paths):
     assert not any("paper: t = " in line for line in shows), shows
 
 
-@pytest.mark.slow
-def test_a_quiet_run_on_a_terminal_writes_no_carriage_return(tmp_path, fmu_paths):
-    """``--quiet`` on a terminal, in a run that lasts past the second after which the line would show:
-    no carriage return but the terminal's own before each newline, and the summary alone."""
-    out = tmp_path / "out"
-    output, status = in_terminal(["run", "paper", "--stop-time", "1", "--step-size", "1e-4", "--quiet", "--no-plots",
-                                  "--out", str(out), "--fmu-dir", str(fmu_paths["MobileRobot"].parent)], tmp_path)
-    assert status == 0, output
-    assert json.loads((out / "summary.json").read_text())["settings"]["wall_time_s"] > 2 * TerminalWatch.SHOW_AFTER
-    assert "\r" not in output.replace("\r\n", "\n"), output
-    assert screen(output)[0].startswith("scenario paper: gauss-seidel"), output
+@pytest.mark.parametrize(("stream", "quiet"), [("terminal", False), ("terminal", True), ("pipe", False)])
+def test_the_watch_draws_on_a_terminal_unless_quiet_and_never_in_a_pipe(monkeypatch, stream, quiet):
+    """A ``TerminalWatch`` writing to a real pseudo-terminal or pipe, its line due at once: on the
+    terminal one line after a carriage return, cleared when the watch ends; quiet or in a pipe, nothing."""
+    monkeypatch.setattr(TerminalWatch, "SHOW_AFTER", 0.0)
+    reader, writer = os.openpty() if stream == "terminal" else os.pipe()
+    with open(writer, "w") as file, TerminalWatch(30.0, "paper", quiet=quiet, stream=file) as watch:
+        watch(0.5, 5000)
+    written = read_until_closed(reader).decode()
+    if quiet or stream == "pipe":
+        assert written == ""
+    else:
+        line = written.split("\r")[1]
+        assert line.startswith("paper: t = 0.500/30 s, 5000 steps")
+        assert written == f"\r{line}\r{' ' * (len(line) + ProgressLine.ROOM - 1)}\r"
 
 
 @pytest.mark.slow
@@ -132,7 +145,7 @@ def test_a_sweep_counts_its_runs_in_place_and_keeps_them_at_ctrl_c(tmp_path, fmu
     echoed "^C" cleared before the message. Run again with standard error to a pipe, it takes what
     finished from its cache and runs the rest with no progress line: nothing on standard error."""
     command = [*SWEEP, "--out", str(tmp_path / "out"), "--fmu-dir", str(fmu_paths["MobileRobot"].parent)]
-    output, status = in_terminal(command, tmp_path, lambda output: b"/3 runs, " in output, NARROW)  # 1 or 2 done
+    output, status = in_terminal(command, tmp_path, NARROW, lambda output: b"/3 runs, " in output)  # 1 or 2 done
     assert status == 130, output
     lines = drawn(output, "sweep figure_eight: ")
     assert lines[0] == "sweep figure_eight: 0/3 runs" and re.match(r"sweep figure_eight: [12]/3 runs, \d", lines[-1])
