@@ -327,8 +327,9 @@ def _run(args) -> int:
     if note:
         print(note, file=sys.stderr)
     with TerminalWatch(scenario.simulation.stop_time, scenario.name, quiet=args.quiet, hint=hint) as watch:
-        print(run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=folder,
-                           fmi_version=version, plots=not args.no_plots, interface=interface, watch=watch))
+        summary = run_scenario(scenario, out_dir=args.out or Path("results") / scenario.name, fmu_dir=folder,
+                               fmi_version=version, plots=not args.no_plots, interface=interface, watch=watch)
+    print(summary)  # below the progress line, which leaving the block cleared
     return 130 if watch.interrupted else 0
 
 

@@ -3,20 +3,20 @@
 A *watch* is any callable ``watch(time, steps) -> bool`` that a run calls at every row it records,
 with the simulated time (s) and the steps taken so far; returning False stops the run there (its
 result then ends at that row and says where it stopped). ``TerminalWatch`` is the command line's:
-a progress line on a terminal, and Ctrl-C as a request to stop at the next row.
+a progress line on a terminal, and Ctrl-C as a request to stop at the next row. ``ProgressLine`` is
+that line, which a sweep shows too.
 """
 
 from __future__ import annotations
 
+import os
 import signal
 import sys
 import threading
 import time as clock
 from typing import Callable
 
-from tqdm import tqdm
-
-__all__ = ["Watch", "TerminalWatch"]
+__all__ = ["Watch", "TerminalWatch", "ProgressLine"]
 
 Watch = Callable[[float, int], bool]
 
@@ -56,12 +56,10 @@ class TerminalWatch:
         self.label = label
         self.hint = hint
         self.stream = stream or sys.stderr
-        self.shown = not quiet and getattr(self.stream, "isatty", lambda: False)()
+        self.quiet = quiet
         self.interrupted = False
-        self._bar = None
         self._handler = None
-        self._last = 0.0
-        self._started = None  # the first call: building and loading the FMUs do not count
+        self._line = None  # made at the first call: building and loading the FMUs do not count
         self._forecast_due = not quiet
 
     def __enter__(self) -> TerminalWatch:
@@ -70,8 +68,8 @@ class TerminalWatch:
         return self
 
     def __exit__(self, *exc) -> None:
-        if self._bar is not None:
-            self._bar.close()
+        if self._line is not None:
+            self._line.close()
         if self._handler is not None:
             signal.signal(signal.SIGINT, self._handler)
 
@@ -82,7 +80,7 @@ class TerminalWatch:
 
     def _forecast(self, time: float, steps: int, now: float) -> None:
         """Once, a few seconds in: the steps and the wall time of the whole run at this pace, if long."""
-        elapsed = now - self._started
+        elapsed = now - self._line.started
         if elapsed < self.FORECAST_AFTER or time <= 0.0:
             return
         self._forecast_due = False
@@ -91,25 +89,123 @@ class TerminalWatch:
             line = (f"dsc-fmu: at this pace the run takes about {steps * self.stop_time / time:,.0f} steps and "
                     f"{_duration(total)} in all ({time:.3g} of {self.stop_time:g} s simulated in "
                     f"{_duration(elapsed)}){'; ' + self.hint if self.hint else ''}")
-            (self._bar.write if self._bar is not None else print)(line, file=self.stream)
+            self._line.write(line)
 
     def __call__(self, time: float, steps: int) -> bool:
-        if self._started is None:
-            self._started = clock.monotonic()
-            if self.shown:
-                self._bar = tqdm(total=self.stop_time, desc=self.label, file=self.stream, delay=self.SHOW_AFTER,
-                                 leave=False, mininterval=0, dynamic_ncols=True, unit="s",
-                                 bar_format="{desc}: t = {n:.3f}/{total:g} s |{bar}| {postfix} [{rate_fmt}, "
-                                            "{remaining} left]")
-        if self._forecast_due or self._bar is not None:
-            now = clock.monotonic()
-            if self._forecast_due:
-                self._forecast(time, steps, now)
-            if self._bar is not None and (now - self._last >= 0.2 or time >= self.stop_time):
-                self._last = now
-                self._bar.set_postfix_str(f"{steps} steps", refresh=False)
-                self._bar.update(time - self._bar.n)
+        if self._line is None:
+            self._line = ProgressLine(self.stop_time, self.label, "s", count="t = {done:.3f}/{total:g}",
+                                      after=self.SHOW_AFTER, quiet=self.quiet, stream=self.stream)
+        if self._forecast_due:
+            self._forecast(time, steps, clock.monotonic())
+        self._line.update(time - self._line.done, f"{steps} steps")
         return not self.interrupted or time <= 0.0  # a stopped run has a row past its start
+
+
+class ProgressLine:
+    """One line on a terminal, rewritten in place: ``label: done/total unit, note, speed, time left``.
+
+    It is drawn only on a terminal and not with ``quiet`` (pipes, logs and CI get nothing), from
+    ``after`` seconds after it is made, at most every ``EVERY`` seconds, cut to the terminal's width
+    (80 columns if it does not say) less ``ROOM``, so that the "^C" a terminal echoes on Ctrl-C stays
+    on the line; closing it (or leaving its ``with`` block) clears it, "^C" included. The speed and the
+    time left are the average since it was made.
+
+    Parameters
+    ----------
+    total : float
+        What a finished job counts, in ``unit``.
+    label : str
+        What is going on: the scenario's name, say.
+    unit : str
+        The unit of ``total``: "s", "runs".
+    count : str, optional
+        How the count is written, a format of ``done`` and ``total``. Default "{done:.0f}/{total:g}".
+    after : float, optional
+        Seconds of wall time before the line first shows. Default 0.
+    quiet : bool, optional
+        Never draw. Default False.
+    stream : file-like, optional
+        Where to write; standard error by default.
+    """
+
+    EVERY = 0.2  # s of wall time between two drawings
+    COLUMNS = 80  # the width of a terminal that does not say
+    ROOM = 3  # columns left free at the end: "^C" and the cursor
+
+    def __init__(self, total: float, label: str, unit: str, count: str = "{done:.0f}/{total:g}", after: float = 0.0,
+                 quiet: bool = False, stream=None):
+        self.total, self.label, self.unit, self.count = total, label, unit, count
+        self.stream = stream or sys.stderr
+        self.shown = not quiet and getattr(self.stream, "isatty", lambda: False)()
+        self.done = 0.0
+        self.started = clock.monotonic()
+        self._due = self.started + after
+        self._width = 0  # of the line on the screen
+
+    def __enter__(self) -> ProgressLine:
+        self.update(0)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def update(self, advance: float = 1, note: str = "") -> None:
+        """Count ``advance`` more done and redraw the line with ``note`` after the count, if it is due.
+
+        Parameters
+        ----------
+        advance : float, optional
+            How much more is done, in ``unit``. Default 1.
+        note : str, optional
+            Shown after the count (the steps taken, say).
+        """
+        self.done += advance
+        if not self.shown:
+            return
+        now = clock.monotonic()
+        if now < self._due:
+            return
+        self._due = now + self.EVERY
+        parts = [f"{self.label}: {self.count.format(done=self.done, total=self.total)} {self.unit}"]
+        if note:
+            parts.append(note)
+        if self.done > 0 and now > self.started:
+            rate = self.done / (now - self.started)
+            parts += [f"{rate:.3g} {self.unit}/s", f"{_duration((self.total - self.done) / rate)} left"]
+        self._draw(", ".join(parts)[: self._columns() - self.ROOM])
+
+    def write(self, line: str) -> None:
+        """Write ``line`` as a line of its own; the progress line comes back below it at its next update.
+
+        Parameters
+        ----------
+        line : str
+            The text, without its newline.
+        """
+        self.close()
+        print(line, file=self.stream, flush=True)
+        self._due = min(self._due, clock.monotonic())
+
+    def close(self) -> None:
+        """Clear the line (if drawn) and the "^C" a terminal may have echoed after it, cursor at its start."""
+        if self._width:
+            self._draw(" " * (self._width + self.ROOM - 1))
+            self.stream.write("\r")
+            self.stream.flush()
+            self._width = 0
+
+    def _draw(self, text: str) -> None:
+        """``text`` over the line, padded to what was there: ``_width`` is where the cursor stands."""
+        text = text.ljust(self._width)
+        self.stream.write("\r" + text)
+        self.stream.flush()
+        self._width = len(text)
+
+    def _columns(self) -> int:
+        try:
+            return os.get_terminal_size(self.stream.fileno()).columns or self.COLUMNS
+        except (AttributeError, ValueError, OSError):  # no file descriptor, or not a terminal
+            return self.COLUMNS
 
 
 def _duration(seconds: float) -> str:

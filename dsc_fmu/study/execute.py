@@ -8,7 +8,6 @@ import os
 import re
 import shutil
 import signal
-import sys
 import tempfile
 import warnings
 from collections import Counter, defaultdict, deque
@@ -18,9 +17,8 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from tqdm import tqdm
-
 from ..cosim.master import Cosimulator
+from ..cosim.progress import ProgressLine
 from ..scenario import Scenario
 from .cache import CacheEntryError, CacheWarning, SweepCache, case_key, fmu_identities, reference_key
 from .cases import Case, Runner, SweepError, apply, check_scheduler
@@ -408,7 +406,7 @@ class _Collector:
     "local" stability, those whose reference solution failed (judged as settled runs for now)."""
 
     def __init__(self, scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict,
-                 bar: tqdm, lost: list):
+                 bar: ProgressLine, lost: list):
         self.rows, self._waiting = {}, defaultdict(list)
         self._remaining = Counter(ref_key for _, _, ref_key in todo.values())
         self._local = scenario.simulation.stability.from_start
@@ -452,8 +450,7 @@ class _Collector:
 def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict, results,
              progress: bool, lost: list) -> dict:
     """Rows (by key) of the runs of ``todo`` from ``results`` (``_Collector``)."""
-    with tqdm(total=len(todo), unit="run", desc=f"sweep {scenario.name}", file=sys.stderr,
-              disable=None if progress else True) as bar:
+    with ProgressLine(len(todo), f"sweep {scenario.name}", "runs", quiet=not progress) as bar:
         collector = _Collector(scenario, todo, references, cache, identities, bar, lost)
         for task, value in results:
             task.hand_over(value, collector)
