@@ -22,7 +22,7 @@ from dsc_fmu.study.cases import (
     Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
-from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, run_case
+from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, row_keys, run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -181,7 +181,7 @@ def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(sho
      "also given with --set"),
     ({"step_sizes": [1e-3, 0.0]}, "step size 0.0 is not allowed"),
     ({"step_sizes": [100, 3, 0.5]}, r"step size 100 s is not allowed: larger than the stop time 1 s; allowed: 0 < h"),
-    ({"orders": ["backwards"]}, "order 'backwards' is not allowed"),
+    ({"orders": ["backwards"]}, "order = 'backwards' is not allowed"),
     ({"discretizations": ["trapezoidal"]}, "allowed: rk4, euler"),
     ({"sets": [("reference.vr0", (1.0, -1.0))]}, r"vr0 = -1.0 is not allowed"),
 ])
@@ -249,8 +249,8 @@ def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tm
     own = cosimulate(apply(short, case), fmu_paths).result
     with Cosimulator(fmu_paths, tmp_path) as simulator:
         row = run_case(short, case, simulator, own)
-    expected = [k for k in ROW_KEYS if not k.startswith("<")]
-    assert list(row) == expected[:7] + ["controller.k4"] + expected[7:]
+    assert list(row) == list(row_keys(case))
+    assert row_keys(case) == (*ROW_KEYS[:ROW_KEYS.index("sample") + 1], "controller.k4", *ROW_KEYS[ROW_KEYS.index("key"):])
     assert json.dumps(json.loads(json.dumps(row))) == json.dumps(row)
     assert row["controller.k4"] == 0.5 and row["steps"] == 500 and row["diverged"] is False
     for name in ("position", "heading", "u"):
@@ -557,7 +557,7 @@ def test_local_stability_needs_a_seed_window_with_rows_after_the_start(times):
 def test_a_row_says_which_definition_judged_it(fmu_paths):
     """on_reference ("local"): a fixed-step run whose deviation grows is unstable; without a reference
     solution, or error-controlled, the same run is judged as a settled one (and stable)."""
-    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, Outcome, make_row
+    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, Outcome, Plan, make_row
     scenario = load_scenario("on_reference")
     t = np.linspace(0.0, 30.0, 3001)
     trajectory = np.zeros(len(t), dtype=[(n, float) for n in TRAJECTORY])
@@ -570,7 +570,7 @@ def test_a_row_says_which_definition_judged_it(fmu_paths):
     judged = {}
     for name, case, with_reference in (("local", Case(0.02), True), ("no reference", Case(0.02), False),
                                        ("error-controlled", Case(0.02, coupling="linear", tolerance=1e-3), True)):
-        row = make_row(apply(scenario, case), case, ("k", "r"), outcome, reference if with_reference else None)
+        row = make_row(Plan(case, apply(scenario, case), "k", "r"), outcome, reference if with_reference else None)
         judged[name] = (row["stability"], row["stable"])
     assert judged == {"local": ("local", False), "no reference": ("settled", True),
                       "error-controlled": ("settled", True)}
@@ -610,7 +610,8 @@ def test_boundary_notes_say_why_a_prediction_is_off():
 
 def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(fmu_paths, tmp_path, monkeypatch):
     scenario = load_scenario("on_reference").with_simulation(stop_time=2.0)
-    monkeypatch.setattr(sweep_tasks, "compute_reference", lambda applied, fmu_paths: (None, "solver gave up"))
+    monkeypatch.setattr(sweep_tasks, "compute_reference",
+                        lambda applied, fmu_paths: sweep_rows.ReferenceOutcome(None, "solver gave up"))
     with pytest.warns(UserWarning, match=r"reference solution failed \(solver gave up\): deviations are NaN for its "
                                          r"runs; they are judged as settled runs and not cached"):
         row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows

@@ -14,7 +14,7 @@ from typing import Callable
 
 from ..cosim.master import Cosimulator
 from ..scenario import Scenario
-from .rows import Outcome, compute_reference, simulate
+from .rows import Outcome, ReferenceOutcome, compute_reference, simulate
 
 __all__ = ["Task", "Run", "ReferenceSolution"]
 
@@ -112,7 +112,7 @@ class Run(Task):
 class ReferenceSolution(Task):
     """The reference solution of one physical case (``rows.compute_reference``).
 
-    Its value is ``(solution or None, why the solver failed or None)``, taken by
+    Its value is a ``rows.ReferenceOutcome`` (the solution, or why the solver failed), taken by
     ``sweep.take_reference``. A solution whose workers were lost is computed in this process.
 
     Parameters
@@ -123,11 +123,11 @@ class ReferenceSolution(Task):
         A case of it applied to its scenario (``cases.apply``).
     """
 
-    def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> tuple:
+    def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> ReferenceOutcome:
         return compute_reference(self.applied, fmu_paths)
 
-    def lost(self, reason: str, fmu_paths: dict) -> tuple:
+    def lost(self, reason: str, fmu_paths: dict) -> ReferenceOutcome:
         return compute_reference(self.applied, fmu_paths)
 
-    def hand_over(self, value: tuple, sweep) -> None:
+    def hand_over(self, value: ReferenceOutcome, sweep) -> None:
         sweep.take_reference(self.tag, value)
