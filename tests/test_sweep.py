@@ -22,7 +22,9 @@ from dsc_fmu.study.cases import (
     Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
-from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, row_keys, run_case
+from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, row_keys
+from dsc_fmu.study.plan import Plan
+from dsc_fmu.study.tasks import run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -557,7 +559,7 @@ def test_local_stability_needs_a_seed_window_with_rows_after_the_start(times):
 def test_a_row_says_which_definition_judged_it(fmu_paths):
     """on_reference ("local"): a fixed-step run whose deviation grows is unstable; without a reference
     solution, or error-controlled, the same run is judged as a settled one (and stable)."""
-    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, Outcome, Plan, make_row
+    from dsc_fmu.study.rows import METRIC_KEYS, TRAJECTORY, Outcome, make_row
     scenario = load_scenario("on_reference")
     t = np.linspace(0.0, 30.0, 3001)
     trajectory = np.zeros(len(t), dtype=[(n, float) for n in TRAJECTORY])

@@ -19,7 +19,8 @@ from ..scenario import Scenario
 from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
 from .places import LOST_TWICE, Losses, Pool, in_process
-from .rows import Outcome, Plan, ReferenceOutcome, make_row
+from .plan import Plan
+from .rows import Outcome, ReferenceOutcome, make_row
 from .tasks import ReferenceSolution, Run, Task
 
 __all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep"]
