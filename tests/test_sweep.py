@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import re
 import time
 from pathlib import Path
 
@@ -16,7 +17,7 @@ from dsc_fmu.study import tasks as sweep_tasks
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
-from dsc_fmu.scenario import REFERENCES, ScenarioError, load_scenario
+from dsc_fmu.scenario import REFERENCES, Coupling, Order, ScenarioError, load_scenario
 from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
 from dsc_fmu.study.cases import (
     Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
@@ -452,6 +453,31 @@ def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths
     assert time.perf_counter() - started < 10
     assert "\n" not in str(info.value)
     assert not (tmp_path / "out").exists()
+
+
+def test_a_sweep_checks_its_folder_and_scheduler_once_for_all_its_executions(short, fmu_paths, tmp_path, monkeypatch):
+    from dsc_fmu.study import execute as sweep_execute
+    from dsc_fmu.study.cases import Grid
+    from dsc_fmu.study.sweep import run_sweep
+    prepared, prepare = [], sweep_execute.prepare_sweep
+    monkeypatch.setattr(sweep_execute, "prepare_sweep", lambda *args: prepared.append(args) or prepare(*args))
+    runner, out = Runner(jobs=1, progress=False), tmp_path / "out"
+    run_sweep(short, out, Grid(step_sizes=[0.01, 0.02], orders=["jacobi"], couplings=["hold"], tolerances=[]), runner,
+              fmu_dir=next(iter(fmu_paths.values())).parent, refine=False)
+    assert prepared == [(out, runner)]
+    execute(short, [Case(0.01, "jacobi")], out, fmu_paths, runner)  # alone, execute checks for itself
+    assert prepared == [(out, runner)] * 2
+
+
+def test_a_case_holds_its_order_and_coupling_as_their_types():
+    case = Case(1e-3, "jacobi", coupling="linear")
+    assert (case.order, case.coupling) == (Order.JACOBI, Coupling.LINEAR) and not case.order.sequential
+    assert dataclasses.replace(case, step_size=2e-3).coupling.order == 2
+    for wrong, message in ((dict(order="backwards"), "order = 'backwards' is not allowed; allowed: gauss-seidel, jacobi"),
+                           (dict(coupling="cubic"), "coupling = 'cubic' is not allowed; allowed: hold, linear"),
+                           (dict(discretization="tustin"), "discretization = 'tustin' is not allowed; allowed: rk4, euler")):
+        with pytest.raises(ScenarioError, match=f"^{re.escape(message)}$"):
+            Case(1e-3, **wrong)
 
 
 def test_the_worker_cleanup_frees_the_cosimulator_and_its_folder(short, fmu_paths):
