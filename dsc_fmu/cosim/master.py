@@ -175,7 +175,8 @@ class Cosimulator:
         """Terminate and free every instance and remove the extracted folders (idempotent)."""
         self._finalizer()
 
-    def run(self, scenario: Scenario, *, watch: Watch | None = None, **settings: Unpack[Overrides]) -> CosimulationResult:
+    def run(self, scenario: Scenario, *, watch: Watch | None = None,
+            **settings: Unpack[Overrides]) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does.
 
         Parameters

@@ -328,8 +328,8 @@ class _Collector:
         self.rows, self.lost, self._waiting = {}, [], defaultdict(list)
         self._remaining = Counter(plan.reference_key for plan in found.todo.values())
         self._local = scenario.simulation.stability.from_start
-        self._todo, self._references, self._cache, self._identities = found.todo, dict(found.references), cache, identities
-        self._bar = bar
+        self._todo, self._references = found.todo, dict(found.references)
+        self._cache, self._identities, self._bar = cache, identities, bar
 
     def take_reference(self, ref_key: str, value: ReferenceOutcome) -> None:
         if value.solution is None:

@@ -57,7 +57,8 @@ DEVIATION_KEYS = ("max_position_deviation_m", "rms_position_deviation_m", "max_h
 ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tolerance", "sample", "key",
             "reference_key", "diverged", "diverged_time", "diverged_signal", "diverged_reason", "stability", "stable",
             *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps", "steps_rejected", "fmu_steps")
-"""The keys of a row, in order; a case's overrides (``table.name``) come between ``sample`` and ``key`` (``row_keys``)."""
+"""The keys of a row, in order; a case's overrides (``table.name``) come between ``sample`` and ``key``
+(``row_keys``)."""
 
 
 def row_keys(case: Case) -> tuple[str, ...]:
