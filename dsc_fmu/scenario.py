@@ -17,7 +17,7 @@ from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
     "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Stability", "Interface", "Reference", "ORDERS", "COUPLINGS",
-    "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "scenario_names", "SCENARIO_DIR",
+    "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "one_of", "scenario_names", "SCENARIO_DIR",
 ]
 
 
@@ -155,6 +155,47 @@ class ScenarioError(DscFmuError, ValueError):
     """A scenario (file, key or value) that cannot be run; the message names what and what is allowed."""
 
 
+def one_of(allowed, value, name: str):
+    """A value checked against a closed set: the member it names, or one line naming what is allowed.
+
+    Parameters
+    ----------
+    allowed : type or sequence of str
+        A closed set (``Order``, ``Coupling``, ``Interface``, ``Stability``, ``Reference``) or the
+        names allowed (``models.parameters.DISCRETIZATIONS``, a parameter's choices).
+    value : object
+        What was given.
+    name : str
+        What it was given for, as the message names it (``"paper.toml: [simulation] order"``).
+
+    Returns
+    -------
+    object
+        The member of ``allowed`` named ``value``; for a sequence of names, ``value`` itself.
+
+    Raises
+    ------
+    ScenarioError
+        ``"{name} = {value!r} is not allowed; allowed: {the names, comma-separated}"``.
+
+    Examples
+    --------
+    >>> one_of(Order, "jacobi", "order") is Order.JACOBI
+    True
+    >>> one_of(("rk4", "euler"), "tustin", "discretization")
+    Traceback (most recent call last):
+    ...
+    dsc_fmu.scenario.ScenarioError: discretization = 'tustin' is not allowed; allowed: rk4, euler
+    """
+    names = tuple(allowed)
+    if not (isinstance(value, str) and value in names):
+        raise ScenarioError(f"{name} = {value!r} is not allowed; allowed: {', '.join(names)}")
+    return allowed(value) if isinstance(allowed, enum.EnumType) else value
+
+
+_CLOSED_SETS = {"order": Order, "coupling": Coupling, "stability": Stability, "reference": Reference}
+
+
 @dataclass(frozen=True)
 class Simulation:
     """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
@@ -210,7 +251,7 @@ class Simulation:
 
     def __post_init__(self):
         # Names become their types; a name that is none stays as given, for ``check`` to name.
-        for key, kind in (("order", Order), ("coupling", Coupling), ("stability", Stability), ("reference", Reference)):
+        for key, kind in _CLOSED_SETS.items():
             try:
                 object.__setattr__(self, key, kind(getattr(self, key)))
             except ValueError:
@@ -238,12 +279,8 @@ class Simulation:
                 raise ScenarioError(f"{where}: [simulation] {key} = {value!r} is not allowed; allowed: > 0")
         if self.h_min > self.h_max:
             raise ScenarioError(f"{where}: [simulation] h_min = {self.h_min!r} is not allowed; allowed: <= h_max = {self.h_max!r}")
-        for key, allowed in (("order", ORDERS), ("coupling", COUPLINGS), ("stability", STABILITIES),
-                             ("reference", REFERENCES)):
-            if getattr(self, key) not in allowed:
-                raise ScenarioError(
-                    f"{where}: [simulation] {key} = {getattr(self, key)!r} is not allowed; allowed: {', '.join(allowed)}"
-                )
+        for key, kind in _CLOSED_SETS.items():
+            one_of(kind, getattr(self, key), f"{where}: [simulation] {key}")
         if not isinstance(self.input_derivatives, bool):
             raise ScenarioError(f"{where}: [simulation] input_derivatives = {self.input_derivatives!r} is not "
                                 "allowed; allowed: true, false")
@@ -403,11 +440,7 @@ def _parameters(table_name: str, given: dict, where: str) -> dict:
                 f"{where}: unknown key [{table_name}] {key}; allowed: {', '.join(variables)}"
             )
         if v.choices:
-            if value not in v.choices:
-                raise ScenarioError(
-                    f"{where}: [{table_name}] {key} = {value!r} is not allowed; allowed: {', '.join(v.choices)}"
-                )
-            values[key] = v.choices.index(value)
+            values[key] = v.choices.index(one_of(v.choices, value, f"{where}: [{table_name}] {key}"))
             continue
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             raise ScenarioError(f"{where}: [{table_name}] {key} = {value!r} is not a number; allowed: {v.allowed}")

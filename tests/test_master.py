@@ -1,6 +1,7 @@
 """The co-simulation master: time stamps, coupling, orders, divergence, failures and cleanup."""
 
 import math
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -8,7 +9,7 @@ import numpy as np
 import pytest
 from fmpy.util import read_csv, write_csv
 
-from dsc_fmu.cosim import master, signals
+from dsc_fmu.cosim import signals
 from dsc_fmu.cosim.master import CosimulationError, cosimulate, step_count
 from dsc_fmu.scenario import ScenarioError, load_scenario
 
@@ -190,13 +191,13 @@ def test_missing_fmu_is_reported(paper, fmu_paths, tmp_path):
 def removed(monkeypatch):
     """The folders the master removes, recorded as it removes them."""
     folders = []
-    rmtree = master.shutil.rmtree
+    rmtree = shutil.rmtree
 
     def recording(path, **kwargs):
         folders.append(path)
         rmtree(path, **kwargs)
 
-    monkeypatch.setattr(master.shutil, "rmtree", recording)
+    monkeypatch.setattr(shutil, "rmtree", recording)
     return folders
 
 

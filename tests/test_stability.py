@@ -292,5 +292,5 @@ def test_linear_coupling_predicted_boundaries_of_on_reference(loop):
         hold = st.predicted_boundary(loop, order)
         linear = st.predicted_boundary(loop, order, coupling="linear")
         assert 0.01 < linear < hold
-    with pytest.raises(ValueError, match="coupling 'cubic' is not allowed; allowed: hold, linear"):
+    with pytest.raises(ValueError, match="coupling = 'cubic' is not allowed; allowed: hold, linear"):
         st.spectral_radius(loop, 1e-3, "jacobi", coupling="cubic")

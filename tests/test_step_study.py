@@ -9,7 +9,8 @@ from dsc_fmu.cli import main
 from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import load_scenario
 from dsc_fmu.study.cases import Case, apply
-from dsc_fmu.study.rows import compute_reference, run_case
+from dsc_fmu.study.rows import compute_reference
+from dsc_fmu.study.tasks import run_case
 
 pytestmark = pytest.mark.slow
 
@@ -77,7 +78,7 @@ def test_beyond_the_predicted_boundary_a_run_settles_but_steady_tracking_is_unst
     (["--step-sizes", "0,1e-3"], "step size 0.0 is not allowed; allowed: > 0"),
     (["--step-sizes", "fast"], None),
     (["--set", "controller.k9=1,2"], "controller.k9"),
-    (["--orders", "random"], "order 'random' is not allowed"),
+    (["--orders", "random"], "order = 'random' is not allowed"),
     (["--jobs", "0"], "jobs = 0 is not allowed; allowed: a whole number >= 1"),
     (["--scheduler", "tcp://127.0.0.1:1"], "cannot reach the Dask scheduler"),
 ])

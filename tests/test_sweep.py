@@ -3,6 +3,7 @@
 import dataclasses
 import json
 import math
+import re
 import time
 from pathlib import Path
 
@@ -16,13 +17,15 @@ from dsc_fmu.study import tasks as sweep_tasks
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
-from dsc_fmu.scenario import REFERENCES, ScenarioError, load_scenario
+from dsc_fmu.scenario import REFERENCES, Coupling, Order, ScenarioError, load_scenario
 from dsc_fmu.study.cache import TRAJECTORY, load_reference, load_trajectory
 from dsc_fmu.study.cases import (
     Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
-from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, run_case
+from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, row_keys
+from dsc_fmu.study.plan import Plan
+from dsc_fmu.study.tasks import run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -181,7 +184,7 @@ def test_perturbation_is_reproducible_within_bounds_and_one_plant_per_sample(sho
      "also given with --set"),
     ({"step_sizes": [1e-3, 0.0]}, "step size 0.0 is not allowed"),
     ({"step_sizes": [100, 3, 0.5]}, r"step size 100 s is not allowed: larger than the stop time 1 s; allowed: 0 < h"),
-    ({"orders": ["backwards"]}, "order 'backwards' is not allowed"),
+    ({"orders": ["backwards"]}, "order = 'backwards' is not allowed"),
     ({"discretizations": ["trapezoidal"]}, "allowed: rk4, euler"),
     ({"sets": [("reference.vr0", (1.0, -1.0))]}, r"vr0 = -1.0 is not allowed"),
 ])
@@ -249,8 +252,9 @@ def test_a_row_has_every_key_and_zero_deviation_from_itself(short, fmu_paths, tm
     own = cosimulate(apply(short, case), fmu_paths).result
     with Cosimulator(fmu_paths, tmp_path) as simulator:
         row = run_case(short, case, simulator, own)
-    expected = [k for k in ROW_KEYS if not k.startswith("<")]
-    assert list(row) == expected[:7] + ["controller.k4"] + expected[7:]
+    assert list(row) == list(row_keys(case))
+    at = ROW_KEYS.index("sample") + 1
+    assert ROW_KEYS[at] == "key" and row_keys(case) == (*ROW_KEYS[:at], "controller.k4", *ROW_KEYS[at:])
     assert json.dumps(json.loads(json.dumps(row))) == json.dumps(row)
     assert row["controller.k4"] == 0.5 and row["steps"] == 500 and row["diverged"] is False
     for name in ("position", "heading", "u"):
@@ -452,6 +456,32 @@ def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths
     assert not (tmp_path / "out").exists()
 
 
+def test_a_sweep_checks_its_folder_and_scheduler_once_for_all_its_executions(short, fmu_paths, tmp_path, monkeypatch):
+    from dsc_fmu.study import execute as sweep_execute
+    from dsc_fmu.study.cases import Grid
+    from dsc_fmu.study.sweep import run_sweep
+    prepared, prepare = [], sweep_execute.prepare_sweep
+    monkeypatch.setattr(sweep_execute, "prepare_sweep", lambda *args: prepared.append(args) or prepare(*args))
+    runner, out = Runner(jobs=1, progress=False), tmp_path / "out"
+    run_sweep(short, out, Grid(step_sizes=[0.01, 0.02], orders=["jacobi"], couplings=["hold"], tolerances=[]), runner,
+              fmu_dir=next(iter(fmu_paths.values())).parent, refine=False)
+    assert prepared == [(out, runner)]
+    execute(short, [Case(0.01, "jacobi")], out, fmu_paths, runner)  # alone, execute checks for itself
+    assert prepared == [(out, runner)] * 2
+
+
+def test_a_case_holds_its_order_and_coupling_as_their_types():
+    case = Case(1e-3, "jacobi", coupling="linear")
+    assert (case.order, case.coupling) == (Order.JACOBI, Coupling.LINEAR) and not case.order.sequential
+    assert dataclasses.replace(case, step_size=2e-3).coupling.order == 2
+    refused = {"order": ("backwards", "gauss-seidel, jacobi"), "coupling": ("cubic", "hold, linear"),
+               "discretization": ("tustin", "rk4, euler")}
+    for key, (value, allowed) in refused.items():
+        message = f"{key} = {value!r} is not allowed; allowed: {allowed}"
+        with pytest.raises(ScenarioError, match=f"^{re.escape(message)}$"):
+            Case(1e-3, **{key: value})
+
+
 def test_the_worker_cleanup_frees_the_cosimulator_and_its_folder(short, fmu_paths):
     blobs = {name: path.read_bytes() for name, path in fmu_paths.items()}
     outcome = sweep_dask._on_worker(blobs, sweep_tasks.Run("a", apply(short, Case(0.01))))
@@ -570,7 +600,7 @@ def test_a_row_says_which_definition_judged_it(fmu_paths):
     judged = {}
     for name, case, with_reference in (("local", Case(0.02), True), ("no reference", Case(0.02), False),
                                        ("error-controlled", Case(0.02, coupling="linear", tolerance=1e-3), True)):
-        row = make_row(apply(scenario, case), case, ("k", "r"), outcome, reference if with_reference else None)
+        row = make_row(Plan(case, apply(scenario, case), "k", "r"), outcome, reference if with_reference else None)
         judged[name] = (row["stability"], row["stable"])
     assert judged == {"local": ("local", False), "no reference": ("settled", True),
                       "error-controlled": ("settled", True)}
@@ -610,7 +640,8 @@ def test_boundary_notes_say_why_a_prediction_is_off():
 
 def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(fmu_paths, tmp_path, monkeypatch):
     scenario = load_scenario("on_reference").with_simulation(stop_time=2.0)
-    monkeypatch.setattr(sweep_tasks, "compute_reference", lambda applied, fmu_paths: (None, "solver gave up"))
+    monkeypatch.setattr(sweep_tasks, "compute_reference",
+                        lambda applied, fmu_paths: sweep_rows.ReferenceOutcome(None, "solver gave up"))
     with pytest.warns(UserWarning, match=r"reference solution failed \(solver gave up\): deviations are NaN for its "
                                          r"runs; they are judged as settled runs and not cached"):
         row, = execute(scenario, [Case(0.01)], tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows

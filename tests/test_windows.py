@@ -15,7 +15,7 @@ import pytest
 from fmpy import extract, read_model_description
 
 from c_hosts import compile_c, parse_rows, run_c, write_plan
-from dsc_fmu.fmubuild.binary import LINUX, OVERRIDE_VARIABLE, TARGETS, WINDOWS
+from dsc_fmu.fmubuild.binary import OVERRIDE_VARIABLE, TARGETS, WINDOWS
 from wine import embeddable_python, start_wine, windows_path
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")

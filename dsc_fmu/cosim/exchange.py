@@ -29,17 +29,15 @@ recorded too (``inputs``: name -> structured array, ``time`` = the step's start)
 
 from __future__ import annotations
 
-import shutil
-import tempfile
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE
-from ..scenario import Scenario
+from ..scenario import Scenario, one_of
 from . import signals
-from .instance import LoadedFmu, logging_callbacks
+from .instance import LoadedFmu
+from .loading import LoadedFmus
 from .master import step_count
 
 __all__ = ["MODES", "SCHEMES", "ExchangeRun", "Scheme", "cosimulate_exchange"]
@@ -291,21 +289,16 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
 
     Raises
     ------
-    ValueError
+    ScenarioError
         If ``mode`` is not one of ``MODES``.
+    FmuNotFoundError
+        If an FMU is not given or not a file.
     """
-    if mode not in SCHEMES:
-        raise ValueError(f"mode {mode!r} is not allowed; allowed: {', '.join(MODES)}")
-    scheme = SCHEMES[mode]
+    scheme = SCHEMES[one_of(SCHEMES, mode, "mode")]
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time
-    root = Path(tempfile.mkdtemp(prefix="dsc_fmu_exchange_"))
-    slaves = {}
-    callbacks = logging_callbacks([])  # the master's logger, not fmpy's process-wide proxy
-    try:
-        for name in ORDER:
-            slaves[name] = LoadedFmu(name, root)
-            slaves[name].load(Path(fmu_paths[name]), callbacks)
+    with LoadedFmus(fmu_paths, None, []) as fmus:
+        slaves = fmus.by_name
         loop = _Loop(slaves)
         for name in ORDER:
             slaves[name].enter_initialization(scheme.stop_time(stop), scenario.parameters(name),
@@ -318,10 +311,6 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
             scheme.before_step(loop)
             loop.step(t, step)
             scheme.after_step(loop, end)
-    finally:
-        for slave in reversed(list(slaves.values())):
-            slave.close()
-        shutil.rmtree(root, ignore_errors=True)
     return ExchangeRun(result=_table(loop.rows), inputs=_inputs(loop),
                        controller_before_inputs=_before(loop) if loop.before else None)
 

@@ -4,29 +4,64 @@ step, Gauss-Seidel or Jacobi."""
 from __future__ import annotations
 
 import math
-import shutil
 import time as clock
 import weakref
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypedDict, Unpack
 
 import numpy as np
 from fmpy.fmi1 import FMICallException
 
-from ..identity import fmu_build_id
 from ..errors import CosimulationError
-from ..registry import CONTROLLER, ORDER, PLANT, REFERENCE, fmu_files
-from ..scenario import Interface, Scenario, ScenarioError
+from ..registry import CONTROLLER, PLANT, REFERENCE
+from ..scenario import Coupling, Interface, Order, Scenario, ScenarioError
 from . import signals
-from .instance import LoadedFmu, LogMessage, failed_call, logging_callbacks, type_name
+from .instance import LoadedFmu, LogMessage, failed_call, type_name
 from .derivatives import InputRamps
+from .loading import LoadedFmus
 from .progress import Watch
 from .step_control import ControlledSteps, defect, next_step
 
 __all__ = [
-    "CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "Recorder", "Wiring", "check_values",
-    "close_all", "cosimulate", "step_count",
+    "CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "Overrides", "Recorder", "Wiring",
+    "check_values", "cosimulate", "step_count",
 ]
+
+
+class Overrides(TypedDict, total=False):
+    """The settings a run may take instead of its scenario's (``Scenario.with_simulation``); None: the scenario's.
+
+    Attributes
+    ----------
+    step_size : float, optional
+        Communication step ``h`` in s (an error-controlled run's first step).
+    stop_time : float, optional
+        s.
+    order : Order or {"gauss-seidel", "jacobi"}, optional
+        Coupling order.
+    output_interval : float, optional
+        Recording interval in s.
+    coupling : {"hold", "linear"} or Coupling, optional
+        How the FMUs vary their inputs over a step (their ``coupling`` parameters): held, or linear
+        (the plant extrapolates ``u``; the controller interpolates its inputs with Gauss-Seidel,
+        extrapolates them with Jacobi). The master's calls are the same.
+    tolerance : float, optional
+        Error-controlled step (``step_control``): the estimated position error in m each step may add.
+        A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
+        stay within ``[h_min, h_max]`` of the scenario.
+    input_derivatives : bool, optional
+        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``) with the
+        FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
+    """
+
+    step_size: float | None
+    stop_time: float | None
+    order: Order | str | None
+    output_interval: float | None
+    coupling: Coupling | str | None
+    tolerance: float | None
+    input_derivatives: bool | None
 
 
 @dataclass
@@ -119,19 +154,13 @@ class Cosimulator:
     """
 
     def __init__(self, fmu_paths: dict[str, Path], workdir: Path | None = None):
-        paths = fmu_files(fmu_paths)
-        self.paths = paths
-        self.fmus = {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()}
         self.runs = 0
         self.log: list[LogMessage] = []
-        self._callbacks = logging_callbacks(self.log)
-        self._loaded: list[LoadedFmu] = []
-        self._finalizer = weakref.finalize(self, close_all, self._loaded)
+        self._fmus = LoadedFmus(fmu_paths, workdir, self.log)
+        self._finalizer = weakref.finalize(self, self._fmus.close)
+        self.paths, self.fmus = self._fmus.paths, self._fmus.records
         try:
-            for name in ORDER:
-                self._loaded.append(LoadedFmu(name, workdir, self.log))
-                self._loaded[-1].load(paths[name], self._callbacks)
-            self._wiring = Wiring({fmu.name: fmu for fmu in self._loaded})
+            self._wiring = Wiring(self._fmus.by_name)
         except BaseException:
             self.close()
             raise
@@ -146,28 +175,18 @@ class Cosimulator:
         """Terminate and free every instance and remove the extracted folders (idempotent)."""
         self._finalizer()
 
-    def _prepare(self) -> None:
-        """Bring every instance back to the state after instantiation: fmi2Reset, or free and
-        instantiate anew if the reset fails."""
-        if not self._finalizer.alive:
-            raise RuntimeError("this Cosimulator is closed")
-        for fmu in self._loaded:
-            fmu.renew(self._callbacks)
-
-    def run(self, scenario: Scenario, *, step_size: float | None = None, stop_time: float | None = None,
-            order: str | None = None, output_interval: float | None = None, coupling: str | None = None,
-            tolerance: float | None = None, input_derivatives: bool | None = None,
-            watch: Watch | None = None) -> CosimulationResult:
+    def run(self, scenario: Scenario, *, watch: Watch | None = None,
+            **settings: Unpack[Overrides]) -> CosimulationResult:
         """Co-simulate ``scenario`` as ``cosimulate`` does.
 
         Parameters
         ----------
         scenario : Scenario
             The scenario.
-        step_size, stop_time, order, output_interval, coupling, tolerance, input_derivatives : optional
-            Settings replacing the scenario's, as for ``cosimulate`` (None: the scenario's).
         watch : progress.Watch, optional
             Sees every recorded row and may stop the run there, as for ``cosimulate``.
+        **settings
+            Settings replacing the scenario's (``Overrides``), as for ``cosimulate``.
 
         Returns
         -------
@@ -183,19 +202,21 @@ class Cosimulator:
         RuntimeError
             If this Cosimulator is closed.
         """
-        return self._run(scenario.with_simulation(
-            step_size=step_size, stop_time=stop_time, order=order, output_interval=output_interval,
-            coupling=coupling, tolerance=tolerance, input_derivatives=input_derivatives), watch)
+        return self._run(scenario.with_simulation(**settings), watch)
 
     def _run(self, scenario: Scenario, watch: Watch | None = None) -> CosimulationResult:
-        """``run`` of a scenario whose settings are checked already."""
-        _check_interfaces(scenario, self._loaded)
+        """``run`` of a scenario whose settings are checked already: every instance is brought back to
+        its state after instantiation (``LoadedFmus.renew``) first."""
+        if not self._finalizer.alive:
+            raise RuntimeError("this Cosimulator is closed")
+        loaded = self._fmus.loaded
+        _check_interfaces(scenario, loaded)
         started = clock.perf_counter()
-        self._prepare()
+        self._fmus.renew()
         self.runs += 1
         self.log.clear()
         run = _Run(scenario, self._wiring, self.log, watch)
-        run.execute(self._loaded)
+        run.execute(loaded)
         return CosimulationResult(
             result=run.recorder.result(),
             steps=run.steps(),
@@ -572,26 +593,8 @@ class Recorder:
         return _result(self.table[: self.rows], self.columns)
 
 
-def close_all(fmus: list[LoadedFmu]) -> None:
-    """Close every FMU, last loaded first, removing all their folders even if one fails.
-
-    Parameters
-    ----------
-    fmus : list of LoadedFmu
-        The FMUs, emptied as they are closed.
-    """
-    try:
-        while fmus:
-            fmus.pop().close()
-    finally:
-        for fmu in fmus:
-            shutil.rmtree(fmu.folder, ignore_errors=True)
-
-
-def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: float | None = None,
-               stop_time: float | None = None, order: str | None = None, output_interval: float | None = None,
-               coupling: str | None = None, tolerance: float | None = None, input_derivatives: bool | None = None,
-               workdir: Path | None = None, watch: Watch | None = None) -> CosimulationResult:
+def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path | None = None,
+               watch: Watch | None = None, **settings: Unpack[Overrides]) -> CosimulationResult:
     """Co-simulate a scenario with the three FMUs (FMI 2.0 or 3.0) on fmpy.
 
     Communication points are ``t_k = k h`` for ``k < n = step_count(stop_time, h)`` and ``t_n = stop_time``
@@ -608,30 +611,14 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
         The scenario: FMU parameters and simulation settings (``scenario.simulation``).
     fmu_paths : dict
         The three FMU files by name (``registry.ORDER``).
-    step_size : float, optional
-        Communication step ``h`` in s (an error-controlled run's first step).
-    stop_time : float, optional
-        s.
-    order : {"gauss-seidel", "jacobi"}, optional
-        Coupling order.
-    output_interval : float, optional
-        Recording interval in s.
-    coupling : {"hold", "linear"} or Coupling, optional
-        How the FMUs vary their inputs over a step (their ``coupling`` parameters): held, or linear
-        (the plant extrapolates ``u``; the controller interpolates its inputs with Gauss-Seidel,
-        extrapolates them with Jacobi). The master's calls are the same.
-    tolerance : float, optional
-        Error-controlled step (``step_control``): the estimated position error in m each step may add.
-        A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
-        stay within ``[h_min, h_max]`` of the scenario.
-    input_derivatives : bool, optional
-        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``) with the
-        FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
     workdir : pathlib.Path, optional
         Where the FMUs are extracted (temporary folders, removed at the end).
     watch : progress.Watch, optional
         Called at every recorded row with its time (s) and the steps taken; when it returns False
         the run ends at that row.
+    **settings
+        Settings replacing the scenario's (``Overrides``): ``step_size``, ``stop_time``, ``order``,
+        ``output_interval``, ``coupling``, ``tolerance``, ``input_derivatives``.
 
     Returns
     -------
@@ -651,9 +638,7 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, step_size: flo
         exchange, if an FMI call fails (naming the FMU, with its last log messages), or if a step of
         ``h_min`` misses the tolerance.
     """
-    scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time, order=order,
-                                        output_interval=output_interval, coupling=coupling, tolerance=tolerance,
-                                        input_derivatives=input_derivatives)
+    scenario = scenario.with_simulation(**settings)
     started = clock.perf_counter()
     with Cosimulator(fmu_paths, workdir) as simulator:
         run = simulator._run(scenario, watch)

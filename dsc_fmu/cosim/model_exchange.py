@@ -12,11 +12,11 @@ from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
 
 from ..errors import CosimulationError
-from ..identity import fmu_build_id
-from ..registry import ORDER, fmu_files
+from ..registry import ORDER
 from ..scenario import Interface, Scenario, ScenarioError
-from .instance import LoadedFmu, LogMessage, failed_call, logging_callbacks
-from .master import CosimulationResult, Wiring, Recorder, close_all
+from .instance import LogMessage, failed_call
+from .loading import LoadedFmus
+from .master import CosimulationResult, Wiring, Recorder
 from .progress import Watch
 from .reference_solution import output_times
 
@@ -224,18 +224,11 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
         raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
                             "relative tolerance)")
-    paths = fmu_files(fmu_paths)
     started = clock.perf_counter()
     log: list[LogMessage] = []
-    callbacks = logging_callbacks(log)
-    loaded: list[LoadedFmu] = []
     times = output_times(settings.stop_time, settings.output_interval)
-    try:
-        for name in ORDER:
-            loaded.append(LoadedFmu(name, workdir, log, model_exchange=True))
-            loaded[-1].load(paths[name], callbacks)
-        fmus = {fmu.name: fmu for fmu in loaded}
-        wiring = Wiring(fmus)
+    with LoadedFmus(fmu_paths, workdir, log, model_exchange=True) as fmus:
+        wiring = Wiring(fmus.by_name)
         recorder = Recorder(wiring, len(times))
         loop = _Loop(wiring, settings.bound, watch)
         try:
@@ -243,13 +236,11 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
             events = _integrate(loop, recorder, times, rtol)
         except FMICallException as error:
             raise failed_call(error, log, loop.at) from None
-    finally:
-        close_all(loaded)
     result = recorder.result()
     return CosimulationResult(
         result=result, steps=loop.evaluations, wall_time=clock.perf_counter() - started,
         settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": METHOD, "tolerance": rtol,
                   "stop_time": settings.stop_time, "output_interval": settings.output_interval, "events": events},
-        log=list(log), fmus={name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in paths.items()},
+        log=list(log), fmus=fmus.records,
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )

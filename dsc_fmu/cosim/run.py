@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from ..fmubuild.fmus import ensure_fmus
-from ..scenario import INTERFACES, Interface, Scenario, ScenarioError
+from ..scenario import Interface, Scenario, one_of
 from .master import cosimulate
 from .metrics import tracking_metrics
 from .model_exchange import simulate_model_exchange
@@ -54,15 +54,14 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str | 
     Raises
     ------
     ScenarioError
-        If ``interface`` is not one of ``INTERFACES``, or the scenario asks what the FMUs lack.
+        If ``interface`` is not one of ``Interface``'s, or the scenario asks what the FMUs lack.
     FmiVersionError
         If ``fmu_dir`` holds FMUs of another FMI version than ``fmi_version``; nothing is written.
     CosimulationError
         If the run diverges or an FMU fails.
     """
-    if interface not in INTERFACES:
-        raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")
-    run = _SIMULATE[interface](scenario, ensure_fmus(fmu_dir, fmi_version), watch=watch)
+    run = _SIMULATE[one_of(Interface, interface, "interface")](scenario, ensure_fmus(fmu_dir, fmi_version),
+                                                              watch=watch)
     metrics = tracking_metrics(run.result, run.stopped_at or scenario.simulation.stop_time)
     out_dir = Path(out_dir)
     paths = write_results(out_dir, run, scenario, metrics)

@@ -26,7 +26,7 @@ import numpy as np
 
 from ..models.parameters import DISCRETIZATIONS, Variable
 from ..errors import DscFmuError
-from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Scenario, ScenarioError
+from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Order, Scenario, ScenarioError, one_of
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
@@ -53,36 +53,44 @@ def _number(value):
 
 @dataclass(frozen=True)
 class Case:
-    """One run of a sweep. Numbers are stored as floats.
+    """One run of a sweep. Numbers are stored as floats, an order and a coupling as their types.
 
     Parameters
     ----------
     step_size : float
         Communication step in s; the first one if error-controlled.
-    order : {"gauss-seidel", "jacobi"}, optional
-        Coupling order (``ORDERS``). Default "gauss-seidel".
+    order : Order or {"gauss-seidel", "jacobi"}, optional
+        Coupling order. Default "gauss-seidel".
     discretization : {"rk4", "euler"}, optional
         Controller discretisation (``DISCRETIZATIONS``). Default "rk4".
     overrides : tuple, optional
         Parameter overrides as ``("table.name", value)`` pairs, a choice by its name. Default none.
     sample : int or None, optional
         The Monte Carlo sample index; None (the default) without perturbations.
-    coupling : {"hold", "linear"}, optional
-        How inputs are extrapolated over a step (``COUPLINGS``). Default "hold".
+    coupling : Coupling or {"hold", "linear"}, optional
+        How inputs are extrapolated over a step. Default "hold".
     tolerance : float or None, optional
         Tolerance of an error-controlled step in m; None (the default): a fixed step.
+
+    Raises
+    ------
+    ScenarioError
+        One line naming what is allowed, if the order, the discretisation or the coupling is not.
     """
 
     step_size: float
-    order: str = "gauss-seidel"
+    order: Order = Order.GAUSS_SEIDEL
     discretization: str = "rk4"
     overrides: tuple = ()
     sample: int | None = None
-    coupling: str = "hold"
+    coupling: Coupling = Coupling.HOLD
     tolerance: float | None = None
 
     def __post_init__(self):
         object.__setattr__(self, "step_size", float(self.step_size))
+        object.__setattr__(self, "order", one_of(Order, self.order, "order"))
+        object.__setattr__(self, "discretization", one_of(DISCRETIZATIONS, self.discretization, "discretization"))
+        object.__setattr__(self, "coupling", one_of(Coupling, self.coupling, "coupling"))
         if self.tolerance is not None:
             object.__setattr__(self, "tolerance", float(self.tolerance))
         object.__setattr__(self, "overrides", tuple((str(k), _number(v)) for k, v in self.overrides))
@@ -168,9 +176,7 @@ def _variable(key: str, option: str) -> Variable:
 def _value(key: str, variable: Variable, value, option: str):
     """``value`` (text or number) checked for ``variable``: a choice's name, or a float in range."""
     if variable.choices:
-        if value not in variable.choices:
-            raise ScenarioError(f"{option} {key} = {value!r} is not allowed; allowed: {', '.join(variable.choices)}")
-        return value
+        return one_of(variable.choices, value, f"{option} {key}")
     try:
         number = float(value) if isinstance(value, str) else _number(value)
     except (ValueError, ScenarioError):
@@ -375,19 +381,13 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
         if h > stop_time:
             raise ScenarioError(f"step size {h:g} s is not allowed: larger than the stop time {stop_time:g} s; "
                                 "allowed: 0 < h <= stop time")
-    orders = [scenario.simulation.order] if orders is None else list(dict.fromkeys(orders))
-    for order in orders:
-        if order not in ORDERS:
-            raise ScenarioError(f"order {order!r} is not allowed; allowed: {', '.join(ORDERS)}")
+    orders = [scenario.simulation.order] if orders is None else [
+        one_of(Order, order, "order") for order in dict.fromkeys(orders)]
     own = DISCRETIZATIONS[int(scenario.controller["discretization"])]
-    chosen = list(dict.fromkeys([own] if discretizations is None else discretizations))
-    for name in chosen:
-        if name not in DISCRETIZATIONS:
-            raise ScenarioError(f"discretization {name!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
-    couplings = [scenario.simulation.coupling] if couplings is None else list(dict.fromkeys(couplings))
-    for coupling in couplings:
-        if coupling not in COUPLINGS:
-            raise ScenarioError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
+    chosen = [one_of(DISCRETIZATIONS, name, "discretization")
+              for name in dict.fromkeys([own] if discretizations is None else discretizations)]
+    couplings = [scenario.simulation.coupling] if couplings is None else [
+        one_of(Coupling, coupling, "coupling") for coupling in dict.fromkeys(couplings)]
     tolerances = list(dict.fromkeys(tolerances))
     for tolerance in tolerances:
         if isinstance(tolerance, bool) or not isinstance(tolerance, (int, float)) or not (
@@ -412,7 +412,7 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
         apply(scenario, Case(steps[0], orders[0], chosen[0], overrides, sample))
     fixed = [Case(h, order, name, overrides, sample, coupling) for h in steps for order in orders for name in chosen
              for coupling in couplings for overrides, sample in physical]
-    best = max(couplings, key=lambda coupling: Coupling(coupling).order)
+    best = max(couplings, key=lambda coupling: coupling.order)
     return fixed + [Case(scenario.simulation.step_size, order, name, overrides, sample, best, tolerance)
                     for tolerance in tolerances for order in orders for name in chosen
                     for overrides, sample in physical]
@@ -440,15 +440,9 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
     Raises
     ------
     ScenarioError
-        One line naming what is not allowed, if the case's order, discretisation, coupling or an
-        override is not.
+        One line naming what is not allowed, if an override of the case is not.
     """
     where = scenario.source
-    if case.order not in ORDERS:
-        raise ScenarioError(f"{where}: order {case.order!r} is not allowed; allowed: {', '.join(ORDERS)}")
-    if case.discretization not in DISCRETIZATIONS:
-        raise ScenarioError(f"{where}: discretization {case.discretization!r} is not allowed; "
-                            f"allowed: {', '.join(DISCRETIZATIONS)}")
     tables = {name: dict(getattr(scenario, name)) for name in TABLES}
     for key, value in case.overrides:
         variable = _variable(key, f"{where}:")
@@ -457,8 +451,6 @@ def apply(scenario: Scenario, case: Case) -> Scenario:
         tables[table][variable.name] = variable.choices.index(value) if variable.choices else value
     tables["controller"]["discretization"] = DISCRETIZATIONS.index(case.discretization)
     changed = dataclasses.replace(scenario, **tables)
-    if case.coupling not in COUPLINGS:
-        raise ScenarioError(f"{where}: coupling {case.coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
     routed = changed.simulation.input_derivatives and case.coupling == Coupling.LINEAR and case.tolerance is None
     changed = dataclasses.replace(changed, simulation=dataclasses.replace(
         changed.simulation, tolerance=case.tolerance, input_derivatives=routed))

@@ -2,32 +2,27 @@
 
 from __future__ import annotations
 
-import multiprocessing
-import multiprocessing.util
 import os
 import re
 import shutil
-import signal
 import tempfile
 import warnings
-from collections import Counter, defaultdict, deque
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
+from collections import Counter, defaultdict
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..cosim.master import Cosimulator
 from ..cosim.progress import ProgressLine
 from ..scenario import Scenario
-from .cache import CacheEntryError, CacheWarning, SweepCache, case_key, fmu_identities, reference_key
-from .cases import Case, Runner, SweepError, apply, check_scheduler
-from .rows import Outcome, make_row
+from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
+from .cases import Case, Runner, SweepError, check_scheduler
+from .places import LOST_TWICE, Losses, Pool, in_process
+from .plan import Plan
+from .rows import Outcome, ReferenceOutcome, make_row
 from .tasks import ReferenceSolution, Run, Task
 
-__all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep_folder"]
+__all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep"]
 
-LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
 
 
@@ -94,19 +89,25 @@ class Execution:
             warnings.warn("; ".join(parts), WorkerLostWarning, stacklevel=2)
 
 
-def prepare_sweep_folder(out_dir: Path) -> None:
-    """Create the sweep folder if needed and check that files can be written in it.
+def prepare_sweep(out_dir: Path, runner: Runner) -> None:
+    """Check that a sweep can start: its scheduler (if any) answers, its folder is made and can be written in.
+
+    Nothing is written if the scheduler cannot be reached.
 
     Parameters
     ----------
     out_dir : pathlib.Path
-        The sweep folder.
+        The sweep folder, created if missing.
+    runner : Runner
+        Where the runs go; with a scheduler, that it accepts a connection within ``runner.scheduler_timeout``.
 
     Raises
     ------
     SweepError
-        One line naming ``out_dir``, if it cannot be created or written in.
+        One line, if the scheduler cannot be reached or ``out_dir`` cannot be created or written in.
     """
+    if runner.scheduler is not None:
+        check_scheduler(runner.scheduler, runner.scheduler_timeout)
     try:
         out_dir.mkdir(parents=True, exist_ok=True)
         with tempfile.TemporaryFile(dir=out_dir):
@@ -150,112 +151,29 @@ def _remove_stale_work(work_root: Path) -> None:
         pass
 
 
-# --- where the tasks run: this process, a process pool (one Cosimulator per worker), a Dask cluster ---
+@dataclass(frozen=True)
+class _Found:
+    """What the cache holds for a sweep's plans.
 
-
-class _Place:
-    """A process where tasks run: the FMU files, and one Cosimulator made on first need in ``folder``."""
-
-    def __init__(self, fmu_paths: dict, folder: Path):
-        self.fmu_paths, self._folder, self._simulator = fmu_paths, folder, None
-
-    def simulator(self) -> Cosimulator:
-        if self._simulator is None:
-            self._folder.mkdir(parents=True, exist_ok=True)
-            self._simulator = Cosimulator(self.fmu_paths, self._folder)
-        return self._simulator
-
-    def compute(self, task: Task):
-        return task.compute(self.fmu_paths, self.simulator)
-
-    def close(self) -> None:
-        if self._simulator is not None:
-            self._simulator.close()
-
-
-_WORKER: dict = {}
-
-
-def _init_pool_worker(fmu_paths: dict, work: str) -> None:
-    """Pool initializer: this worker's place, its Cosimulator to be made in ``work/<pid>``."""
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
-    _WORKER["place"] = place = _Place(fmu_paths, Path(work) / str(os.getpid()))
-    multiprocessing.util.Finalize(None, place.close, exitpriority=10)  # workers exit without atexit
-
-
-def _on_pool_worker(task: Task):
-    return _WORKER["place"].compute(task)
-
-
-def _in_process(tasks, fmu_paths, work: Path):
-    """Run the tasks here, one after the other, with one Cosimulator."""
-    place = _Place(fmu_paths, work / str(os.getpid()))
-    try:
-        for task in tasks:
-            yield task, place.compute(task)
-    finally:
-        place.close()
-
-
-def _executor(fmu_paths: dict, work: Path, jobs: int) -> ProcessPoolExecutor:
-    return ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"),
-                               initializer=_init_pool_worker, initargs=(dict(fmu_paths), str(work)))
-
-
-def _pool(tasks, fmu_paths, work: Path, jobs: int, events: Counter):
-    """Run the tasks on ``jobs`` worker processes (spawned), each with its own Cosimulator, handing
-    out at most ``jobs`` at a time, so that the tasks in flight are those running on a worker.
-
-    When a worker process is lost (killed or crashed: the pool breaks, and with it every task in
-    flight), a new pool retries those tasks once; a task lost twice becomes ``task.lost(LOST_TWICE)``.
-    ``events`` counts the broken pools (``workers_lost``) and the retried tasks (``retried``).
+    ``rows``: the cached rows by key; ``todo``: the plans to run, by key; ``references``: the cached
+    reference solutions those need, by reference key; ``missing``: the reference solutions to compute
+    (reference key: applied scenario), those the runs need and are not cached and every one cached but
+    not verifying; ``unverified``: the entries that did not verify.
     """
-    queue, losses, in_flight, executor, finished = deque(tasks), Counter(), {}, None, False
-    try:
-        while queue or in_flight:
-            if executor is None:
-                executor = _executor(fmu_paths, work, jobs)
-            broken = False
-            while queue and len(in_flight) < jobs and not broken:
-                try:
-                    future = executor.submit(_on_pool_worker, queue[0])
-                except BrokenProcessPool:
-                    broken = True
-                else:
-                    in_flight[future] = queue.popleft()
-            if in_flight:
-                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                if any(isinstance(future.exception(), BrokenProcessPool) for future in done):
-                    broken = True
-                    done, _ = wait(in_flight)  # a broken pool fails every task in flight at once
-                retry = []
-                for future in done:
-                    task = in_flight.pop(future)
-                    if not isinstance(future.exception(), BrokenProcessPool):
-                        yield task, future.result()  # a task's own error is raised here
-                        continue
-                    losses[task] += 1
-                    if losses[task] == 1:
-                        retry.append(task)
-                    else:
-                        yield task, task.lost(LOST_TWICE, fmu_paths)
-                queue.extendleft(reversed(retry))
-                events["retried"] += len(retry)
-            if broken:
-                events["workers_lost"] += 1
-                executor.shutdown(wait=True, cancel_futures=True)
-                executor = None
-        finished = True
-    finally:
-        if executor is not None:
-            if not finished:  # interrupted or failed: stop the workers now rather than after their current runs
-                for process in list((getattr(executor, "_processes", None) or {}).values()):
-                    process.terminate()
-            executor.shutdown(wait=True, cancel_futures=True)
+
+    rows: dict
+    todo: dict
+    references: dict
+    missing: dict
+    unverified: tuple
+
+    @property
+    def work(self) -> bool:
+        return bool(self.todo or self.missing)
 
 
 def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(), *,
-            warn: bool = True) -> Execution:
+            warn: bool = True, prepared: bool = False) -> Execution:
     """Run every case not yet cached in ``out_dir`` and return the rows of all.
 
     Locally (no ``runner.scheduler``), ``runner.jobs`` worker processes each load the FMUs once (into
@@ -282,6 +200,9 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
         Where the runs go and whether a progress bar shows. Default ``Runner()``: all cores.
     warn : bool, optional
         Issue ``Execution.warn`` (one line per kind of problem) before returning. Default True.
+    prepared : bool, optional
+        ``prepare_sweep`` checked ``out_dir`` and the runner's scheduler already (``run_sweep`` does,
+        once for all its executions). Default False: checked here, before anything runs.
 
     Returns
     -------
@@ -292,83 +213,81 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     ------
     SweepError
         One line, if the scheduler cannot be reached within ``runner.scheduler_timeout`` s (nothing
-        is written then) or ``out_dir`` cannot be a folder.
+        is written then) or ``out_dir`` cannot be a folder (``prepare_sweep``).
     """
     out_dir, cache = Path(out_dir), SweepCache(out_dir)
     identities = fmu_identities(fmu_paths)
-    plans = [(case, apply(scenario, case), case_key(scenario, case, identities),
-              reference_key(scenario, case, identities)) for case in cases]
-    done, todo, unverified = {}, {}, []
-    for case, applied, key, ref_key in plans:
-        if key in done or key in todo:
-            continue
-        cached, _ = _verified(cache.row, key, unverified)
-        if cached is not None:
-            done[key] = {**cached, "scenario": scenario.name}
-        else:
-            todo[key] = (case, applied, ref_key)
-    from_cache = set(done)
-    references, missing = _references(cache, plans, todo, unverified)
-    events = Counter()
-    if (todo or missing) and runner.scheduler is not None:
-        check_scheduler(runner.scheduler, runner.scheduler_timeout)  # before anything is written
-    prepare_sweep_folder(out_dir)
+    plans = [Plan.of(scenario, case, identities) for case in cases]
+    found = _look_up(cache, plans, scenario.name)
+    if not prepared:
+        prepare_sweep(out_dir, runner)
     _remove_stale_work(out_dir / ".work")
-    lost = []
-    if todo or missing:
-        tasks = [ReferenceSolution(k, applied) for k, applied in missing.items()]
-        runs = sorted(todo, key=lambda k: -todo[k][1].simulation.stop_time / todo[k][1].simulation.step_size)
-        tasks += [Run(key, todo[key][1]) for key in runs]  # the longest first, for an even load
-        with _results(tasks, out_dir, fmu_paths, runner, events) as results:
-            done.update(_collect(scenario, todo, references, cache, identities, results, runner.progress, lost))
-    keys = [key for _, _, key, _ in plans]
-    execution = Execution([done[key] for key in keys], cached=sum(key in from_cache for key in keys),
-                          ran=sum(key not in from_cache for key in keys), lost=tuple(lost),
-                          unverified=tuple(unverified), workers_lost=events["workers_lost"], retried=events["retried"])
+    rows, lost, losses = dict(found.rows), (), Losses()
+    if found.work:
+        tasks = [ReferenceSolution(key, applied) for key, applied in found.missing.items()]
+        runs = sorted(found.todo.values(), key=lambda plan: -plan.applied.simulation.stop_time
+                      / plan.applied.simulation.step_size)
+        tasks += [Run(plan.key, plan.applied) for plan in runs]  # the longest first, for an even load
+        with _results(tasks, out_dir, fmu_paths, runner) as (results, losses):
+            collector = _collect(scenario, found, cache, identities, results, runner.progress)
+        rows.update(collector.rows)
+        lost = tuple(collector.lost)
+    keys = [plan.key for plan in plans]
+    execution = Execution([rows[key] for key in keys], cached=sum(key in found.rows for key in keys),
+                          ran=sum(key not in found.rows for key in keys), lost=lost, unverified=found.unverified,
+                          workers_lost=losses.workers_lost, retried=losses.retried)
     if warn:
         execution.warn()
     return execution
 
 
-def _references(cache: SweepCache, plans, todo: dict, unverified: list) -> tuple[dict, dict]:
-    """The verified cached reference solutions the runs of ``todo`` need (by key), and the reference
-    solutions to compute (key: applied scenario): those the runs need and are not cached, and every
-    one of ``plans`` cached but not verifying (appended to ``unverified``)."""
-    needed = {ref_key for _, _, ref_key in todo.values()}
-    references, missing, seen = {}, {}, set()
-    for _, applied, _, ref_key in plans:
-        if ref_key in seen:
+def _read(read, key: str) -> tuple:
+    """``read(key)`` from the cache (None: not cached) and the CacheEntryError of an entry that does
+    not verify (then it counts as not cached), else None."""
+    try:
+        return read(key), None
+    except CacheEntryError as error:
+        return None, error
+
+
+def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> _Found:
+    """What ``cache`` holds for ``plans`` (the rows named for the scenario ``name``) and what is left to compute."""
+    rows, todo, unverified = {}, {}, []
+    for plan in plans:
+        if plan.key in rows or plan.key in todo:
             continue
-        seen.add(ref_key)
-        reference, verified = _verified(cache.reference, ref_key, unverified)
+        cached, error = _read(cache.row, plan.key)
+        unverified += [error] if error else []
+        if cached is not None:
+            rows[plan.key] = {**cached, "scenario": name}
+        else:
+            todo[plan.key] = plan
+    needed, first = {plan.reference_key for plan in todo.values()}, {}
+    for plan in plans:
+        first.setdefault(plan.reference_key, plan.applied)
+    references, missing = {}, {}
+    for ref_key, applied in first.items():
+        reference, error = _read(cache.reference, ref_key)
+        unverified += [error] if error else []
         if reference is not None and ref_key in needed:
             references[ref_key] = reference
-        elif not verified or ref_key in needed:
+        elif error or ref_key in needed:
             missing[ref_key] = applied
-    return references, missing
-
-
-def _verified(read, key: str, unverified: list) -> tuple:
-    """``read(key)`` from the cache (None: not cached) and whether the entry verified; one that does
-    not is appended to ``unverified`` and counts as not cached."""
-    try:
-        return read(key), True
-    except CacheEntryError as error:
-        unverified.append(error)
-        return None, False
+    return _Found(rows, todo, references, missing, tuple(unverified))
 
 
 @contextmanager
-def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner, events: Counter):
+def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner):
     """The results of ``tasks`` as ``(task, value)`` as they finish, from this process, a process pool
-    or a Dask cluster; on leaving, stop what still runs and remove the work folder."""
+    or a Dask cluster, and what running them lost (``places.Losses``); on leaving, stop what still runs and
+    remove the work folder."""
     if runner.scheduler is not None:
         from .cluster import connect, run_on_cluster
 
         client = connect(runner.scheduler, runner.scheduler_timeout)
         results = run_on_cluster(client, tasks, fmu_paths)
         try:
-            yield results
+            yield results, Losses()
         finally:
             try:
                 results.close()  # cancels the cluster's remaining tasks
@@ -383,12 +302,10 @@ def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner, 
     try:
         jobs = (os.cpu_count() or 1) if runner.jobs is None else runner.jobs
         workers = min(jobs, sum(task.needs_simulator for task in tasks))
-        if workers <= 1:
-            results = _in_process(tasks, fmu_paths, work)
-        else:
-            results = _pool(tasks, fmu_paths, work, workers, events)
+        losses = Losses() if workers <= 1 else Pool(fmu_paths, work, workers)
+        results = in_process(tasks, fmu_paths, work) if workers <= 1 else losses.run(tasks)
         try:
-            yield results
+            yield results, losses
         finally:
             results.close()  # stops the pool (at once if it did not finish) or frees this process's Cosimulator
     finally:
@@ -400,58 +317,56 @@ def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner, 
 
 
 class _Collector:
-    """The rows (by key) of the runs of ``todo`` (key: (case, applied scenario, reference key)) as
-    their outcomes and reference solutions come in (``Task.hand_over``), each cached as soon as both
-    are in, except the runs that did not finish (their keys are appended to ``lost``) and, under the
-    "local" stability, those whose reference solution failed (judged as settled runs for now)."""
+    """The rows (by key) of the runs of ``found.todo`` as their outcomes and reference solutions come in
+    (``Task.hand_over``), each cached as soon as both are in, except the runs that did not finish
+    (their keys are kept in ``lost``) and, under the "local" stability, those whose reference solution
+    failed (judged as settled runs for now)."""
 
-    def __init__(self, scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict,
-                 bar: ProgressLine, lost: list):
-        self.rows, self._waiting = {}, defaultdict(list)
-        self._remaining = Counter(ref_key for _, _, ref_key in todo.values())
+    def __init__(self, scenario: Scenario, found: _Found, cache: SweepCache, identities: dict, bar: ProgressLine):
+        self.rows, self.lost, self._waiting = {}, [], defaultdict(list)
+        self._remaining = Counter(plan.reference_key for plan in found.todo.values())
         self._local = scenario.simulation.stability.from_start
-        self._todo, self._references, self._cache, self._identities = todo, references, cache, identities
-        self._bar, self._lost = bar, lost
+        self._todo, self._references = found.todo, dict(found.references)
+        self._cache, self._identities, self._bar = cache, identities, bar
 
-    def take_reference(self, ref_key: str, value: tuple) -> None:
-        reference, why = value
-        if reference is None:
+    def take_reference(self, ref_key: str, value: ReferenceOutcome) -> None:
+        if value.solution is None:
             judged = "; they are judged as settled runs and not cached" if self._local else ""
-            warnings.warn(f"reference solution failed ({why}): deviations are NaN for its runs{judged}",
+            warnings.warn(f"reference solution failed ({value.failure}): deviations are NaN for its runs{judged}",
                           stacklevel=6)  # the caller of execute's caller
         else:
-            self._cache.store_reference(ref_key, reference)
+            self._cache.store_reference(ref_key, value.solution)
         if self._remaining[ref_key]:
-            self._references[ref_key] = reference
+            self._references[ref_key] = value.solution
         for key, outcome in self._waiting.pop(ref_key, []):
             self._finish(key, outcome)
 
     def take_run(self, key: str, outcome: Outcome) -> None:
-        ref_key = self._todo[key][2]
+        ref_key = self._todo[key].reference_key
         if ref_key in self._references:
             self._finish(key, outcome)
         else:
             self._waiting[ref_key].append((key, outcome))
 
     def _finish(self, key: str, outcome: Outcome) -> None:
-        case, applied, ref_key = self._todo[key]
-        reference = self._references[ref_key]
-        self.rows[key] = make_row(applied, case, (key, ref_key), outcome, reference)
+        plan = self._todo[key]
+        reference = self._references[plan.reference_key]
+        self.rows[key] = make_row(plan, outcome, reference)
         if outcome.lost:
-            self._lost.append(key)
+            self.lost.append(key)
         elif reference is not None or not self._local:  # judged without its reference: not for keeps
             self._cache.store_run(key, self.rows[key], outcome.trajectory, self._identities)
         self._bar.update()
-        self._remaining[ref_key] -= 1
-        if not self._remaining[ref_key]:
-            self._references.pop(ref_key)  # no run left that needs it
+        self._remaining[plan.reference_key] -= 1
+        if not self._remaining[plan.reference_key]:
+            self._references.pop(plan.reference_key)  # no run left that needs it
 
 
-def _collect(scenario: Scenario, todo: dict, references: dict, cache: SweepCache, identities: dict, results,
-             progress: bool, lost: list) -> dict:
-    """Rows (by key) of the runs of ``todo`` from ``results`` (``_Collector``)."""
-    with ProgressLine(len(todo), f"sweep {scenario.name}", "runs", quiet=not progress) as bar:
-        collector = _Collector(scenario, todo, references, cache, identities, bar, lost)
+def _collect(scenario: Scenario, found: _Found, cache: SweepCache, identities: dict, results,
+             progress: bool) -> _Collector:
+    """The rows (by key) and the lost runs of ``found.todo`` from ``results`` (``_Collector``)."""
+    with ProgressLine(len(found.todo), f"sweep {scenario.name}", "runs", quiet=not progress) as bar:
+        collector = _Collector(scenario, found, cache, identities, bar)
         for task, value in results:
             task.hand_over(value, collector)
-    return collector.rows
+    return collector

@@ -1,4 +1,4 @@
-"""One case to one row: run it, compare it with the reference solution, judge its stability."""
+"""One case to one row: its run and reference solution, their comparison, its stability."""
 
 from __future__ import annotations
 
@@ -6,19 +6,21 @@ import json
 import math
 import time as clock
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
 from ..cosim.master import CosimulationError, Cosimulator
 from ..cosim.metrics import tracking_metrics
 from ..scenario import Scenario, Stability
-from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key
-from .cases import Case, apply
+from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY
+from .cases import Case
+from .plan import Plan
 
 __all__ = [
     "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
-    "DEVIATION_KEYS", "ROW_KEYS", "Outcome", "simulate", "compute_reference", "error_grows",
-    "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row", "run_case",
+    "DEVIATION_KEYS", "ROW_KEYS", "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
+    "error_grows", "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -52,10 +54,28 @@ METRIC_KEYS = ("final_position_error_m", "rms_position_error_m", "max_position_e
                "settling_time_0p1_s", "max_abs_u_V", "beta_guard_count")
 DEVIATION_KEYS = ("max_position_deviation_m", "rms_position_deviation_m", "max_heading_deviation_rad",
                   "rms_heading_deviation_rad", "max_u_deviation_V", "rms_u_deviation_V")
-ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tolerance", "sample",
-            "<table.name of each override>", "key", "reference_key", "diverged", "diverged_time", "diverged_signal",
-            "diverged_reason", "stability", "stable", *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps",
-            "steps_rejected", "fmu_steps")
+ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tolerance", "sample", "key",
+            "reference_key", "diverged", "diverged_time", "diverged_signal", "diverged_reason", "stability", "stable",
+            *DEVIATION_KEYS, *METRIC_KEYS, "wall_time_s", "steps", "steps_rejected", "fmu_steps")
+"""The keys of a row, in order; a case's overrides (``table.name``) come between ``sample`` and ``key``
+(``row_keys``)."""
+
+
+def row_keys(case: Case) -> tuple[str, ...]:
+    """The keys of a case's row, in order.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+
+    Returns
+    -------
+    tuple of str
+        ``ROW_KEYS`` with the names of the case's overrides (``table.name``) between ``sample`` and ``key``.
+    """
+    at = ROW_KEYS.index("key")
+    return (*ROW_KEYS[:at], *(key for key, _ in case.overrides), *ROW_KEYS[at:])
 
 
 def _columns(result: np.ndarray, names) -> np.ndarray:
@@ -151,7 +171,22 @@ def simulate(applied: Scenario, cosimulator: Cosimulator) -> Outcome:
                    steps_rejected=run.rejected, fmu_steps=run.fmu_steps, wall_time_s=clock.perf_counter() - started)
 
 
-def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple[np.ndarray | None, str | None]:
+class ReferenceOutcome(NamedTuple):
+    """The reference solution of a physical case, or why the solver failed (``compute_reference``).
+
+    Parameters
+    ----------
+    solution : numpy.ndarray or None
+        ``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s up to the stop time; None if the solver failed.
+    failure : str or None
+        Why the solver failed, on one line; None if it did not.
+    """
+
+    solution: np.ndarray | None
+    failure: str | None
+
+
+def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> ReferenceOutcome:
     """The reference solution of an applied case, or why the solver failed.
 
     The monolithic ODE (docs/model.md), or with ``applied.simulation.reference`` = "model-exchange"
@@ -166,9 +201,8 @@ def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple
 
     Returns
     -------
-    tuple
-        The solution (``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s up to the stop time) and None,
-        or None and why the solver failed, on one line.
+    ReferenceOutcome
+        The solution, or why the solver failed.
 
     Raises
     ------
@@ -189,8 +223,8 @@ def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> tuple
             times = output_times(applied.simulation.stop_time, REFERENCE_GRID)
             solution = reference_solution(applied, times=times, **REFERENCE_SETTINGS)
     except (RuntimeError, ArithmeticError, ValueError, CosimulationError) as error:
-        return None, " ".join(str(error).split())
-    return _columns(solution, REFERENCE_COLUMNS), None
+        return ReferenceOutcome(None, " ".join(str(error).split()))
+    return ReferenceOutcome(_columns(solution, REFERENCE_COLUMNS), None)
 
 
 def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
@@ -332,18 +366,13 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
     return values
 
 
-def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outcome,
-             reference: np.ndarray | None) -> dict:
+def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict:
     """The row of a simulated case: its settings, deviations, metrics and stability.
 
     Parameters
     ----------
-    applied : Scenario
-        The case applied to its scenario (``cases.apply``).
-    case : Case
-        The case.
-    keys : tuple of str
-        Its cache key and that of its reference solution.
+    plan : Plan
+        The case, applied to its scenario, and its cache keys.
     outcome : Outcome
         What its run gave (``simulate``).
     reference : numpy.ndarray or None
@@ -353,10 +382,11 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outc
     Returns
     -------
     dict
-        ``ROW_KEYS``, JSON-serialisable, NaN where a value does not apply. Its ``stability`` is the
-        definition its ``stable`` was judged by: the scenario's, or "settled" where "local" does not
-        apply (``LOCAL_DEFINITION``).
+        ``row_keys(plan.case)``, JSON-serialisable, NaN where a value does not apply. Its ``stability``
+        is the definition its ``stable`` was judged by: the scenario's, or "settled" where "local" does
+        not apply (``LOCAL_DEFINITION``).
     """
+    case, applied = plan.case, plan.applied
     diverged = outcome.metrics is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome.metrics
     usable = not diverged and reference is not None and len(outcome.trajectory)
@@ -364,8 +394,7 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outc
                  and seed_window(outcome.trajectory["time"]) is not None)
     row = {"scenario": applied.name, "step_size": case.step_size, "order": case.order,
            "discretization": case.discretization, "coupling": case.coupling, "tolerance": case.tolerance,
-           "sample": case.sample, **dict(case.overrides), "key": keys[0],
-           "reference_key": keys[1],
+           "sample": case.sample, **dict(case.overrides), "key": plan.key, "reference_key": plan.reference_key,
            "diverged": diverged, "diverged_time": outcome.diverged_time,
            "diverged_signal": outcome.diverged_signal, "diverged_reason": outcome.diverged_reason,
            "stability": Stability.LOCAL if local else Stability.SETTLED,
@@ -377,30 +406,3 @@ def make_row(applied: Scenario, case: Case, keys: tuple[str, str], outcome: Outc
     row.update(wall_time_s=outcome.wall_time_s, steps=outcome.steps, steps_rejected=outcome.steps_rejected,
                fmu_steps=outcome.fmu_steps)
     return json.loads(json.dumps(row))  # exactly what the cache gives back
-
-
-def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
-    """Run one case and return its row.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    case : Case
-        The case to run on it.
-    cosimulator : Cosimulator
-        The loaded FMUs to run it with.
-    reference : numpy.ndarray or None
-        The reference solution of the case's physical scenario
-        (``reference_solution(apply(scenario, case), times=...)``, at least the ``REFERENCE_COLUMNS``),
-        or None to leave the deviations NaN and judge the run as a settled one.
-
-    Returns
-    -------
-    dict
-        The row (``make_row``).
-    """
-    identities = fmu_identities(cosimulator.paths)
-    keys = case_key(scenario, case, identities), reference_key(scenario, case, identities)
-    applied = apply(scenario, case)
-    return make_row(applied, case, keys, simulate(applied, cosimulator), reference)

@@ -15,7 +15,7 @@ from ..models.plant import PlantCoefficients, initial_plant_state, plant_coeffic
 from ..models.parameters import DISCRETIZATIONS, PROFILES
 from ..models.reference import initial_reference_state
 from ..errors import DscFmuError
-from ..scenario import COUPLINGS, ORDERS, Coupling, Order, Scenario
+from ..scenario import Coupling, Order, Scenario, one_of
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
@@ -415,8 +415,7 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
     ValueError
         If ``discretization`` is not one of the allowed names.
     """
-    if discretization not in DISCRETIZATIONS:
-        raise ValueError(f"discretization {discretization!r} is not allowed; allowed: {', '.join(DISCRETIZATIONS)}")
+    one_of(DISCRETIZATIONS, discretization, "discretization")
     plant = control.c2d(loop.plant, h, method="zoh")
     if discretization == "euler":
         return plant.A, plant.B, np.eye(loop.Ac.shape[0]) + h * loop.Ac, h * loop.Bc
@@ -424,14 +423,6 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
         return plant.A, plant.B, loop.Ac, loop.Bc
     ctl = control.c2d(loop.controller, h, method="zoh")
     return plant.A, plant.B, ctl.A, ctl.B
-
-
-def _order(name: str) -> Order:
-    """The coupling order named ``name``; a ValueError naming the allowed ones if there is none."""
-    try:
-        return Order(name)
-    except ValueError:
-        raise ValueError(f"order {name!r} is not allowed; allowed: {', '.join(ORDERS)}") from None
 
 
 def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
@@ -469,7 +460,7 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
     ValueError
         If ``order`` or ``discretization`` is not one of the allowed names.
     """
-    order = _order(order)
+    order = one_of(Order, order, "order")
     Phi_p, Gamma_p, Phi_c, Gamma_c = sampled_pieces(loop, h, discretization or loop.discretization)
     Kp = Phi_p + Gamma_p @ loop.Dc @ loop.Cp
     Kc = Gamma_p @ loop.Cc
@@ -540,7 +531,7 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     ValueError
         If ``order`` is not one of the allowed names.
     """
-    order = _order(order)
+    order = one_of(Order, order, "order")
     Phi_p, G0_p, G1_p = ramp_pieces(loop.Ap, loop.Bp, h)
     nc, ny = loop.Bc.shape
     if (discretization or loop.discretization) == "euler":
@@ -594,9 +585,7 @@ def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str 
         If ``coupling`` or ``order`` is not one of the allowed names, or ``discretization`` with the
         hold coupling.
     """
-    if coupling not in COUPLINGS:
-        raise ValueError(f"coupling {coupling!r} is not allowed; allowed: {', '.join(COUPLINGS)}")
-    matrix = _TRANSITION[coupling](loop, h, order, discretization)
+    matrix = _TRANSITION[one_of(Coupling, coupling, "coupling")](loop, h, order, discretization)
     return float(np.max(np.abs(np.linalg.eigvals(matrix))))
 
 

@@ -13,7 +13,7 @@ from ..fmubuild.fmus import ensure_fmus, resolve_fmu_dir
 from .report import write_report
 from ..scenario import Scenario, Stability
 from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, summarise, write_summary_json
-from .cases import Grid, Runner, SweepError, apply, check_scheduler
+from .cases import Grid, Runner, SweepError, apply
 from .cache import load_trajectory
 
 __all__ = ["run_sweep", "write_rows_csv", "boundary_notes", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
@@ -175,19 +175,18 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     out_dir = Path(out_dir)
     cases = grid.cases(scenario)
     fmu_dir, fmi_version = resolve_fmu_dir(fmu_dir, fmi_version)
-    if runner.scheduler is not None:
-        check_scheduler(runner.scheduler, runner.scheduler_timeout)
-    from .execute import execute, prepare_sweep_folder  # fmpy: imported after the checks that fail fast
+    from .execute import execute, prepare_sweep
     from .rows import stability_definition
 
-    prepare_sweep_folder(out_dir)
+    prepare_sweep(out_dir, runner)  # once for the whole sweep, before the FMUs are built
     fmu_paths = ensure_fmus(fmu_dir, fmi_version)
-    on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False)
-    all_rows, refining = on_grid.rows, []
+    on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False, prepared=True)
+    all_rows = on_grid.rows
     write_rows_csv(out_dir / "sweep.csv", all_rows)
     rows = _fixed_step(all_rows)
 
-    boundaries = _refined_boundaries(scenario, cases, all_rows, out_dir, fmu_paths, runner, refining) if refine else {}
+    boundaries, refining = _refined_boundaries(scenario, cases, all_rows, out_dir, fmu_paths, runner) if refine \
+        else ({}, [])
     done = sum(refining, on_grid)
     done.warn()
 
@@ -218,23 +217,22 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
 
 
 def _refined_boundaries(scenario: Scenario, cases: list, all_rows: list[dict], out_dir: Path, fmu_paths: dict,
-                        runner: Runner, refining: list) -> dict:
+                        runner: Runner) -> tuple[dict, list]:
     """The stability boundary of each fixed-step series, bisected one run at a time between its last stable
-    and first unstable grid step (``analysis.refine_boundary``); each bisection's ``Execution`` is
-    appended to ``refining``."""
+    and first unstable grid step (``analysis.refine_boundary``), and the ``Execution`` of each bisection."""
     from .execute import execute
 
     bisecting = dataclasses.replace(runner, jobs=1, progress=False)
     template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
-    boundaries = {}
+    boundaries, executions = {}, []
     for label, bracket in grid_brackets(_fixed_step(all_rows)).items():
         if bracket is not None:
             def is_stable(h, case=template[label]):
                 run = [dataclasses.replace(case, step_size=h)]
-                refining.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False))
-                return refining[-1].rows[0]["stable"]
+                executions.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False, prepared=True))
+                return executions[-1].rows[0]["stable"]
             boundaries[label] = refine_boundary(is_stable, *bracket)
-    return boundaries
+    return boundaries, executions
 
 
 def _figures(out_dir: Path, finished: list[dict], curves: dict, boundaries: dict, predictions: dict) -> dict:

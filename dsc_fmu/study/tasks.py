@@ -12,11 +12,16 @@ from abc import ABC, abstractmethod
 from dataclasses import dataclass
 from typing import Callable
 
+import numpy as np
+
 from ..cosim.master import Cosimulator
 from ..scenario import Scenario
-from .rows import Outcome, compute_reference, simulate
+from .cache import fmu_identities
+from .cases import Case
+from .plan import Plan
+from .rows import Outcome, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["Task", "Run", "ReferenceSolution"]
+__all__ = ["Task", "Run", "ReferenceSolution", "run_case"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -112,7 +117,7 @@ class Run(Task):
 class ReferenceSolution(Task):
     """The reference solution of one physical case (``rows.compute_reference``).
 
-    Its value is ``(solution or None, why the solver failed or None)``, taken by
+    Its value is a ``rows.ReferenceOutcome`` (the solution, or why the solver failed), taken by
     ``sweep.take_reference``. A solution whose workers were lost is computed in this process.
 
     Parameters
@@ -123,11 +128,36 @@ class ReferenceSolution(Task):
         A case of it applied to its scenario (``cases.apply``).
     """
 
-    def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> tuple:
+    def compute(self, fmu_paths: dict, simulator: Callable[[], Cosimulator]) -> ReferenceOutcome:
         return compute_reference(self.applied, fmu_paths)
 
-    def lost(self, reason: str, fmu_paths: dict) -> tuple:
+    def lost(self, reason: str, fmu_paths: dict) -> ReferenceOutcome:
         return compute_reference(self.applied, fmu_paths)
 
-    def hand_over(self, value: tuple, sweep) -> None:
+    def hand_over(self, value: ReferenceOutcome, sweep) -> None:
         sweep.take_reference(self.tag, value)
+
+
+def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
+    """Run one case and return its row.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case to run on it.
+    cosimulator : Cosimulator
+        The loaded FMUs to run it with.
+    reference : numpy.ndarray or None
+        The reference solution of the case's physical scenario
+        (``reference_solution(apply(scenario, case), times=...)``, at least ``cache.REFERENCE_COLUMNS``),
+        or None to leave the deviations NaN and judge the run as a settled one.
+
+    Returns
+    -------
+    dict
+        The row (``rows.make_row``).
+    """
+    plan = Plan.of(scenario, case, fmu_identities(cosimulator.paths))
+    return make_row(plan, simulate(plan.applied, cosimulator), reference)
