@@ -3,6 +3,8 @@
 import json
 import os
 import stat
+import subprocess
+import sys
 import zipfile
 
 import pytest
@@ -89,3 +91,34 @@ def test_a_public_import_of_the_fmi_library_fails_the_build(patched_mobile_robot
     load whatever pythonfmu the importing process has."""
     with pytest.raises(BinaryBuildError, match=r"imports pythonfmu by its public name \(import pythonfmu\)"):
         patched_mobile_robot("from dsc_fmu.fmu.fmi2 import DscSlave", "\nimport pythonfmu\n", "public")
+
+
+def test_an_fmu_loaded_in_this_process_does_not_hide_its_sources_from_the_next_build(tmp_path):
+    """A build imports the slave script under the name the FMU's resources give it; an instance of an
+    FMU of the same build in the process has imported that name from its resources first."""
+    script = f"""
+import sys
+from fmpy import extract, read_model_description
+from fmpy.fmi2 import FMU2Slave
+from dsc_fmu.fmubuild.fmus import build_fmu
+from dsc_fmu.registry import FMUS
+spec = FMUS["ReferenceRobot"]
+first = build_fmu(spec, sys.argv[1] + "/first")
+unzipped = extract(str(first), unzipdir=sys.argv[1] + "/unzipped")
+description = read_model_description(unzipped)
+instance = FMU2Slave(guid=description.guid, unzipDirectory=unzipped, instanceName="r",
+                     modelIdentifier=description.coSimulation.modelIdentifier)
+instance.instantiate()
+instance.setupExperiment(startTime=0.0)
+instance.enterInitializationMode()
+instance.exitInitializationMode()
+again = build_fmu(spec, sys.argv[1] + "/again")
+instance.doStep(0.0, 1e-3)
+instance.terminate()
+instance.freeInstance()
+print(again.read_bytes() != b"")
+"""
+    done = subprocess.run([sys.executable, "-c", script, str(tmp_path)], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "True"

@@ -186,8 +186,10 @@ def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_ver
 
 
 def _forget_staged_modules(package: str, script: str) -> None:
-    """Drop what the FMI library imported from the stage (removed after the build), so that an FMU of
-    this build loaded into this process imports its modules from its own resources."""
+    """Drop the modules of these names from ``sys.modules``: before the build, those an FMU of the same
+    build loaded into this process imported from its resources (the FMI library would find their classes
+    instead of the stage's); after it, those imported from the stage (removed with it), so that such an
+    FMU imports its modules from its own resources."""
     for name in [name for name in sys.modules if name in (package, script) or name.startswith(f"{package}.")]:
         del sys.modules[name]
 
@@ -226,6 +228,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
         tmp = Path(tmp)
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
+        _forget_staged_modules(package_dir.name, script.stem)
         raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", spec, fmi_version)
         _forget_staged_modules(package_dir.name, script.stem)
         staged = tmp / f"{spec.name}.fmu"
