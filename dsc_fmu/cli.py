@@ -148,7 +148,8 @@ _BUILT_THERE = "built there if missing or out of date"
 _USED_IF_CURRENT = "used if current, else built in a temporary folder"
 # The commands that take FMI 2.0 FMUs only, and why.
 _FMI2_ONLY = {
-    "export-ssp": "an SSP 1.0 archive types its connectors with FMI 2.0's type names",
+    "export-ssp": "no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim's take FMI 2.0, OMSimulator "
+                  "refuses ReferenceRobot's FMI 3.0 dependencies)",
     "crosscheck": "the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs",
 }
 

@@ -295,7 +295,8 @@ _FMI2_ONLY = "{command} with FMI 3.0 FMUs ({folder}) is not allowed: {why}; allo
     (["export-fmu", "-o", "{out}", "--fmi-version", "2", "--fmu-dir"], 3,
      _REPLACED.format(asked=2, held=3, folder="{folder}")),
     (["export-ssp", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
-        command="export-ssp", folder="{folder}", why="an SSP 1.0 archive types its connectors with FMI 2.0's type names")),
+        command="export-ssp", folder="{folder}", why="no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim's take FMI 2.0, "
+        "OMSimulator refuses ReferenceRobot's FMI 3.0 dependencies)")),
     (["crosscheck", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
         command="crosscheck", folder="{folder}",
         why="the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs")),

@@ -131,7 +131,7 @@ def test_omsimulator_annotation_model_exchange(paper, fmu_paths, tmp_path, toler
 
 
 def test_unknown_interface_is_refused(paper, fmu_paths, tmp_path):
-    with pytest.raises(ScenarioError, match="interface 'cs' is not allowed; allowed: co-simulation, model-exchange"):
+    with pytest.raises(ScenarioError, match="interface = 'cs' is not allowed; allowed: co-simulation, model-exchange"):
         export_ssp(paper, tmp_path / "x.ssp", fmu_paths, interface="cs")
     assert list(tmp_path.iterdir()) == []
 

@@ -29,7 +29,7 @@ from ..cosim import signals
 from ..errors import DscFmuError
 from ..models.parameters import START_ON
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
-from ..scenario import INTERFACES, Interface, Scenario, ScenarioError
+from ..scenario import Interface, Scenario, ScenarioError, one_of
 
 __all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "model_name", "validate_ssp",
            "run_simulate_ssp", "SSPError"]
@@ -253,16 +253,14 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
     Raises
     ------
     ScenarioError
-        If ``interface`` is not one of ``INTERFACES``, a simulation setting is bad or not finite, or
+        If ``interface`` is not one of ``Interface``'s, a simulation setting is bad or not finite, or
         an FMU lacks a parameter of the scenario.
     FmuNotFoundError
         If one of the three FMUs is not given or not a file (a FileNotFoundError).
     SSPError
         If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
-    if interface not in INTERFACES:
-        raise ScenarioError(f"interface {interface!r} is not allowed; allowed: {', '.join(INTERFACES)}")
-    interface = Interface(interface)
+    interface = one_of(Interface, interface, "interface")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     for name, value in (("step_size", scenario.simulation.step_size), ("stop_time", scenario.simulation.stop_time)):
         if not math.isfinite(value):
