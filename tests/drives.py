@@ -1,6 +1,7 @@
 """The inputs the slave tests drive the FMUs with, in this process (``in_process``) and through the binary.
 
-Controller inputs are in the order of ``CONTROLLER_IN``; ``DRIVES`` gives each FMU a short drive that
+The paper's parameters (``PLANT``, ``CONTROLLER``); controller inputs are in the order of
+``CONTROLLER_IN``; ``DRIVES`` gives each FMU a short drive that
 changes its outputs (the controller's crosses the beta guard); ``replay`` records one.
 """
 
@@ -8,9 +9,13 @@ import math
 
 from dsc_fmu.models import parameters as P
 
-__all__ = ["CONTROLLER_IN", "DRIVES", "M_GUARD", "M_OTHER", "M_PAPER", "NAMES", "replay"]
+__all__ = ["CONTROLLER", "CONTROLLER_IN", "DRIVES", "M_GUARD", "M_OTHER", "M_PAPER", "NAMES", "PLANT", "PLANT_OUT",
+           "replay"]
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
+PLANT = P.defaults(P.PLANT_PARAMETERS)
+CONTROLLER = P.defaults(P.CONTROLLER_PARAMETERS)
+PLANT_OUT = tuple(v.name for v in P.PLANT_OUTPUTS)
 CONTROLLER_IN = tuple(v.name for v in P.CONTROLLER_INPUTS)
 # Measurements at the paper's initial condition (robot at (2.5, 1, pi/2), reference at (2, 2, 0)).
 M_PAPER = [2.5, 1.0, math.pi / 2, 0.0, 0.0, 0.0, 0.0, 0.0, 2.0, 2.0, 0.0, 1.0, 0.2, 0.0]

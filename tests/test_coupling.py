@@ -12,7 +12,8 @@ from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.plant import plant_coefficients, plant_derivatives
 from dsc_fmu.scenario import ScenarioError, load_scenario
-from test_fmus import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, Instance, md, new  # noqa: F401 (fixtures)
+from drives import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT
+from test_fmus import Instance, md, new  # noqa: F401 (fixtures)
 
 HOLD, EXTRAPOLATE, INTERPOLATE = range(3)
 FINE = 1e-6  # s: max_step of the FMUs here, so that RK4 is exact to rounding

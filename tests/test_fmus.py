@@ -33,7 +33,7 @@ from fmpy.validation import validate_fmu
 from dsc_fmu.identity import fmu_build_id
 from dsc_fmu.registry import FMUS
 from dsc_fmu.models import parameters as P
-from drives import CONTROLLER_IN, DRIVES, M_GUARD, M_PAPER, NAMES, replay
+from drives import CONTROLLER_IN, DRIVES, M_GUARD, M_PAPER, NAMES, PLANT_OUT, replay
 
 FMI2_OK, FMI2_WARNING, FMI2_DISCARD, FMI2_ERROR, FMI2_FATAL = range(5)
 
@@ -83,7 +83,6 @@ TABLES = {
 # Outputs registered outside the tables (docs/model.md §5: the beta guard made visible), with their FMI type.
 EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"}}
 
-PLANT_OUT = tuple(v.name for v in P.PLANT_OUTPUTS)
 REFERENCE_OUT = tuple(v.name for v in P.REFERENCE_OUTPUTS)
 
 

@@ -15,13 +15,10 @@ from dsc_fmu.fmu import native_bridge
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
 from dsc_fmu.models.rk4 import MAX_SUBSTEPS
-from drives import CONTROLLER_IN, DRIVES, M_GUARD, M_PAPER, NAMES, replay
+from drives import CONTROLLER, CONTROLLER_IN, DRIVES, M_GUARD, M_PAPER, NAMES, PLANT, PLANT_OUT, replay
 from in_process import Discarded, InProcess, new  # noqa: F401 (new: a fixture)
 
 OK, WARNING, DISCARD, ERROR = range(4)
-PLANT = P.defaults(P.PLANT_PARAMETERS)
-CONTROLLER = P.defaults(P.CONTROLLER_PARAMETERS)
-PLANT_OUT = tuple(v.name for v in P.PLANT_OUTPUTS)
 VALID_INPUTS = P.START_ON.index("valid_inputs")
 
 

@@ -12,13 +12,10 @@ from fmpy import read_model_description
 
 from dsc_fmu.models import parameters as P
 from dsc_fmu.models.controller import control_law, gains, initial_controller_state, start_filters
-from drives import CONTROLLER_IN, M_OTHER, M_PAPER
+from drives import CONTROLLER, CONTROLLER_IN, M_OTHER, M_PAPER, PLANT, PLANT_OUT
 from in_process import InProcess, new  # noqa: F401 (new: a fixture)
 
-PLANT = P.defaults(P.PLANT_PARAMETERS)
 REFERENCE = P.defaults(P.REFERENCE_PARAMETERS)
-CONTROLLER = P.defaults(P.CONTROLLER_PARAMETERS)
-PLANT_OUT = tuple(v.name for v in P.PLANT_OUTPUTS)
 REFERENCE_OUT = tuple(v.name for v in P.REFERENCE_OUTPUTS)
 
 
