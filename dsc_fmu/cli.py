@@ -9,6 +9,7 @@ gets its options, so that a command imports only the owners it needs.
 from __future__ import annotations
 
 import argparse
+import importlib
 import inspect
 import sys
 import warnings
@@ -134,7 +135,7 @@ def _add_fmus(parser: argparse.ArgumentParser, use: str, command: str = "", flag
     """The FMU folder and FMI version options of ``command``, their defaults those of ``fmubuild.folders``."""
     folders = ", ".join(f"{folder} for FMI {version}.0" for version, folder in DEFAULT_FMU_DIRS.items())
     _add(parser, "fmu_dir", flags=flags, use=use, default=folders)
-    only = f": 2 only ({_FMI2_ONLY[command]})" if command in _FMI2_ONLY else ""
+    only = f": 2 only ({_fmi2_only(command)})" if command in _FMI2_ONLY else ""
     _add(parser, "fmi_version", only=only, default=DEFAULT_FMI_VERSION)
 
 
@@ -147,11 +148,12 @@ def _add_scenario(parser: argparse.ArgumentParser) -> None:
 _BUILT_THERE = "built there if missing or out of date"
 _USED_IF_CURRENT = "used if current, else built in a temporary folder"
 # The commands that take FMI 2.0 FMUs only, and why.
-_FMI2_ONLY = {
-    "export-ssp": "no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim's take FMI 2.0, OMSimulator "
-                  "refuses ReferenceRobot's FMI 3.0 dependencies)",
-    "crosscheck": "the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs",
-}
+_FMI2_ONLY = {"export-ssp": "dsc_fmu.interop.ssp", "crosscheck": "dsc_fmu.interop.crosscheck"}
+
+
+def _fmi2_only(command: str) -> str:
+    """Why ``command`` takes FMI 2.0 FMUs only (its module's ``FMI2_ONLY``), or "" if it takes both."""
+    return importlib.import_module(_FMI2_ONLY[command]).FMI2_ONLY if command in _FMI2_ONLY else ""
 
 
 def _build_options(parser: argparse.ArgumentParser) -> None:
@@ -220,7 +222,7 @@ def _fmus(args: argparse.Namespace) -> tuple[Path, int]:
     folder, version = resolve_fmu_dir(args.fmu_dir, args.fmi_version)
     if version != 2 and args.command in _FMI2_ONLY:
         raise FmiVersionError(f"{args.command} with FMI {version}.0 FMUs ({folder}) is not allowed: "
-                              f"{_FMI2_ONLY[args.command]}; allowed: FMI 2.0 FMUs (--fmi-version 2, a folder without "
+                              f"{_fmi2_only(args.command)}; allowed: FMI 2.0 FMUs (--fmi-version 2, a folder without "
                               f"FMI {version}.0 FMUs)")
     return folder, version
 

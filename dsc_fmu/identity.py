@@ -7,7 +7,9 @@ import zipfile
 from pathlib import Path
 from xml.etree import ElementTree as ET
 
-__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_fmi_version"]
+from .errors import FmiVersionError
+
+__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_fmi_version", "require_fmi2"]
 
 # Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
@@ -44,6 +46,28 @@ def fmu_fmi_version(fmu: Path) -> str | None:
         none (or is not readable).
     """
     return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
+
+
+def require_fmi2(fmus, why: str) -> None:
+    """Refuse FMUs that declare another FMI version than 2.0, for a job that takes FMI 2.0 FMUs only.
+
+    Parameters
+    ----------
+    fmus : iterable of pathlib.Path
+        The FMU files.
+    why : str
+        Why the job takes FMI 2.0 FMUs only, as the message gives it.
+
+    Raises
+    ------
+    FmiVersionError
+        ``"<path> is an FMI 3.0 FMU, not allowed here: <why>; allowed: FMI 2.0 FMUs"``, for the first
+        such FMU.
+    """
+    for fmu in fmus:
+        version = fmu_fmi_version(fmu)
+        if version not in (None, "2.0"):
+            raise FmiVersionError(f"{fmu} is an FMI {version} FMU, not allowed here: {why}; allowed: FMI 2.0 FMUs")
 
 
 def _read(fmu: Path, name: str, parse):

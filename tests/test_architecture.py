@@ -19,7 +19,7 @@ PACKAGE = Path(dsc_fmu.__file__).parent
 ALLOWED = {
     "errors": set(),
     "files": set(),
-    "identity": set(),
+    "identity": {"errors"},
     "models": set(),
     "fmu": {"models"},
     "registry": {"models", "errors"},

@@ -14,6 +14,7 @@ import pytest
 from dsc_fmu.cli import main
 from dsc_fmu.scenario import INTERFACES, load_scenario
 from dsc_fmu.cosim.signals import COLUMNS
+from dsc_fmu.interop import crosscheck, ssp
 
 REPO = Path(__file__).resolve().parents[1]
 REQUIRED = (
@@ -295,11 +296,10 @@ _FMI2_ONLY = "{command} with FMI 3.0 FMUs ({folder}) is not allowed: {why}; allo
     (["export-fmu", "-o", "{out}", "--fmi-version", "2", "--fmu-dir"], 3,
      _REPLACED.format(asked=2, held=3, folder="{folder}")),
     (["export-ssp", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
-        command="export-ssp", folder="{folder}", why="no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim's take FMI 2.0, "
-        "OMSimulator refuses ReferenceRobot's FMI 3.0 dependencies)")),
+        command="export-ssp", folder="{folder}", why=ssp.FMI2_ONLY)),
     (["crosscheck", "-o", "{out}", "--fmu-dir"], 3, _FMI2_ONLY.format(
         command="crosscheck", folder="{folder}",
-        why="the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs")),
+        why=crosscheck.FMI2_ONLY)),
 ], ids=["build", "run", "run-model-exchange", "run-fmi3-on-fmi2", "sweep", "export-fmu", "export-ssp", "crosscheck"])
 def test_fmus_of_another_version_are_refused_in_one_line_and_left_untouched(tmp_path, fmu_dir, fmu3_dir, capsys,
                                                                              arguments, held, message):

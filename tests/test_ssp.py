@@ -16,7 +16,8 @@ from dsc_fmu.cosim.model_exchange import DEFAULT_TOLERANCE
 from dsc_fmu.models.parameters import START_ON
 from dsc_fmu.scenario import Interface, ScenarioError, load_scenario, scenario_names
 from dsc_fmu.interop.ssp import SSD_NAMESPACES as NS
-from dsc_fmu.interop.ssp import export_ssp, model_name, run_simulate_ssp, validate_ssp
+from dsc_fmu.errors import FmiVersionError
+from dsc_fmu.interop.ssp import FMI2_ONLY, export_ssp, model_name, run_simulate_ssp, validate_ssp
 
 H, T = 1e-3, 0.2
 COMPARED = ("x", "y", "theta", "omega1", "i1", "x_r", "theta_r", "u1", "u2", "a1_hat", "a2_hat", "W1_hat_norm",
@@ -136,16 +137,14 @@ def test_unknown_interface_is_refused(paper, fmu_paths, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_fmi3_archive_uses_ssp_1_0_types(paper, fmu3_paths, tmp_path):
-    """FMI 3.0's Float64 and Int32 are SSP 1.0's Real and Integer (ssc:Float64 is not SSP 1.0)."""
-    out = export_ssp(paper, tmp_path / "fmi3.ssp", fmu3_paths, stop_time=T)
-    validate_ssp(out)
-    kinds = {etree.QName(c[0]).localname for c in read_ssd(out).iterfind(".//ssd:Connector", NS)}
-    assert kinds == {"Real", "Integer"}
-    with zipfile.ZipFile(out) as archive:
-        ssv = etree.fromstring(archive.read("resources/DSCController.ssv"))
-    start_on = ssv.find(".//ssv:Parameter[@name='start_on']", NS)
-    assert etree.QName(start_on[0]).localname == "Integer"
+def test_fmi3_fmus_are_refused_in_one_line_and_nothing_is_written(paper, fmu_paths, fmu3_paths, tmp_path):
+    """No SSP importer runs the loop of FMI 3.0 FMUs: an archive of any of them is refused."""
+    fmus = dict(fmu_paths, MobileRobot=fmu3_paths["MobileRobot"])
+    with pytest.raises(FmiVersionError) as refusal:
+        export_ssp(paper, tmp_path / "fmi3.ssp", fmus, stop_time=T)
+    assert str(refusal.value) == (f"{fmu3_paths['MobileRobot']} is an FMI 3.0 FMU, not allowed here: {FMI2_ONLY}; "
+                                  "allowed: FMI 2.0 FMUs")
+    assert list(tmp_path.iterdir()) == []
 
 
 def test_bad_scenario_writes_nothing(paper, fmu_paths, tmp_path):

@@ -31,13 +31,13 @@ from fmpy import read_model_description
 from fmpy.model_description import CoSimulation, DefaultExperiment, ModelDescription, ModelVariable, Unknown
 
 from ..cosim import signals
+from ..cosim.instance import type_name
 from ..registry import CONNECTIONS, ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 
 __all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
 
 EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
-_FMI2_TYPES = {"Float64": "Real", "Int32": "Integer"}  # an FMI 3.0 component's types as the FMI 2.0 container names them
 
 
 def parameter_name(fmu: str, parameter: str) -> str:
@@ -91,7 +91,7 @@ def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict)
             inner = variables[name].get(key)
             if inner is None:
                 raise ScenarioError(f"{paths[name]}: {name} has no parameter {key!r}: not the FMU expected")
-            kind = _FMI2_TYPES.get(inner.type, inner.type)
+            kind = type_name(inner)
             integer = kind == "Integer"
             outer = ModelVariable(type=kind, variability=inner.variability, causality="parameter",
                                   initial="exact", name=parameter_name(name, key), start=_literal(value, integer),
@@ -102,7 +102,7 @@ def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict)
     for name in ORDER:
         for key in signals.RECORDED[name]:
             inner = variables[name][key]
-            outer = ModelVariable(type=_FMI2_TYPES.get(inner.type, inner.type), variability=inner.variability,
+            outer = ModelVariable(type=type_name(inner), variability=inner.variability,
                                   causality="output", initial="calculated", name=key,
                                   description=f"{name}.{key}: {inner.description}")
             outer.unit = getattr(inner, "unit", None)

@@ -30,14 +30,14 @@ from .. import __version__
 
 from ..cosim import signals
 from ..cosim.exchange import cosimulate_exchange
-from ..errors import FmiVersionError
-from ..identity import fmu_fmi_version
+from ..identity import require_fmi2
 from ..registry import CONTROLLER, ORDER, fmu_files
 from ..scenario import Scenario, load_scenario
 
-__all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "model_dir", "held_inputs"]
+__all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "FMI2_ONLY", "model_dir", "held_inputs"]
 
 DEFAULT_STOP_TIME = 2.0
+FMI2_ONLY = "the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs"
 TOOL = "dsc-fmu"
 
 
@@ -151,12 +151,9 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
     FmuNotFoundError
         If one of the three FMUs is not given or not a file.
     FmiVersionError
-        If an FMU is not an FMI 2.0 FMU (the cross-check takes FMI 1.0 and 2.0 FMUs); nothing is written.
+        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why); nothing is written.
     """
-    for path in fmu_files(fmu_paths).values():
-        if fmu_fmi_version(path) not in (None, "2.0"):
-            raise FmiVersionError(f"{path} is an FMI {fmu_fmi_version(path)} FMU: not allowed in the FMI cross-check, "
-                                  "which takes FMI 1.0 and 2.0 FMUs; allowed: FMI 2.0 FMUs")
+    require_fmi2(fmu_files(fmu_paths).values(), FMI2_ONLY)
     scenario = scenario or load_scenario("paper")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     h, stop = scenario.simulation.step_size, scenario.simulation.stop_time

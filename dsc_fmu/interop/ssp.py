@@ -27,11 +27,12 @@ from lxml import etree
 
 from ..cosim import signals
 from ..errors import DscFmuError
+from ..identity import require_fmi2
 from ..models.parameters import START_ON
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Interface, Scenario, ScenarioError, one_of
 
-__all__ = ["SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "model_name", "validate_ssp",
+__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "model_name", "validate_ssp",
            "run_simulate_ssp", "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
@@ -39,6 +40,8 @@ SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
 OSP = "http://opensimulationplatform.com/SSP/OSPAnnotations"
 OMS = "https://raw.githubusercontent.com/OpenModelica/OMSimulator/master/schema/oms.xsd"
 SSD_NAMESPACES = {"ssd": SSD, "ssc": SSC, "ssv": SSV, "osp": OSP, "oms": OMS}
+FMI2_ONLY = ("no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim's take FMI 2.0, OMSimulator "
+             "refuses ReferenceRobot's FMI 3.0 dependencies)")
 SCHEMA_DIR = Path(__file__).parent / "schemas" / "ssp"
 SYSTEM_NAME = "DSCClosedLoop"
 NOT_IDENT = re.compile(r"[^A-Za-z0-9_]")
@@ -62,11 +65,6 @@ def _variables(path: Path) -> dict:
     from fmpy import read_model_description
 
     return {v.name: v for v in read_model_description(str(path)).modelVariables}
-
-
-def _ssp_type(fmi_type: str) -> str:
-    """The SSP 1.0 type of an FMI 2.0 or 3.0 variable type: ``Float64`` is ``Real``, ``Int32`` ``Integer``."""
-    return {"Float64": "Real", "Int32": "Integer"}.get(fmi_type, fmi_type)
 
 
 def _number(value: float) -> str:
@@ -122,7 +120,7 @@ def _parameter_set(name: str, parameters: dict, variables: dict) -> etree._Eleme
     holder = etree.SubElement(root, f"{{{SSV}}}Parameters")
     for key, value in parameters.items():
         parameter = etree.SubElement(holder, f"{{{SSV}}}Parameter", name=key)
-        if _ssp_type(variables[key].type) == "Integer":
+        if variables[key].type == "Integer":
             etree.SubElement(parameter, f"{{{SSV}}}Integer", value=str(int(value)))
         else:
             etree.SubElement(parameter, f"{{{SSV}}}Real", value=_number(value))
@@ -133,7 +131,7 @@ def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
     """(connector name, kind, SSP type) of a component: its inputs and the outputs we record."""
     names = [v for v in variables.values() if v.causality == "input"]
     names += [variables[o] for o in signals.RECORDED[name]]
-    return [(v.name, v.causality, _ssp_type(v.type)) for v in names]
+    return [(v.name, v.causality, v.type) for v in names]
 
 
 def build_ssd(scenario: Scenario, variables: dict[str, dict],
@@ -257,6 +255,8 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
         an FMU lacks a parameter of the scenario.
     FmuNotFoundError
         If one of the three FMUs is not given or not a file (a FileNotFoundError).
+    FmiVersionError
+        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why); nothing is written.
     SSPError
         If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
@@ -266,6 +266,7 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
         if not math.isfinite(value):
             raise ScenarioError(f"{scenario.source}: [simulation] {name} = {value!r} is not allowed; allowed: > 0")
     paths = fmu_files(fmu_paths)
+    require_fmi2(paths.values(), FMI2_ONLY)
     variables = {name: _variables(path) for name, path in paths.items()}
     for name in ORDER:
         missing = [p for p in scenario.parameters(name) if p not in variables[name]]
