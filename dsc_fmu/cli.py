@@ -135,7 +135,7 @@ def _add_fmus(parser: argparse.ArgumentParser, use: str, command: str = "", flag
     """The FMU folder and FMI version options of ``command``, their defaults those of ``fmubuild.folders``."""
     folders = ", ".join(f"{folder} for FMI {version}.0" for version, folder in DEFAULT_FMU_DIRS.items())
     _add(parser, "fmu_dir", flags=flags, use=use, default=folders)
-    only = f": 2 only ({_fmi2_only(command)})" if command in _FMI2_ONLY else ""
+    only = f": 2 only, since {_fmi2_only(command)}" if command in _FMI2_ONLY else ""
     _add(parser, "fmi_version", only=only, default=DEFAULT_FMI_VERSION)
 
 

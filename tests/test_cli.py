@@ -280,7 +280,8 @@ def test_export_fmu_holds_fmi3_fmus(tmp_path, fmu_dir, fmu3_dir):
     _assert_same_rows(results[2], results[3])
 
 
-_REPLACED = "fmi_version = {asked} is not allowed for {folder}, which holds FMI {held}.0 FMUs (they would be replaced); " \
+_REPLACED = "fmi_version = {asked} is not allowed for {folder}, which holds FMI {held}.0 FMUs " \
+    "(they would be replaced); " \
     "allowed: {held}, or another folder"
 _FMI2_ONLY = "{command} with FMI 3.0 FMUs ({folder}) is not allowed: {why}; allowed: FMI 2.0 FMUs (--fmi-version 2, " \
     "a folder without FMI 3.0 FMUs)"
@@ -442,7 +443,8 @@ def test_help_reads_its_defaults_from_their_owners(monkeypatch, capsys, wide):
     monkeypatch.setitem(DEFAULT_FMU_DIRS, 3, Path("elsewhere"))
     sweep = _help("sweep", capsys)
     for text in ("(default: 3 log-spaced from 0.002 to 0.2)", "jacobi (default: jacobi)", "linear (default: linear)",
-                 "euler (default: euler)", "or '' for none (default: 0.5)", "draws (default: 7)", "elsewhere for FMI 3.0"):
+                 "euler (default: euler)", "or '' for none (default: 0.5)", "draws (default: 7)",
+                 "elsewhere for FMI 3.0"):
         assert text in sweep
     run = _help("run", capsys)
     assert "model exchange: 3e-07 where it sets none" in run and "(default: the scenario's, 0.125 where" in run

@@ -94,5 +94,6 @@ def test_fmi3_fmus_are_refused_before_anything_is_written(tmp_path, fmu3_paths):
     with pytest.raises(FmiVersionError) as refusal:
         write_crosscheck(tmp_path / "xc", fmu3_paths)
     assert str(refusal.value) == (f"{fmu3_paths['ReferenceRobot']} is an FMI 3.0 FMU, not allowed here: the FMI "
-                                  "cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs; allowed: FMI 2.0 FMUs")
+                                  "cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs; "
+                                  "allowed: FMI 2.0 FMUs")
     assert not (tmp_path / "xc").exists()

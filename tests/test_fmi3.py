@@ -189,7 +189,8 @@ def test_ensure_fmi3_builds_then_reuses_and_keeps_versions_apart(tmp_path):
     ("2.0", None),
 ])
 def test_a_folder_is_read_by_the_fmi_version_its_fmus_declare(tmp_path, declared, message):
-    """Whoever built them: the ``fmiVersion`` of each FMU's modelDescription.xml; a file that is no FMU counts as none."""
+    """Whoever built them: the ``fmiVersion`` of each FMU's modelDescription.xml; a file that is no FMU
+    counts as none."""
     with zipfile.ZipFile(tmp_path / "MobileRobot.fmu", "w") as fmu:
         fmu.writestr("modelDescription.xml", f'<fmiModelDescription fmiVersion="{declared}" modelName="M"/>')
     (tmp_path / "DSCController.fmu").write_text("not an FMU")

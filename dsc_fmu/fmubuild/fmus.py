@@ -24,7 +24,9 @@ from ..identity import BUILD_ID_FILE, fmu_build_id
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
-from .folders import DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir
+from .folders import (
+    DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir,
+)
 from .model_description import complete_model_description, documentation
 
 __all__ = [

@@ -44,7 +44,7 @@ FMI2_ONLY = ("no SSP importer runs the loop of FMI 3.0 FMUs (fmpy's and libcosim
              "refuses ReferenceRobot's FMI 3.0 dependencies)")
 SCHEMA_DIR = Path(__file__).parent / "schemas" / "ssp"
 SYSTEM_NAME = "DSCClosedLoop"
-NOT_IDENT = re.compile(r"[^A-Za-z0-9_]")
+_NOT_IDENT = re.compile(r"[^A-Za-z0-9_]")
 """A character OMSimulator refuses in a name: its identifiers match ``^[a-zA-Z][a-zA-Z0-9_]*$``."""
 
 
@@ -86,7 +86,7 @@ def model_name(scenario_name: str) -> str:
         underscore replaced by ``_``: ``model_name("paper")`` is ``"dsc_fmu_paper"``,
         ``model_name("my run-2")`` is ``"dsc_fmu_my_run_2"``.
     """
-    return NOT_IDENT.sub("_", f"dsc_fmu_{scenario_name}")
+    return _NOT_IDENT.sub("_", f"dsc_fmu_{scenario_name}")
 
 
 def _annotation(parent: etree._Element, kind: str) -> etree._Element:

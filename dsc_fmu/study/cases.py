@@ -606,7 +606,7 @@ class Runner:
     scheduler_timeout : float, optional
         How long to wait for the scheduler to answer, in s. Default ``SCHEDULER_TIMEOUT``.
     progress : bool, optional
-        Show a progress bar on stderr. Default True.
+        Show a progress line on a terminal (``cosim.progress.ProgressLine``). Default True.
 
     Raises
     ------

@@ -197,7 +197,7 @@ def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_path
     fmu_paths : dict
         The FMU files by name (``ensure_fmus``).
     runner : Runner, optional
-        Where the runs go and whether a progress bar shows. Default ``Runner()``: all cores.
+        Where the runs go and whether a progress line shows on a terminal. Default ``Runner()``: all cores.
     warn : bool, optional
         Issue ``Execution.warn`` (one line per kind of problem) before returning. Default True.
     prepared : bool, optional

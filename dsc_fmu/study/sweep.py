@@ -148,7 +148,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
         What the study varies. Default ``Grid()``: 12 steps from 1e-4 to 5e-2 s, both orders, both
         couplings and error-controlled runs at ``DEFAULT_TOLERANCES``.
     runner : Runner, optional
-        Where the runs go. Default ``Runner()``: all cores, a progress bar.
+        Where the runs go. Default ``Runner()``: all cores, a progress line on a terminal.
     fmu_dir : pathlib.Path or str or None, optional
         Where the FMUs are built (``ensure_fmus``). Default None: ``default_fmu_dir`` of the FMI version.
     fmi_version : {2, 3} or None, optional
