@@ -142,7 +142,12 @@ def _add_fmus(parser: argparse.ArgumentParser, use: str, command: str = "", flag
 def _add_scenario(parser: argparse.ArgumentParser) -> None:
     """The scenario argument, its default ``load_scenario``'s."""
     _add(parser, "scenario", names=", ".join(scenario_names()))
-    parser.set_defaults(scenario=inspect.signature(load_scenario).parameters["name_or_path"].default)
+    parser.set_defaults(scenario=_default(load_scenario, "name_or_path"))
+
+
+def _default(function, parameter: str):
+    """The default of a function's parameter: the owner of an option's default."""
+    return inspect.signature(function).parameters[parameter].default
 
 
 _BUILT_THERE = "built there if missing or out of date"
@@ -162,11 +167,12 @@ def _build_options(parser: argparse.ArgumentParser) -> None:
 
 def _run_options(parser: argparse.ArgumentParser) -> None:
     from .cosim.model_exchange import DEFAULT_TOLERANCE, METHOD
+    from .cosim.run import run_scenario
 
     _add_scenario(parser)
     _add(parser, "step_size", "stop_time", "order", "coupling", "input_derivatives", "output_interval")
     _add(parser, "interface", stepped=" by this project's master",
-         integrated=f", integrated by SciPy's {METHOD} with their event indicators", default=Interface.CO_SIMULATION)
+         integrated=f", integrated by SciPy's {METHOD} with their event indicators", default=_default(run_scenario, "interface"))
     _add(parser, "tolerance", solver=f"{DEFAULT_TOLERANCE:g}")
     for name in ("h_min", "h_max"):
         _add(parser, name, unset=f"{getattr(Simulation, name):g}")
@@ -197,8 +203,10 @@ def _export_options(parser: argparse.ArgumentParser, command: str) -> None:
     parser.add_argument("-o", "--out", type=Path, required=True, help="the file to write")
     _add(parser, "step_size", "stop_time")
     if command == "export-ssp":
+        from .interop.ssp import export_ssp
+
         _add(parser, "interface", stepped=" by the importing tool's master", integrated=", integrated by the "
-             "importing tool", default=Interface.CO_SIMULATION)
+             "importing tool", default=_default(export_ssp, "interface"))
     _add_fmus(parser, _USED_IF_CURRENT, command)
 
 
