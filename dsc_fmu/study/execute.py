@@ -320,10 +320,11 @@ class _Collector:
     """The rows (by key) of the runs of ``found.todo`` as their outcomes and reference solutions come in
     (``Task.hand_over``), each cached as soon as both are in, except the runs that did not finish
     (their keys are kept in ``lost``) and, under the "local" stability, those whose reference solution
-    failed (judged as settled runs for now)."""
+    failed (judged as settled runs for now); what a failed reference solution means is kept in
+    ``warnings``, for after the progress line."""
 
     def __init__(self, scenario: Scenario, found: _Found, cache: SweepCache, identities: dict, bar: ProgressLine):
-        self.rows, self.lost, self._waiting = {}, [], defaultdict(list)
+        self.rows, self.lost, self.warnings, self._waiting = {}, [], [], defaultdict(list)
         self._remaining = Counter(plan.reference_key for plan in found.todo.values())
         self._local = scenario.simulation.stability.from_start
         self._todo, self._references = found.todo, dict(found.references)
@@ -332,8 +333,8 @@ class _Collector:
     def take_reference(self, ref_key: str, value: ReferenceOutcome) -> None:
         if value.solution is None:
             judged = "; they are judged as settled runs and not cached" if self._local else ""
-            warnings.warn(f"reference solution failed ({value.failure}): deviations are NaN for its runs{judged}",
-                          stacklevel=6)  # the caller of execute's caller
+            self.warnings.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
+                                 f"runs{judged}")
         else:
             self._cache.store_reference(ref_key, value.solution)
         if self._remaining[ref_key]:
@@ -369,4 +370,6 @@ def _collect(scenario: Scenario, found: _Found, cache: SweepCache, identities: d
         collector = _Collector(scenario, found, cache, identities, bar)
         for task, value in results:
             task.hand_over(value, collector)
+    for message in collector.warnings:
+        warnings.warn(message, stacklevel=4)  # the caller of execute's caller
     return collector
