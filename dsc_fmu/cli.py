@@ -91,7 +91,7 @@ _OPTIONS = {
     "h_max": _option("--h-max", type=float, help="largest error-controlled step in s (default: {default}, {unset} "
                      "where it sets none)"),
     "no_plots": _option("--no-plots", action="store_true", help="write no figures"),
-    "quiet": _option("--quiet", action="store_true", help="no progress line and no forecast (errors still show)"),
+    "quiet": _option("--quiet", action="store_true", help="no progress line{forecast} (errors still show)"),
     "step_sizes": _option("--step-sizes", type=_floats, help="communication steps in s, comma-separated "
                           "(default: {default})"),
     "orders": _option("--orders", type=_names, help=f"coupling orders, comma-separated: {', '.join(ORDERS)} "
@@ -178,7 +178,8 @@ def _run_options(parser: argparse.ArgumentParser) -> None:
         _add(parser, name, unset=f"{getattr(Simulation, name):g}")
     parser.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
     _add_fmus(parser, _BUILT_THERE)
-    _add(parser, "no_plots", "quiet")
+    _add(parser, "no_plots")
+    _add(parser, "quiet", forecast=" and no forecast")
 
 
 def _sweep_options(parser: argparse.ArgumentParser) -> None:
@@ -194,6 +195,7 @@ def _sweep_options(parser: argparse.ArgumentParser) -> None:
     _add(parser, "set", "perturb", "samples")
     _add(parser, "seed", default=grid.seed)
     _add(parser, "stop_time", "stability", "reference", "jobs", "scheduler", "no_refine")
+    _add(parser, "quiet", forecast="")
     parser.add_argument("--out", type=Path, help="output folder (default: results/sweep-<scenario name>)")
     _add_fmus(parser, _BUILT_THERE)
 
@@ -267,7 +269,7 @@ def _sweep(args) -> None:
                 perturbations=[parse_perturb(text) for text in args.perturb or ()])
     folder, version = _fmus(args)
     print(run_sweep(scenario, args.out or Path("results") / f"sweep-{scenario.name}", grid,
-                    Runner(**_given(args, "jobs", "scheduler")), fmu_dir=folder, fmi_version=version,
+                    Runner(**_given(args, "jobs", "scheduler"), progress=not args.quiet), fmu_dir=folder, fmi_version=version,
                     refine=not args.no_refine))
 
 

@@ -156,3 +156,14 @@ def test_a_sweep_counts_its_runs_in_place_and_keeps_them_at_ctrl_c(tmp_path, fmu
                           timeout=300)
     assert done.returncode == 0 and done.stderr == "", done.stderr
     assert re.match(r"sweep of figure_eight: 3 runs, .*\n  runs: 3 \([12] from the cache, [12] run now\)", done.stdout)
+
+
+@pytest.mark.slow
+def test_a_quiet_sweep_draws_no_line_on_a_terminal(tmp_path, fmu_paths):
+    """``dsc-fmu sweep --quiet`` of one run on a terminal: its summary, and no progress line."""
+    command = [*SWEEP[:5], "0.004", *SWEEP[6:], "--quiet", "--out", str(tmp_path / "out"),
+               "--fmu-dir", str(fmu_paths["MobileRobot"].parent)]
+    output, status = in_terminal(command, tmp_path, NARROW, lambda output: False)
+    assert status == 0, output
+    assert drawn(output, "sweep figure_eight") == [] and "\r\r" not in output
+    assert screen(output)[0].startswith("sweep of figure_eight: 1 runs"), output
