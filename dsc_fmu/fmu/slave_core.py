@@ -387,8 +387,10 @@ class SlaveCore:
         self._stale()
 
     def set_state(self, index: int, value: float) -> None:
-        """Set one continuous state, as ``set_point`` sets them all (model exchange: fmi2SetReal, fmi3SetFloat64
-        of a state in event and continuous-time mode; the binary refuses it elsewhere).
+        """Set one continuous state, as ``set_point`` sets them all.
+
+        Model exchange: fmi2SetReal or fmi3SetFloat64 of a state in event or continuous-time mode (the
+        binary refuses it elsewhere).
 
         Parameters
         ----------
