@@ -21,10 +21,10 @@ from dsc_fmu.registry import FMUS
 NAMES = tuple(FMUS)
 
 
-def _ready(model, name: str, mode: str) -> Model:  # noqa: F811 (the fixture's function)
-    """An instance of ``name`` with its inputs set away from their start values, in ``mode`` ("event" or
-    "continuous")."""
-    instance = model(name)
+def _ready(make, name: str, mode: str) -> Model:
+    """An instance of ``name`` made by ``make`` (the fixture ``model``), its inputs set away from their start
+    values, in ``mode`` ("event" or "continuous")."""
+    instance = make(name)
     inputs = {v.name: CONTROLLER_START.get(v.name, 1.0) + 0.3 for v in FMUS[name].inputs}
     if inputs:
         instance.set(inputs)
@@ -155,6 +155,8 @@ def test_a_state_that_is_not_finite_is_discarded_with_the_rest_of_the_call(model
     for bad in (math.nan, math.inf):
         with pytest.raises(FMICallException, match="status 2"):
             instance.set({"i1": 2.5, "a1_hat": bad})
+        refused = f"value reference {instance.refs['a1_hat']}, a continuous state, is {bad}; allowed: finite"
+        assert any(refused in m.message and m.status in ("DISCARD", "2") for m in instance.log), instance.log
         assert _evaluation(instance) == before
     instance.set({"a1_hat": 3.0})
     assert instance.vector("getContinuousStates")[0] == 3.0
