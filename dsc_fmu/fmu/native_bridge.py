@@ -5,9 +5,9 @@ loads this module from its file in the FMU's resources (sys.path is never touche
 users of the build's private package (``acquire`` imports it by its location; the last
 ``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
 table and the model's sizes once (``variables``, ``dimensions``) to guard every get and set by value
-reference, type, causality, variability and whether it is a continuous state, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
-back (``state_to_bytes``, ``state_from_bytes``) with a checksum and the identity of the build
-that made them.
+reference, type, causality, variability and whether it is a continuous state, forwards the slave's
+log queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
+``state_from_bytes``) with a checksum and the identity of the build that made them.
 """
 
 import hashlib
