@@ -104,7 +104,8 @@ class SlaveGlue(SlaveCore):
         else:
             self.register_variable(library.float(
                 v.name, causality=library.causality[causality], variability=library.variability.continuous,
-                initial=library.initial.calculated, description=v.description, getter=getter, setter=_ignore,
+                initial=library.initial.calculated, description=v.description, getter=getter,
+                setter=setter or _ignore,
             ))
 
     def register_discrete_output(self, name: str, description: str, getter, boolean: bool) -> None:

@@ -5,9 +5,9 @@ loads this module from its file in the FMU's resources (sys.path is never touche
 users of the build's private package (``acquire`` imports it by its location; the last
 ``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
 table and the model's sizes once (``variables``, ``dimensions``) to guard every get and set by value
-reference, type, causality and variability, forwards the slave's log queue (``drain_log``) and turns FMU states into bytes and
-back (``state_to_bytes``, ``state_from_bytes``) with a checksum and the identity of the build
-that made them.
+reference, type, causality, variability and whether it is a continuous state, forwards the slave's
+log queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
+``state_from_bytes``) with a checksum and the identity of the build that made them.
 """
 
 import hashlib
@@ -151,11 +151,14 @@ def variables(slave) -> list:
     Returns
     -------
     list of tuple of int
-        ``(value reference, type, causality, variability)`` of every variable, as the codes of ``TYPES``,
-        ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other).
+        ``(value reference, type, causality, variability, state)`` of every variable, as the codes of ``TYPES``,
+        ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other), and 1 for a continuous state of
+        model exchange (the variable of an entry of ``slave.STATES``), else 0.
     """
+    states = {s.variable.name for s in slave.STATES}
     return [
-        (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability))
+        (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability),
+         int(v.name in states))
         for vr, v in slave.vars.items()
     ]
 

@@ -57,7 +57,8 @@ class SlaveCore:
     states, nominals) and of ``INDICATORS``; from the end of initialization (``start_continuous_time``)
     the state no longer follows the inputs, and the switches of the model change only in
     ``update_discrete_states``. The tables ``STATES``, ``LOCALS`` and ``INDICATORS`` register the
-    states that are not outputs, the states' derivatives and the event indicators as local variables.
+    states that are not outputs, the states' derivatives and the event indicators as local variables. A
+    state's variable sets its entry of the state vector (``set_state``), where the binary allows it.
     """
 
     PARAMETERS: tuple = ()
@@ -90,11 +91,13 @@ class SlaveCore:
         for index, v in enumerate(self.INPUTS):
             self._register(v, "input", getter=lambda i=index: self.u[i],
                            setter=lambda value, i=index, v=v: self._set_input(i, v, value))
-        for index, v in enumerate(self.OUTPUTS):
-            self._register(v, "output", getter=lambda i=index: self.output_values()[i])
         positions = {s.variable.name: i for i, s in enumerate(self.STATES)}
+        for index, v in enumerate(self.OUTPUTS):
+            self._register(v, "output", getter=lambda i=index: self.output_values()[i],
+                           setter=self._state_setter(positions.get(v.name)))
         for v in self.LOCALS:
-            self._register(v, "local", getter=lambda i=positions[v.name]: self.current_state()[i])
+            self._register(v, "local", getter=lambda i=positions[v.name]: self.current_state()[i],
+                           setter=self._state_setter(positions[v.name]))
         for index, s in enumerate(self.STATES):
             self._register(s.derivative, "local", getter=lambda i=index: self.get_derivatives()[i])
         for index, v in enumerate(self.INDICATORS):
@@ -102,8 +105,12 @@ class SlaveCore:
 
     def _register(self, v, causality: str, getter, setter=None) -> None:
         """Hook: register the table variable ``v`` with the FMI library as a ``causality`` ("parameter",
-        "input", "output" or "local") variable."""
+        "input", "output" or "local") variable; an output or local with a ``setter`` is a continuous state."""
         raise NotImplementedError
+
+    def _state_setter(self, index):
+        """The setter of entry ``index`` of the state vector (None: no entry, no setter)."""
+        return None if index is None else lambda value: self.set_state(index, value)
 
     def _stale(self, parameters: bool = False) -> None:
         """Forget the caches: called by every change of what they are computed from.
@@ -378,6 +385,23 @@ class SlaveCore:
         if x is not None:
             self.state = list(x)
         self._stale()
+
+    def set_state(self, index: int, value: float) -> None:
+        """Set one continuous state, as ``set_point`` sets them all.
+
+        Model exchange: fmi2SetReal or fmi3SetFloat64 of a state in event or continuous-time mode (the
+        binary refuses it elsewhere).
+
+        Parameters
+        ----------
+        index : int
+            The state's position in ``STATES``.
+        value : float
+            Its new value, in its unit.
+        """
+        state = list(self.current_state())
+        state[index] = float(value)
+        self.set_point(None, state)
 
     def get_continuous_states(self) -> list:
         """The continuous states, for model exchange.

@@ -19,6 +19,8 @@
 #define FMI3_GET (Instantiated | InitializationMode | StepMode | EventMode | ContinuousTimeMode | Terminated)
 #define FMI3_SET (Instantiated | InitializationMode | StepMode | EventMode)
 #define FMI3_SET_FLOAT (FMI3_SET | ContinuousTimeMode)
+/* fmi2SetReal and fmi3SetFloat64 also set continuous states in model exchange's event and continuous-time
+   mode: which variables a set may change is checked per value reference (instance.c, not_settable). */
 #define FMI3_VECTOR (InitializationMode | EventMode | ContinuousTimeMode | Terminated)
 
 /* The getter and setter of the FMI 3.0 type T. */

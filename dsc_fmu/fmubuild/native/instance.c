@@ -211,14 +211,25 @@ static int arrays_given(Instance *instance, size_t nvr, const void *vr, const vo
     return 1;
 }
 
+/* Whether `vr` is a continuous state that a set by value reference changes now: in model exchange's event
+   and continuous-time mode, as fmiSetContinuousStates would (FMI 3.0.2, sections 2.3.5 and 3.2.1, for
+   states with reinit = false, which all these are; FMI 2.0 leaves it open, fmi-standard #392, and importers
+   such as PyFMI rely on it). */
+static int settable_state(const Instance *instance, unsigned int vr) {
+    return instance->model_exchange && (instance->state & (EventMode | ContinuousTimeMode)) &&
+           instance->slave.is_state[vr];
+}
+
 /* Why the variable `vr` may not be set now, or NULL. */
 static const char *not_settable(const Instance *instance, unsigned int vr) {
     const Slave *s = &instance->slave;
+    if (settable_state(instance, vr)) return NULL;
     if (s->causality[vr] == CAUSALITY_OUTPUT) return "is an output: it cannot be set";
     if (s->causality[vr] != CAUSALITY_PARAMETER && s->causality[vr] != CAUSALITY_INPUT) return "cannot be set";
     if (s->variability[vr] == VARIABILITY_CONSTANT) return "is a constant: it cannot be set";
     if (s->causality[vr] == CAUSALITY_PARAMETER && instance->state == ContinuousTimeMode) {
-        return "is a parameter: in continuous-time mode only inputs can be set (tunable parameters in event mode)";
+        return "is a parameter: in continuous-time mode only inputs and continuous states can be set (tunable "
+               "parameters in event mode)";
     }
     if ((instance->state == StepMode || instance->state == EventMode) && s->causality[vr] == CAUSALITY_PARAMETER &&
         s->variability[vr] != VARIABILITY_TUNABLE) {
@@ -256,11 +267,25 @@ int instance_get(Instance *instance, int type, const unsigned int vr[], size_t n
     return nvr ? slave_get(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
 }
 
+/* Whether every continuous state among `vr` (checked, Real) is given a finite value; if not, logged with
+   fmiDiscard as fmiSetContinuousStates refuses such a state. */
+static int states_finite(Instance *instance, const unsigned int vr[], size_t nvr, const double values[]) {
+    for (size_t i = 0; i < nvr; i++) {
+        if (settable_state(instance, vr[i]) && !isfinite(values[i])) {
+            instance_fail(instance, STATUS_DISCARD, "value reference %u, a continuous state, is %g; allowed: finite; "
+                          "nothing of the call is set", vr[i], values[i]);
+            return 0;
+        }
+    }
+    return 1;
+}
+
 int instance_set(Instance *instance, int type, const unsigned int vr[], size_t nvr, const void *values,
                  size_t nvalues, CType ctype) {
     if (!arrays_given(instance, nvr, vr, values, nvalues) || check(instance, type, TYPE_NAMES[type], vr, nvr, 1)) {
         return STATUS_ERROR;
     }
+    if (type == TYPE_REAL && ctype == C_DOUBLE && !states_finite(instance, vr, nvr, values)) return STATUS_DISCARD;
     return nvr ? slave_set(&instance->slave, type, vr, nvr, values, ctype) : STATUS_OK;
 }
 

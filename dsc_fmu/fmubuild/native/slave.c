@@ -14,6 +14,8 @@
 #endif
 #define MAX_VALUE_REFERENCE 100000
 #define MAX_VARIABLES 1024
+/* The cells of a row of the variable table (native_bridge.variables). */
+enum { CELL_REFERENCE, CELL_TYPE, CELL_CAUSALITY, CELL_VARIABILITY, CELL_STATE, CELLS };
 
 const char *const TYPE_NAMES[TYPES + 1] = {DSC_TYPE_NAMES};
 const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
@@ -171,12 +173,12 @@ static int read_dimensions(Slave *s) {
     return s->x ? 0 : -1;
 }
 
-/* Row `i` of the variable table: value reference, type, causality and variability, in `cells`; 0, or -1
-   (the exception set, or a cell that is not a number) with every cell -1. */
-static int read_row(PyObject *table, Py_ssize_t i, long cells[4]) {
+/* Row `i` of the variable table: value reference, type, causality, variability and whether a state, in
+   `cells`; 0, or -1 (the exception set, or a cell that is not a number) with every cell -1. */
+static int read_row(PyObject *table, Py_ssize_t i, long cells[CELLS]) {
     PyObject *row = py.PySequence_GetItem(table, i);
     int complete = row != NULL;
-    for (int k = 0; k < 4; k++) {
+    for (int k = 0; k < CELLS; k++) {
         PyObject *cell = complete ? py.PySequence_GetItem(row, k) : NULL;
         cells[k] = cell ? py.PyLong_AsLong(cell) : -1;
         complete = cell && !py.PyErr_Occurred();
@@ -184,7 +186,7 @@ static int read_row(PyObject *table, Py_ssize_t i, long cells[4]) {
     }
     clear(&row);
     if (complete) return 0;
-    for (int k = 0; k < 4; k++) cells[k] = -1;
+    for (int k = 0; k < CELLS; k++) cells[k] = -1;
     return -1;
 }
 
@@ -192,7 +194,7 @@ static int read_variables(Slave *s) {
     PyObject *items[] = {borrowed(s->slave)};
     PyObject *table = bridge_call(s, "variables", pack(1, items));
     Py_ssize_t n = table ? py.PySequence_Size(table) : -1;
-    long rows[4 * MAX_VARIABLES];
+    long rows[CELLS * MAX_VARIABLES];
     if (n < 0 || n > MAX_VARIABLES) {
         clear(&table);
         if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
@@ -202,8 +204,9 @@ static int read_variables(Slave *s) {
     long largest = -1;
     int valid = 1;
     for (Py_ssize_t i = 0; i < n && valid; i++) {
-        valid = read_row(table, i, &rows[4 * i]) == 0;
-        if (valid && rows[4 * i] > largest) largest = rows[4 * i];
+        long *row = &rows[CELLS * i];
+        valid = read_row(table, i, row) == 0;
+        if (valid && row[CELL_REFERENCE] > largest) largest = row[CELL_REFERENCE];
     }
     clear(&table);
     if (!valid || largest >= MAX_VALUE_REFERENCE) {
@@ -216,16 +219,19 @@ static int read_variables(Slave *s) {
     s->type = malloc(s->size ? s->size : 1);
     s->causality = malloc(s->size ? s->size : 1);
     s->variability = malloc(s->size ? s->size : 1);
-    if (!s->type || !s->causality || !s->variability) {
+    s->is_state = calloc(s->size ? s->size : 1, 1);
+    if (!s->type || !s->causality || !s->variability || !s->is_state) {
         say(s, STATUS_ERROR, "out of memory for the variable table");
         return -1;
     }
     memset(s->type, NO_VARIABLE, s->size);
     for (Py_ssize_t i = 0; i < n; i++) {
-        if (rows[4 * i] < 0) continue;
-        s->type[rows[4 * i]] = (signed char)rows[4 * i + 1];
-        s->causality[rows[4 * i]] = (signed char)rows[4 * i + 2];
-        s->variability[rows[4 * i]] = (signed char)rows[4 * i + 3];
+        const long *row = &rows[CELLS * i];
+        if (row[CELL_REFERENCE] < 0) continue;
+        s->type[row[CELL_REFERENCE]] = (signed char)row[CELL_TYPE];
+        s->causality[row[CELL_REFERENCE]] = (signed char)row[CELL_CAUSALITY];
+        s->variability[row[CELL_REFERENCE]] = (signed char)row[CELL_VARIABILITY];
+        s->is_state[row[CELL_REFERENCE]] = row[CELL_STATE] == 1;
     }
     return 0;
 }
@@ -308,9 +314,11 @@ void slave_free(Slave *s) {
     free(s->type);
     free(s->causality);
     free(s->variability);
+    free(s->is_state);
     s->type = NULL;
     s->causality = NULL;
     s->variability = NULL;
+    s->is_state = NULL;
 }
 
 int slave_reset(Slave *s) {

@@ -82,6 +82,7 @@ typedef struct {
     signed char *type;          /* by value reference; NO_VARIABLE where there is none */
     signed char *causality;
     signed char *variability;
+    signed char *is_state;      /* 1 for a continuous state of model exchange, else 0 */
     SlaveLog log;
     void *context;
     Message *messages;          /* queued while the GIL is held */
