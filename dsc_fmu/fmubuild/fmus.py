@@ -170,19 +170,21 @@ def _slave_class_named(class_name: str):
 
 
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_version: int) -> Path:
-    """The FMU as the FMI library builds it from the staged script and package."""
+    """The FMU as the FMI library builds it from the staged script and package. It needs no execution
+    tool: it carries the model and the code that runs it and loads CPython as a library
+    (``documentation.REQUIREMENTS``)."""
     if fmi_version == 3:
         from pythonfmu3 import FmuBuilder as Fmu3Builder
 
         with _slave_class_named(spec.name):
             return Fmu3Builder.build_FMU(
                 script, dest=dest, project_files=[package_dir],
-                needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+                needsExecutionTool="false", canHandleVariableCommunicationStepSize="true",
                 canGetAndSetFMUState="true", canSerializeFMUState="true",
             )
     return FmuBuilder.build_FMU(
         script, dest=dest, project_files=[package_dir],
-        needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+        needsExecutionTool="false", canHandleVariableCommunicationStepSize="true",
         canGetAndSetFMUstate="true", canSerializeFMUstate="true",
     )
 
