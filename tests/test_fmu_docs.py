@@ -1,4 +1,5 @@
-"""Every FMU (FMI 2.0 and 3.0) carries documentation/index.html made from its variables at build time."""
+"""Every FMU (FMI 2.0 and 3.0) carries documentation/index.html made from its variables at build time, and
+documentation/externalDependencies.txt."""
 
 import re
 import zipfile
@@ -9,7 +10,7 @@ from xml.etree import ElementTree as ET
 import pytest
 from fmpy import read_model_description
 
-from dsc_fmu.fmubuild.fmus import DOCUMENTATION_FILE
+from dsc_fmu.fmubuild.fmus import DEPENDENCIES_FILE, DOCUMENTATION_FILE
 from dsc_fmu.registry import FMUS
 from dsc_fmu.fmubuild.documentation import EQUATIONS
 
@@ -104,9 +105,11 @@ def test_documentation_states_what_the_importing_machine_needs(fmus, version, na
     path = fmus[version][name]
     with zipfile.ZipFile(path) as archive:
         root = ET.fromstring(archive.read("modelDescription.xml"))
+        dependencies = " ".join(archive.read(DEPENDENCIES_FILE).decode("utf-8").split())
     flags = {root.find(tag).get("needsExecutionTool") for tag in ("CoSimulation", "ModelExchange")}
     section = _page(path).split("<h2>Requirements</h2>", 1)[1]
     paragraph = unescape(re.match(r"\s*<p>(.*?)</p>", section, re.S).group(1))
+    assert dependencies == paragraph  # FMI 3.0's externalDependencies.txt, the same text
     (flag,) = flags  # both interfaces declare the same
     assert f"needsExecutionTool = {flag}" in paragraph
     for requirement in ("x86-64 Linux or Windows", "64-bit CPython 3.9 or newer", "DSC_FMU_PYTHON",

@@ -1,4 +1,5 @@
-"""The ``documentation/index.html`` of each FMU, written at build time from its model description."""
+"""The ``documentation/index.html`` of each FMU, written at build time from its model description, and
+what the importing machine needs (``documentation/externalDependencies.txt`` too)."""
 
 from __future__ import annotations
 
@@ -71,7 +72,8 @@ With start_on = 1 (valid_inputs) the controller waits with u = 0 until every inp
 masters without an initial exchange) and starts from the first valid inputs; output started.""",
 }
 
-# What the importing machine needs (docs/other-tools.md, "What the importing machine needs").
+# What the importing machine needs (docs/other-tools.md, "What the importing machine needs"): the page's
+# Requirements and the FMU's documentation/externalDependencies.txt.
 REQUIREMENTS = (
     "The FMU needs no execution tool (needsExecutionTool = false): it carries the model and the Python code "
     "that runs it (standard library only), and its binary loads CPython as a library. The importing machine "

@@ -10,6 +10,7 @@ import re
 import shutil
 import sys
 import tempfile
+import textwrap
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,7 @@ from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, com
 from .folders import (
     DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir,
 )
+from .documentation import REQUIREMENTS
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -37,6 +39,8 @@ __all__ = [
 PACKAGE_DIR = Path(__file__).parents[1]
 ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
+# FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
+DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
 _FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
@@ -248,6 +252,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
                     ET.indent(root)
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
                     dst.writestr(DOCUMENTATION_FILE, documentation(root, spec))
+                    dst.writestr(DEPENDENCIES_FILE, textwrap.fill(REQUIREMENTS, 100) + "\n")
                     dst.writestr(ENTRY_FILE, _entry(root, script, package_dir, spec))
                 if item.filename != DOCUMENTATION_FILE:
                     name, data = _private(item.filename, data, package_dir.name, _LIBRARY[fmi_version])
