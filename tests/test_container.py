@@ -1,5 +1,8 @@
 """The closed loop as one container FMU: fmpy simulates it as our master's Jacobi at its internal step."""
 
+import zipfile
+from xml.etree import ElementTree
+
 import numpy as np
 import pytest
 from fmpy import read_model_description, simulate_fmu
@@ -29,6 +32,9 @@ def test_valid_with_parameters_and_outputs(container):
         assert variables[name].causality == "output"
     assert float(variables["MobileRobot.x0"].start) == scenario.parameters("MobileRobot")["x0"]
     assert variables["DSCController.discretization"].type == "Integer"
+    with zipfile.ZipFile(fmu) as archive:  # needs no execution tool, as its components (PyFMI loads it)
+        cosimulation = ElementTree.fromstring(archive.read("modelDescription.xml")).find("CoSimulation")
+    assert cosimulation.get("needsExecutionTool", "false") == "false"  # the schema's default: false
 
 
 @pytest.mark.parametrize("interval", [H, 10 * H])

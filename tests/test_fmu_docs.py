@@ -1,13 +1,16 @@
-"""Every FMU (FMI 2.0 and 3.0) carries documentation/index.html made from its variables at build time."""
+"""Every FMU (FMI 2.0 and 3.0) carries documentation/index.html made from its variables at build time, and
+documentation/externalDependencies.txt."""
 
+import re
 import zipfile
+from html import unescape
 from html.parser import HTMLParser
 from xml.etree import ElementTree as ET
 
 import pytest
 from fmpy import read_model_description
 
-from dsc_fmu.fmubuild.fmus import DOCUMENTATION_FILE
+from dsc_fmu.fmubuild.fmus import DEPENDENCIES_FILE, DOCUMENTATION_FILE
 from dsc_fmu.registry import FMUS
 from dsc_fmu.fmubuild.documentation import EQUATIONS
 
@@ -93,3 +96,22 @@ def test_equations_cite_the_paper_equations_of_each_fmu():
     assert "(1)" in EQUATIONS["MobileRobot"] and "(5)" in EQUATIONS["MobileRobot"]
     assert "(9)" in EQUATIONS["ReferenceRobot"]
     assert all(f"({n})" in EQUATIONS["DSCController"] for n in (10, 14, 15, 17, 23, 24))
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", list(FMUS))
+def test_documentation_states_what_the_importing_machine_needs(fmus, version, name):
+    """The flag the model description declares, and the CPython the FMU loads instead of a tool."""
+    path = fmus[version][name]
+    with zipfile.ZipFile(path) as archive:
+        root = ET.fromstring(archive.read("modelDescription.xml"))
+        dependencies = " ".join(archive.read(DEPENDENCIES_FILE).decode("utf-8").split())
+    flags = {root.find(tag).get("needsExecutionTool") for tag in ("CoSimulation", "ModelExchange")}
+    section = _page(path).split("<h2>Requirements</h2>", 1)[1]
+    paragraph = unescape(re.match(r"\s*<p>(.*?)</p>", section, re.S).group(1))
+    assert dependencies == paragraph  # FMI 3.0's externalDependencies.txt, the same text
+    (flag,) = flags  # both interfaces declare the same
+    assert f"needsExecutionTool = {flag}" in paragraph
+    for requirement in ("x86-64 Linux or Windows", "64-bit CPython 3.9 or newer", "DSC_FMU_PYTHON",
+                        "the Python that built the FMU", "PEP 514"):
+        assert requirement in paragraph

@@ -17,6 +17,7 @@ import sys
 import textwrap
 import zipfile
 from pathlib import Path
+from xml.etree import ElementTree
 
 import pytest
 from fmpy import calloc, extract, free, read_model_description
@@ -288,6 +289,17 @@ def test_outputs_have_no_start_and_are_calculated(md, name):
     for v in md[name].modelVariables:
         if v.causality == "output":
             assert (v.name, v.initial, v.start) == (v.name, "calculated", None)
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", NAMES)
+def test_model_description_needs_no_execution_tool_in_either_interface(fmu_paths, fmu3_paths, version, name):
+    """FMI's needsExecutionTool: "a tool is needed to execute the model and the FMU just contains the
+    communication to this tool". Ours carry the model and the code that runs it (docs/other-tools.md)."""
+    with zipfile.ZipFile((fmu_paths if version == 2 else fmu3_paths)[name]) as fmu:
+        root = ElementTree.fromstring(fmu.read("modelDescription.xml"))
+    declared = {tag: root.find(tag).get("needsExecutionTool") for tag in ("CoSimulation", "ModelExchange")}
+    assert declared == {"CoSimulation": "false", "ModelExchange": "false"}
 
 
 @pytest.mark.parametrize("name", NAMES)

@@ -1,4 +1,5 @@
-"""The ``documentation/index.html`` of each FMU, written at build time from its model description."""
+"""The ``documentation/index.html`` of each FMU, written at build time from its model description, and
+what the importing machine needs (``documentation/externalDependencies.txt`` too)."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ from xml.etree import ElementTree as ET
 
 from ..registry import CONTROLLER, PLANT, REFERENCE
 
-__all__ = ["PAPER", "EQUATIONS", "documentation_html"]
+__all__ = ["PAPER", "EQUATIONS", "REQUIREMENTS", "documentation_html"]
 
 PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering actuator dynamics", '
          "a dynamic surface control (DSC) design; equation numbers below are the paper's.")
@@ -71,6 +72,17 @@ With start_on = 1 (valid_inputs) the controller waits with u = 0 until every inp
 masters without an initial exchange) and starts from the first valid inputs; output started.""",
 }
 
+# What the importing machine needs (docs/other-tools.md, "What the importing machine needs"): the page's
+# Requirements and the FMU's documentation/externalDependencies.txt.
+REQUIREMENTS = (
+    "The FMU needs no execution tool (needsExecutionTool = false): it carries the model and the Python code "
+    "that runs it (standard library only), and its binary loads CPython as a library. The importing machine "
+    "needs x86-64 Linux or Windows and a 64-bit CPython 3.9 or newer, which the FMU finds by itself: a "
+    "CPython already in the process, DSC_FMU_PYTHON naming a CPython's folder or shared library "
+    "(libpython3.X.so.1.0 on Linux, python3X.dll on Windows), the Python that built the FMU, then the "
+    "system's (on Linux the dynamic loader's search, on Windows the PEP 514 registrations and PATH). If none "
+    "serves, instantiation fails with one message naming every place it looked.")
+
 _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:collapse}td,th{border:1px solid #999;padding:2px 6px}"
 
 
@@ -131,8 +143,7 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
         "<h2>Default experiment</h2>",
         f"<p>{escape(experiment_text)} (times in s)</p>",
         "<h2>Requirements</h2>",
-        "<p>The FMU runs Python code it carries (standard library only) and needs a CPython of the same minor "
-        "version as the one that built it on the importing machine.</p>",
+        f"<p>{escape(REQUIREMENTS)}</p>",
         "</body>",
         "</html>",
         "",

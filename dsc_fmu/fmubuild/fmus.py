@@ -10,6 +10,7 @@ import re
 import shutil
 import sys
 import tempfile
+import textwrap
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -27,6 +28,7 @@ from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, com
 from .folders import (
     DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir,
 )
+from .documentation import REQUIREMENTS
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -37,6 +39,8 @@ __all__ = [
 PACKAGE_DIR = Path(__file__).parents[1]
 ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
+# FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
+DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
 _FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
@@ -170,19 +174,21 @@ def _slave_class_named(class_name: str):
 
 
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_version: int) -> Path:
-    """The FMU as the FMI library builds it from the staged script and package."""
+    """The FMU as the FMI library builds it from the staged script and package. It needs no execution
+    tool: it carries the model and the code that runs it and loads CPython as a library
+    (``documentation.REQUIREMENTS``)."""
     if fmi_version == 3:
         from pythonfmu3 import FmuBuilder as Fmu3Builder
 
         with _slave_class_named(spec.name):
             return Fmu3Builder.build_FMU(
                 script, dest=dest, project_files=[package_dir],
-                needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+                needsExecutionTool="false", canHandleVariableCommunicationStepSize="true",
                 canGetAndSetFMUState="true", canSerializeFMUState="true",
             )
     return FmuBuilder.build_FMU(
         script, dest=dest, project_files=[package_dir],
-        needsExecutionTool="true", canHandleVariableCommunicationStepSize="true",
+        needsExecutionTool="false", canHandleVariableCommunicationStepSize="true",
         canGetAndSetFMUstate="true", canSerializeFMUstate="true",
     )
 
@@ -246,6 +252,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
                     ET.indent(root)
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
                     dst.writestr(DOCUMENTATION_FILE, documentation(root, spec))
+                    dst.writestr(DEPENDENCIES_FILE, textwrap.fill(REQUIREMENTS, 100) + "\n")
                     dst.writestr(ENTRY_FILE, _entry(root, script, package_dir, spec))
                 if item.filename != DOCUMENTATION_FILE:
                     name, data = _private(item.filename, data, package_dir.name, _LIBRARY[fmi_version])

@@ -122,7 +122,7 @@ def _model_description(scenario: Scenario, descriptions: dict, model_variables: 
                     f"fmpy container, Jacobi coupling at a fixed internal step of {h!r} s",
         defaultExperiment=DefaultExperiment(startTime="0.0", stopTime=repr(float(stop)), stepSize=repr(float(h))),
         coSimulation=CoSimulation(modelIdentifier="container_fmu", fixedInternalStepSize=h,
-                                  needsExecutionTool=True),
+                                  needsExecutionTool=False),  # as its components (docs/other-tools.md)
         modelVariables=model_variables,
         unitDefinitions=list({unit.name: unit for md in descriptions.values() for unit in md.unitDefinitions}.values()),
     )
