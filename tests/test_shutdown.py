@@ -1,13 +1,18 @@
 """Instances freed while the host's CPython shuts down: Python hosts that keep an FMU in a module global to
 the very end and free it from a deallocator (as PyFMI's Cython objects do: terminate, then free), through
-fmpy and through ctypes alone. The binary then releases C memory only: nothing is logged as an error and
-the process exits 0."""
+fmpy and through ctypes alone; and a C host that embeds CPython and frees them once it has finalized. The
+binary then releases C memory only: nothing is logged as an error and the process exits 0."""
 
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
 import pytest
+
+from c_hosts import EMPTY_ENVIRONMENT, compile_c, run_c
+from test_real_hosts import unzipped
+from wine import required
 
 HERE = Path(__file__).parent
 ERROR = 3  # fmi2Error, fmi3Error; fatal is 4
@@ -147,3 +152,32 @@ def test_ctypes_host_frees_at_interpreter_shutdown(fmu_paths, fmu3_paths, tmp_pa
                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert "held to the end" in run.stdout, run.stderr[-3000:]
     assert_freed_quietly(run, 2)
+
+
+@pytest.fixture(scope="module")
+def c_finalized(tmp_path_factory):
+    return compile_c("c_finalized.c", tmp_path_factory.mktemp("c") / "c_finalized")
+
+
+def embedded_cpython() -> tuple[Path, Path]:
+    """The shared library and home of the CPython this suite runs on, for a C host to embed."""
+    library = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("INSTSONAME")
+    if not library.is_file():
+        required(f"no shared CPython library {library} to embed")
+    return library, Path(sys.base_prefix)
+
+
+@pytest.mark.parametrize("when", ("after", "atexit"))
+@pytest.mark.parametrize("version", (2, 3))
+def test_a_c_host_frees_after_its_python_finalized(c_finalized, fmu_paths, fmu3_paths, tmp_path, version, when):
+    """A C application that embeds CPython frees a co-simulation and a model-exchange instance and their FMU
+    states once that Python has finalized: after ``Py_FinalizeEx`` returned, or from a function
+    ``Py_AtExit`` registered (Py_FinalizeEx calls it last). No crash, no message of error status."""
+    library, home = embedded_cpython()
+    folder, _, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["MobileRobot"], tmp_path / "fmu")
+    run = run_c([c_finalized, library, version, folder, "MobileRobot", token, when], tmp_path,
+                {**EMPTY_ENVIRONMENT, "PYTHONHOME": str(home)}, timeout=300)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    assert run.stdout.splitlines()[-1] == "freed"
+    statuses = [int(line[1:line.index("]")]) for line in run.stdout.splitlines() if line.startswith("[")]
+    assert all(status < ERROR for status in statuses), run.stdout
