@@ -6,16 +6,14 @@
    PYTHONHOME), loads the FMU in UNZIPPED_DIR and makes a co-simulation and a model-exchange instance,
    each initialised and with an FMU state; then finalizes Python and frees the FMU states and the
    instances: after Py_FinalizeEx returned (WHEN "after") or from a function Py_AtExit registered,
-   which Py_FinalizeEx calls last (WHEN "atexit"). Prints the FMU's messages as "[status] message"
-   and "freed" once done; exits 1 on the first failing call. Linux only. */
+   which Py_FinalizeEx calls last (WHEN "atexit"). The FMU's messages go to stderr (fmi_host.h's
+   loggers); "freed" to stdout once done. Exits 1 on the first failing call. Linux only. */
 
-#include <dlfcn.h>
 #include <stdio.h>
 #include <stdlib.h>
 #include <string.h>
 
-#include "fmi2Functions.h"
-#include "fmi3Functions.h"
+#include "fmi_host.h"
 
 enum { INSTANCES = 2 };
 
@@ -25,7 +23,7 @@ static void *instances[INSTANCES];
 static void *states[INSTANCES];
 
 static void *symbol(void *from, const char *name) {
-    void *address = dlsym(from, name);
+    void *address = host_symbol(from, name);
     if (!address) {
         fprintf(stderr, "missing %s\n", name);
         exit(1);
@@ -33,28 +31,10 @@ static void *symbol(void *from, const char *name) {
     return address;
 }
 
-static void check(int status, const char *call) {
-    if (status > 1) {
-        fprintf(stderr, "%s failed with status %d\n", call, status);
-        exit(1);
-    }
-}
-
-static void logger2(fmi2ComponentEnvironment env, fmi2String instance, fmi2Status status, fmi2String category,
-                    fmi2String message, ...) {
-    printf("[%d] %s\n", status, message);
-    fflush(stdout);
-}
-
-static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String category, fmi3String message) {
-    printf("[%d] %s\n", status, message);
-    fflush(stdout);
-}
-
 static void *start2(const char *dir, const char *model, const char *guid, int model_exchange) {
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
     char resources[4096];
-    snprintf(resources, sizeof resources, "file://%s/resources", dir);
+    snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
     void *c = ((fmi2InstantiateTYPE *)symbol(library, "fmi2Instantiate"))(
         model, model_exchange ? fmi2ModelExchange : fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
     if (!c) exit(1);
@@ -112,10 +92,11 @@ int main(int argc, char **argv) {
     ((void (*)(int))symbol(python, "Py_InitializeEx"))(0);
     version = atoi(argv[2]);
     char path[4096];
-    snprintf(path, sizeof path, "%s/binaries/%s/%s.so", argv[3], version == 3 ? "x86_64-linux" : "linux64", argv[4]);
-    library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    snprintf(path, sizeof path, "%s/binaries/%s/%s" HOST_SUFFIX, argv[3], version == 3 ? HOST_FOLDER3 : HOST_FOLDER2,
+             argv[4]);
+    library = host_load(path);
     if (!library) {
-        fprintf(stderr, "cannot load %s\n", dlerror());
+        fprintf(stderr, "cannot load %s\n", host_error());
         return 1;
     }
     for (int i = 0; i < INSTANCES; i++) {

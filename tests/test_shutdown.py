@@ -179,5 +179,5 @@ def test_a_c_host_frees_after_its_python_finalized(c_finalized, fmu_paths, fmu3_
                 {**EMPTY_ENVIRONMENT, "PYTHONHOME": str(home)}, timeout=300)
     assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
     assert run.stdout.splitlines()[-1] == "freed"
-    statuses = [int(line[1:line.index("]")]) for line in run.stdout.splitlines() if line.startswith("[")]
-    assert all(status < ERROR for status in statuses), run.stdout
+    statuses = [int(line[1:line.index("]")].split()[-1]) for line in run.stderr.splitlines() if line.startswith("[")]
+    assert all(status < ERROR for status in statuses), run.stderr
