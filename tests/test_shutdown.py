@@ -1,7 +1,8 @@
 """Instances freed while the host's CPython shuts down: Python hosts that keep an FMU in a module global to
 the very end and free it from a deallocator (as PyFMI's Cython objects do: terminate, then free), through
-fmpy and through ctypes alone; and a C host that embeds CPython and frees them once it has finalized. The
-binary then releases C memory only: nothing is logged as an error and the process exits 0."""
+fmpy and through ctypes alone (in CPython 3.9 to 3.13); and a C host that embeds CPython and frees them once
+it has finalized. The binary then releases C memory only: nothing is logged as an error and the process
+exits 0."""
 
 import subprocess
 import sys
@@ -11,10 +12,12 @@ from pathlib import Path
 import pytest
 
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, run_c
+from test_c_importer import OTHER_MINORS, cpython_home, shared_cpython
 from test_real_hosts import unzipped
 from wine import required
 
 HERE = Path(__file__).parent
+MINORS = sorted({*OTHER_MINORS, sys.version_info.minor})  # the oldest CPython the FMUs take, this one, newer ones
 ERROR = 3  # fmi2Error, fmi3Error; fatal is 4
 
 # Shared by both hosts: a logger that writes each message at once (its line survives the host's end) and
@@ -111,6 +114,7 @@ for model_exchange in (False, True):
     calls.append((terminate, free_state, free, slave.instance, ctypes.byref(state)))
     kept.append((slave, state))
 holder = Holder(calls)
+say("the model code runs in this interpreter: %s" % any(name.startswith("dsc_fmu_") for name in sys.modules))
 say("held to the end")
 """
 
@@ -139,18 +143,25 @@ def test_fmpy_host_frees_at_interpreter_shutdown(fmu_paths, fmu3_paths, tmp_path
     assert_freed_quietly(run, 2)
 
 
+@pytest.mark.parametrize("minor", MINORS, ids=lambda minor: f"3.{minor}")
 @pytest.mark.parametrize("version", (2, 3))
-def test_ctypes_host_frees_at_interpreter_shutdown(fmu_paths, fmu3_paths, tmp_path, version):
-    """A host on ctypes alone (as FMI Library's C calls are to PyFMI), with no fmpy imported: a
-    co-simulation and a model-exchange instance kept to the end, freed by a deallocator during
-    interpreter shutdown."""
+def test_ctypes_host_frees_at_interpreter_shutdown(fmu_paths, fmu3_paths, tmp_path, version, minor):
+    """A host on ctypes alone (as FMI Library's C calls are to PyFMI), in each CPython the FMUs take (whose
+    ``Py_IsFinalizing`` is public from 3.13, ``_Py_IsFinalizing`` before): a co-simulation and a
+    model-exchange instance kept to the end, freed by a deallocator during interpreter shutdown. The
+    binary uses the host's Python, whatever its minor version."""
     from fmpy import extract
 
+    python = cpython_home(minor) / "bin" / f"python3.{minor}"
+    python = Path(sys.executable) if minor == sys.version_info.minor else python
+    if not python.is_file():
+        required(f"no {python}")
     path = (fmu3_paths if version == 3 else fmu_paths)["ReferenceRobot"]
     folder = extract(str(path), unzipdir=tmp_path / "fmu")
-    run = subprocess.run([sys.executable, "-I", "-c", CTYPES_HOST, str(HERE / "fmi_ctypes.py"), str(version), folder],
+    run = subprocess.run([str(python), "-I", "-c", CTYPES_HOST, str(HERE / "fmi_ctypes.py"), str(version), folder],
                          cwd=tmp_path, capture_output=True, text=True, timeout=300)
     assert "held to the end" in run.stdout, run.stderr[-3000:]
+    assert "the model code runs in this interpreter: True" in run.stdout
     assert_freed_quietly(run, 2)
 
 
@@ -159,8 +170,11 @@ def c_finalized(tmp_path_factory):
     return compile_c("c_finalized.c", tmp_path_factory.mktemp("c") / "c_finalized")
 
 
-def embedded_cpython() -> tuple[Path, Path]:
-    """The shared library and home of the CPython this suite runs on, for a C host to embed."""
+def embedded_cpython(minor: int) -> tuple[Path, Path]:
+    """The shared library and home of CPython 3.``minor`` for a C host to embed: the one this suite runs on,
+    or an installed one."""
+    if minor != sys.version_info.minor:
+        return shared_cpython(minor), cpython_home(minor)
     library = Path(sysconfig.get_config_var("LIBDIR")) / sysconfig.get_config_var("INSTSONAME")
     if not library.is_file():
         required(f"no shared CPython library {library} to embed")
@@ -168,12 +182,15 @@ def embedded_cpython() -> tuple[Path, Path]:
 
 
 @pytest.mark.parametrize("when", ("after", "atexit"))
+@pytest.mark.parametrize("minor", MINORS, ids=lambda minor: f"3.{minor}")
 @pytest.mark.parametrize("version", (2, 3))
-def test_a_c_host_frees_after_its_python_finalized(c_finalized, fmu_paths, fmu3_paths, tmp_path, version, when):
-    """A C application that embeds CPython frees a co-simulation and a model-exchange instance and their FMU
-    states once that Python has finalized: after ``Py_FinalizeEx`` returned, or from a function
-    ``Py_AtExit`` registered (Py_FinalizeEx calls it last). No crash, no message of error status."""
-    library, home = embedded_cpython()
+def test_a_c_host_frees_after_its_python_finalized(c_finalized, fmu_paths, fmu3_paths, tmp_path, version, minor,
+                                                   when):
+    """A C application that embeds CPython (each the FMUs take) frees a co-simulation and a model-exchange
+    instance and their FMU states once that Python has finalized: after ``Py_FinalizeEx`` returned, or from
+    a function ``Py_AtExit`` registered (Py_FinalizeEx calls it last). No crash, no message of error
+    status."""
+    library, home = embedded_cpython(minor)
     folder, _, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["MobileRobot"], tmp_path / "fmu")
     run = run_c([c_finalized, library, version, folder, "MobileRobot", token, when], tmp_path,
                 {**EMPTY_ENVIRONMENT, "PYTHONHOME": str(home)}, timeout=300)
