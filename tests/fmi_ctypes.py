@@ -8,6 +8,8 @@ It extracts an FMU with ``zipfile``, reads ``modelDescription.xml`` with ``xml.e
 ``binaries/<platform>/<modelIdentifier>.<ext>`` and calls the FMI C API.
 """
 
+from __future__ import annotations  # its annotations are read by CPython 3.9 too
+
 import ctypes
 import os
 import platform

@@ -12,6 +12,7 @@ from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
 
 from ..errors import CosimulationError
+from ..models.parameters import DEFAULT_TOLERANCE
 from ..registry import ORDER
 from ..scenario import Interface, Scenario, ScenarioError
 from .instance import LogMessage, failed_call
@@ -25,9 +26,6 @@ __all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
 METHOD = "DOP853"
 """The integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
 monolithic reference solution uses."""
-
-DEFAULT_TOLERANCE = 1e-6
-"""The relative tolerance when the scenario gives none; each state's absolute tolerance is this times its nominal."""
 
 _PAST_EVENT = 1e-9  # s: an event is handled this far past the root the solver found, on the step's interpolant
 

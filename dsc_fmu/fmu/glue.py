@@ -1,7 +1,7 @@
 """One slave glue over FMI 2.0 and 3.0: ``SlaveCore`` registered through an FMI library's names.
 
 Bundled into every FMU beside ``slave_core``, ``slave_models`` and ``models``; imports only the standard
-library and ``slave_core``. The FMI library comes as a table of its names (``FmiLibrary``): ``fmi2`` makes it from
+library, ``slave_core`` and ``models``. The FMI library comes as a table of its names (``FmiLibrary``): ``fmi2`` makes it from
 pythonfmu, ``fmi3`` from pythonfmu3, and an FMU carries the one module of its FMI version.
 """
 
@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from ..models.parameters import DEFAULT_TOLERANCE
 from .slave_core import SlaveCore
 
 __all__ = ["FmiLibrary", "SlaveGlue"]
@@ -80,7 +81,8 @@ class SlaveGlue(SlaveCore):
         # The FMI library's __init__ sets these to None on the instance.
         self.description = type(self).description
         self.author = "dsc-fmu"
-        self.default_experiment = library.default_experiment(start_time=0.0, stop_time=30.0, step_size=1e-3)
+        self.default_experiment = library.default_experiment(start_time=0.0, stop_time=30.0, step_size=1e-3,
+                                                             tolerance=DEFAULT_TOLERANCE)
         if library.independent_time:
             self.register_variable(library.float(
                 "time", causality=library.causality.independent, variability=library.variability.continuous,

@@ -19,6 +19,7 @@ __all__ = [
     "DISCRETIZATIONS",
     "START_ON",
     "INPUT_COUPLINGS",
+    "DEFAULT_TOLERANCE",
     "defaults",
 ]
 
@@ -130,6 +131,11 @@ def _per_wheel(name, value, unit, what, bound=POSITIVE):
 # (linearly from the inputs of the previous communication point to those set for this step's start),
 # 2 = interpolate (the inputs set are those of the step's end, the previous ones those of its start).
 INPUT_COUPLINGS = ("hold", "extrapolate", "interpolate")
+
+DEFAULT_TOLERANCE = 1e-6
+"""The relative tolerance of model exchange where none is given: the project's model-exchange runs measure
+at it (each state's absolute tolerance is this times its nominal), and every FMU's DefaultExperiment
+declares it."""
 
 MAX_STEP = Variable(
     "max_step", 1e-3, "s",

@@ -43,8 +43,10 @@ int platform_share_symbols(const char *path, char *error, size_t size) {
     return -1;
 }
 
+/* The process's global scope (the program and the libraries loaded global), whose handle is not
+   RTLD_DEFAULT: glibc's RTLD_DEFAULT is NULL, the answer for none. */
 Library platform_loaded_with(const char *name) {
-    return dlsym(RTLD_DEFAULT, name) ? RTLD_DEFAULT : NULL;
+    return dlsym(RTLD_DEFAULT, name) ? dlopen(NULL, RTLD_NOW) : NULL;
 }
 
 int platform_library_file(const void *address, char *path, size_t size) {

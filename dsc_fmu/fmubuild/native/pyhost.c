@@ -391,15 +391,17 @@ static void free_ended(Ended *list) {
     }
 }
 
+int pyhost_alive(void) {
+    return py.Py_IsInitialized() && !(is_finalizing && is_finalizing()) && py.PyInterpreterState_Main() == interpreter;
+}
+
 /* Delete the thread states in `list` (their threads have ended) and free the list. The reaper takes
    the GIL with a thread state of its own for the batch and never uses PyGILState: since 3.12,
    deleting another thread's state unbinds the deleting thread's own, so every state is cleared
    (which may run Python code) before any is deleted. Nothing is touched while Python finalizes or
    after it was started anew (the states belong to an interpreter that is gone). */
 static void delete_ended(Ended *list) {
-    int alive = py.Py_IsInitialized() && !(is_finalizing && is_finalizing()) &&
-                py.PyInterpreterState_Main() == interpreter;
-    PyThreadState *own = alive ? py.PyThreadState_New(interpreter) : NULL;
+    PyThreadState *own = pyhost_alive() ? py.PyThreadState_New(interpreter) : NULL;
     if (own) {
         py.PyEval_RestoreThread(own);
         for (Ended *e = list; e; e = e->next) py.PyThreadState_Clear(e->state);

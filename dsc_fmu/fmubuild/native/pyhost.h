@@ -95,6 +95,12 @@ extern PyApi py;
    call). A Python that fails to start is such a failure, never an exit of the process. */
 int pyhost_start(char *error, size_t size);
 
+/* Whether the Python this binary started or adopted can still run code: it is initialised, not finalizing
+   (module teardown, where a host's destructors free instances), and still the interpreter whose objects the
+   binary holds, not one started anew after it was finalized. Needs no GIL; the binary's Python objects must
+   not be touched where it is 0. */
+int pyhost_alive(void);
+
 /* Take the GIL from any thread, known to Python or not. A thread Python does not know gets a thread
    state that it keeps until it ends; then the state is deleted. */
 PyGILState_STATE pyhost_enter(void);

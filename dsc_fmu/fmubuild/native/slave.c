@@ -298,8 +298,21 @@ int slave_create(Slave *s, const char *resources, const char *token, int visible
     return result;
 }
 
+/* Let go of the slave's Python objects without touching them: the interpreter they belong to is
+   finalizing or gone (a host that frees its instances from destructors at exit), its import system
+   torn down, and its objects go with it. */
+static void abandon_python(Slave *s) {
+    memset(s->bound, 0, sizeof s->bound);
+    s->log_queue = NULL;
+    s->slave = NULL;
+    s->bridge = NULL;
+}
+
 void slave_free(Slave *s) {
-    if (s->bridge || s->slave || s->log_queue) {
+    int holds_python = s->bridge || s->slave || s->log_queue;
+    if (holds_python && !pyhost_alive()) {
+        abandon_python(s);
+    } else if (holds_python) {
         PyGILState_STATE gil = pyhost_enter();
         clear_slave(s);
         if (s->bridge) {

@@ -97,6 +97,8 @@ void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context
    whose resources folder is `resources` (a path). 0, or -1 after logging why (the Slave is then
    empty). */
 int slave_create(Slave *s, const char *resources, const char *token, int visible);
+/* Release the slave's Python objects, then its C memory. While the host's Python finalizes, or once it
+   has (pyhost_alive), only the C memory: nothing is logged and no Python object is touched. */
 void slave_free(Slave *s);
 
 /* A new Python slave in place of the current one (fmiReset). */
@@ -134,6 +136,7 @@ int slave_get_double(Slave *s, const char *attribute, double *value);
 /* FMU states: opaque Python objects owned by the caller. */
 int slave_get_state(Slave *s, PyObject **state);
 int slave_set_state(Slave *s, PyObject *state);
+/* Release an FMU state; nothing while the host's Python finalizes or once it has (pyhost_alive). */
 void slave_release(PyObject *object);
 int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size);
 int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state);

@@ -21,7 +21,7 @@ int slave_set_state(Slave *s, PyObject *state) {
 }
 
 void slave_release(PyObject *object) {
-    if (!object) return;
+    if (!object || !pyhost_alive()) return;
     PyGILState_STATE gil = pyhost_enter();
     py.Py_DecRef(object);
     pyhost_leave(gil);
