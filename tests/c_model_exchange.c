@@ -5,7 +5,10 @@
    event iteration and integrates its NX states with classical RK4 at STEP_SIZE for STEPS steps; after
    each step it reads the NZ event indicators and, where one changed sign, enters event mode and iterates.
    Prints "time,value,..." with the given Real (Float64) value references at t = 0 and after every step,
-   then "events,N"; exits 1 with a message on the first failing call, 2 if the instantiation returns NULL. */
+   then "events,N"; exits 1 with a message on the first failing call, 2 if the instantiation returns NULL.
+   With STATE_VRS set (the states' value references, comma-separated, in the order of the state vector), it
+   sets the states by value reference (fmi2SetReal / fmi3SetFloat64), as PyFMI does, instead of with
+   fmi2SetContinuousStates / fmi3SetContinuousStates. */
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -15,6 +18,7 @@
 static void *library;
 static void *instance;
 static int version;
+static unsigned int *state_vrs; /* NULL: the states are set with fmiSetContinuousStates */
 
 static void *symbol(const char *name) {
     void *address = host_symbol(library, name);
@@ -84,11 +88,32 @@ static void iterate(void) {
           fmi3EnterContinuousTimeMode);
 }
 
+/* The states x: by value reference if STATE_VRS gave them, else as the state vector. */
+static void set_states(const double *x, size_t nx) {
+    if (!state_vrs) {
+        CALL(fmi2SetContinuousStatesTYPE, fmi2SetContinuousStates, fmi3SetContinuousStatesTYPE,
+             fmi3SetContinuousStates, x, nx);
+    } else if (version == 3) {
+        check(((fmi3SetFloat64TYPE *)symbol("fmi3SetFloat64"))(instance, state_vrs, nx, x, nx), "fmi3SetFloat64");
+    } else {
+        check(((fmi2SetRealTYPE *)symbol("fmi2SetReal"))(instance, state_vrs, nx, x), "fmi2SetReal");
+    }
+}
+
+/* The value references of STATE_VRS, nx of them, or NULL if it is not set. */
+static unsigned int *read_state_vrs(size_t nx) {
+    const char *text = getenv("STATE_VRS");
+    if (!text) return NULL;
+    unsigned int *vrs = calloc(nx + 1, sizeof *vrs);
+    char *end;
+    for (size_t i = 0; i < nx; i++, text = end + (*end == ',')) vrs[i] = (unsigned int)strtoul(text, &end, 10);
+    return vrs;
+}
+
 /* The derivatives at time t and states x. */
 static void derivatives(double t, const double *x, double *dx, size_t nx) {
     CALL(fmi2SetTimeTYPE, fmi2SetTime, fmi3SetTimeTYPE, fmi3SetTime, t);
-    CALL(fmi2SetContinuousStatesTYPE, fmi2SetContinuousStates, fmi3SetContinuousStatesTYPE, fmi3SetContinuousStates,
-         x, nx);
+    set_states(x, nx);
     CALL(fmi2GetDerivativesTYPE, fmi2GetDerivatives, fmi3GetContinuousStateDerivativesTYPE,
          fmi3GetContinuousStateDerivatives, dx, nx);
 }
@@ -141,6 +166,7 @@ int main(int argc, char **argv) {
         fprintf(stderr, "cannot load %s\n", host_error());
         return 1;
     }
+    state_vrs = read_state_vrs(nx);
     int started = start(dir, model, guid);
     if (started) return started;
     iterate();
@@ -158,8 +184,7 @@ int main(int argc, char **argv) {
         double t = s * h, end = (s + 1) * h;
         rk4(t, h, x, nx, k, y);
         CALL(fmi2SetTimeTYPE, fmi2SetTime, fmi3SetTimeTYPE, fmi3SetTime, end);
-        CALL(fmi2SetContinuousStatesTYPE, fmi2SetContinuousStates, fmi3SetContinuousStatesTYPE,
-             fmi3SetContinuousStates, x, nx);
+        set_states(x, nx);
         if (version == 3) {
             fmi3Boolean enter, terminate;
             check(((fmi3CompletedIntegratorStepTYPE *)symbol("fmi3CompletedIntegratorStep"))(
