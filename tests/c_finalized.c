@@ -4,8 +4,8 @@
    usage: c_finalized LIBPYTHON FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER TOKEN WHEN
    Loads LIBPYTHON (global, as an embedding application links it) and starts it (its home from
    PYTHONHOME), loads the FMU in UNZIPPED_DIR and makes a co-simulation and a model-exchange instance,
-   each initialised and with an FMU state; then finalizes Python and frees the FMU states and the
-   instances: after Py_FinalizeEx returned (WHEN "after") or from a function Py_AtExit registered,
+   each initialised and with an FMU state; then finalizes Python, terminates the instances and frees
+   the FMU states and the instances: after Py_FinalizeEx returned (WHEN "after") or from a function Py_AtExit registered,
    which Py_FinalizeEx calls last (WHEN "atexit"). The FMU's messages go to stderr (fmi_host.h's
    loggers); "freed" to stdout once done. Exits 1 on the first failing call. Linux only. */
 
@@ -66,10 +66,12 @@ static void *start3(const char *dir, const char *model, const char *token, int m
 static void free_all(void) {
     for (int i = 0; i < INSTANCES; i++) {
         if (version == 3) {
+            check(((fmi3TerminateTYPE *)symbol(library, "fmi3Terminate"))(instances[i]), "fmi3Terminate");
             check(((fmi3FreeFMUStateTYPE *)symbol(library, "fmi3FreeFMUState"))(instances[i], &states[i]),
                   "fmi3FreeFMUState");
             ((fmi3FreeInstanceTYPE *)symbol(library, "fmi3FreeInstance"))(instances[i]);
         } else {
+            check(((fmi2TerminateTYPE *)symbol(library, "fmi2Terminate"))(instances[i]), "fmi2Terminate");
             check(((fmi2FreeFMUstateTYPE *)symbol(library, "fmi2FreeFMUstate"))(instances[i], &states[i]),
                   "fmi2FreeFMUstate");
             ((fmi2FreeInstanceTYPE *)symbol(library, "fmi2FreeInstance"))(instances[i]);

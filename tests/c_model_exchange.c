@@ -100,13 +100,21 @@ static void set_states(const double *x, size_t nx) {
     }
 }
 
-/* The value references of STATE_VRS, nx of them, or NULL if it is not set. */
+/* The value references of STATE_VRS, nx of them, or NULL if it is not set; exits 1 if it holds other than nx. */
 static unsigned int *read_state_vrs(size_t nx) {
     const char *text = getenv("STATE_VRS");
     if (!text) return NULL;
     unsigned int *vrs = calloc(nx + 1, sizeof *vrs);
-    char *end;
-    for (size_t i = 0; i < nx; i++, text = end + (*end == ',')) vrs[i] = (unsigned int)strtoul(text, &end, 10);
+    char *end = (char *)text;
+    size_t i = 0;
+    for (; vrs && i < nx && *text; i++, text = end + (*end == ',')) {
+        vrs[i] = (unsigned int)strtoul(text, &end, 10);
+        if (end == text) break;
+    }
+    if (!vrs || i != nx || *end) {
+        fprintf(stderr, "STATE_VRS = %s: not %zu value references\n", getenv("STATE_VRS"), nx);
+        exit(1);
+    }
     return vrs;
 }
 

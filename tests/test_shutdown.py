@@ -1,6 +1,6 @@
 """Instances freed while the host's CPython shuts down: Python hosts that keep an FMU in a module global to
 the very end and free it from a deallocator (as PyFMI's Cython objects do: terminate, then free), through
-fmpy and through ctypes alone (in CPython 3.9 to 3.13); and a C host that embeds CPython and frees them once
+fmpy and through ctypes alone (in CPython 3.9, 3.11, 3.12, 3.13); and a C host that embeds CPython and frees them once
 it has finalized. The binary then releases C memory only: nothing is logged as an error and the process
 exits 0."""
 
@@ -186,10 +186,10 @@ def embedded_cpython(minor: int) -> tuple[Path, Path]:
 @pytest.mark.parametrize("version", (2, 3))
 def test_a_c_host_frees_after_its_python_finalized(c_finalized, fmu_paths, fmu3_paths, tmp_path, version, minor,
                                                    when):
-    """A C application that embeds CPython (each the FMUs take) frees a co-simulation and a model-exchange
-    instance and their FMU states once that Python has finalized: after ``Py_FinalizeEx`` returned, or from
-    a function ``Py_AtExit`` registered (Py_FinalizeEx calls it last). No crash, no message of error
-    status."""
+    """A C application that embeds CPython (each the FMUs take) terminates and frees a co-simulation and a
+    model-exchange instance and frees their FMU states once that Python has finalized: after
+    ``Py_FinalizeEx`` returned, or from a function ``Py_AtExit`` registered (Py_FinalizeEx calls it last).
+    No crash, no message of error status."""
     library, home = embedded_cpython(minor)
     folder, _, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["MobileRobot"], tmp_path / "fmu")
     run = run_c([c_finalized, library, version, folder, "MobileRobot", token, when], tmp_path,

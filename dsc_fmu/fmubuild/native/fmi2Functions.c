@@ -124,7 +124,7 @@ fmi2Status fmi2SetRealInputDerivatives(fmi2Component c, const fmi2ValueReference
 
 fmi2Status fmi2Terminate(fmi2Component c) {
     BEGIN(fmi2Terminate);
-    END(instance_call(instance, "terminate", 0, NULL, NULL, Terminated));
+    END(instance_terminate(instance));
 }
 
 fmi2Status fmi2Reset(fmi2Component c) {

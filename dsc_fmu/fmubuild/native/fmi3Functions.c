@@ -146,7 +146,7 @@ fmi3Status fmi3ExitInitializationMode(fmi3Instance c) {
 
 fmi3Status fmi3Terminate(fmi3Instance c) {
     BEGIN(fmi3Terminate);
-    END(instance_call(instance, "terminate", 0, NULL, NULL, Terminated));
+    END(instance_terminate(instance));
 }
 
 fmi3Status fmi3Reset(fmi3Instance c) {

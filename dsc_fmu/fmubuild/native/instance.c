@@ -148,6 +148,14 @@ int instance_call(Instance *instance, const char *method, int n, const double *v
     return settle(instance, slave_call(&instance->slave, method, n, values, defined), next);
 }
 
+int instance_terminate(Instance *instance) {
+    if (!pyhost_alive()) { /* the host's CPython finalizes or has: nothing to run */
+        instance->state = Terminated;
+        return STATUS_OK;
+    }
+    return instance_call(instance, "terminate", 0, NULL, NULL, Terminated);
+}
+
 int instance_reset(Instance *instance) {
     return settle(instance, slave_reset(&instance->slave), Instantiated);
 }

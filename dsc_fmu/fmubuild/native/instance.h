@@ -90,6 +90,9 @@ int instance_status(Instance *instance, int status);
 
 /* setup, enter, exit, terminate: call `method` with `n` floats; on success the state becomes `next`. */
 int instance_call(Instance *instance, const char *method, int n, const double *values, const int *defined, int next);
+/* Terminate: the slave's terminate, or, while the host's CPython finalizes or once it has (pyhost_alive),
+   only the state Terminated (no Python object is touched). */
+int instance_terminate(Instance *instance);
 int instance_reset(Instance *instance);
 /* exit_initialization_mode; in model exchange the state then stops following the inputs and the
    instance enters event mode, in co-simulation step mode. */
