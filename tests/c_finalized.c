@@ -22,27 +22,18 @@ static int version;
 static void *instances[INSTANCES];
 static void *states[INSTANCES];
 
-static void *symbol(void *from, const char *name) {
-    void *address = host_symbol(from, name);
-    if (!address) {
-        fprintf(stderr, "missing %s\n", name);
-        exit(1);
-    }
-    return address;
-}
-
 static void *start2(const char *dir, const char *model, const char *guid, int model_exchange) {
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
     char resources[4096];
     snprintf(resources, sizeof resources, HOST_RESOURCES_URI, dir);
-    void *c = ((fmi2InstantiateTYPE *)symbol(library, "fmi2Instantiate"))(
+    void *c = ((fmi2InstantiateTYPE *)host_require(library, "fmi2Instantiate"))(
         model, model_exchange ? fmi2ModelExchange : fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
     if (!c) exit(1);
-    check(((fmi2SetupExperimentTYPE *)symbol(library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0),
+    check(((fmi2SetupExperimentTYPE *)host_require(library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0),
           "fmi2SetupExperiment");
-    check(((fmi2EnterInitializationModeTYPE *)symbol(library, "fmi2EnterInitializationMode"))(c),
+    check(((fmi2EnterInitializationModeTYPE *)host_require(library, "fmi2EnterInitializationMode"))(c),
           "fmi2EnterInitializationMode");
-    check(((fmi2ExitInitializationModeTYPE *)symbol(library, "fmi2ExitInitializationMode"))(c),
+    check(((fmi2ExitInitializationModeTYPE *)host_require(library, "fmi2ExitInitializationMode"))(c),
           "fmi2ExitInitializationMode");
     return c;
 }
@@ -51,14 +42,14 @@ static void *start3(const char *dir, const char *model, const char *token, int m
     char resources[4096];
     snprintf(resources, sizeof resources, "%s/resources/", dir);
     void *c = model_exchange
-        ? ((fmi3InstantiateModelExchangeTYPE *)symbol(library, "fmi3InstantiateModelExchange"))(
+        ? ((fmi3InstantiateModelExchangeTYPE *)host_require(library, "fmi3InstantiateModelExchange"))(
               model, token, resources, fmi3False, fmi3True, NULL, logger3)
-        : ((fmi3InstantiateCoSimulationTYPE *)symbol(library, "fmi3InstantiateCoSimulation"))(
+        : ((fmi3InstantiateCoSimulationTYPE *)host_require(library, "fmi3InstantiateCoSimulation"))(
               model, token, resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
     if (!c) exit(1);
-    check(((fmi3EnterInitializationModeTYPE *)symbol(library, "fmi3EnterInitializationMode"))(
+    check(((fmi3EnterInitializationModeTYPE *)host_require(library, "fmi3EnterInitializationMode"))(
               c, fmi3False, 0.0, 0.0, fmi3False, 0.0), "fmi3EnterInitializationMode");
-    check(((fmi3ExitInitializationModeTYPE *)symbol(library, "fmi3ExitInitializationMode"))(c),
+    check(((fmi3ExitInitializationModeTYPE *)host_require(library, "fmi3ExitInitializationMode"))(c),
           "fmi3ExitInitializationMode");
     return c;
 }
@@ -66,15 +57,15 @@ static void *start3(const char *dir, const char *model, const char *token, int m
 static void free_all(void) {
     for (int i = 0; i < INSTANCES; i++) {
         if (version == 3) {
-            check(((fmi3TerminateTYPE *)symbol(library, "fmi3Terminate"))(instances[i]), "fmi3Terminate");
-            check(((fmi3FreeFMUStateTYPE *)symbol(library, "fmi3FreeFMUState"))(instances[i], &states[i]),
+            check(((fmi3TerminateTYPE *)host_require(library, "fmi3Terminate"))(instances[i]), "fmi3Terminate");
+            check(((fmi3FreeFMUStateTYPE *)host_require(library, "fmi3FreeFMUState"))(instances[i], &states[i]),
                   "fmi3FreeFMUState");
-            ((fmi3FreeInstanceTYPE *)symbol(library, "fmi3FreeInstance"))(instances[i]);
+            ((fmi3FreeInstanceTYPE *)host_require(library, "fmi3FreeInstance"))(instances[i]);
         } else {
-            check(((fmi2TerminateTYPE *)symbol(library, "fmi2Terminate"))(instances[i]), "fmi2Terminate");
-            check(((fmi2FreeFMUstateTYPE *)symbol(library, "fmi2FreeFMUstate"))(instances[i], &states[i]),
+            check(((fmi2TerminateTYPE *)host_require(library, "fmi2Terminate"))(instances[i]), "fmi2Terminate");
+            check(((fmi2FreeFMUstateTYPE *)host_require(library, "fmi2FreeFMUstate"))(instances[i], &states[i]),
                   "fmi2FreeFMUstate");
-            ((fmi2FreeInstanceTYPE *)symbol(library, "fmi2FreeInstance"))(instances[i]);
+            ((fmi2FreeInstanceTYPE *)host_require(library, "fmi2FreeInstance"))(instances[i]);
         }
     }
     printf("freed\n");
@@ -91,7 +82,7 @@ int main(int argc, char **argv) {
         fprintf(stderr, "cannot load %s\n", dlerror());
         return 1;
     }
-    ((void (*)(int))symbol(python, "Py_InitializeEx"))(0);
+    ((void (*)(int))host_require(python, "Py_InitializeEx"))(0);
     version = atoi(argv[2]);
     char path[4096];
     snprintf(path, sizeof path, "%s/binaries/%s/%s" HOST_SUFFIX, argv[3], version == 3 ? HOST_FOLDER3 : HOST_FOLDER2,
@@ -106,18 +97,18 @@ int main(int argc, char **argv) {
         if (i == 0 && version == 3) {
             fmi3Boolean event, terminate, early;
             fmi3Float64 last;
-            check(((fmi3DoStepTYPE *)symbol(library, "fmi3DoStep"))(instances[i], 0.0, 0.01, fmi3True, &event,
+            check(((fmi3DoStepTYPE *)host_require(library, "fmi3DoStep"))(instances[i], 0.0, 0.01, fmi3True, &event,
                                                                    &terminate, &early, &last), "fmi3DoStep");
         } else if (i == 0) {
-            check(((fmi2DoStepTYPE *)symbol(library, "fmi2DoStep"))(instances[i], 0.0, 0.01, fmi2True), "fmi2DoStep");
+            check(((fmi2DoStepTYPE *)host_require(library, "fmi2DoStep"))(instances[i], 0.0, 0.01, fmi2True), "fmi2DoStep");
         }
-        check(version == 3 ? ((fmi3GetFMUStateTYPE *)symbol(library, "fmi3GetFMUState"))(instances[i], &states[i])
-                           : ((fmi2GetFMUstateTYPE *)symbol(library, "fmi2GetFMUstate"))(instances[i], &states[i]),
+        check(version == 3 ? ((fmi3GetFMUStateTYPE *)host_require(library, "fmi3GetFMUState"))(instances[i], &states[i])
+                           : ((fmi2GetFMUstateTYPE *)host_require(library, "fmi2GetFMUstate"))(instances[i], &states[i]),
               "getting the FMU state");
     }
     int at_exit = strcmp(argv[6], "atexit") == 0;
-    if (at_exit && ((int (*)(void (*)(void)))symbol(python, "Py_AtExit"))(free_all) != 0) return 1;
-    if (((int (*)(void))symbol(python, "Py_FinalizeEx"))() != 0) return 1;
+    if (at_exit && ((int (*)(void (*)(void)))host_require(python, "Py_AtExit"))(free_all) != 0) return 1;
+    if (((int (*)(void))host_require(python, "Py_FinalizeEx"))() != 0) return 1;
     if (!at_exit) free_all();
     return 0;
 }

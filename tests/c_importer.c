@@ -25,15 +25,6 @@ typedef struct {
     void *instance;
 } Fmu;
 
-static void *symbol(void *library, const char *name) {
-    void *address = host_symbol(library, name);
-    if (!address) {
-        fprintf(stderr, "missing %s\n", name);
-        exit(1);
-    }
-    return address;
-}
-
 /* The resource location of the FMU unzipped in `dir`: DSC_TEST_RESOURCES if set, else `format` with `dir`. */
 static void resources_of(char *resources, size_t size, const char *format, const char *dir) {
     const char *given = getenv("DSC_TEST_RESOURCES");
@@ -45,18 +36,18 @@ static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid
     char resources[4096];
     resources_of(resources, sizeof resources, HOST_RESOURCES_URI, dir);
     static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
-    void *c = ((fmi2InstantiateTYPE *)symbol(fmu->library, "fmi2Instantiate"))(
+    void *c = ((fmi2InstantiateTYPE *)host_require(fmu->library, "fmi2Instantiate"))(
         model, fmi2CoSimulation, guid, resources, &callbacks, fmi2False, fmi2True);
     if (!c) {
         fprintf(stderr, "fmi2Instantiate returned NULL\n");
         return 2;
     }
     fmu->instance = c;
-    check(((fmi2SetupExperimentTYPE *)symbol(fmu->library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0),
+    check(((fmi2SetupExperimentTYPE *)host_require(fmu->library, "fmi2SetupExperiment"))(c, 0, 0.0, 0.0, 0, 0.0),
           "fmi2SetupExperiment");
-    check(((fmi2EnterInitializationModeTYPE *)symbol(fmu->library, "fmi2EnterInitializationMode"))(c),
+    check(((fmi2EnterInitializationModeTYPE *)host_require(fmu->library, "fmi2EnterInitializationMode"))(c),
           "fmi2EnterInitializationMode");
-    check(((fmi2ExitInitializationModeTYPE *)symbol(fmu->library, "fmi2ExitInitializationMode"))(c),
+    check(((fmi2ExitInitializationModeTYPE *)host_require(fmu->library, "fmi2ExitInitializationMode"))(c),
           "fmi2ExitInitializationMode");
     return 0;
 }
@@ -64,26 +55,26 @@ static int start2(Fmu *fmu, const char *dir, const char *model, const char *guid
 static int start3(Fmu *fmu, const char *dir, const char *model, const char *token) {
     char resources[4096];
     resources_of(resources, sizeof resources, "%s/resources/", dir);
-    void *c = ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu->library, "fmi3InstantiateCoSimulation"))(
+    void *c = ((fmi3InstantiateCoSimulationTYPE *)host_require(fmu->library, "fmi3InstantiateCoSimulation"))(
         model, token, resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL, logger3, NULL);
     if (!c) {
         fprintf(stderr, "fmi3InstantiateCoSimulation returned NULL\n");
         return 2;
     }
     fmu->instance = c;
-    check(((fmi3EnterInitializationModeTYPE *)symbol(fmu->library, "fmi3EnterInitializationMode"))(
+    check(((fmi3EnterInitializationModeTYPE *)host_require(fmu->library, "fmi3EnterInitializationMode"))(
               c, fmi3False, 0.0, 0.0, fmi3False, 0.0), "fmi3EnterInitializationMode");
-    check(((fmi3ExitInitializationModeTYPE *)symbol(fmu->library, "fmi3ExitInitializationMode"))(c),
+    check(((fmi3ExitInitializationModeTYPE *)host_require(fmu->library, "fmi3ExitInitializationMode"))(c),
           "fmi3ExitInitializationMode");
     return 0;
 }
 
 static void get(int version, Fmu *fmu, const unsigned int *vr, double *values, size_t n) {
     if (version == 3) {
-        check(((fmi3GetFloat64TYPE *)symbol(fmu->library, "fmi3GetFloat64"))(fmu->instance, vr, n, values, n),
+        check(((fmi3GetFloat64TYPE *)host_require(fmu->library, "fmi3GetFloat64"))(fmu->instance, vr, n, values, n),
               "fmi3GetFloat64");
     } else {
-        check(((fmi2GetRealTYPE *)symbol(fmu->library, "fmi2GetReal"))(fmu->instance, vr, n, values), "fmi2GetReal");
+        check(((fmi2GetRealTYPE *)host_require(fmu->library, "fmi2GetReal"))(fmu->instance, vr, n, values), "fmi2GetReal");
     }
 }
 
@@ -91,20 +82,20 @@ static void step(int version, Fmu *fmu, double t, double h) {
     if (version == 3) {
         fmi3Boolean event, terminate, early;
         fmi3Float64 last;
-        check(((fmi3DoStepTYPE *)symbol(fmu->library, "fmi3DoStep"))(fmu->instance, t, h, fmi3True, &event, &terminate,
+        check(((fmi3DoStepTYPE *)host_require(fmu->library, "fmi3DoStep"))(fmu->instance, t, h, fmi3True, &event, &terminate,
                                                                      &early, &last), "fmi3DoStep");
     } else {
-        check(((fmi2DoStepTYPE *)symbol(fmu->library, "fmi2DoStep"))(fmu->instance, t, h, fmi2True), "fmi2DoStep");
+        check(((fmi2DoStepTYPE *)host_require(fmu->library, "fmi2DoStep"))(fmu->instance, t, h, fmi2True), "fmi2DoStep");
     }
 }
 
 static void finish(int version, Fmu *fmu) {
     if (version == 3) {
-        check(((fmi3TerminateTYPE *)symbol(fmu->library, "fmi3Terminate"))(fmu->instance), "fmi3Terminate");
-        ((fmi3FreeInstanceTYPE *)symbol(fmu->library, "fmi3FreeInstance"))(fmu->instance);
+        check(((fmi3TerminateTYPE *)host_require(fmu->library, "fmi3Terminate"))(fmu->instance), "fmi3Terminate");
+        ((fmi3FreeInstanceTYPE *)host_require(fmu->library, "fmi3FreeInstance"))(fmu->instance);
     } else {
-        check(((fmi2TerminateTYPE *)symbol(fmu->library, "fmi2Terminate"))(fmu->instance), "fmi2Terminate");
-        ((fmi2FreeInstanceTYPE *)symbol(fmu->library, "fmi2FreeInstance"))(fmu->instance);
+        check(((fmi2TerminateTYPE *)host_require(fmu->library, "fmi2Terminate"))(fmu->instance), "fmi2Terminate");
+        ((fmi2FreeInstanceTYPE *)host_require(fmu->library, "fmi2FreeInstance"))(fmu->instance);
     }
 }
 

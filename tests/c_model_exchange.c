@@ -21,12 +21,7 @@ static int version;
 static unsigned int *state_vrs; /* NULL: the states are set with fmiSetContinuousStates */
 
 static void *symbol(const char *name) {
-    void *address = host_symbol(library, name);
-    if (!address) {
-        fprintf(stderr, "missing %s\n", name);
-        exit(1);
-    }
-    return address;
+    return host_require(library, name);
 }
 
 /* Call the function named by its FMI 2.0 or 3.0 name, of the type given for each, with the same arguments. */

@@ -119,6 +119,16 @@ static void logger3(fmi3InstanceEnvironment env, fmi3Status status, fmi3String c
     fprintf(stderr, "[%d] %s\n", status, message);
 }
 
+/* The address of `name` in `library`; exit with a message if it has none. */
+static void *host_require(void *library, const char *name) {
+    void *address = host_symbol(library, name);
+    if (!address) {
+        fprintf(stderr, "missing %s\n", name);
+        exit(1);
+    }
+    return address;
+}
+
 /* Exit with a message if `status` is worse than a warning. */
 static void check(int status, const char *call) {
     if (status > 1) {
