@@ -69,6 +69,11 @@ _OPTIONS = {
     "fmi_version": _option("--fmi-version", type=int, choices=FMI_VERSIONS, help="FMI version of the FMUs{only} "
                            "(default: that of the FMUs in the folder, else {default}); FMUs of another version are "
                            "never replaced"),
+    "bundle_python": _option("--bundle-python", nargs="?", const=True, default=False, metavar="3.X", help="each FMU "
+                             "carries a CPython for Linux and Windows, so the importing machine needs none: "
+                             "Linux's is the building CPython's, Windows' the official embeddable CPython 3.X "
+                             "(default 3.X: the building CPython's, {building}); without it the FMUs use the "
+                             "importing machine's CPython 3.9 or newer"),
     "interface": _option("--interface", choices=INTERFACES, help="co-simulation: the FMUs stepped at the "
                          "communication step{stepped}; model-exchange: the three FMUs as one ODE{integrated} "
                          "(default: {default})"),
@@ -163,6 +168,11 @@ def _fmi2_only(command: str) -> str:
 
 def _build_options(parser: argparse.ArgumentParser) -> None:
     _add_fmus(parser, "built there", flags=("--out", "--fmu-dir"))
+    _add_bundle(parser)
+
+
+def _add_bundle(parser: argparse.ArgumentParser) -> None:
+    _add(parser, "bundle_python", building=f"{sys.version_info.major}.{sys.version_info.minor}")
 
 
 def _run_options(parser: argparse.ArgumentParser) -> None:
@@ -210,6 +220,7 @@ def _export_options(parser: argparse.ArgumentParser, command: str) -> None:
         _add(parser, "interface", stepped=" by the importing tool's master", integrated=", integrated by the "
              "importing tool", default=_default(export_ssp, "interface"))
     _add_fmus(parser, _USED_IF_CURRENT, command)
+    _add_bundle(parser)
 
 
 def _crosscheck_options(parser: argparse.ArgumentParser) -> None:
@@ -241,7 +252,7 @@ def _build(args) -> None:
     from .fmubuild.fmus import build_fmus
 
     folder, version = _fmus(args)
-    for path in build_fmus(folder, fmi_version=version).values():
+    for path in build_fmus(folder, fmi_version=version, bundle_python=args.bundle_python).values():
         print(path)
 
 
@@ -254,7 +265,7 @@ def _export(args) -> None:
     scenario = load_scenario(args.scenario).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
     interface = {"interface": Interface(args.interface)} if getattr(args, "interface", None) else {}  # export-ssp
     folder, version = _fmus(args)
-    with current_fmus(folder, version) as fmus:
+    with current_fmus(folder, version, args.bundle_python) as fmus:
         print(export(scenario, args.out, fmus, **interface))
 
 

@@ -9,9 +9,10 @@ from xml.etree import ElementTree as ET
 
 from .errors import FmiVersionError
 
-__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_fmi_version", "require_fmi2"]
+__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_bundled_python", "fmu_fmi_version", "require_fmi2"]
 
-# Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``.
+# Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
+# (the version of each system's CPython it carries) in one built with ``--bundle-python``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
 
@@ -29,6 +30,23 @@ def fmu_build_id(fmu: Path) -> str | None:
         The ``source_hash`` of its ``BUILD_ID_FILE``, or None if it is not one of ours (or not readable).
     """
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data)["source_hash"])
+
+
+def fmu_bundled_python(fmu: Path) -> dict | None:
+    """The CPythons an FMU of ours carries.
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        An FMU file.
+
+    Returns
+    -------
+    dict of str to str or None
+        The full version by system (``{"linux": "3.11.7", "windows": "3.11.9"}``); None if it carries
+        none, is not one of ours or is not readable.
+    """
+    return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data).get("python"))
 
 
 def fmu_fmi_version(fmu: Path) -> str | None:

@@ -83,10 +83,43 @@ REQUIREMENTS = (
     "system's (on Linux the dynamic loader's search, on Windows the PEP 514 registrations and PATH). If none "
     "serves, instantiation fails with one message naming every place it looked.")
 
+
+
+def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
+    """What the importing machine needs of an FMU that carries its own CPython.
+
+    Parameters
+    ----------
+    runtimes : dict of str to bundle.Runtime
+        The runtimes, by system (``"linux"``, ``"windows"``).
+    folders : dict of str to str
+        The runtime's folder in the FMU, by system.
+    licences : dict of str to str
+        CPython's licence file in the FMU, by system.
+
+    Returns
+    -------
+    str
+        The requirements, as ``REQUIREMENTS`` gives them for FMUs without one.
+    """
+    carried = "; ".join(
+        f"for {system.capitalize()} CPython {runtime.version} in {folders[system]}"
+        + (f" (it needs {', '.join(runtime.needs)})" if runtime.needs else "")
+        + f", its licence in {licences[system]}"
+        for system, runtime in sorted(runtimes.items()))
+    return ("The FMU needs no execution tool (needsExecutionTool = false) and no Python on the importing machine: "
+            f"it carries the model, the Python code that runs it and a CPython to run it ({carried}). The "
+            "importing machine needs x86-64 Linux or Windows. The binary uses a CPython already in the process "
+            "(one per process), else the one DSC_FMU_PYTHON names, else the FMU's own, which starts isolated "
+            "(PYTHON* variables and user site-packages ignored, no bytecode written). A damaged runtime fails "
+            "instantiation with one message naming it and what failed.")
+
+
 _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:collapse}td,th{border:1px solid #999;padding:2px 6px}"
 
 
-def documentation_html(model_description: ET.Element, name: str, units: dict[str, str]) -> str:
+def documentation_html(model_description: ET.Element, name: str, units: dict[str, str],
+                       requirements: str = REQUIREMENTS) -> str:
     """The HTML documentation page of one FMU.
 
     It gives the FMU's interfaces, the equations it implements (``EQUATIONS``), every variable of the
@@ -101,6 +134,8 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
     units : dict of str to str
         Variable name -> unit, used where the model description gives none (Integer and Boolean
         variables).
+    requirements : str, optional
+        What the importing machine needs. Default ``REQUIREMENTS``.
 
     Returns
     -------
@@ -143,7 +178,7 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
         "<h2>Default experiment</h2>",
         f"<p>{escape(experiment_text)} (times in s)</p>",
         "<h2>Requirements</h2>",
-        f"<p>{escape(REQUIREMENTS)}</p>",
+        f"<p>{escape(requirements)}</p>",
         "</body>",
         "</html>",
         "",

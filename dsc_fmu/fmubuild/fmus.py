@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import json
-import marshal
 import re
 import shutil
 import sys
@@ -21,14 +19,16 @@ from pythonfmu import FmuBuilder
 
 from .. import __version__
 from ..files import atomic_write
-from ..identity import BUILD_ID_FILE, fmu_build_id
+from ..identity import BUILD_ID_FILE, fmu_build_id, fmu_bundled_python
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
 from .folders import (
     DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir,
 )
-from .documentation import REQUIREMENTS
+from .bundle import MANIFEST, ROOT, Runtime, bundle_minor, bundled_runtimes
+from .bundle.runtime import bytecode
+from .documentation import REQUIREMENTS, bundled_requirements
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -41,6 +41,8 @@ ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
 DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
+# CPython's licence in an FMU that carries it, by system (FMI 3.0's place for licences).
+LICENCE_FILE = "documentation/licenses/CPython-{system}.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
 _FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
@@ -153,10 +155,7 @@ def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
     source by hash (PEP 552): an importer on that Python imports it without compiling, whatever the
     files' times after unzipping; any other Python compiles the source."""
     folder, _, file = name.rpartition("/")
-    cache = f"{folder}/__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc"
-    flags = (0b11).to_bytes(4, "little")  # hash-based, checked against the source
-    code = compile(data, name, "exec", dont_inherit=True, optimize=0)
-    return cache, importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(data) + marshal.dumps(code)
+    return f"{folder}/__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc", bytecode(data, name, check_source=True)
 
 
 @contextmanager
@@ -202,7 +201,23 @@ def _forget_staged_modules(package: str, script: str) -> None:
         del sys.modules[name]
 
 
-def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None) -> Path:
+def _runtime_files(runtime: Runtime, folder: str) -> dict:
+    """The files of ``runtime`` in an FMU whose binary for its system is in ``binaries/<folder>``."""
+    root = f"binaries/{folder}/{ROOT}"
+    return {**{f"{root}/{path}": data for path, data in runtime.files.items()}, f"{root}/{MANIFEST}": runtime.manifest(),
+            LICENCE_FILE.format(system=runtime.os): runtime.licence}
+
+
+def _requirements(runtimes: dict, fmi_version: int) -> str:
+    """What the importing machine needs: ``REQUIREMENTS``, or ``bundled_requirements`` of ``runtimes``."""
+    if not runtimes:
+        return REQUIREMENTS
+    folders = {target.os: f"binaries/{target.folder(fmi_version)}/{ROOT}" for target in TARGETS}
+    return bundled_requirements(runtimes, folders, {system: LICENCE_FILE.format(system=system) for system in runtimes})
+
+
+def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
+              bundle_python: bool | str = False) -> Path:
     """Build one FMU, atomically.
 
     Parameters
@@ -213,6 +228,10 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
         The directory, created if missing; the FMU is ``out_dir/<name>.fmu``.
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in ``out_dir``, else 2 (``resolve_fmu_dir``).
+    bundle_python : bool or str, optional
+        Carry a CPython for each system the FMU has binaries for (``fmubuild.bundle``): True for the
+        building CPython's minor version, or ``"3.X"`` for Windows' (Linux's is the building CPython).
+        Default False: the FMU uses the importing machine's.
 
     Returns
     -------
@@ -228,8 +247,12 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
     BinaryBuildError
         If the FMU's binary does not compile or a bundled module imports the FMI library by its
         public name.
+    BundleError
+        If a CPython cannot be bundled (``bundle_minor``, ``bundled_runtimes``); nothing is written.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
+    if bundle_python:
+        bundle_minor(bundle_python)
     out_dir.mkdir(parents=True, exist_ok=True)
     digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
@@ -239,10 +262,18 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
         _forget_staged_modules(package_dir.name, script.stem)
         raw = _raw_fmu(script, package_dir, tmp / f"{spec.name}_raw.fmu", spec, fmi_version)
         _forget_staged_modules(package_dir.name, script.stem)
+        runtimes = {}
+        if bundle_python:
+            entry = f"{package_dir.name}.fmu.native_bridge {script.stem}"
+            runtimes = bundled_runtimes(raw, entry, bundle_python, [system.os for system in TARGETS])
         staged = tmp / f"{spec.name}.fmu"
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
             for system in TARGETS:
                 dst.writestr(system.file(fmi_version, spec.name), compile_binary(fmi_version, system))
+                if system.os in runtimes:
+                    for name, data in _runtime_files(runtimes[system.os], system.folder(fmi_version)).items():
+                        dst.writestr(name, data)
+            requirements = _requirements(runtimes, fmi_version)
             for item in src.infolist():
                 if item.filename.startswith("binaries/"):
                     continue
@@ -251,20 +282,23 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
                     root = complete_model_description(data, spec, fmi_version)
                     ET.indent(root)
                     data = ET.tostring(root, encoding="UTF-8", xml_declaration=True)
-                    dst.writestr(DOCUMENTATION_FILE, documentation(root, spec))
-                    dst.writestr(DEPENDENCIES_FILE, textwrap.fill(REQUIREMENTS, 100) + "\n")
+                    dst.writestr(DOCUMENTATION_FILE, documentation(root, spec, requirements))
+                    dst.writestr(DEPENDENCIES_FILE, textwrap.fill(requirements, 100) + "\n")
                     dst.writestr(ENTRY_FILE, _entry(root, script, package_dir, spec))
                 if item.filename != DOCUMENTATION_FILE:
                     name, data = _private(item.filename, data, package_dir.name, _LIBRARY[fmi_version])
                     dst.writestr(name, data)
                     if name.startswith("resources/") and name.endswith(".py"):
                         dst.writestr(*_bytecode(name, data))
-            dst.writestr(BUILD_ID_FILE, json.dumps({"source_hash": digest, "dsc_fmu": __version__,
-                                                    "fmi_version": fmi_version}))
+            record = {"source_hash": digest, "dsc_fmu": __version__, "fmi_version": fmi_version}
+            if runtimes:
+                record["python"] = {system: runtime.version for system, runtime in runtimes.items()}
+            dst.writestr(BUILD_ID_FILE, json.dumps(record))
         return atomic_write(target, staged.read_bytes())
 
 
-def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None) -> dict[str, Path]:
+def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None,
+               bundle_python: bool | str = False) -> dict[str, Path]:
     """Build some or all of the three FMUs.
 
     Parameters
@@ -275,6 +309,8 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
         The FMUs to build, keys of ``registry.FMUS``. Default: all three.
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
+    bundle_python : bool or str, optional
+        Each FMU carries a CPython (``build_fmu``). Default False.
 
     Returns
     -------
@@ -291,9 +327,11 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
         If a name is not one of the three FMUs.
     BinaryBuildError
         If an FMU's binary does not compile.
+    BundleError
+        If a CPython cannot be bundled; nothing is written.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
-    return {name: build_fmu(FMUS[name], out_dir, fmi_version) for name in names}
+    return {name: build_fmu(FMUS[name], out_dir, fmi_version, bundle_python) for name in names}
 
 
 def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None) -> dict[str, Path]:
@@ -331,7 +369,7 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = Non
 
 
 @contextmanager
-def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None):
+def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None, bundle_python: bool | str = False):
     """The three current FMUs, for exports, which write nothing but their output file.
 
     A context manager: those of ``out_dir`` if they are all current, else ones built into a temporary
@@ -343,6 +381,9 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
         The directory to look in; nothing is written there. Default None: ``default_fmu_dir`` of the version.
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
+    bundle_python : bool or str, optional
+        FMUs that carry a CPython (``build_fmu``): those of ``out_dir`` serve if they carry one of that
+        version for Windows. Default False: any current FMUs serve.
 
     Yields
     ------
@@ -360,8 +401,17 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {name: out_dir / f"{name}.fmu" for name in FMUS}
-    if all(fmu_build_id(path) == source_hash(FMUS[name], fmi_version) for name, path in paths.items()):
+    if all(fmu_build_id(path) == source_hash(FMUS[name], fmi_version) and _carries(path, bundle_python)
+           for name, path in paths.items()):
         yield paths
         return
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_fmus_") as tmp:
-        yield build_fmus(tmp, fmi_version=fmi_version)
+        yield build_fmus(tmp, fmi_version=fmi_version, bundle_python=bundle_python)
+
+
+def _carries(fmu: Path, bundle_python: bool | str) -> bool:
+    """Whether ``fmu`` carries the CPython ``bundle_python`` asks for (any FMU if it asks for none)."""
+    if not bundle_python:
+        return True
+    windows = (fmu_bundled_python(fmu) or {}).get("windows", "")
+    return windows.startswith(f"3.{bundle_minor(bundle_python)}.")

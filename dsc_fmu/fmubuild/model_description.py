@@ -242,7 +242,7 @@ def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) 
     return root
 
 
-def documentation(root: ET.Element, spec: FmuSpec) -> bytes:
+def documentation(root: ET.Element, spec: FmuSpec, requirements: str) -> bytes:
     """The FMU's ``documentation/index.html``.
 
     Parameters
@@ -251,6 +251,8 @@ def documentation(root: ET.Element, spec: FmuSpec) -> bytes:
         The FMU's completed model description (``complete_model_description``).
     spec : registry.FmuSpec
         The FMU it describes.
+    requirements : str
+        What the importing machine needs (``documentation.REQUIREMENTS``, ``bundled_requirements``).
 
     Returns
     -------
@@ -258,4 +260,4 @@ def documentation(root: ET.Element, spec: FmuSpec) -> bytes:
         The HTML page, UTF-8.
     """
     units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in spec.variables.items()}}
-    return documentation_html(root, spec.name, units).encode("utf-8")
+    return documentation_html(root, spec.name, units, requirements).encode("utf-8")

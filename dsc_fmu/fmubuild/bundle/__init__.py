@@ -1,0 +1,91 @@
+"""A CPython inside each FMU (``dsc-fmu build --bundle-python``), so that it runs where no Python is
+installed: for each system the FMU has binaries for, the runtime its binary starts when no CPython is
+already in the process and DSC_FMU_PYTHON is not set (``native/pyhost.c``). Linux takes the building
+CPython's (``linux``), Windows the official embeddable one (``windows``); each carries only the
+standard-library modules the FMU's code imports (``modules``)."""
+
+from __future__ import annotations
+
+import re
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+from .linux import linux_refused, linux_runtime
+from .modules import BundleError, imported_modules
+from .runtime import MANIFEST, ROOT, Runtime
+from .windows import windows_refused, windows_runtime
+
+__all__ = ["BundleError", "MANIFEST", "ROOT", "OLDEST_MINOR", "Runtime", "bundle_minor", "bundled_runtimes"]
+
+# The oldest CPython the FMUs' code runs on (``native/pyhost.c`` refuses older ones).
+OLDEST_MINOR = 9
+
+
+def bundle_minor(python: bool | str) -> int:
+    """The minor version of the Windows runtime that ``python`` asks for.
+
+    Parameters
+    ----------
+    python : True or str
+        True for the building CPython's minor version, or ``"3.X"``.
+
+    Returns
+    -------
+    int
+        X.
+
+    Raises
+    ------
+    BundleError
+        If ``python`` is neither, or older than 3.9.
+    """
+    if python is True:
+        return sys.version_info.minor
+    match = re.fullmatch(r"3\.(\d+)", str(python).strip())
+    if not match or int(match.group(1)) < OLDEST_MINOR:
+        raise BundleError(f"--bundle-python {python!r} is not a CPython version to bundle; allowed: 3.X with X "
+                          f"{OLDEST_MINOR} or more (the building CPython's {sys.version_info.major}."
+                          f"{sys.version_info.minor} if not given)")
+    return int(match.group(1))
+
+
+def bundled_runtimes(fmu: Path, entry: str, python: bool | str, systems) -> dict:
+    """The runtimes an FMU carries for ``systems``.
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        The FMU as the FMI library built it (its ``resources`` hold the code the binary imports).
+    entry : str
+        The modules the binary imports first: ``"<bridge module> <slave module>"``.
+    python : True or str
+        The Windows runtime's version (``bundle_minor``); Linux's is the building CPython.
+    systems : iterable of str
+        ``"linux"``, ``"windows"``.
+
+    Returns
+    -------
+    dict of str to Runtime
+        By system.
+
+    Raises
+    ------
+    BundleError
+        If a runtime cannot be bundled (no shared library, no download, code that does not import).
+    """
+    minor = bundle_minor(python)
+    systems = set(systems)
+    same_minor = minor == sys.version_info.minor
+    refused = (linux_refused() if "linux" in systems else set()) | (windows_refused(minor) if "windows" in systems else set())
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_bundle_") as tmp:
+        with zipfile.ZipFile(fmu) as archive:
+            archive.extractall(tmp, [name for name in archive.namelist() if name.startswith("resources/")])
+        imports = imported_modules(Path(tmp) / "resources", entry, refused)
+    runtimes = {}
+    if "linux" in systems:
+        runtimes["linux"] = linux_runtime(imports)
+    if "windows" in systems:
+        runtimes["windows"] = windows_runtime(minor, imports if same_minor else None)
+    return runtimes

@@ -1,0 +1,136 @@
+"""Which standard-library modules an FMU's bundled code imports: found by importing it, as the binary
+does, in a child of the building CPython that sees nothing but the standard library and the FMU's
+resources, with the extension modules a bundle would rather not carry refused until an import needs one."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import sysconfig
+from dataclasses import dataclass
+from pathlib import Path
+
+from ...errors import DscFmuError
+
+__all__ = ["BundleError", "Imports", "building_stdlib", "imported_modules"]
+
+
+class BundleError(DscFmuError, RuntimeError):
+    """A CPython runtime cannot be bundled; the message says what is missing and what provides it."""
+
+
+# Run by ``python -I -S``: argv[1] the resources folder, argv[2] the entry file's line, argv[3] the refused
+# extension modules (JSON). Imports the bridge and the slave module, then every module any bundled module
+# names in an import statement (those inside functions too); prints each module's name and file (JSON),
+# or the refused module an import needed.
+_CHILD = r"""
+import ast, importlib, json, sys
+resources, entry, refused = sys.argv[1], sys.argv[2].split(), set(json.loads(sys.argv[3]))
+
+class Refuse:
+    def find_spec(self, name, path=None, target=None):
+        if name in refused:
+            raise ImportError(name, name=name)
+
+def named_in(path):
+    for node in ast.walk(ast.parse(open(path, "rb").read())):
+        if isinstance(node, ast.Import):
+            yield from (alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and not node.level:
+            yield node.module
+
+sys.meta_path.insert(0, Refuse())
+sys.path.insert(0, resources)
+try:
+    for name in entry[:2]:
+        importlib.import_module(name)
+    bundled = {m.__file__ for m in list(sys.modules.values())
+               if (getattr(m, "__file__", None) or "").startswith(resources) and m.__file__.endswith(".py")}
+    for name in sorted({n for path in bundled for n in named_in(path)}):
+        try:
+            importlib.import_module(name)
+        except ImportError as error:
+            if error.name in refused:
+                raise
+except ImportError as error:
+    if error.name not in refused:
+        raise
+    print(json.dumps({"refused": error.name}))
+    sys.exit(0)
+print(json.dumps({"modules": {name: getattr(module, "__file__", None) for name, module in sys.modules.items()}}))
+"""
+
+
+@dataclass(frozen=True)
+class Imports:
+    """What the bundled code imports from the building CPython.
+
+    Parameters
+    ----------
+    sources : dict of str to pathlib.Path
+        The pure-Python modules, by name: their source files under the standard library.
+    extensions : dict of str to pathlib.Path
+        The extension modules in their own files (``lib-dynload``), by name.
+    names : frozenset of str
+        Every module imported, built-in and frozen ones included (what a bundle of another system maps).
+    """
+
+    sources: dict
+    extensions: dict
+    names: frozenset
+
+
+def building_stdlib() -> tuple[Path, Path]:
+    """The building CPython's standard-library folder and the folder of its extension modules.
+
+    Returns
+    -------
+    tuple of pathlib.Path
+        ``stdlib`` and ``DESTSHARED`` (``lib-dynload``), as ``sysconfig`` gives them.
+    """
+    return Path(sysconfig.get_paths()["stdlib"]), Path(sysconfig.get_config_var("DESTSHARED") or "")
+
+
+def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
+    """The standard-library modules the code in ``resources`` imports when the binary loads it.
+
+    Parameters
+    ----------
+    resources : pathlib.Path
+        An FMU's unzipped ``resources`` folder.
+    entry : str
+        Its entry file's line (bridge module, slave module, ...).
+    refused : set of str
+        Extension modules to do without where the code falls back (those that need libraries beyond the
+        C runtime); one an import cannot do without is taken after all.
+
+    Returns
+    -------
+    Imports
+        The modules, split by kind.
+
+    Raises
+    ------
+    BundleError
+        If the code cannot be imported.
+    """
+    stdlib, dynload = building_stdlib()
+    refused = set(refused)
+    while True:
+        run = subprocess.run([sys.executable, "-I", "-S", "-c", _CHILD, str(resources), entry, json.dumps(sorted(refused))],
+                             capture_output=True, text=True, timeout=300)
+        if run.returncode != 0:
+            raise BundleError(f"the FMU's code does not import in a bare {sys.executable}: "
+                              f"{(run.stderr.strip().splitlines() or ['no output'])[-1]}")
+        answer = json.loads(run.stdout)
+        if "modules" in answer:
+            break
+        refused.discard(answer["refused"])
+    files = {name: Path(file) for name, file in answer["modules"].items() if file}
+    return Imports(
+        sources={name: file for name, file in files.items() if file.suffix == ".py" and file.is_relative_to(stdlib)
+                 and not file.is_relative_to(stdlib / "site-packages")},
+        extensions={name: file for name, file in files.items() if file.parent == dynload},
+        names=frozenset(answer["modules"]),
+    )

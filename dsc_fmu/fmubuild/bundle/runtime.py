@@ -1,0 +1,107 @@
+"""A CPython runtime as an FMU carries it beside its binary (docs/fmus.md, "A CPython inside the FMU"):
+its files, the list the binary checks them by, its licence, what it still needs of the system."""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import marshal
+import zipfile
+from dataclasses import dataclass, field
+
+__all__ = ["MANIFEST", "ROOT", "Runtime", "bytecode", "stored_zip"]
+
+# The runtime's folder beside the FMU's binary, and the file in it that lists the rest with their sizes
+# (native/pyhost.c checks it before it loads anything).
+ROOT = "python"
+MANIFEST = "bundle.txt"
+
+
+@dataclass(frozen=True)
+class Runtime:
+    """One platform's bundled CPython.
+
+    Parameters
+    ----------
+    os : {"linux", "windows"}
+        The system it runs on.
+    version : str
+        Its full version (``"3.11.7"``).
+    files : dict of str to bytes
+        Its files by path under ``ROOT`` (with ``/``), the manifest excepted.
+    licence : bytes
+        CPython's licence, as the distribution ships it.
+    needs : tuple of str
+        What it needs of the system beyond what the binary needs (``"glibc 2.36 or newer"``).
+    """
+
+    os: str
+    version: str
+    files: dict = field(repr=False)
+    licence: bytes = field(repr=False)
+    needs: tuple = ()
+
+    def manifest(self) -> bytes:
+        """The runtime's ``MANIFEST``, which the binary checks the files by.
+
+        Returns
+        -------
+        bytes
+            ``dsc-fmu CPython <version> <os>``, then ``<size> <path>`` for each file, by path.
+        """
+        lines = [f"dsc-fmu CPython {self.version} {self.os}"]
+        lines += [f"{len(data)} {path}" for path, data in sorted(self.files.items())]
+        return ("\n".join(lines) + "\n").encode()
+
+    @property
+    def size(self) -> int:
+        """The bytes of its files."""
+        return sum(len(data) for data in self.files.values())
+
+
+def bytecode(source: bytes, filename: str, check_source: bool) -> bytes:
+    """A ``.pyc`` file's bytes for the running CPython, hash-based (PEP 552).
+
+    Reproducible, and valid whatever the files' times; ``check_source`` makes an importer compare it
+    with the source beside it.
+
+    Parameters
+    ----------
+    source : bytes
+        The module's source.
+    filename : str
+        The name its code objects carry (tracebacks show it).
+    check_source : bool
+        Checked against the source (a bundled module), or not (a module shipped without source).
+
+    Returns
+    -------
+    bytes
+        The header and the marshalled code.
+    """
+    flags = (0b11 if check_source else 0b01).to_bytes(4, "little")
+    code = compile(source, filename, "exec", dont_inherit=True, optimize=0)
+    return importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(source) + marshal.dumps(code)
+
+
+def stored_zip(entries: dict) -> bytes:
+    """A zip archive of ``entries``, stored, not compressed.
+
+    zipimport then needs no zlib (an extension module with a library of its own on Linux), and the
+    FMU's archive compresses it.
+
+    Parameters
+    ----------
+    entries : dict of str to bytes
+        The files by name.
+
+    Returns
+    -------
+    bytes
+        The archive, its entries sorted and dated 1980-01-01 (reproducible).
+    """
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
+        for name in sorted(entries):
+            archive.writestr(zipfile.ZipInfo(name, date_time=(1980, 1, 1, 0, 0, 0)), entries[name])
+    return buffer.getvalue()

