@@ -32,6 +32,8 @@ int platform_keep_loaded(const void *address);
 
 int platform_is_file(const char *path);
 int platform_is_folder(const char *path);
+/* The size in bytes of the file `path`, or -1 if it is not a file. */
+long long platform_file_size(const char *path);
 FILE *platform_open_file(const char *path, const char *mode);
 /* The value of the environment variable `name` in `value` (UTF-8); 1 if set and not empty. */
 int platform_getenv(const char *name, char *value, size_t size);
@@ -41,6 +43,9 @@ void platform_native_path(char *path);
 /* `path` as the wide string Py_SetPythonHome takes (malloc'ed; `decode` is Python's
    Py_DecodeLocale, which Linux uses); NULL if it cannot be converted. */
 wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *));
+
+/* This system's name in a bundle's bundle.txt: "linux" or "windows". */
+extern const char PLATFORM_OS[];
 
 /* The CPythons 3.`oldest` and newer this system registers, each as `visit(context, library, home,
    label, minor)`: on Linux libpython3.X.so.1.0 for the dynamic loader to search (label ""); on
@@ -56,9 +61,10 @@ int platform_library_in(const char *folder, int place, int minor, char *path, si
 /* Those places, for messages. */
 extern const char PLATFORM_LIBRARY_PLACES[];
 /* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
-   checked; else found from the library's folder. HOME_TO_SET; HOME_FIXED where the installation
-   fixes its paths itself (Windows' embeddable CPython: a python3X._pth file beside the library,
-   which setting a home would override); or -1 with why in `why`. */
+   checked; else found from the library's folder (on Linux the nearest folder above it that holds a
+   standard library). HOME_TO_SET; HOME_FIXED where the installation fixes its paths itself (Windows'
+   embeddable CPython: a python3X._pth file in the home, which setting a home would override); or -1
+   with why in `why`. */
 enum { HOME_TO_SET = 0, HOME_FIXED = 1 };
 int platform_python_home(const char *library, const char *given, int minor, char *home, size_t size, char *why,
                          size_t why_size);

@@ -73,6 +73,11 @@ int platform_is_folder(const char *path) {
     return stat(path, &info) == 0 && S_ISDIR(info.st_mode);
 }
 
+long long platform_file_size(const char *path) {
+    struct stat info;
+    return stat(path, &info) == 0 && S_ISREG(info.st_mode) ? (long long)info.st_size : -1;
+}
+
 FILE *platform_open_file(const char *path, const char *mode) {
     return fopen(path, mode);
 }
@@ -104,6 +109,8 @@ void platform_registered_pythons(void (*visit)(void *, const char *, const char 
     }
 }
 
+const char PLATFORM_OS[] = "linux";
+
 static const char *const LIBRARY_PLACES[] = {"lib/", "lib/x86_64-linux-gnu/"};
 const char PLATFORM_LIBRARY_PLACES[] = "lib/" DSC_SYSTEM_PYTHON " or lib/x86_64-linux-gnu/" DSC_SYSTEM_PYTHON;
 
@@ -115,8 +122,12 @@ int platform_library_in(const char *folder, int place, int minor, char *path, si
     return 0;
 }
 
+/* A standard library under `home`: lib/python3.X with os.py and encodings, or lib/python3X.zip (a bundle's,
+   which CPython puts first on sys.path for that home). */
 static int has_stdlib(const char *home, int minor) {
     char path[PATH_MAX + 64];
+    snprintf(path, sizeof path, "%s/lib/python3%d.zip", home, minor);
+    if (platform_is_file(path)) return 1;
     snprintf(path, sizeof path, "%s/lib/python3.%d/os.py", home, minor);
     if (!platform_is_file(path)) return 0;
     snprintf(path, sizeof path, "%s/lib/python3.%d/encodings/__init__.py", home, minor);
@@ -130,7 +141,8 @@ int platform_python_home(const char *library, const char *given, int minor, char
             snprintf(home, size, "%s", given);
             return HOME_TO_SET;
         }
-        snprintf(why, why_size, "no standard library in %s/lib/python3.%d", given, minor);
+        snprintf(why, why_size, "no standard library in %s (neither lib/python3.%d/os.py nor lib/python3%d.zip)", given,
+                 minor, minor);
         return -1;
     }
     char path[PATH_MAX];

@@ -145,6 +145,15 @@ int platform_is_folder(const char *path) {
     return found != INVALID_FILE_ATTRIBUTES && (found & FILE_ATTRIBUTE_DIRECTORY);
 }
 
+long long platform_file_size(const char *path) {
+    wchar_t *name = wide(path);
+    WIN32_FILE_ATTRIBUTE_DATA data;
+    BOOL found = name && GetFileAttributesExW(name, GetFileExInfoStandard, &data);
+    free(name);
+    if (!found || (data.dwFileAttributes & FILE_ATTRIBUTE_DIRECTORY)) return -1;
+    return (long long)(((unsigned long long)data.nFileSizeHigh << 32) | data.nFileSizeLow);
+}
+
 FILE *platform_open_file(const char *path, const char *mode) {
     wchar_t *name = wide(path), *how = wide(mode);
     FILE *file = name && how ? _wfopen(name, how) : NULL;
@@ -222,6 +231,7 @@ static void join(char *path, size_t size, const char *folder, int minor) {
     snprintf(path, size, "%s%s%s", folder, n && folder[n - 1] != '\\' && folder[n - 1] != '/' ? "\\" : "", name);
 }
 
+const char PLATFORM_OS[] = "windows";
 const char PLATFORM_LIBRARY_PLACES[] = DSC_SYSTEM_PYTHON;
 
 int platform_library_in(const char *folder, int place, int minor, char *path, size_t size) {
@@ -299,7 +309,7 @@ int platform_python_home(const char *library, const char *given, int minor, char
         char paths[PLATFORM_PATH_MAX + 32];
         snprintf(home, size, "%s", folder);
         snprintf(paths, sizeof paths, "%s\\python3%d._pth", folder, minor);
-        return !(given && *given) && platform_is_file(paths) ? HOME_FIXED : HOME_TO_SET;
+        return platform_is_file(paths) ? HOME_FIXED : HOME_TO_SET;
     }
     snprintf(why, why_size, "no standard library in %s (neither Lib\\os.py nor python3%d.zip)", folder, minor);
     return -1;

@@ -7,18 +7,29 @@
         (libpython3.X.so.1.0, python3X.dll), or a folder: an installation's (on Linux its prefix, whose
         lib/ holds the library; on Windows the folder of python3X.dll), or a virtual environment's,
         which stands for the installation its pyvenv.cfg names (`home`, or on Linux home's parent);
-     2. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
+     2. the FMU's own CPython (`dsc-fmu build --bundle-python`), if the folder ROOT = `python` beside
+        this binary's file exists, the only place looked at then: ROOT/bundle.txt lists every other
+        file of ROOT with its size, all checked before anything is loaded; the library is ROOT's
+        (lib/libpython3.X.so.1.0 on Linux, python3X.dll on Windows) and its home ROOT (on Linux
+        lib/python3X.zip and lib/python3.X/lib-dynload under it; on Windows python3X._pth fixes the
+        paths). If any of that fails, nothing else is tried: a damaged FMU is reported, not masked by
+        whatever Python the machine happens to have, and a CPython whose start failed cannot be
+        unloaded to make room for another;
+     3. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
         exists;
-     3. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on Windows the
+     4. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on Windows the
         installs registered under PEP 514, then the folders on PATH (platform.h).
-   Among the candidates of a folder, 2 and 3, those of the minor version that built the FMU come first,
+   Among the candidates of a folder, 3 and 4, those of the minor version that built the FMU come first,
    then the newest. Every CPython 3 is looked for, older ones too: one older than 3.9 is refused before
    it starts, and named with its version in the message if nothing serves.
-   A Python this binary starts gets its home set explicitly, ignores PYTHON* environment variables,
-   imports no site packages, writes no bytecode and installs no signal handlers. It is started as
-   Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose status says why it
-   failed where Py_InitializeEx would end the process; of the configuration it touches only the
-   leading fields whose offsets every CPython since 3.8 shares, checked before they are set.
+   A Python this binary starts gets its home set explicitly (an embeddable CPython on Windows: the paths
+   its python3X._pth fixes), ignores PYTHON* environment variables, imports no site packages, writes no
+   bytecode and installs no signal handlers; its symbols are made global before it starts (on Linux the
+   extension modules it may load while starting, zlib for a compressed zip, resolve the C API there).
+   It is started as Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose
+   status says why it failed where Py_InitializeEx would end the process; of the configuration it
+   touches only the leading fields whose offsets every CPython since 3.8 shares, checked before they
+   are set.
 
    A host thread Python does not know gets a thread state on its first call, kept for its life. When
    the thread ends, its thread state is handed to the reaper, a thread of this binary's that deletes
@@ -49,6 +60,9 @@
 #define OLDEST_MINOR 9
 #define OLDEST_LOOKED_FOR 0 /* older than OLDEST_MINOR: looked for, to be named if nothing serves */
 #define MAX_CANDIDATES 48
+#define BUNDLE_FOLDER "python"           /* ROOT, beside this binary's file */
+#define BUNDLE_LIST "bundle.txt"         /* in ROOT: the header line, then "<size> <path>" per file */
+#define BUNDLE_HEADER "dsc-fmu CPython " /* then "<version> <os>" */
 
 PyApi py;
 
@@ -74,7 +88,7 @@ static wchar_t *home_wide;
 typedef struct {
     char library[PLATFORM_PATH_MAX];
     char home[PLATFORM_PATH_MAX];
-    char label[64];
+    char label[PLATFORM_PATH_MAX + 64];
     int minor;
 } Candidate;
 
@@ -188,9 +202,20 @@ static int old_version(Library library, const char *what) {
     return minor;
 }
 
-/* Use the Python that `library` holds (initialised already, or started here with `home`, found
-   from the library's file if empty). */
-static int adopt(Library library, const char *home, const char *what) {
+/* Make the symbols of the library loaded from `path` (NULL: one already global) visible to those loaded
+   later: extension modules resolve the C API from the global scope on Linux, zlib already while CPython
+   starts if its standard library is a compressed zip. 0, or -1 (logged as `what`). */
+static int share(const char *path, const char *what) {
+    char why[512];
+    if (!path || platform_share_symbols(path, why, sizeof why) == 0) return 0;
+    append(start_error, sizeof start_error, "%s: its symbols cannot be made global: %s; ", what, why);
+    return -1;
+}
+
+/* Use the Python that `library` (loaded from `path`, NULL if global already) holds: initialised already,
+   or started here with `home`, found from the library's file if empty. Its symbols are made global only
+   once it is the one to use (a library made global stays loaded). */
+static int adopt(Library library, const char *path, const char *home, const char *what) {
     int minor = old_version(library, what);
     if (minor < 0) return -1;
     const char *missing = resolve(library);
@@ -201,7 +226,7 @@ static int adopt(Library library, const char *home, const char *what) {
     void *finalizing = platform_symbol(library, "Py_IsFinalizing");
     if (!finalizing) finalizing = platform_symbol(library, "_Py_IsFinalizing");
     memcpy(&is_finalizing, &finalizing, sizeof finalizing);
-    if (py.Py_IsInitialized()) return 0;
+    if (py.Py_IsInitialized()) return share(path, what);
     char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256] = "";
     if (platform_library_file((const void *)py.Py_IsInitialized, file, sizeof file) != 0) file[0] = '\0';
     int layout = platform_python_home(file, home, minor, found, sizeof found, why, sizeof why);
@@ -209,13 +234,13 @@ static int adopt(Library library, const char *home, const char *what) {
         append(start_error, sizeof start_error, "%s: %s; ", what, why);
         return -1;
     }
+    if (share(path, what) != 0) return -1;
     return initialize(found, layout == HOME_TO_SET, what);
 }
 
-/* Load, check and start the candidate, then share its symbols (extension modules such as math
-   resolve the C API from the global scope on Linux). */
+/* Load, check and start the candidate. */
 static int try_candidate(const Candidate *candidate) {
-    char label[2 * PLATFORM_PATH_MAX + 64], why[512] = "", file[PLATFORM_PATH_MAX];
+    char label[3 * PLATFORM_PATH_MAX + 64], why[512] = "", file[PLATFORM_PATH_MAX];
     snprintf(label, sizeof label, "%s %s", *candidate->label ? candidate->label : "the system's", candidate->library);
     Library library = platform_load(candidate->library, why, sizeof why);
     if (!library && !*candidate->label) {
@@ -232,12 +257,8 @@ static int try_candidate(const Candidate *candidate) {
         append(start_error, sizeof start_error, "%s: %s; ", label, why);
         return -1;
     }
-    if (adopt(library, candidate->home, label) != 0) {
+    if (adopt(library, candidate->library, candidate->home, label) != 0) {
         if (!start_attempted) platform_unload(library);
-        return -1;
-    }
-    if (platform_share_symbols(candidate->library, why, sizeof why) != 0) {
-        append(start_error, sizeof start_error, "%s: its symbols cannot be made global: %s; ", label, why);
         return -1;
     }
     return 0;
@@ -308,12 +329,13 @@ static int venv_home(const char *folder, char *home, size_t size) {
     return *home != '\0';
 }
 
-/* The CPython libraries of the installation in `folder`, newest first. */
-static void add_installation(Candidates *list, const char *folder) {
+/* The CPython libraries of the installation in `folder`, newest first, each called `label` and started
+   with `home` (NULL: the home found from the library's file). */
+static void add_installation(Candidates *list, const char *folder, const char *home, const char *label) {
     char library[PLATFORM_PATH_MAX];
     for (int minor = NEWEST_MINOR; minor >= OLDEST_LOOKED_FOR; minor--) {
         for (int place = 0; platform_library_in(folder, place, minor, library, sizeof library) == 0; place++) {
-            if (platform_is_file(library)) add_candidate(list, library, NULL, DSC_OVERRIDE_VARIABLE " folder:", minor);
+            if (platform_is_file(library)) add_candidate(list, library, home, label, minor);
         }
     }
 }
@@ -322,15 +344,16 @@ static void add_installation(Candidates *list, const char *folder) {
    its virtual environment names (home, and home's parent: on Linux home is the installation's bin). */
 static void gather_folder(Candidates *list, const char *folder) {
     char home[PLATFORM_PATH_MAX];
+    const char *label = DSC_OVERRIDE_VARIABLE " folder:";
     if (!venv_home(folder, home, sizeof home)) {
-        add_installation(list, folder);
+        add_installation(list, folder, NULL, label);
     } else {
-        add_installation(list, home);
+        add_installation(list, home, NULL, label);
         char *separator = strrchr(home, '/'), *other = strrchr(home, '\\');
         if (other > separator) separator = other;
         if (separator && separator != home) {
             *separator = '\0';
-            add_installation(list, home);
+            add_installation(list, home, NULL, label);
         }
     }
     prefer_building_minor(list);
@@ -358,10 +381,112 @@ static int start_from_folder(Candidates *list, const char *folder) {
     return try_in_turn(list);
 }
 
+/* ROOT, the folder `python` beside this binary's file, in `root`, and the separator of that file's path;
+   1 if ROOT is a folder. */
+static int bundle_root(char *root, size_t size, char *separator) {
+    char file[PLATFORM_PATH_MAX];
+    if (platform_library_file((const void *)bundle_root, file, sizeof file) != 0) {
+        append(start_error, sizeof start_error, "this binary's own file is unknown, so is the FMU's own CPython; ");
+        return 0;
+    }
+    char *slash = strrchr(file, '/'), *other = strrchr(file, '\\');
+    if (other > slash) slash = other;
+    if (!slash) return 0;
+    *separator = *slash;
+    snprintf(root, size, "%.*s%c" BUNDLE_FOLDER, (int)(slash - file), file, *separator);
+    return platform_is_folder(root);
+}
+
+/* The first line of bundle.txt names a CPython for this system; 0, or -1 (logged as `what`). */
+static int check_header(FILE *list, const char *what) {
+    char line[256], version[64], os[64];
+    if (fgets(line, sizeof line, list) && sscanf(line, BUNDLE_HEADER "%63s %63s", version, os) == 2 &&
+        strcmp(os, PLATFORM_OS) == 0) {
+        return 0;
+    }
+    append(start_error, sizeof start_error, "%s: the first line of " BUNDLE_LIST " is not \"" BUNDLE_HEADER
+           "<version> %s\"; ", what, PLATFORM_OS);
+    return -1;
+}
+
+/* Every later line of bundle.txt, "<size> <path>": the file <path> of `root` is there with that size; 0,
+   or -1 (logged as `what`) at the first that is not. */
+static int check_files(FILE *list, const char *root, char separator, const char *what) {
+    char line[PLATFORM_PATH_MAX + 32], path[2 * PLATFORM_PATH_MAX + 32];
+    for (int number = 2; fgets(line, sizeof line, list); number++) {
+        size_t length = strcspn(line, "\r\n");
+        int whole = line[length] != '\0' || feof(list);
+        line[length] = '\0';
+        char *end;
+        long long listed = strtoll(line, &end, 10);
+        if (!whole || end == line || listed < 0 || *end != ' ' || !end[1]) {
+            append(start_error, sizeof start_error, "%s: line %d of " BUNDLE_LIST " is not \"<size> <path>\": %.200s; ",
+                   what, number, line);
+            return -1;
+        }
+        snprintf(path, sizeof path, "%s%c%s", root, separator, end + 1);
+        long long size = platform_file_size(path);
+        if (size < 0) {
+            append(start_error, sizeof start_error, "%s: %s is missing (" BUNDLE_LIST " lists it with %lld bytes); ",
+                   what, end + 1, listed);
+            return -1;
+        }
+        if (size != listed) {
+            append(start_error, sizeof start_error, "%s: %s has %lld bytes where " BUNDLE_LIST " says %lld; ", what,
+                   end + 1, size, listed);
+            return -1;
+        }
+    }
+    if (!ferror(list)) return 0;
+    append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " cannot be read to its end; ", what);
+    return -1;
+}
+
+/* The bundle in `root` as its bundle.txt lists it, checked before anything of it is loaded; 0, or -1
+   (logged as `what`). */
+static int check_bundle(const char *root, char separator, const char *what) {
+    char path[PLATFORM_PATH_MAX + 32];
+    snprintf(path, sizeof path, "%s%c" BUNDLE_LIST, root, separator);
+    if (!platform_is_file(path)) {
+        append(start_error, sizeof start_error, "%s: no " BUNDLE_LIST " in it; ", what);
+        return -1;
+    }
+    FILE *list = platform_open_file(path, "r");
+    if (!list) {
+        append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " cannot be opened; ", what);
+        return -1;
+    }
+    int result = check_header(list, what) == 0 ? check_files(list, root, separator, what) : -1;
+    fclose(list);
+    return result;
+}
+
+/* The FMU's own CPython in `root`: checked, then its library started with home `root`; -1 (logged) if
+   anything fails, and then no other Python is tried (the header comment says why). */
+static int start_own(Candidates *list, const char *root, char separator) {
+    char what[PLATFORM_PATH_MAX + 64], label[PLATFORM_PATH_MAX + 64];
+    snprintf(what, sizeof what, "the FMU's own CPython (%s)", root);
+    snprintf(label, sizeof label, "%s:", what);
+    int result = check_bundle(root, separator, what);
+    if (result == 0) {
+        add_installation(list, root, root, label);
+        if (list->count == 0) {
+            append(start_error, sizeof start_error, "%s: no CPython library in it (looked for ", what);
+            append_pattern(PLATFORM_LIBRARY_PLACES);
+            append(start_error, sizeof start_error, "); ");
+            result = -1;
+        } else {
+            result = try_in_turn(list);
+        }
+    }
+    if (result != 0) append(start_error, sizeof start_error, "the FMU carries it, so no other Python is tried; ");
+    return result;
+}
+
 static int find_and_start(void) {
     /* A function outside the stable ABI: Windows' python3.dll, which forwards that ABI, does not count. */
     Library present = platform_loaded_with("Py_InitializeFromConfig");
-    if (present) return adopt(present, NULL, "the Python in this process");
+    if (present) return adopt(present, NULL, NULL, "the Python in this process");
     static Candidate items[MAX_CANDIDATES];
     Candidates list = {items, 0};
     char override[PLATFORM_PATH_MAX];
@@ -371,6 +496,8 @@ static int find_and_start(void) {
         return try_candidate(&items[0]);
     }
     append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " not set; ");
+    char root[PLATFORM_PATH_MAX], separator;
+    if (bundle_root(root, sizeof root, &separator)) return start_own(&list, root, separator);
     gather(&list);
     int supported = 0;
     for (int i = 0; i < list.count; i++) supported += items[i].minor >= OLDEST_MINOR;
