@@ -54,8 +54,9 @@ def _sizes(default: dict, bundled: dict, version: int) -> None:
               f"{share['linux'] / MB:10.2f}{share['windows'] / MB:10.2f}")
 
 
-def _process_seconds(host: Path, folders: list[Path], md, version: int, env: dict, repeat: int) -> float:
+def _process_seconds(host: Path, folders: list[Path], version: int, env: dict, repeat: int) -> float:
     """The best wall time of a C importer process that instantiates one instance from each folder."""
+    md = read_model_description(str(folders[0]))
     token = md.guid if version == 2 else md.instantiationToken
     command = [str(host), str(version), ",".join(map(str, folders)), md.coSimulation.modelIdentifier,
                ",".join([token] * len(folders)), "0", "0.001", "0"]
@@ -73,19 +74,18 @@ def _copies(fmu: Path, folder: Path, count: int) -> list[Path]:
 
 
 def _times(host: Path, default: Path, bundled: Path, version: int, tmp: Path, repeat: int, instances: int) -> None:
-    md = read_model_description(str(default))
     own, plain = _copies(bundled, tmp / "bundled", instances), _copies(default, tmp / "default", instances)
     machines = {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: sys.base_prefix}
     routes = (("the FMU's own CPython", own, EMPTY_ENVIRONMENT),
               ("the machine's, named by DSC_FMU_PYTHON", own, machines),
               ("the machine's, FMU without a runtime", plain, EMPTY_ENVIRONMENT))
-    print(f"\nInstantiation of {md.coSimulation.modelIdentifier}, FMI {version}.0 (s, best of {repeat}; "
+    print(f"\nInstantiation of {default.stem}, FMI {version}.0 (s, best of {repeat}; "
           f"later: what each of {instances - 1} more instances adds)")
     print(f"{'CPython':42}{'first':>10}{'later':>10}{'first / own':>14}")
     first_own = None
     for label, folders, env in routes:
-        first = _process_seconds(host, folders[:1], md, version, env, repeat)
-        later = (_process_seconds(host, folders, md, version, env, repeat) - first) / (instances - 1)
+        first = _process_seconds(host, folders[:1], version, env, repeat)
+        later = (_process_seconds(host, folders, version, env, repeat) - first) / (instances - 1)
         first_own = first_own or first
         print(f"{label:42}{first:10.3f}{later:10.4f}{first / first_own:14.2f}")
 
