@@ -1,4 +1,5 @@
-"""Shared fixtures: the three FMUs (FMI 2.0 and 3.0), built once per test session into temporary folders."""
+"""Shared fixtures: the three FMUs (FMI 2.0 and 3.0), built once per test session into temporary folders;
+a Wine prefix per module."""
 
 import shutil
 
@@ -28,6 +29,14 @@ def fmu_unzipped(fmu_paths, tmp_path_factory):
 
     root = tmp_path_factory.mktemp("unzipped")
     return {name: extract(path, unzipdir=root / name) for name, path in fmu_paths.items()}
+
+
+@pytest.fixture(scope="module")
+def wine(tmp_path_factory):
+    """A Wine prefix of the module's own, booted (``wine.start_wine``)."""
+    from wine import start_wine
+
+    return start_wine(tmp_path_factory.mktemp("wine") / "prefix")
 
 
 @pytest.fixture()

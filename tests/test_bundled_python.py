@@ -16,7 +16,7 @@ from fmpy import extract, read_model_description
 from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c, write_plan
 from no_python import run_without_python
 from test_windows import assert_like_linux
-from wine import embeddable_python, start_wine, windows_path
+from wine import embeddable_python, windows_path
 from dsc_fmu.fmubuild.binary import LINUX, OVERRIDE_VARIABLE, TARGETS, WINDOWS, build_python
 from dsc_fmu.fmubuild.bundle import MANIFEST, ROOT, BundleError
 from dsc_fmu.fmubuild.fmus import LICENCE_FILE, build_fmus
@@ -253,11 +253,6 @@ def test_a_python_host_keeps_its_own_cpython(bundled, fmu_paths, fmu3_paths, tmp
 
 
 # Windows without Python
-
-@pytest.fixture(scope="module")
-def wine(tmp_path_factory):
-    return start_wine(tmp_path_factory.mktemp("wine") / "prefix")
-
 
 @pytest.fixture(scope="module")
 def windows_hosts(tmp_path_factory):

@@ -16,7 +16,7 @@ from fmpy import extract, read_model_description
 
 from c_hosts import compile_c, parse_rows, run_c, write_plan
 from dsc_fmu.fmubuild.binary import OVERRIDE_VARIABLE, TARGETS, WINDOWS
-from wine import embeddable_python, start_wine, windows_path
+from wine import embeddable_python, windows_path
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
 STEPS, STEP = 50, 0.02
@@ -27,11 +27,6 @@ UCRT = re.compile(r"api-ms-win-crt-[a-z]+-l1-1-0\.dll")
 MISLEADING = {"PYTHONHOME": r"Z:\nonexistent", "PYTHONPATH": r"Z:\nonexistent", "PYTHONSTARTUP": r"Z:\nonexistent.py"}
 
 pytestmark = pytest.mark.slow
-
-
-@pytest.fixture(scope="module")
-def wine(tmp_path_factory):
-    return start_wine(tmp_path_factory.mktemp("wine") / "prefix")
 
 
 @pytest.fixture(scope="module")
