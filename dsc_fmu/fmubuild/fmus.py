@@ -41,8 +41,9 @@ ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
 DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
-# CPython's licence in an FMU that carries it, by system (FMI 3.0's place for licences).
-LICENCE_FILE = "documentation/licenses/CPython-{system}.txt"
+# The licences of what a carried runtime holds (CPython's, a library's), by name and system (FMI 3.0's
+# place for licences).
+LICENCE_FILE = "documentation/licenses/{name}-{system}.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
 _FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
@@ -205,7 +206,7 @@ def _runtime_files(runtime: Runtime, folder: str) -> dict:
     """The files of ``runtime`` in an FMU whose binary for its system is in ``binaries/<folder>``."""
     root = f"binaries/{folder}/{ROOT}"
     return {**{f"{root}/{path}": data for path, data in runtime.files.items()}, f"{root}/{MANIFEST}": runtime.manifest(),
-            LICENCE_FILE.format(system=runtime.os): runtime.licence}
+            **{LICENCE_FILE.format(name=name, system=runtime.os): text for name, text in runtime.licences.items()}}
 
 
 def _requirements(runtimes: dict, fmi_version: int) -> str:
@@ -213,7 +214,9 @@ def _requirements(runtimes: dict, fmi_version: int) -> str:
     if not runtimes:
         return REQUIREMENTS
     folders = {target.os: f"binaries/{target.folder(fmi_version)}/{ROOT}" for target in TARGETS}
-    return bundled_requirements(runtimes, folders, {system: LICENCE_FILE.format(system=system) for system in runtimes})
+    licences = {system: [LICENCE_FILE.format(name=name, system=system) for name in runtime.licences]
+                for system, runtime in runtimes.items()}
+    return bundled_requirements(runtimes, folders, licences)
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
@@ -252,8 +255,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     if bundle_python:
-        bundle_minor(bundle_python)
-    out_dir.mkdir(parents=True, exist_ok=True)
+        bundle_minor(bundle_python)  # a bad version is refused before anything is built
     digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
@@ -294,6 +296,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
             if runtimes:
                 record["python"] = {system: runtime.version for system, runtime in runtimes.items()}
             dst.writestr(BUILD_ID_FILE, json.dumps(record))
+        out_dir.mkdir(parents=True, exist_ok=True)
         return atomic_write(target, staged.read_bytes())
 
 

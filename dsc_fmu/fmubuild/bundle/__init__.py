@@ -12,7 +12,7 @@ import tempfile
 import zipfile
 from pathlib import Path
 
-from .linux import linux_refused, linux_runtime
+from .linux import linux_library, linux_refused, linux_runtime
 from .modules import BundleError, imported_modules
 from .runtime import MANIFEST, ROOT, Runtime
 from .windows import windows_refused, windows_runtime
@@ -73,11 +73,13 @@ def bundled_runtimes(fmu: Path, entry: str, python: bool | str, systems) -> dict
     Raises
     ------
     BundleError
-        If a runtime cannot be bundled (no shared library, no download, code that does not import).
+        If a runtime cannot be bundled (not on x86-64 Linux, no shared library, no download, code that
+        does not import).
     """
     minor = bundle_minor(python)
     systems = set(systems)
-    same_minor = minor == sys.version_info.minor
+    if "linux" in systems:
+        linux_library()
     refused = (linux_refused() if "linux" in systems else set()) | (windows_refused(minor) if "windows" in systems else set())
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_bundle_") as tmp:
         with zipfile.ZipFile(fmu) as archive:
@@ -87,5 +89,5 @@ def bundled_runtimes(fmu: Path, entry: str, python: bool | str, systems) -> dict
     if "linux" in systems:
         runtimes["linux"] = linux_runtime(imports)
     if "windows" in systems:
-        runtimes["windows"] = windows_runtime(minor, imports if same_minor else None)
+        runtimes["windows"] = windows_runtime(minor, imports, whole_stdlib=minor != sys.version_info.minor)
     return runtimes

@@ -6,6 +6,7 @@ folder as its home CPython finds them itself."""
 from __future__ import annotations
 
 import os
+import platform
 import sys
 import sysconfig
 from pathlib import Path
@@ -15,7 +16,7 @@ from .elf import needed, without_debug
 from .modules import BundleError, Imports, building_stdlib
 from .runtime import Runtime, bytecode, stored_zip
 
-__all__ = ["GLIBC", "linux_refused", "linux_runtime"]
+__all__ = ["GLIBC", "linux_library", "linux_refused", "linux_runtime"]
 
 # The libraries of the C runtime every glibc system has: extension modules that need nothing else are
 # bundled freely.
@@ -24,8 +25,23 @@ GLIBC = ("libc.so.6", "libm.so.6", "libpthread.so.0", "libdl.so.2", "librt.so.1"
 _MINOR = f"{sys.version_info.major}.{sys.version_info.minor}"
 
 
-def _library() -> Path:
-    """The building CPython's shared library; refused in one line if it has none."""
+def linux_library() -> Path:
+    """The building CPython's shared library, to carry for Linux.
+
+    Returns
+    -------
+    pathlib.Path
+        ``libpython3.X.so.1.0``.
+
+    Raises
+    ------
+    BundleError
+        If this is not x86-64 Linux (the FMUs' Linux binary), or the building CPython has no shared
+        library; the message says what provides one.
+    """
+    if sys.platform != "linux" or platform.machine() != "x86_64":
+        raise BundleError(f"the Linux runtime is the building CPython's, and this is {sys.platform} on "
+                          f"{platform.machine()}; allowed: build with --bundle-python on x86-64 Linux")
     library = build_python().library
     if not library:
         raise BundleError(
@@ -49,20 +65,47 @@ def linux_refused() -> set[str]:
     -------
     set of str
         Their module names.
-
-    Raises
-    ------
-    BundleError
-        If the building CPython has no shared library.
     """
-    _library()
     dynload = building_stdlib()[1]
     suffix = sysconfig.get_config_var("EXT_SUFFIX")
     return {path.name[:-len(suffix)] for path in dynload.glob(f"*{suffix}") if _foreign(path)}
 
 
+def _loaded(soname: str, mapped: tuple) -> Path:
+    """The file of the library ``soname`` among the files a process had mapped."""
+    for path in mapped:
+        if path.name == soname or path.name.startswith(f"{soname}."):
+            return path
+    raise BundleError(f"{soname}, which a bundled extension module needs, was not loaded where the build imported "
+                      f"the FMU's code; nothing was written")
+
+
+def _licence(library: Path) -> bytes:
+    """The licence of the system library ``library`` as its distribution installs it: the copyright file
+    of the Debian package that installs a file of its name (``/var/lib/dpkg/info/*.list``; with a merged
+    /usr the list names /lib where the loader mapped /usr/lib), or ``/usr/share/licenses/<name>`` (Fedora,
+    Arch)."""
+    real = library.resolve()
+    for listing in Path("/var/lib/dpkg/info").glob("*.list"):
+        if any(line.endswith(f"/{real.name}") for line in listing.read_text(errors="replace").splitlines()):
+            copyright = Path("/usr/share/doc") / listing.stem.split(":")[0] / "copyright"
+            if copyright.is_file():
+                return copyright.read_bytes()
+    stem = real.name.split(".so")[0]
+    for name in (stem, stem.removeprefix("lib")):
+        texts = sorted(p for p in (Path("/usr/share/licenses") / name).glob("*") if p.is_file())
+        if texts:
+            return b"\n".join(p.read_bytes() for p in texts)
+    raise BundleError(f"no licence found for {real}, which a bundled extension module needs (looked for its "
+                      f"Debian package's copyright and /usr/share/licenses/{stem}); nothing was written")
+
+
 def linux_runtime(imports: Imports) -> Runtime:
     """The Linux runtime for code that imports ``imports``.
+
+    The libraries beyond glibc that its extension modules need (zlib's for ``binascii``, libffi's for
+    ``ctypes``, and what they need in turn) are carried in ``lib/`` under their sonames; the binary loads
+    them before CPython starts, so the loader finds them there by soname.
 
     Parameters
     ----------
@@ -72,15 +115,16 @@ def linux_runtime(imports: Imports) -> Runtime:
     Returns
     -------
     Runtime
-        Its files under the runtime's folder, CPython's licence, and what it needs of the system: the
-        building machine's glibc or newer, and the libraries of any extension module an import needed.
+        Its files under the runtime's folder, the licences of CPython and of each library carried, and
+        what it needs of the system: the building machine's glibc or newer.
 
     Raises
     ------
     BundleError
-        If the building CPython has no shared library.
+        If this is not x86-64 Linux, the building CPython has no shared library, or a library an
+        extension module needs, or its licence, was not found.
     """
-    library = _library()
+    library = linux_library()
     stdlib = building_stdlib()[0]
     tag = _MINOR.replace(".", "")
     sources = {**imports.sources, **{f"encodings.{p.stem}": p for p in (stdlib / "encodings").glob("*.py")}}
@@ -89,8 +133,17 @@ def linux_runtime(imports: Imports) -> Runtime:
         relative = path.relative_to(stdlib).with_suffix(".pyc").as_posix()
         zipped[relative] = bytecode(path.read_bytes(), f"{stdlib.name}/{relative[:-1]}", check_source=False)
     files = {f"lib/{library.name}": without_debug(library.read_bytes()), f"lib/python{tag}.zip": stored_zip(zipped)}
-    needs = [f"{os.confstr('CS_GNU_LIBC_VERSION')} or newer"]
+    licences = {"CPython": (stdlib / "LICENSE.txt").read_bytes()}
+    pending = []
     for path in imports.extensions.values():
         files[f"lib/python{_MINOR}/lib-dynload/{path.name}"] = without_debug(path.read_bytes())
-        needs += [name for name in _foreign(path) if name not in needs]
-    return Runtime("linux", sys.version.split()[0], files, (stdlib / "LICENSE.txt").read_bytes(), tuple(needs))
+        pending += _foreign(path)
+    while pending:
+        soname = pending.pop()
+        if f"lib/{soname}" not in files:
+            path = _loaded(soname, imports.mapped)
+            files[f"lib/{soname}"] = without_debug(path.read_bytes())
+            licences[soname.split(".so")[0]] = _licence(path)
+            pending += _foreign(path)
+    needs = (f"{os.confstr('CS_GNU_LIBC_VERSION')} or newer",)
+    return Runtime("linux", sys.version.split()[0], files, licences, needs)

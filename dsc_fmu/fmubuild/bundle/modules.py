@@ -21,12 +21,17 @@ class BundleError(DscFmuError, RuntimeError):
 
 
 # Run by ``python -I -S``: argv[1] the resources folder, argv[2] the entry file's line, argv[3] the refused
-# extension modules (JSON). Imports the bridge and the slave module, then every module any bundled module
-# names in an import statement (those inside functions too); prints each module's name and file (JSON),
-# or the refused module an import needed.
+# extension modules (JSON), argv[4] the file to answer in. Imports the bridge and the slave module, then
+# every module any bundled module names in an import statement (those inside functions too); answers
+# each module's name and file and the files the process has mapped (JSON), or the refused module an
+# import needed.
 _CHILD = r"""
 import ast, importlib, json, sys
 resources, entry, refused = sys.argv[1], sys.argv[2].split(), set(json.loads(sys.argv[3]))
+
+def answer(**fields):
+    with open(sys.argv[4], "w") as file:
+        json.dump(fields, file)
 
 class Refuse:
     def find_spec(self, name, path=None, target=None):
@@ -56,9 +61,14 @@ try:
 except ImportError as error:
     if error.name not in refused:
         raise
-    print(json.dumps({"refused": error.name}))
+    answer(refused=error.name)
     sys.exit(0)
-print(json.dumps({"modules": {name: getattr(module, "__file__", None) for name, module in sys.modules.items()}}))
+try:
+    with open("/proc/self/maps") as maps:
+        mapped = sorted({line.split(None, 5)[5].strip() for line in maps if len(line.split(None, 5)) == 6})
+except OSError:
+    mapped = []
+answer(modules={name: getattr(module, "__file__", None) for name, module in sys.modules.items()}, mapped=mapped)
 """
 
 
@@ -74,11 +84,14 @@ class Imports:
         The extension modules in their own files (``lib-dynload``), by name.
     names : frozenset of str
         Every module imported, built-in and frozen ones included (what a bundle of another system maps).
+    mapped : tuple of pathlib.Path
+        The files the importing process had mapped (the libraries the extension modules loaded).
     """
 
-    sources: dict
-    extensions: dict
+    sources: dict[str, Path]
+    extensions: dict[str, Path]
     names: frozenset
+    mapped: tuple
 
 
 def building_stdlib() -> tuple[Path, Path]:
@@ -98,7 +111,7 @@ def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
     Parameters
     ----------
     resources : pathlib.Path
-        An FMU's unzipped ``resources`` folder.
+        An FMU's unzipped ``resources`` folder (its parent takes the child's answer).
     entry : str
         Its entry file's line (bridge module, slave module, ...).
     refused : set of str
@@ -117,13 +130,14 @@ def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
     """
     stdlib, dynload = building_stdlib()
     refused = set(refused)
+    answer_file = resources.parent / "imports.json"
     while True:
-        run = subprocess.run([sys.executable, "-I", "-S", "-c", _CHILD, str(resources), entry, json.dumps(sorted(refused))],
-                             capture_output=True, text=True, timeout=300)
+        run = subprocess.run([sys.executable, "-I", "-S", "-c", _CHILD, str(resources), entry, json.dumps(sorted(refused)),
+                              str(answer_file)], capture_output=True, text=True, timeout=300)
         if run.returncode != 0:
             raise BundleError(f"the FMU's code does not import in a bare {sys.executable}: "
                               f"{(run.stderr.strip().splitlines() or ['no output'])[-1]}")
-        answer = json.loads(run.stdout)
+        answer = json.loads(answer_file.read_text())
         if "modules" in answer:
             break
         refused.discard(answer["refused"])
@@ -133,4 +147,5 @@ def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
                  and not file.is_relative_to(stdlib / "site-packages")},
         extensions={name: file for name, file in files.items() if file.parent == dynload},
         names=frozenset(answer["modules"]),
+        mapped=tuple(Path(path) for path in answer["mapped"] if path.startswith("/")),
     )

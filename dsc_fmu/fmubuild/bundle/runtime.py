@@ -29,8 +29,9 @@ class Runtime:
         Its full version (``"3.11.7"``).
     files : dict of str to bytes
         Its files by path under ``ROOT`` (with ``/``), the manifest excepted.
-    licence : bytes
-        CPython's licence, as the distribution ships it.
+    licences : dict of str to bytes
+        The licences of what it carries by name (``"CPython"``, ``"libffi"``), as the distributions
+        ship them.
     needs : tuple of str
         What it needs of the system beyond what the binary needs (``"glibc 2.36 or newer"``).
     """
@@ -38,7 +39,7 @@ class Runtime:
     os: str
     version: str
     files: dict = field(repr=False)
-    licence: bytes = field(repr=False)
+    licences: dict = field(repr=False)
     needs: tuple = ()
 
     def manifest(self) -> bytes:

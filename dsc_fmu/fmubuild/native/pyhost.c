@@ -11,8 +11,9 @@
         this binary's file exists, the only place looked at then: ROOT/bundle.txt lists every other
         file of ROOT with its size, all checked before anything is loaded; the library is ROOT's
         (lib/libpython3.X.so.1.0 on Linux, python3X.dll on Windows) and its home ROOT (on Linux
-        lib/python3X.zip and lib/python3.X/lib-dynload under it; on Windows python3X._pth fixes the
-        paths). If any of that fails, nothing else is tried: a damaged FMU is reported, not masked by
+        lib/python3X.zip and lib/python3.X/lib-dynload under it, and the libraries its extension
+        modules need in lib/, loaded first; on Windows python3X._pth fixes the paths, and the DLLs
+        beside a .pyd are found there). If any of that fails, nothing else is tried: a damaged FMU is reported, not masked by
         whatever Python the machine happens to have, and a CPython whose start failed cannot be
         unloaded to make room for another;
      3. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
@@ -400,23 +401,38 @@ static int bundle_root(char *root, size_t size, char *separator) {
 /* The first line of bundle.txt names a CPython for this system; 0, or -1 (logged as `what`). */
 static int check_header(FILE *list, const char *what) {
     char line[256], version[64], os[64];
-    if (fgets(line, sizeof line, list) && sscanf(line, BUNDLE_HEADER "%63s %63s", version, os) == 2 &&
-        strcmp(os, PLATFORM_OS) == 0) {
-        return 0;
+    if (!fgets(line, sizeof line, list)) {
+        append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " is empty; ", what);
+        return -1;
     }
+    if (sscanf(line, BUNDLE_HEADER "%63s %63s", version, os) == 2 && strcmp(os, PLATFORM_OS) == 0) return 0;
     append(start_error, sizeof start_error, "%s: the first line of " BUNDLE_LIST " is not \"" BUNDLE_HEADER
            "<version> %s\"; ", what, PLATFORM_OS);
     return -1;
 }
 
-/* Every later line of bundle.txt, "<size> <path>": the file <path> of `root` is there with that size; 0,
-   or -1 (logged as `what`) at the first that is not. */
+/* The libraries beside a bundled CPython that its extension modules need (on Linux lib/lib*.so*, but
+   libpython), loaded before it starts so that the loader finds them by soname. */
+#define MAX_PRELOADS 16
+static char preloads[MAX_PRELOADS][PLATFORM_PATH_MAX];
+static int preload_count;
+
+/* A file of the bundle to load before CPython starts: lib/lib*.so* but libpython. */
+static int is_preload(const char *path) {
+    return strncmp(path, "lib/lib", 7) == 0 && strstr(path, ".so") && strncmp(path, "lib/libpython", 13) != 0;
+}
+
+/* Every later line of bundle.txt, "<size> <path>" (empty lines skipped): the file <path> of `root` is there
+   with that size, and at least one is listed; the libraries to load first are kept in `preloads`. 0, or -1
+   (logged as `what`) at the first line that fails. */
 static int check_files(FILE *list, const char *root, char separator, const char *what) {
     char line[PLATFORM_PATH_MAX + 32], path[2 * PLATFORM_PATH_MAX + 32];
+    int files = 0;
     for (int number = 2; fgets(line, sizeof line, list); number++) {
         size_t length = strcspn(line, "\r\n");
         int whole = line[length] != '\0' || feof(list);
         line[length] = '\0';
+        if (whole && length == 0) continue;
         char *end;
         long long listed = strtoll(line, &end, 10);
         if (!whole || end == line || listed < 0 || *end != ' ' || !end[1]) {
@@ -436,9 +452,35 @@ static int check_files(FILE *list, const char *root, char separator, const char 
                    end + 1, size, listed);
             return -1;
         }
+        if (is_preload(end + 1) && preload_count < MAX_PRELOADS) {
+            snprintf(preloads[preload_count++], PLATFORM_PATH_MAX, "%s", path);
+        }
+        files++;
     }
-    if (!ferror(list)) return 0;
-    append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " cannot be read to its end; ", what);
+    if (ferror(list)) {
+        append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " cannot be read to its end; ", what);
+        return -1;
+    }
+    if (files > 0) return 0;
+    append(start_error, sizeof start_error, "%s: " BUNDLE_LIST " lists no file; ", what);
+    return -1;
+}
+
+/* Load the libraries of `preloads`, each kept for the process's life, in as many rounds as it takes for
+   those that need one another; 0, or -1 (logged as `what`) if one does not load. */
+static int load_preloads(const char *what) {
+    char why[512] = "";
+    int loaded[MAX_PRELOADS] = {0}, left = preload_count;
+    for (int progress = 1; left > 0 && progress;) {
+        progress = 0;
+        for (int i = 0; i < preload_count; i++) {
+            if (loaded[i] || !platform_load(preloads[i], why, sizeof why)) continue;
+            loaded[i] = progress = 1;
+            left--;
+        }
+    }
+    if (left == 0) return 0;
+    append(start_error, sizeof start_error, "%s: %s; ", what, why);
     return -1;
 }
 
@@ -468,6 +510,7 @@ static int start_own(Candidates *list, const char *root, char separator) {
     snprintf(what, sizeof what, "the FMU's own CPython (%s)", root);
     snprintf(label, sizeof label, "%s:", what);
     int result = check_bundle(root, separator, what);
+    if (result == 0) result = load_preloads(what);
     if (result == 0) {
         add_installation(list, root, root, label);
         if (list->count == 0) {
