@@ -72,7 +72,7 @@ _OPTIONS = {
     "bundle_python": _option("--bundle-python", nargs="?", const=True, default=False, metavar="3.X", help="each FMU "
                              "carries a CPython for Linux and Windows, so the importing machine needs none: "
                              "Linux's is the building CPython's, Windows' the official embeddable CPython 3.X "
-                             "(default 3.X: the building CPython's, {building}); without it the FMUs use the "
+                             "(default: the building CPython's minor, {building}); without it the FMUs use the "
                              "importing machine's CPython 3.9 or newer"),
     "interface": _option("--interface", choices=INTERFACES, help="co-simulation: the FMUs stepped at the "
                          "communication step{stepped}; model-exchange: the three FMUs as one ODE{integrated} "

@@ -413,7 +413,8 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
 
 
 def _carries(fmu: Path, bundle_python: bool | str) -> bool:
-    """Whether ``fmu`` carries the CPython ``bundle_python`` asks for (any FMU if it asks for none)."""
+    """Whether ``fmu`` carries the CPython ``bundle_python`` asks for (any FMU if it asks for none): the
+    Windows runtime's minor version decides, since Linux's is always the building CPython's."""
     if not bundle_python:
         return True
     windows = (fmu_bundled_python(fmu) or {}).get("windows", "")

@@ -13,6 +13,7 @@ _PROGRAM = struct.Struct("<IIQQQQQQ")  # Elf64_Phdr
 _DYNAMIC = struct.Struct("<qQ")  # Elf64_Dyn
 _ALLOC, _NOBITS, _DYNAMIC_SECTION, _LOAD, _NEEDED, _STRTAB_TAG = 0x2, 8, 6, 1, 1, 5
 _INFO_LINK = 0x40
+_SHARED, _X86_64 = 3, 62  # e_type ET_DYN, e_machine EM_X86_64
 
 
 class ElfError(ValueError):
@@ -22,7 +23,10 @@ class ElfError(ValueError):
 def _header(data: bytes) -> tuple:
     if len(data) < _HEADER.size or data[:4] != b"\x7fELF" or data[4] != 2 or data[5] != 1:
         raise ElfError("not a 64-bit little-endian ELF file")
-    return _HEADER.unpack_from(data)
+    header = _HEADER.unpack_from(data)
+    if header[1] != _SHARED or header[2] != _X86_64:
+        raise ElfError(f"not an x86-64 shared library (type {header[1]}, machine {header[2]})")
+    return header
 
 
 def _sections(data: bytes, header: tuple) -> list[list[int]]:
@@ -33,7 +37,10 @@ def _sections(data: bytes, header: tuple) -> list[list[int]]:
 
 
 def _string(data: bytes, offset: int) -> str:
-    return data[offset:data.index(b"\0", offset)].decode("utf-8", "replace")
+    end = data.find(b"\0", offset)
+    if end < 0:
+        raise ElfError("a name of its dynamic section is not inside the file")
+    return data[offset:end].decode("utf-8", "replace")
 
 
 def needed(data: bytes) -> list[str]:
