@@ -11,7 +11,7 @@ import numpy as np
 
 from .instance import LoadedFmu
 
-__all__ = ["Blocks", "fmu_blocks", "loop_jacobian"]
+__all__ = ["Blocks", "fmu_blocks", "loop_jacobian", "closed_loop"]
 
 
 @dataclass(frozen=True)
@@ -119,3 +119,34 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
     jacobian[nr + npl:, nr + npl:] = controller.A
     jacobian[nr + npl:] += controller.B @ dm
     return jacobian
+
+
+def closed_loop(blocks: dict) -> control.StateSpace:
+    """The closed loop linearised, as a python-control system.
+
+    Its state is the three FMUs' in model exchange's order (named ``<FMU>.<state>``), its matrix the
+    loop's Jacobian (``loop_jacobian``); its inputs are disturbances added to the plant's inputs
+    (``d_u1``, ``d_u2``: voltages on top of the controller's), its outputs the plant's outputs the
+    controller measures.
+
+    Parameters
+    ----------
+    blocks : dict of str to Blocks
+        The reference's, the plant's and the controller's blocks in model exchange's order
+        (``registry.ORDER``), with the inputs and outputs the loop connects.
+
+    Returns
+    -------
+    control.StateSpace
+        ``ss(A, B, C, 0)`` of the loop.
+    """
+    reference, plant, controller = blocks.values()
+    nr, npl = len(reference.states), len(plant.states)
+    n = nr + npl + len(controller.states)
+    B = np.zeros((n, len(plant.inputs)))
+    B[nr:nr + npl] = plant.B
+    C = np.zeros((len(plant.outputs), n))
+    C[:, nr:nr + npl] = plant.C
+    states = [f"{name}.{state}" for name, b in blocks.items() for state in b.states]
+    return control.ss(loop_jacobian(reference, plant, controller), B, C, np.zeros((len(plant.outputs), len(plant.inputs))),
+                      states=states, inputs=[f"d_{name}" for name in plant.inputs], outputs=list(plant.outputs))

@@ -7,6 +7,7 @@ import ctypes
 import math
 import time as clock
 
+import control
 import numpy as np
 from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
@@ -16,13 +17,13 @@ from ..models.parameters import DEFAULT_TOLERANCE
 from ..registry import ORDER
 from ..scenario import Interface, Method, Scenario, ScenarioError
 from .instance import LogMessage, failed_call
-from .linear import fmu_blocks, loop_jacobian
+from .linear import closed_loop, fmu_blocks, loop_jacobian
 from .loading import LoadedFmus
 from .master import CosimulationResult, Wiring, Recorder
 from .progress import Watch
 from .reference_solution import output_times
 
-__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
+__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange", "linearise_at"]
 
 METHOD = Method.DOP853
 """The default integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
@@ -197,6 +198,15 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
     return handled
 
 
+def _tolerance(scenario: Scenario, tolerance: float | None) -> float:
+    """The solver's relative tolerance: ``tolerance``, else the scenario's, else ``DEFAULT_TOLERANCE``; checked."""
+    rtol = next(value for value in (tolerance, scenario.simulation.tolerance, DEFAULT_TOLERANCE) if value is not None)
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
+        raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
+                            "relative tolerance)")
+    return rtol
+
+
 def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: float | None = None,
                             output_interval: float | None = None, tolerance: float | None = None,
                             method: Method | str | None = None, workdir=None, watch: Watch | None = None
@@ -242,10 +252,7 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     """
     scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval, method=method)
     settings = scenario.simulation
-    rtol = next(value for value in (tolerance, settings.tolerance, DEFAULT_TOLERANCE) if value is not None)
-    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
-        raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
-                            "relative tolerance)")
+    rtol = _tolerance(scenario, tolerance)
     started = clock.perf_counter()
     log: list[LogMessage] = []
     times = output_times(settings.stop_time, settings.output_interval)
@@ -267,3 +274,53 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         log=list(log), fmus=fmus.records,
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )
+
+
+def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str | None = None, *,
+                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> control.StateSpace:
+    """One of the three FMUs, or the closed loop, linearised at a time of the scenario's model-exchange run.
+
+    The loop is integrated as ``simulate_model_exchange`` integrates it, to ``at_time``; there each FMU's
+    ``A, B, C, D`` come from its directional derivatives (``linear.fmu_blocks``), exact to rounding.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    fmu_paths : dict
+        The three FMU files by name (FMI 2.0 or 3.0).
+    at_time : float
+        When, in s (> 0).
+    which : str, optional
+        An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop
+        connects. Default None: the closed loop (``linear.closed_loop``).
+    tolerance, method, workdir
+        As for ``simulate_model_exchange``.
+
+    Returns
+    -------
+    control.StateSpace
+        The linearised system, its states, inputs and outputs named.
+
+    Raises
+    ------
+    ScenarioError
+        If ``which`` is not an FMU's name, or a setting is out of its range.
+    CosimulationError
+        A failing FMI call or the solver giving up.
+    """
+    if which is not None and which not in ORDER:
+        raise ScenarioError(f"{which!r} is not one of the FMUs; allowed: {', '.join(ORDER)} or None (the closed loop)")
+    scenario = scenario.with_simulation(stop_time=at_time, output_interval=at_time, method=method)
+    rtol = _tolerance(scenario, tolerance)
+    log: list[LogMessage] = []
+    with LoadedFmus(fmu_paths, workdir, log, model_exchange=True) as fmus:
+        wiring = Wiring(fmus.by_name)
+        loop = _Loop(wiring, scenario.simulation.bound)
+        try:
+            _start(loop, scenario)
+            _integrate(loop, Recorder(wiring, 2), np.array([0.0, at_time]), rtol, scenario.simulation.method)
+            blocks = loop.blocks()
+        except FMICallException as error:
+            raise failed_call(error, log, loop.at) from None
+    return closed_loop(blocks) if which is None else blocks[which].state_space()
