@@ -1,12 +1,12 @@
 """The FMUs linearised through their exact directional derivatives (``fmi2GetDirectionalDerivative``,
 ``fmi3GetDirectionalDerivative``): each FMU's ``A, B, C, D`` at its current point, the Jacobian of the
-three as one ODE (model exchange's loop), and python-control state-space models of either."""
+three as one ODE (model exchange's loop), and python-control state-space models of either (python-control
+imported only when one is asked for: a run needs none)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-import control
 import numpy as np
 
 from .instance import LoadedFmu
@@ -34,7 +34,7 @@ class Blocks:
     inputs: tuple
     outputs: tuple
 
-    def state_space(self) -> control.StateSpace:
+    def state_space(self) -> "control.StateSpace":
         """The FMU as a python-control system, its signals named.
 
         Returns
@@ -42,6 +42,8 @@ class Blocks:
         control.StateSpace
             ``ss(A, B, C, D)`` with the names of ``states``, ``inputs`` and ``outputs``.
         """
+        import control
+
         return control.ss(self.A, self.B, self.C, self.D, states=list(self.states), inputs=list(self.inputs),
                           outputs=list(self.outputs))
 
@@ -121,7 +123,7 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
     return jacobian
 
 
-def closed_loop(blocks: dict) -> control.StateSpace:
+def closed_loop(blocks: dict) -> "control.StateSpace":
     """The closed loop linearised, as a python-control system.
 
     Its state is the three FMUs' in model exchange's order (named ``<FMU>.<state>``), its matrix the
@@ -140,6 +142,8 @@ def closed_loop(blocks: dict) -> control.StateSpace:
     control.StateSpace
         ``ss(A, B, C, 0)`` of the loop.
     """
+    import control
+
     reference, plant, controller = blocks.values()
     nr, npl = len(reference.states), len(plant.states)
     n = nr + npl + len(controller.states)

@@ -7,7 +7,6 @@ import ctypes
 import math
 import time as clock
 
-import control
 import numpy as np
 from fmpy.fmi1 import FMICallException
 from scipy.integrate import solve_ivp
@@ -277,7 +276,7 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
 
 
 def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str | None = None, *,
-                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> control.StateSpace:
+                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> "control.StateSpace":
     """One of the three FMUs, or the closed loop, linearised at a time of the scenario's model-exchange run.
 
     The loop is integrated as ``simulate_model_exchange`` integrates it, to ``at_time``; there each FMU's
