@@ -6,10 +6,14 @@ imported only when one is asked for: a run needs none)."""
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .instance import LoadedFmu
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["Blocks", "fmu_blocks", "loop_jacobian", "closed_loop"]
 
@@ -34,7 +38,7 @@ class Blocks:
     inputs: tuple
     outputs: tuple
 
-    def state_space(self) -> "control.StateSpace":
+    def state_space(self) -> control.StateSpace:
         """The FMU as a python-control system, its signals named.
 
         Returns
@@ -123,7 +127,7 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
     return jacobian
 
 
-def closed_loop(blocks: dict) -> "control.StateSpace":
+def closed_loop(blocks: dict) -> control.StateSpace:
     """The closed loop linearised, as a python-control system.
 
     Its state is the three FMUs' in model exchange's order (named ``<FMU>.<state>``), its matrix the

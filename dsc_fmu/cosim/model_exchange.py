@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time as clock
+from typing import TYPE_CHECKING
 
 import numpy as np
 from fmpy.fmi1 import FMICallException
@@ -21,6 +22,9 @@ from .loading import LoadedFmus
 from .master import CosimulationResult, Wiring, Recorder
 from .progress import Watch
 from .reference_solution import output_times
+
+if TYPE_CHECKING:
+    import control
 
 __all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange", "linearise_at"]
 
@@ -276,7 +280,7 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
 
 
 def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str | None = None, *,
-                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> "control.StateSpace":
+                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> control.StateSpace:
     """One of the three FMUs, or the closed loop, linearised at a time of the scenario's model-exchange run.
 
     The loop is integrated as ``simulate_model_exchange`` integrates it, to ``at_time``; there each FMU's
