@@ -355,3 +355,41 @@ def test_a_norm_at_a_zero_estimate_has_entries_zero():
     for name in ("W1_hat_norm", "W2_hat_norm"):
         got = inst.slave.directional_derivative([inst.vr[name]], knowns, [1.0] * len(knowns), True)
         assert got == [0.0]
+
+
+def _expression(x, math):
+    """Every operator of ``Dual`` with floats on either side, and every function of ``DUAL_MATH``."""
+    y = (x * 2.0 - 1.0) / (x + 3.0) + 1.0 / x - (2.0 - x) + x * x / x - -x
+    return math.atan(y) ** 3.0 + math.sqrt(x * x + 1.0) * math.cos(x) + math.sin(y) + math.fsum([x, y, 0.5])
+
+
+@pytest.mark.parametrize("x", (0.3, -1.7, 2.9))
+def test_the_dual_rules_equal_the_complex_step(x):
+    dual = _expression(Dual(x, 1.0), DUAL_MATH)
+    step = _expression(complex(x, COMPLEX_STEP), CMATH)
+    assert dual.value == _expression(x, math)
+    assert dual.tangent == pytest.approx(step.imag / COMPLEX_STEP, rel=1e-14)
+
+
+def test_the_dual_switches_take_the_branch_of_the_value():
+    assert (abs(Dual(-2.0, 1.0)).tangent, abs(Dual(2.0, 1.0)).tangent) == (-1.0, 1.0)
+    wrapped = DUAL_MATH.remainder(Dual(3.0 * math.pi / 2, 1.0), 2.0 * math.pi)
+    assert (wrapped.value, wrapped.tangent) == (math.remainder(3.0 * math.pi / 2, 2.0 * math.pi), 1.0)
+    assert Dual(1.0, 5.0) < 2.0 and Dual(1.0, 5.0) == Dual(1.0, -5.0) and not Dual(1.0) > Dual(1.0)
+    with pytest.raises(TypeError):
+        math.sin(Dual(1.0, 1.0))  # no conversion to float: the tangent is never lost silently
+
+
+def test_the_bridge_takes_what_the_binary_passes(after_5s):
+    """native_bridge: sequences of ints and floats in (as the binary packs them), a list of floats out."""
+    from dsc_fmu.fmu import native_bridge
+
+    inst = _at(after_5s, 3, "DSCController", "after 5 s", False)
+    unknowns, knowns = (inst.vr["u1"], inst.vr["u2"]), (inst.vr["theta"], inst.vr["v_r"])
+    forward = native_bridge.directional_derivative(inst.slave, unknowns, knowns, (1.0, 0.0), 0)
+    assert forward == inst.slave.directional_derivative(list(unknowns), list(knowns), [1.0, 0.0], False)
+    assert all(type(v) is float for v in forward)
+    adjoint = native_bridge.adjoint_derivative(inst.slave, unknowns, knowns, (1.0, 0.0), 0)
+    assert adjoint[0] == forward[0]
+    with pytest.raises(ValueError, match="allowed knowns: continuous states and Real inputs"):
+        native_bridge.directional_derivative(inst.slave, unknowns, (inst.vr["u1"],), (1.0,), 1)
