@@ -4,9 +4,10 @@ The slave classes of ``fmu_sources`` (FMI 2.0), initialized and stepped 1 s alon
 inputs, then, per FMU: a derivative evaluation (``get_derivatives``, as model exchange asks for it)
 beside one column of the Jacobian of the state derivatives by the states and inputs
 (``directional_derivative`` with a seed on one known; the mean over all columns), and an evaluation
-of the outputs beside one column of the outputs by the inputs (co-simulation; the mean over the inputs). Both sides are the Python of the slave alone: the FMI layer adds the same cost to
-each call. ``--float-only`` times the float path alone (it runs on a tree without directional
-derivatives too: compare before and after a change).
+of the outputs beside one column of the outputs by the inputs (co-simulation; the mean over the
+inputs). Both sides are the Python of the slave alone: the FMI layer adds the same cost to each call.
+``--float-only`` times the float path alone (it runs on a tree without directional derivatives too:
+compare before and after a change).
 Run: ``python benchmarks/jacobian.py [--calls 2000] [--repeat 5] [--float-only]``.
 """
 
@@ -88,7 +89,8 @@ def main() -> None:
     parser.add_argument("--float-only", action="store_true", help="time the float path only")
     args = parser.parse_args()
     print(f"in this process, FMI 2.0 slaves 1 s into a run (us per call, best of {args.repeat} x {args.calls})")
-    print(f"{'FMU':<16}{'derivatives':>13}{'column (ME)':>13}{'ratio':>7}{'outputs':>10}{'column (CS)':>13}{'ratio':>7}")
+    print(f"{'FMU':<16}{'derivatives':>13}{'column (ME)':>13}{'ratio':>7}{'outputs':>10}{'column (CS)':>13}"
+          f"{'ratio':>7}")
     for name, instance in _slaves().items():
         derivative, column, output, output_column = _costs(instance, args.calls, args.repeat, args.float_only)
         cells = [f"{name:<16}{derivative * 1e6:>13.2f}"]

@@ -607,7 +607,7 @@ class SlaveCore:
     # --- directional derivatives: forward-mode automatic differentiation of rates and outputs ---
 
     def directional_derivative(self, unknowns: list, knowns: list, seed: list, model_exchange: bool) -> list:
-        """``J seed``, J the Jacobian of the unknowns by the knowns at the current point (fmi2/fmi3GetDirectionalDerivative).
+        """``J seed``, J the Jacobian of the unknowns by the knowns here (fmi2/fmi3GetDirectionalDerivative).
 
         Model exchange: at the time, continuous state and inputs set, with the switches held
         (docs/model.md §5.13); unknowns are state derivatives and Real outputs, knowns continuous
@@ -757,4 +757,5 @@ def _check_count(seed: list, references: list, what: str) -> None:
     """ValueError unless ``seed`` has one entry per reference."""
     if len(seed) != len(references):
         entries = "entry" if len(seed) == 1 else "entries"
-        raise ValueError(f"the seed has {len(seed)} {entries} for {len(references)} {what}; allowed: one per {what[:-1]}")
+        raise ValueError(
+            f"the seed has {len(seed)} {entries} for {len(references)} {what}; allowed: one per {what[:-1]}")
