@@ -297,8 +297,12 @@ def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str
     which : str, optional
         An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop
         connects. Default None: the closed loop (``linear.closed_loop``).
-    tolerance, method, workdir
-        As for ``simulate_model_exchange``.
+    tolerance : float, optional
+        The solver's relative tolerance, as for ``simulate_model_exchange``.
+    method : {"DOP853", "Radau", "BDF"} or Method, optional
+        The integrator, as for ``simulate_model_exchange``.
+    workdir : path, optional
+        Where the FMUs are extracted (a temporary folder by default).
 
     Returns
     -------
