@@ -9,8 +9,8 @@ Then the cost of one model evaluation through each interface, per FMU: a model-e
 evaluation (fmi2SetTime, fmi2SetContinuousStates, fmi2GetDerivatives, as a solver calls them) beside a
 co-simulation step that evaluates the model once (fmi2DoStep with one explicit Euler step: the
 controller's ``discretization = euler``; the plant and the reference with ``max_step`` = the step, whose
-RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms; and, where the
-FMU declares ``providesDirectionalDerivative``, one column of the Jacobian of the state derivatives
+RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms; and one column of
+the Jacobian of the state derivatives
 (fmi2GetDirectionalDerivative with one known, the mean over the states and inputs) against one
 derivative evaluation (``benchmarks/jacobian.py`` measures the same in this process).
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
@@ -97,11 +97,9 @@ def _c_master_run(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float
         raise RuntimeError(f"the C master failed: {run.stderr[-500:]}")
 
 
-def _column_cost(model, md, calls: int) -> float | None:
+def _column_cost(model, md, calls: int) -> float:
     """Seconds per Jacobian column of the state derivatives through fmi2GetDirectionalDerivative, one known
-    per call, the mean over the states and inputs; None if the FMU does not provide them."""
-    if not md.modelExchange.providesDirectionalDerivative:
-        return None
+    per call, the mean over the states and inputs."""
     unknowns = [d.variable.valueReference for d in md.derivatives]
     knowns = [d.variable.derivative.valueReference for d in md.derivatives]
     knowns += [v.valueReference for v in md.modelVariables if v.causality == "input" and v.type == "Real"]
@@ -215,15 +213,11 @@ def main() -> None:
         ratio = f"{derivative / euler:>13.2f}" if euler else f"{'-':>13}"
         print(f"{name:<16}{derivative * 1e6:>18.1f}{euler_text}{rk4 * 1e6:>15.1f}{ratio}{derivative / rk4:>11.2f}")
     print("(target: derivative evaluation <= the co-simulation step that evaluates the model once)")
-    if all(column is None for *_, column in costs.values()):
-        print("(no FMU provides directional derivatives: no Jacobian columns timed)")
-        return
     print()
     print("one Jacobian column of the state derivatives, FMI 2.0 model exchange through fmpy (us per call)")
     print(f"{'FMU':<16}{'derivatives':>13}{'column':>10}{'ratio':>8}")
     for name, (derivative, _, _, column) in costs.items():
-        if column is not None:
-            print(f"{name:<16}{derivative * 1e6:>13.1f}{column * 1e6:>10.1f}{column / derivative:>8.2f}")
+        print(f"{name:<16}{derivative * 1e6:>13.1f}{column * 1e6:>10.1f}{column / derivative:>8.2f}")
     print("(target: one column <= 5 x one derivative evaluation)")
 
 
