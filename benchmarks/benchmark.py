@@ -9,7 +9,10 @@ Then the cost of one model evaluation through each interface, per FMU: a model-e
 evaluation (fmi2SetTime, fmi2SetContinuousStates, fmi2GetDerivatives, as a solver calls them) beside a
 co-simulation step that evaluates the model once (fmi2DoStep with one explicit Euler step: the
 controller's ``discretization = euler``; the plant and the reference with ``max_step`` = the step, whose
-RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms.
+RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms; and one column of
+the Jacobian of the state derivatives
+(fmi2GetDirectionalDerivative with one known, the mean over the states and inputs) against one
+derivative evaluation (``benchmarks/jacobian.py`` measures the same in this process).
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
 """
 
@@ -94,10 +97,24 @@ def _c_master_run(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float
         raise RuntimeError(f"the C master failed: {run.stderr[-500:]}")
 
 
+def _column_cost(model, md, calls: int) -> float:
+    """Seconds per Jacobian column of the state derivatives through fmi2GetDirectionalDerivative, one known
+    per call, the mean over the states and inputs."""
+    unknowns = [d.variable.valueReference for d in md.derivatives]
+    knowns = [d.variable.derivative.valueReference for d in md.derivatives]
+    knowns += [v.valueReference for v in md.modelVariables if v.causality == "input" and v.type == "Real"]
+    rounds = max(1, calls // len(knowns))
+    start = time.perf_counter()
+    for _ in range(rounds):
+        for known in knowns:
+            model.getDirectionalDerivative(unknowns, [known], [1.0])
+    return (time.perf_counter() - start) / (rounds * len(knowns))
+
+
 def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> dict[str, tuple]:
     """Per FMU, the seconds per call of: a derivative evaluation (model exchange), a co-simulation step
     with one evaluation of the model (the controller's Euler; None for the RK4-only plant and reference),
-    and a co-simulation step of 1 ms (RK4: four evaluations)."""
+    a co-simulation step of 1 ms (RK4: four evaluations) and a Jacobian column (``_column_cost``)."""
     import ctypes
 
     from fmpy import extract, read_model_description
@@ -123,6 +140,7 @@ def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> di
             model.setContinuousStates(x, n)
             model.getDerivatives(dx, n)
         derivative = (time.perf_counter() - start) / calls
+        column = _column_cost(model, md, calls)
         model.terminate()
         model.freeInstance()
         steps = []
@@ -144,7 +162,7 @@ def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> di
             steps.append((time.perf_counter() - start) / calls)
             slave.terminate()
             slave.freeInstance()
-        costs[name] = (derivative, *steps)
+        costs[name] = (derivative, *steps, column)
     return costs
 
 
@@ -190,11 +208,17 @@ def main() -> None:
     print("one model evaluation per call, FMI 2.0 through fmpy (us per call; ratio: derivative evaluation / step)")
     print(f"{'FMU':<16}{'derivatives (ME)':>18}{'Euler step (CS)':>17}{'RK4 step (CS)':>15}{'ratio Euler':>13}"
           f"{'ratio RK4':>11}")
-    for name, (derivative, euler, rk4) in costs.items():
+    for name, (derivative, euler, rk4, _) in costs.items():
         euler_text = f"{euler * 1e6:>17.1f}" if euler else f"{'-':>17}"
         ratio = f"{derivative / euler:>13.2f}" if euler else f"{'-':>13}"
         print(f"{name:<16}{derivative * 1e6:>18.1f}{euler_text}{rk4 * 1e6:>15.1f}{ratio}{derivative / rk4:>11.2f}")
     print("(target: derivative evaluation <= the co-simulation step that evaluates the model once)")
+    print()
+    print("one Jacobian column of the state derivatives, FMI 2.0 model exchange through fmpy (us per call)")
+    print(f"{'FMU':<16}{'derivatives':>13}{'column':>10}{'ratio':>8}")
+    for name, (derivative, _, _, column) in costs.items():
+        print(f"{name:<16}{derivative * 1e6:>13.1f}{column * 1e6:>10.1f}{column / derivative:>8.2f}")
+    print("(target: one column <= 5 x one derivative evaluation)")
 
 
 if __name__ == "__main__":

@@ -2,7 +2,7 @@
 
 The names a user needs, imported when first used (so that ``import dsc_fmu`` and ``dsc-fmu --help``
 stay fast): ``load_scenario``, ``build_fmus``, ``ensure_fmus``, ``cosimulate``, ``Cosimulator``,
-``simulate_model_exchange``, ``reference_solution``, ``run_scenario``, ``run_sweep`` with its ``Grid`` and
+``simulate_model_exchange``, ``linearise_at``, ``reference_solution``, ``run_scenario``, ``run_sweep`` with its ``Grid`` and
 ``Runner``, ``DscFmuError`` and ``CosimulationError``.
 """
 
@@ -17,6 +17,7 @@ _EXPORTS = {
     "cosimulate": "dsc_fmu.cosim.master",
     "Cosimulator": "dsc_fmu.cosim.master",
     "simulate_model_exchange": "dsc_fmu.cosim.model_exchange",
+    "linearise_at": "dsc_fmu.cosim.model_exchange",
     "reference_solution": "dsc_fmu.cosim.reference_solution",
     "run_scenario": "dsc_fmu.cosim.run",
     "run_sweep": "dsc_fmu.study.sweep",

@@ -21,7 +21,7 @@ from .errors import DscFmuError, FmiVersionError
 from .fmubuild.folders import DEFAULT_FMI_VERSION, DEFAULT_FMU_DIRS, FMI_VERSIONS, resolve_fmu_dir
 from .models.parameters import DISCRETIZATIONS
 from .scenario import (
-    COUPLINGS, INTERFACES, ORDERS, REFERENCES, STABILITIES, Coupling, Interface, ScenarioError, Simulation,
+    COUPLINGS, INTERFACES, METHODS, ORDERS, REFERENCES, STABILITIES, Coupling, Interface, ScenarioError, Simulation,
     load_scenario, scenario_names,
 )
 
@@ -86,6 +86,9 @@ _OPTIONS = {
                                  "standard route, FMI 2.0) instead of the FMUs' coupling parameters "
                                  "(default: {default})"),
     "output_interval": _option("--output-interval", type=float, help="recording interval in s (default: {default})"),
+    "method": _option("--method", choices=METHODS, help="model exchange's integrator: SciPy's DOP853 (explicit), or "
+                      "Radau and BDF (implicit, with the loop's Jacobian from the FMUs' directional derivatives) "
+                      "(default: {default})"),
     "tolerance": _option("--tolerance", type=float, metavar="TOL", help="co-simulation: error-controlled step, the "
                          "estimated position error (m) each step may add, the step varying within [--h-min, --h-max] "
                          "from --step-size, with the linear coupling unless --coupling says otherwise; model exchange: "
@@ -184,6 +187,7 @@ def _run_options(parser: argparse.ArgumentParser) -> None:
     _add(parser, "interface", stepped=" by this project's master",
          integrated=f", integrated by SciPy's {METHOD} with their event indicators", default=_default(run_scenario, "interface"))
     _add(parser, "tolerance", solver=f"{DEFAULT_TOLERANCE:g}")
+    _add(parser, "method", default=METHOD)
     for name in ("h_min", "h_max"):
         _add(parser, name, unset=f"{getattr(Simulation, name):g}")
     parser.add_argument("--out", type=Path, help="output folder (default: results/<scenario name>)")
@@ -301,7 +305,7 @@ def _scenarios(args) -> None:
 
 
 _SETTINGS = ("step_size", "stop_time", "order", "coupling", "input_derivatives", "output_interval", "tolerance",
-             "h_min", "h_max")  # the simulation settings ``run`` takes as options
+             "method", "h_min", "h_max")  # the simulation settings ``run`` takes as options
 
 
 _FASTER = "--coupling linear meets the same tolerance with far fewer steps"
@@ -344,7 +348,7 @@ def _run(args) -> int:
     coupling, note, hint = _error_controlled_coupling(args, interface, scenario)
     scenario = scenario.with_simulation(
         step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
-        coupling=coupling, tolerance=args.tolerance, h_min=args.h_min, h_max=args.h_max,
+        coupling=coupling, tolerance=args.tolerance, method=args.method, h_min=args.h_min, h_max=args.h_max,
         input_derivatives=args.input_derivatives,
     )
     folder, version = _fmus(args)

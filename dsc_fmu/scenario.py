@@ -17,7 +17,7 @@ from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
     "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Stability", "Interface", "Reference", "ORDERS", "COUPLINGS",
-    "STABILITIES", "INTERFACES", "REFERENCES", "load_scenario", "one_of", "scenario_names", "SCENARIO_DIR",
+    "STABILITIES", "INTERFACES", "REFERENCES", "Method", "METHODS", "load_scenario", "one_of", "scenario_names", "SCENARIO_DIR",
 ]
 
 
@@ -87,7 +87,7 @@ class Interface(_Named):
 
     CO_SIMULATION = "co-simulation", ("stop_time", "step_size", "order", "output_interval", "bound", "coupling",
                                       "tolerance", "h_min", "h_max", "error_gain", "input_derivatives")
-    MODEL_EXCHANGE = "model-exchange", ("tolerance", "stop_time", "output_interval", "bound")
+    MODEL_EXCHANGE = "model-exchange", ("tolerance", "method", "stop_time", "output_interval", "bound")
 
     def __init__(self, value: str, settings: tuple):
         self.settings = settings
@@ -133,6 +133,26 @@ class Reference(_Named):
         self.through_fmus = through_fmus
 
 
+class Method(_Named):
+    """SciPy's integrator of a model-exchange run (``cosim.model_exchange``).
+
+    ``"DOP853"``: the explicit Runge-Kutta of order 8; ``"Radau"`` and ``"BDF"``: implicit, given the
+    loop's Jacobian from the FMUs' directional derivatives.
+
+    Attributes
+    ----------
+    implicit : bool
+        Whether it takes a Jacobian.
+    """
+
+    DOP853 = "DOP853", False
+    RADAU = "Radau", True
+    BDF = "BDF", True
+
+    def __init__(self, value: str, implicit: bool):
+        self.implicit = implicit
+
+
 ORDERS = tuple(order.value for order in Order)
 """The names of the coupling orders (``Order``)."""
 COUPLINGS = tuple(coupling.value for coupling in Coupling)
@@ -143,6 +163,8 @@ INTERFACES = tuple(interface.value for interface in Interface)
 """The names of the interfaces (``Interface``)."""
 REFERENCES = tuple(reference.value for reference in Reference)
 """The names of the references of a step-size study (``Reference``)."""
+METHODS = tuple(method.value for method in Method)
+"""The names of the model-exchange integrators (``Method``)."""
 
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
@@ -193,15 +215,16 @@ def one_of(allowed, value, name: str):
     return allowed(value) if isinstance(allowed, enum.EnumType) else value
 
 
-_CLOSED_SETS = {"order": Order, "coupling": Coupling, "stability": Stability, "reference": Reference}
+_CLOSED_SETS = {"order": Order, "coupling": Coupling, "stability": Stability, "reference": Reference,
+                "method": Method}
 
 
 @dataclass(frozen=True)
 class Simulation:
     """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
 
-    Names of orders, couplings, stabilities and references become ``Order``, ``Coupling``, ``Stability``
-    and ``Reference``; ``check`` says whether the settings are allowed.
+    Names of orders, couplings, stabilities, references and methods become ``Order``, ``Coupling``,
+    ``Stability``, ``Reference`` and ``Method``; ``check`` says whether the settings are allowed.
 
     Parameters
     ----------
@@ -233,6 +256,8 @@ class Simulation:
         How a step-size study judges a run. Default "settled".
     reference : Reference or {"monolithic", "model-exchange"}, optional
         What a step-size study measures the runs' deviations against. Default "monolithic".
+    method : Method or {"DOP853", "Radau", "BDF"}, optional
+        The integrator of a model-exchange run. Default "DOP853".
     """
 
     stop_time: float = 30.0
@@ -248,6 +273,7 @@ class Simulation:
     input_derivatives: bool = False
     stability: Stability = Stability.SETTLED
     reference: Reference = Reference.MONOLITHIC
+    method: Method = Method.DOP853
 
     def __post_init__(self):
         # Names become their types; a name that is none stays as given, for ``check`` to name.

@@ -8,7 +8,11 @@
    then "events,N"; exits 1 with a message on the first failing call, 2 if the instantiation returns NULL.
    With STATE_VRS set (the states' value references, comma-separated, in the order of the state vector), it
    sets the states by value reference (fmi2SetReal / fmi3SetFloat64), as PyFMI does, instead of with
-   fmi2SetContinuousStates / fmi3SetContinuousStates. */
+   fmi2SetContinuousStates / fmi3SetContinuousStates.
+   With JACOBIAN set ("KNOWN:UNKNOWN,UNKNOWN,...", value references), it prints after the last step, in
+   continuous-time mode, "states,x..." (the state vector) and "jacobian,d..." (the column of the known:
+   fmi2GetDirectionalDerivative / fmi3GetDirectionalDerivative with the seed 1), and for FMI 3.0
+   "adjoint,d..." (the same entries, each from fmi3GetAdjointDerivative with the unknown's seed 1). */
 
 #include <stdio.h>
 #include <stdlib.h>
@@ -95,18 +99,60 @@ static void set_states(const double *x, size_t nx) {
     }
 }
 
+/* The value references of `text` ("A,B,..."), up to `capacity` into `vrs`; their number, or -1 if `text` is
+   anything else. */
+static long parse_vrs(const char *text, unsigned int *vrs, size_t capacity) {
+    char *end = (char *)text;
+    size_t i = 0;
+    for (; i < capacity && *text; i++, text = end + (*end == ',')) {
+        vrs[i] = (unsigned int)strtoul(text, &end, 10);
+        if (end == text) return -1;
+    }
+    return *text ? -1 : (long)i;
+}
+
+/* The Jacobian column that JACOBIAN asks for (see the top), printed; nothing if it is not set. */
+static void print_jacobian(const double *x, size_t nx) {
+    const char *text = getenv("JACOBIAN");
+    if (!text) return;
+    unsigned int known = 0, unknowns[64];
+    char *end = (char *)text;
+    known = (unsigned int)strtoul(text, &end, 10);
+    long n = *end == ':' && end != text ? parse_vrs(end + 1, unknowns, 64) : -1;
+    if (n <= 0) {
+        fprintf(stderr, "JACOBIAN = %s: not KNOWN:UNKNOWN,...\n", text);
+        exit(1);
+    }
+    double seed = 1.0, column[64], entry;
+    if (version == 3) {
+        check(((fmi3GetDirectionalDerivativeTYPE *)symbol("fmi3GetDirectionalDerivative"))(
+                  instance, unknowns, (size_t)n, &known, 1, &seed, 1, column, (size_t)n),
+              "fmi3GetDirectionalDerivative");
+    } else {
+        check(((fmi2GetDirectionalDerivativeTYPE *)symbol("fmi2GetDirectionalDerivative"))(
+                  instance, unknowns, (size_t)n, &known, 1, &seed, column), "fmi2GetDirectionalDerivative");
+    }
+    printf("states");
+    for (size_t i = 0; i < nx; i++) printf(",%.17g", x[i]);
+    printf("\njacobian");
+    for (long i = 0; i < n; i++) printf(",%.17g", column[i]);
+    printf("\n");
+    if (version != 3) return;
+    printf("adjoint");
+    for (long i = 0; i < n; i++) {
+        check(((fmi3GetAdjointDerivativeTYPE *)symbol("fmi3GetAdjointDerivative"))(
+                  instance, &unknowns[i], 1, &known, 1, &seed, 1, &entry, 1), "fmi3GetAdjointDerivative");
+        printf(",%.17g", entry);
+    }
+    printf("\n");
+}
+
 /* The value references of STATE_VRS, nx of them, or NULL if it is not set; exits 1 if it holds other than nx. */
 static unsigned int *read_state_vrs(size_t nx) {
     const char *text = getenv("STATE_VRS");
     if (!text) return NULL;
     unsigned int *vrs = calloc(nx + 1, sizeof *vrs);
-    char *end = (char *)text;
-    size_t i = 0;
-    for (; vrs && i < nx && *text; i++, text = end + (*end == ',')) {
-        vrs[i] = (unsigned int)strtoul(text, &end, 10);
-        if (end == text) break;
-    }
-    if (!vrs || i != nx || *end) {
+    if (!vrs || parse_vrs(text, vrs, nx) != (long)nx) {
         fprintf(stderr, "STATE_VRS = %s: not %zu value references\n", getenv("STATE_VRS"), nx);
         exit(1);
     }
@@ -210,6 +256,7 @@ int main(int argc, char **argv) {
         print_row(end, vr, values, n);
     }
     printf("events,%d\n", events);
+    print_jacobian(x, nx);
     CALL0(fmi2TerminateTYPE, fmi2Terminate, fmi3TerminateTYPE, fmi3Terminate);
     if (version == 3) ((fmi3FreeInstanceTYPE *)symbol("fmi3FreeInstance"))(instance);
     else ((fmi2FreeInstanceTYPE *)symbol("fmi2FreeInstance"))(instance);

@@ -8,8 +8,8 @@ written out for the states these FMUs reach: instantiated (I), initialization mo
 stepComplete (S), FMI 2.0 stepFailed (F), event mode (V), continuous-time mode (C), terminated (T) and
 FMI 2.0 error (E). A call the standard does not allow, or a function of the other interface, returns
 fmiError, logs why, and leaves the instance in the error state (FMI 2.0 error, FMI 3.0 terminated). A
-function these FMUs do not offer (co-simulation's event mode, clocks, derivatives) is fmiError in every
-state. The walk runs the FMUs' binary through ctypes, in this process (a Python host).
+function these FMUs do not offer (co-simulation's event mode, clocks, output derivatives) is fmiError in
+every state. The walk runs the FMUs' binary through ctypes, in this process (a Python host).
 """
 
 import ctypes
@@ -65,6 +65,7 @@ FMI3_TYPES = ("Float32", "Float64", "Int8", "UInt8", "Int16", "UInt16", "Int32",
 FMI3_ALLOWED = {
     "fmi3SetDebugLogging": "INST", "fmi3Reset": "INST", "fmi3EnterInitializationMode": "I",
     "fmi3ExitInitializationMode": "N", "fmi3Terminate": "S", "fmi3DoStep": "S",
+    "fmi3GetDirectionalDerivative": "NST", "fmi3GetAdjointDerivative": "NST",
     **{f"fmi3Get{t}": "INST" for t in FMI3_TYPES}, **{f"fmi3Set{t}": "INS" for t in FMI3_TYPES},
     **{f: "INST" for f in ("fmi3GetFMUState", "fmi3SetFMUState", "fmi3FreeFMUState", "fmi3SerializedFMUStateSize",
                            "fmi3SerializeFMUState", "fmi3DeserializeFMUState")},
@@ -80,14 +81,15 @@ FMI3_ME_ALLOWED = {
                             "fmi3GetNumberOfEventIndicators")},
     "fmi3EnterEventMode": "C", "fmi3UpdateDiscreteStates": "V", "fmi3EnterContinuousTimeMode": "V",
     "fmi3CompletedIntegratorStep": "C", "fmi3SetTime": "C", "fmi3SetContinuousStates": "C",
+    "fmi3GetDirectionalDerivative": "NVCT", "fmi3GetAdjointDerivative": "NVCT",
     **{f: "NVCT" for f in ("fmi3GetContinuousStateDerivatives", "fmi3GetEventIndicators", "fmi3GetContinuousStates",
                            "fmi3GetNominalsOfContinuousStates")},
 }
 TABLES = {(2, False): (FMI2_ALLOWED, FMI2_STATES), (3, False): (FMI3_ALLOWED, FMI3_STATES),
           (2, True): (FMI2_ME_ALLOWED, FMI2_ME_STATES), (3, True): (FMI3_ME_ALLOWED, FMI3_ME_STATES)}
-# What an allowed call with valid arguments returns where it is not fmiOK: these FMUs provide no
+# What an allowed call with valid arguments returns where it is not fmiOK: these FMUs provide no output
 # derivatives, and have no status to give but the last successful time and "not terminated".
-ANSWERS = {"fmi2GetDirectionalDerivative": ERROR, "fmi2GetRealOutputDerivatives": ERROR,
+ANSWERS = {"fmi2GetRealOutputDerivatives": ERROR,
            "fmi2GetStatus": DISCARD, "fmi2GetIntegerStatus": DISCARD, "fmi2GetStringStatus": DISCARD}
 NOT_CALLED = {"fmi2GetTypesPlatform", "fmi2GetVersion", "fmi2Instantiate", "fmi2FreeInstance", "fmi3GetVersion",
               "fmi3InstantiateModelExchange", "fmi3InstantiateCoSimulation", "fmi3InstantiateScheduledExecution",
@@ -186,6 +188,9 @@ class Walk:
             "fmi2SetDebugLogging": (c_int(1), zero, none), "fmi3SetDebugLogging": (c_bool(True), zero, none),
             "fmi2SetupExperiment": (c_int(0), c_double(0), c_double(0), c_int(0), c_double(0)),
             "fmi3EnterInitializationMode": self._experiment(), "fmi2SetRealInputDerivatives": (none, zero, none, none),
+            "fmi2GetDirectionalDerivative": (none, zero, none, zero, none, none),
+            **{f: (none, zero, none, zero, none, zero, none, zero)
+               for f in ("fmi3GetDirectionalDerivative", "fmi3GetAdjointDerivative")},
             "fmi2GetStatus": (c_int(0), byref(c_int())), "fmi2GetRealStatus": (c_int(2), byref(c_double())),
             "fmi2GetIntegerStatus": (c_int(0), byref(c_int())), "fmi2GetBooleanStatus": (c_int(3), byref(c_int())),
             "fmi2GetStringStatus": (c_int(0), byref(c_char_p())),

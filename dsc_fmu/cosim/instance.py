@@ -252,6 +252,11 @@ class LoadedFmu:
         self.variables = {v.name: v for v in md.modelVariables}
         self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
         self.inputs = [v.name for v in md.modelVariables if v.causality == "input"]
+        real = lambda names: [name for name in names if type_name(self.variables[name]) == "Real"]  # noqa: E731
+        self.real_outputs, self.real_inputs = real(self.outputs), real(self.inputs)
+        self.state_names = [d.variable.derivative.name for d in md.derivatives]
+        self.state_refs = [d.variable.derivative.valueReference for d in md.derivatives]
+        self.derivative_refs = [d.variable.valueReference for d in md.derivatives]
         self.instantiate(callbacks)
 
     def instantiate(self, callbacks) -> None:

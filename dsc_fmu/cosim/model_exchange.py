@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time as clock
+from typing import TYPE_CHECKING
 
 import numpy as np
 from fmpy.fmi1 import FMICallException
@@ -14,18 +15,22 @@ from scipy.integrate import solve_ivp
 from ..errors import CosimulationError
 from ..models.parameters import DEFAULT_TOLERANCE
 from ..registry import ORDER
-from ..scenario import Interface, Scenario, ScenarioError
+from ..scenario import Interface, Method, Scenario, ScenarioError
 from .instance import LogMessage, failed_call
+from .linear import closed_loop, fmu_blocks, loop_jacobian
 from .loading import LoadedFmus
 from .master import CosimulationResult, Wiring, Recorder
 from .progress import Watch
 from .reference_solution import output_times
 
-__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange"]
+if TYPE_CHECKING:
+    import control
 
-METHOD = "DOP853"
-"""The integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
-monolithic reference solution uses."""
+__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange", "linearise_at"]
+
+METHOD = Method.DOP853
+"""The default integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
+monolithic reference solution uses; ``Method`` names the others."""
 
 _PAST_EVENT = 1e-9  # s: an event is handled this far past the root the solver found, on the step's interpolant
 
@@ -48,6 +53,7 @@ class _Loop:
         self.evaluated = None
         self.at = 0.0
         self.evaluations = 0
+        self.jacobians = 0
 
     def exchange(self) -> None:
         """Outputs to inputs at the current time and states (checked against the bound)."""
@@ -80,6 +86,22 @@ class _Loop:
             self.stop_at = t
         self.load(t, y)
         return self.gather("getDerivatives")
+
+    def blocks(self) -> dict:
+        """The three FMUs linearised at the loaded point (``linear.fmu_blocks``), by name: each with the
+        inputs and outputs the loop connects."""
+        fmus = self.wiring.fmus
+        reference, plant, controller = (fmus[name] for name in ORDER)
+        measured = controller.real_inputs
+        return {reference.name: fmu_blocks(reference, [], [n for n in measured if n in reference.real_outputs]),
+                plant.name: fmu_blocks(plant, plant.real_inputs, [n for n in measured if n in plant.real_outputs]),
+                controller.name: fmu_blocks(controller, measured, plant.real_inputs)}
+
+    def jacobian(self, t: float, y: np.ndarray) -> np.ndarray:
+        """The loop's Jacobian at ``t``, ``y`` from the three FMUs' directional derivatives (``linear``)."""
+        self.load(t, y)
+        self.jacobians += 1
+        return loop_jacobian(*self.blocks().values())
 
     def stop_event(self):
         """The solver's event of a stop: positive until the watch says stop, then zero at ``stop_at``
@@ -135,10 +157,10 @@ def _start(loop: _Loop, scenario: Scenario) -> None:
     loop.iterate()
 
 
-def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float) -> int:
+def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float, method: Method) -> int:
     """Integrate from the FMUs' states at 0 to ``times[-1]``, recording a row at each of ``times``;
     stop at every event, handle it just past the root and go on, until the end or the watch's stop.
-    Returns the events handled."""
+    Returns the events handled. An implicit ``method`` gets the loop's Jacobian from the FMUs."""
     y = loop.gather("getContinuousStates")
     atol = tolerance * loop.gather("getNominalsOfContinuousStates")
     events = [*(loop.indicator(i) for i in range(len(loop.indicators))), loop.stop_event()]
@@ -147,8 +169,9 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
     recorder.record(t)
     pending = times[1:]
     while t < stop:
-        solution = solve_ivp(loop.derivatives, (t, stop), y, method=METHOD, rtol=tolerance, atol=atol, events=events,
-                             t_eval=pending, dense_output=True)
+        jacobian = {"jac": loop.jacobian} if method.implicit else {}
+        solution = solve_ivp(loop.derivatives, (t, stop), y, method=method.value, rtol=tolerance, atol=atol,
+                             events=events, t_eval=pending, dense_output=True, **jacobian)
         if solution.status < 0:
             raise CosimulationError(f"the solver failed at t = {solution.t[-1]:.6g} s: {solution.message}",
                                     float(solution.t[-1]))
@@ -178,9 +201,19 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
     return handled
 
 
+def _tolerance(scenario: Scenario, tolerance: float | None) -> float:
+    """The solver's relative tolerance: ``tolerance``, else the scenario's, else ``DEFAULT_TOLERANCE``; checked."""
+    rtol = next(value for value in (tolerance, scenario.simulation.tolerance, DEFAULT_TOLERANCE) if value is not None)
+    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
+        raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
+                            "relative tolerance)")
+    return rtol
+
+
 def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: float | None = None,
                             output_interval: float | None = None, tolerance: float | None = None,
-                            workdir=None, watch: Watch | None = None) -> CosimulationResult:
+                            method: Method | str | None = None, workdir=None, watch: Watch | None = None
+                            ) -> CosimulationResult:
     """Simulate ``scenario`` through the model-exchange interface of the FMUs in ``fmu_paths`` (by name).
 
     Parameters
@@ -196,6 +229,9 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         The solver's relative tolerance (each state's absolute tolerance is this times its nominal);
         None takes the scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``. The scenario's co-simulation
         settings (step, order, coupling) do not apply.
+    method : {"DOP853", "Radau", "BDF"} or Method, optional
+        SciPy's integrator; None takes the scenario's (``METHOD`` by default). The implicit ones get the
+        loop's Jacobian, assembled from the FMUs' directional derivatives (``linear``).
     workdir : path, optional
         Where the FMUs are extracted (a temporary folder by default).
     watch : progress.Watch, optional
@@ -206,7 +242,8 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     -------
     CosimulationResult
         ``result`` has a row at every output time (the same columns as co-simulation); ``steps`` counts
-        the derivative evaluations, ``settings`` names the interface and the tolerance; ``stopped_at``
+        the derivative evaluations, ``settings`` names the interface, the method, the tolerance and the
+        Jacobians evaluated; ``stopped_at``
         is where the watch stopped the run (its last row), else None.
 
     Raises
@@ -216,12 +253,9 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     ScenarioError
         A setting out of its range.
     """
-    scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval)
+    scenario = scenario.with_simulation(stop_time=stop_time, output_interval=output_interval, method=method)
     settings = scenario.simulation
-    rtol = next(value for value in (tolerance, settings.tolerance, DEFAULT_TOLERANCE) if value is not None)
-    if isinstance(rtol, bool) or not isinstance(rtol, (int, float)) or not (math.isfinite(rtol) and rtol > 0):
-        raise ScenarioError(f"{scenario.source}: tolerance = {rtol!r} is not allowed; allowed: > 0 (the solver's "
-                            "relative tolerance)")
+    rtol = _tolerance(scenario, tolerance)
     started = clock.perf_counter()
     log: list[LogMessage] = []
     times = output_times(settings.stop_time, settings.output_interval)
@@ -231,14 +265,69 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         loop = _Loop(wiring, settings.bound, watch)
         try:
             _start(loop, scenario)
-            events = _integrate(loop, recorder, times, rtol)
+            events = _integrate(loop, recorder, times, rtol, settings.method)
         except FMICallException as error:
             raise failed_call(error, log, loop.at) from None
     result = recorder.result()
     return CosimulationResult(
         result=result, steps=loop.evaluations, wall_time=clock.perf_counter() - started,
-        settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": METHOD, "tolerance": rtol,
-                  "stop_time": settings.stop_time, "output_interval": settings.output_interval, "events": events},
+        settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": settings.method,
+                  "tolerance": rtol, "stop_time": settings.stop_time, "output_interval": settings.output_interval,
+                  "events": events, "jacobians": loop.jacobians},
         log=list(log), fmus=fmus.records,
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )
+
+
+def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str | None = None, *,
+                 tolerance: float | None = None, method: Method | str | None = None, workdir=None) -> control.StateSpace:
+    """One of the three FMUs, or the closed loop, linearised at a time of the scenario's model-exchange run.
+
+    The loop is integrated as ``simulate_model_exchange`` integrates it, to ``at_time``; there each FMU's
+    ``A, B, C, D`` come from its directional derivatives (``linear.fmu_blocks``), exact to rounding.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The scenario.
+    fmu_paths : dict
+        The three FMU files by name (FMI 2.0 or 3.0).
+    at_time : float
+        When, in s (> 0).
+    which : str, optional
+        An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop
+        connects. Default None: the closed loop (``linear.closed_loop``).
+    tolerance : float, optional
+        The solver's relative tolerance, as for ``simulate_model_exchange``.
+    method : {"DOP853", "Radau", "BDF"} or Method, optional
+        The integrator, as for ``simulate_model_exchange``.
+    workdir : path, optional
+        Where the FMUs are extracted (a temporary folder by default).
+
+    Returns
+    -------
+    control.StateSpace
+        The linearised system, its states, inputs and outputs named.
+
+    Raises
+    ------
+    ScenarioError
+        If ``which`` is not an FMU's name, or a setting is out of its range.
+    CosimulationError
+        A failing FMI call or the solver giving up.
+    """
+    if which is not None and which not in ORDER:
+        raise ScenarioError(f"{which!r} is not one of the FMUs; allowed: {', '.join(ORDER)} or None (the closed loop)")
+    scenario = scenario.with_simulation(stop_time=at_time, output_interval=at_time, method=method)
+    rtol = _tolerance(scenario, tolerance)
+    log: list[LogMessage] = []
+    with LoadedFmus(fmu_paths, workdir, log, model_exchange=True) as fmus:
+        wiring = Wiring(fmus.by_name)
+        loop = _Loop(wiring, scenario.simulation.bound)
+        try:
+            _start(loop, scenario)
+            _integrate(loop, Recorder(wiring, 2), np.array([0.0, at_time]), rtol, scenario.simulation.method)
+            blocks = loop.blocks()
+        except FMICallException as error:
+            raise failed_call(error, log, loop.at) from None
+    return closed_loop(blocks) if which is None else blocks[which].state_space()

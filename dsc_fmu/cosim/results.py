@@ -106,8 +106,15 @@ def _model_exchange(run: CosimulationResult, guarded: int) -> tuple[list[str], s
     s = run.settings
     how = [f"scenario {s['scenario']}: model exchange, {s['method']} at relative tolerance {s['tolerance']:g}, "
            f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
-           f"  {run.steps} derivative evaluations and {s['events']} events in {run.wall_time:.2f} s wall time"]
+           f"  {run.steps} derivative evaluations{_jacobians(s)} and {s['events']} events in {run.wall_time:.2f} s "
+           "wall time"]
     return how, f"engaged {guarded} times"
+
+
+def _jacobians(settings: dict) -> str:
+    """", N Jacobians from the FMUs' directional derivatives" where an implicit method asked for some."""
+    count = settings.get("jacobians", 0)
+    return f", {count} Jacobians from the FMUs' directional derivatives" if count else ""
 
 
 _HOW = {Interface.CO_SIMULATION: _cosimulation, Interface.MODEL_EXCHANGE: _model_exchange}

@@ -6,8 +6,9 @@ users of the build's private package (``acquire`` imports it by its location; th
 ``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
 table and the model's sizes once (``variables``, ``dimensions``) to guard every get and set by value
 reference, type, causality, variability and whether it is a continuous state, forwards the slave's
-log queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
-``state_from_bytes``) with a checksum and the identity of the build that made them.
+log queue (``drain_log``), turns FMU states into bytes and back (``state_to_bytes``,
+``state_from_bytes``) with a checksum and the identity of the build that made them, and asks the slave
+for products with its Jacobian (``directional_derivative``, ``adjoint_derivative``).
 """
 
 import hashlib
@@ -18,6 +19,7 @@ import sys
 
 __all__ = [
     "acquire", "release", "instantiate", "variables", "dimensions", "drain_log", "state_to_bytes", "state_from_bytes",
+    "directional_derivative", "adjoint_derivative",
     "TYPE_NAMES", "TYPES", "CAUSALITIES", "VARIABILITIES",
 ]
 
@@ -234,3 +236,60 @@ def state_from_bytes(slave, data: bytes):
     if identity != _identity(slave):
         raise ValueError(f"the serialized FMU state belongs to {identity}, not to {_identity(slave)}")
     return state
+
+
+def directional_derivative(slave, unknowns, knowns, seed, model_exchange) -> list:
+    """``J seed`` of the slave (fmi2GetDirectionalDerivative, fmi3GetDirectionalDerivative).
+
+    Parameters
+    ----------
+    slave : object
+        A slave made by ``instantiate``.
+    unknowns, knowns : sequence of int
+        Value references: state derivatives and Real outputs by continuous states and Real inputs
+        (model exchange), Real outputs by Real inputs (co-simulation).
+    seed : sequence of float
+        One entry per known.
+    model_exchange : bool
+        Whether the instance is one of model exchange.
+
+    Returns
+    -------
+    list of float
+        One entry per unknown (``SlaveCore.directional_derivative``).
+
+    Raises
+    ------
+    ValueError
+        For a reference that is not allowed or a count that does not match, in one line.
+    """
+    return slave.directional_derivative(
+        [int(r) for r in unknowns], [int(r) for r in knowns], [float(v) for v in seed], bool(model_exchange))
+
+
+def adjoint_derivative(slave, unknowns, knowns, seed, model_exchange) -> list:
+    """``seed^T J`` of the slave (fmi3GetAdjointDerivative).
+
+    Parameters
+    ----------
+    slave : object
+        A slave made by ``instantiate``.
+    unknowns, knowns : sequence of int
+        Value references, as ``directional_derivative``.
+    seed : sequence of float
+        One entry per unknown.
+    model_exchange : bool
+        Whether the instance is one of model exchange.
+
+    Returns
+    -------
+    list of float
+        One entry per known (``SlaveCore.adjoint_derivative``).
+
+    Raises
+    ------
+    ValueError
+        For a reference that is not allowed or a count that does not match, in one line.
+    """
+    return slave.adjoint_derivative(
+        [int(r) for r in unknowns], [int(r) for r in knowns], [float(v) for v in seed], bool(model_exchange))

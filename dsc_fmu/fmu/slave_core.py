@@ -1,6 +1,7 @@
 """The FMI-version-independent part of the slaves: variables from tables, checks, steps, model exchange, state.
 
-Bundled into every FMU beside ``models``; imports only the standard library and ``models``.
+Bundled into every FMU beside ``models``; imports only the standard library, ``models`` and ``jacobian``
+(the directional derivatives it inherits).
 ``glue.SlaveGlue`` puts it on the FMI library's slave class (``fmi2``: pythonfmu, ``fmi3``:
 pythonfmu3), which supplies ``log(msg, status, category=None)``; the glue supplies the hook ``_register``
 and ``library``, whose ``status`` names the statuses ``log`` takes.
@@ -12,6 +13,7 @@ import math
 
 from ..models.parameters import INPUT_COUPLINGS
 from ..models.rk4 import MAX_SUBSTEPS, rk4_integrate, substeps
+from .jacobian import DirectionalDerivatives
 
 __all__ = ["SlaveCore"]
 
@@ -31,7 +33,7 @@ def _by_index(value):
     return {int(index): slope for index, slope in value.items()}
 
 
-class SlaveCore:
+class SlaveCore(DirectionalDerivatives):
     """A slave whose model is ``x_dot = derivatives(t, x)``: co-simulation with held inputs, or model exchange.
 
     Subclasses give the variable tables (``PARAMETERS``, ``INPUTS``, ``OUTPUTS``) and
@@ -59,6 +61,11 @@ class SlaveCore:
     ``update_discrete_states``. The tables ``STATES``, ``LOCALS`` and ``INDICATORS`` register the
     states that are not outputs, the states' derivatives and the event indicators as local variables. A
     state's variable sets its entry of the state vector (``set_state``), where the binary allows it.
+
+    ``directional_derivative`` and ``adjoint_derivative`` give products with the Jacobian of the
+    unknowns (state derivatives, outputs) with respect to the knowns (states, inputs) by value
+    reference: the hooks ``rates``, ``outputs`` and ``state_at`` evaluated on dual numbers
+    (``models.dual``), exact to rounding, at the switches the active branch's (docs/model.md §5.13).
     """
 
     PARAMETERS: tuple = ()
@@ -84,6 +91,8 @@ class SlaveCore:
         self.derivatives_given = {}  # input index -> first derivative for the next step (fmi2SetRealInputDerivatives)
         self.rejected = {}
         self.time = 0.0
+        self._roles = None  # value reference -> {role: index}, for directional derivatives (``jacobian``)
+        self._resolved = {}  # (value references, model exchange, unknown) -> their (role, index)
         self._stale(parameters=True)
         for v in self.PARAMETERS:
             self._register(v, "parameter", getter=lambda n=v.name: self.p[n],
@@ -512,7 +521,7 @@ class SlaveCore:
         raise NotImplementedError
 
     def derivatives(self, t: float, x: list) -> list:
-        """Hook: the model's ``x_dot = derivatives(t, x)``, its inputs from ``inputs(t)``.
+        """Hook: the model's ``x_dot = derivatives(t, x)``, its inputs from ``inputs(t)`` (as ``rates``).
 
         Parameters
         ----------
@@ -528,13 +537,38 @@ class SlaveCore:
         """
         raise NotImplementedError
 
-    def outputs(self, x: list) -> list:
-        """Hook: the outputs at state ``x`` and the current inputs.
+    def rates(self, t: float, x: list, u: list, math=math) -> list:
+        """Hook: the time derivative of the state ``x`` at time ``t`` and inputs ``u``, free of side effects.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state.
+        u : list of float
+            The inputs, in the order of ``INPUTS``.
+        math : namespace, optional
+            The ``math`` module, or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u``.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
+        raise NotImplementedError
+
+    def outputs(self, x: list, u: list | None = None, math=math) -> list:
+        """Hook: the outputs at state ``x``, inputs ``u`` and the current time.
 
         Parameters
         ----------
         x : list of float
             A state.
+        u : list of float or None, optional
+            The inputs, in the order of ``INPUTS``. Default None: those set.
+        math : namespace, optional
+            The ``math`` module, or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u``.
 
         Returns
         -------
@@ -542,3 +576,22 @@ class SlaveCore:
             The outputs in the order of ``OUTPUTS``.
         """
         raise NotImplementedError
+
+    def state_at(self, u: list, math=math) -> list:
+        """The state as a function of the inputs ``u`` (co-simulation): ``current_state()`` by default.
+
+        A model whose state follows its inputs until the first step overrides it.
+
+        Parameters
+        ----------
+        u : list of float
+            The inputs, in the order of ``INPUTS``.
+        math : namespace, optional
+            The ``math`` module, or ``models.dual.DUAL_MATH`` with duals in ``u``.
+
+        Returns
+        -------
+        list of float
+            The state vector, in the order of ``STATES``.
+        """
+        return self.current_state()

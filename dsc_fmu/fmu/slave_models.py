@@ -6,6 +6,8 @@ glue of an FMI version (``fmi2.DscSlave`` or ``fmi3.DscSlave``) in a slave scrip
 class ``log``.
 """
 
+import math
+
 from ..models.controller import (
     W1_SLICE, W2_SLICE, Switches, control_law, event_indicators, gains, initial_controller_state, start_filters, switches,
     weight_norm,
@@ -85,13 +87,38 @@ class MobileRobotModel:
         u1, u2 = self.inputs(t)
         return plant_derivatives(self.constants, x, u1, u2)
 
-    def outputs(self, x):
+    def rates(self, t, x, u, math=math):
+        """Equations (6)-(8) under the voltages ``u`` (``derivatives`` with the inputs given).
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The state ``[x, y, theta, v1, v2, i1, i2]``.
+        u : list of float
+            The voltages ``[u1, u2]``, in V.
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
+        return plant_derivatives(self.constants, x, u[0], u[1], math)
+
+    def outputs(self, x, u=None, math=math):
         """The outputs at state ``x``, the heading rate from (1).
 
         Parameters
         ----------
         x : list of float
             The state ``[x, y, theta, v1, v2, i1, i2]``.
+        u : list of float or None, optional
+            The voltages (the outputs do not depend on them).
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
 
         Returns
         -------
@@ -137,13 +164,38 @@ class ReferenceRobotModel:
         """
         return reference_derivatives(self.p, t, x)
 
-    def outputs(self, x):
+    def rates(self, t, x, u, math=math):
+        """Equation (9) with the velocity profile of the parameters (``derivatives`` with the inputs given).
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The state ``[xr, yr, thetar]``.
+        u : list
+            The inputs (none).
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
+        return reference_derivatives(self.p, t, x, math)
+
+    def outputs(self, x, u=None, math=math):
         """The outputs at state ``x`` and the current time.
 
         Parameters
         ----------
         x : list of float
             The state ``[xr, yr, thetar]``.
+        u : list or None, optional
+            The inputs (none).
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
 
         Returns
         -------
@@ -292,6 +344,46 @@ class DSCControllerModel:
         """
         return start_filters(self.constants, initial_controller_state(self.p), self.u)
 
+    def state_at(self, u, math=math):
+        """The state as a function of the inputs ``u``: before the start the filters follow them (§5.2).
+
+        Parameters
+        ----------
+        u : list of float
+            The inputs (14 entries), duals for directional derivatives.
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
+
+        Returns
+        -------
+        list of float
+            ``xc``: the state once started or while waiting, else the filters started from ``u``.
+        """
+        if self.state is not None or self.waiting():
+            return self.current_state()
+        return start_filters(self.constants, initial_controller_state(self.p), u, math)
+
+    def rates(self, t, x, u, math=math):
+        """The derivative of ``xc`` by the law (10)-(27) at the inputs ``u``, the switches held or chosen there.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            The controller state ``xc`` (20 entries).
+        u : list of float
+            The inputs (14 entries).
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
+        return control_law(self.constants, x, u, self.held, math).derivative
+
     def derivatives(self, t, x):
         """The derivative of ``xc`` by the law (10)-(27) at the inputs ``inputs(t)``; notes a guard that acts.
 
@@ -400,13 +492,17 @@ class DSCControllerModel:
                 )
         self._guarded_last_step = self._guard_seen is not None
 
-    def outputs(self, x):
-        """The outputs at state ``x`` and the inputs set: u = 0 and the surfaces zero while waiting.
+    def outputs(self, x, u=None, math=math):
+        """The outputs at state ``x`` and inputs ``u``: u = 0 and the surfaces zero while waiting.
 
         Parameters
         ----------
         x : list of float
             The controller state ``xc`` (20 entries).
+        u : list of float or None, optional
+            The inputs (14 entries). Default None: those set.
+        math : namespace, optional
+            The ``math`` module, or ``DUAL_MATH`` on duals.
 
         Returns
         -------
@@ -415,10 +511,10 @@ class DSCControllerModel:
             beta (13), estimates and their norms.
         """
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
-        estimates = [x[0], x[1], weight_norm(W1_hat), weight_norm(W2_hat), *W1_hat, *W2_hat]
+        estimates = [x[0], x[1], weight_norm(W1_hat, math), weight_norm(W2_hat, math), *W1_hat, *W2_hat]
         if self.waiting():
             return [*_WAITING_LAW_OUTPUTS, *estimates]
-        law = control_law(self.constants, x, self.u, self.held)
+        law = control_law(self.constants, x, self.u if u is None else u, self.held, math)
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
     def indicator_values(self, x):

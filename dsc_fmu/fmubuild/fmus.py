@@ -46,7 +46,7 @@ DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
 LICENCE_FILE = "documentation/licenses/{name}-{system}.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
-_FMU_MODULES = ("__init__.py", "slave_core.py", "slave_models.py", "glue.py", "native_bridge.py")
+_FMU_MODULES = ("__init__.py", "slave_core.py", "jacobian.py", "slave_models.py", "glue.py", "native_bridge.py")
 _VERSION_MODULE = {2: "fmi2.py", 3: "fmi3.py"}
 # The FMI library each FMU carries, under its build's private package.
 _LIBRARY = {2: "pythonfmu", 3: "pythonfmu3"}

@@ -64,7 +64,13 @@ def _complete_variable(typed: ET.Element, v, real: bool) -> None:
 # The capabilities both interfaces share, copied from what the FMI library writes for co-simulation.
 _SHARED_CAPABILITIES = ("needsExecutionTool", "canBeInstantiatedOnlyOncePerProcess",
                         "canNotUseMemoryManagementFunctions", "canGetAndSetFMUstate", "canSerializeFMUstate",
-                        "canGetAndSetFMUState", "canSerializeFMUState")
+                        "canGetAndSetFMUState", "canSerializeFMUState", "providesDirectionalDerivative",
+                        "providesDirectionalDerivatives", "providesAdjointDerivatives")
+
+# The exact partial derivatives the binary provides (fmi2GetDirectionalDerivative; fmi3GetDirectionalDerivative
+# and fmi3GetAdjointDerivative), under each version's names.
+_PARTIALS = {2: {"providesDirectionalDerivative": "true"},
+             3: {"providesDirectionalDerivatives": "true", "providesAdjointDerivatives": "true"}}
 
 
 # That no step needs fmiCompletedIntegratorStep, under each version's name for it.
@@ -148,13 +154,13 @@ _VERSIONS = {
                                            ("Derivatives", "Unknown", "derivatives", True),
                                            ("InitialUnknowns", "Unknown", "initial", True)), True,
                 # The project's binary takes input derivatives.
-                lambda spec: {"canInterpolateInputs": "true"} if spec.inputs else {}),
+                lambda spec: {**_PARTIALS[2], **({"canInterpolateInputs": "true"} if spec.inputs else {})}),
     3: _Version(3, False, "Float64", "valueReference", ((None, "Output", "outputs", True),
                                                          (None, "ContinuousStateDerivative", "derivatives", True),
                                                          (None, "InitialUnknown", "initial", True),
                                                          (None, "EventIndicator", "indicators", False)), False,
                 # pythonfmu3 0.3.4 copies the last common option's value into this one.
-                lambda spec: {"canHandleVariableCommunicationStepSize": "true"}),
+                lambda spec: {"canHandleVariableCommunicationStepSize": "true", **_PARTIALS[3]}),
 }
 
 
@@ -205,7 +211,9 @@ def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) 
     model description declares it), exact start values, ranges, nominals, derivatives and ModelStructure
     with its dependencies (``structure``; FMI 3.0 by value reference, the time included, and event
     indicators; FMI 2.0 by index, and the number of event indicators). An FMI 2.0 FMU with inputs
-    declares ``canInterpolateInputs`` (the project's binary takes input derivatives).
+    declares ``canInterpolateInputs`` (the project's binary takes input derivatives); both interfaces
+    declare the exact partial derivatives the binary provides (FMI 2.0 ``providesDirectionalDerivative``,
+    FMI 3.0 ``providesDirectionalDerivatives`` and ``providesAdjointDerivatives``).
 
     Parameters
     ----------

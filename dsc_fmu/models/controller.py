@@ -30,7 +30,7 @@ __all__ = [
 ]
 
 
-def weight_norm(values) -> float:
+def weight_norm(values, math=math) -> float:
     """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27).
 
     Its sum of squares is exactly rounded (``math.fsum``): every CPython gives the same bits (``sum``
@@ -40,6 +40,9 @@ def weight_norm(values) -> float:
     ----------
     values : iterable of float
         The estimate's entries, ``W1_hat`` or ``W2_hat``.
+    math : namespace, optional
+        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives on duals.
 
     Returns
     -------
@@ -162,13 +165,16 @@ class Switches(NamedTuple):
     guarded: bool
 
 
-def wrap(angle: float) -> float:
+def wrap(angle: float, math=math) -> float:
     """``angle`` wrapped to (-pi, pi] (docs/model.md §5.4).
 
     Parameters
     ----------
     angle : float
         An angle, in rad.
+    math : namespace, optional
+        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives on duals.
 
     Returns
     -------
@@ -176,10 +182,10 @@ def wrap(angle: float) -> float:
         ``angle`` less the nearest multiple of 2 pi, in (-pi, pi] (-pi becomes pi).
     """
     wrapped = math.remainder(angle, 2.0 * math.pi)
-    return math.pi if wrapped == -math.pi else wrapped
+    return wrapped + 2.0 * math.pi if wrapped == -math.pi else wrapped
 
 
-def alpha2(S13: float, a: float) -> float:
+def alpha2(S13: float, a: float, math=math) -> float:
     """``integral_0^1 cos(-a + eta S13) d eta`` of (15) (step 1), free of cancellation near S13 = 0.
 
     Equal to ``(sin(S13 - a) + sin(a)) / S13 = sinc(S13 / 2) cos(S13 / 2 - a)`` (docs/model.md §5.5).
@@ -190,6 +196,9 @@ def alpha2(S13: float, a: float) -> float:
         The transformed heading error of (12), in rad.
     a : float
         ``arctan(k1 S12 vr)`` of (12), in rad.
+    math : namespace, optional
+        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives on duals.
 
     Returns
     -------
@@ -221,7 +230,7 @@ def initial_controller_state(p: dict) -> list:
     ]
 
 
-def _surfaces(k1: float, m: list) -> tuple:
+def _surfaces(k1: float, m: list, math=math) -> tuple:
     """``(S11, S12, p, den, beta)`` of step 1 for measurements ``m``: (10), ``p = k1 S12 vr`` of (12),
     ``den = 1 + p^2`` and ``beta`` of (13)."""
     x, y, theta, xr, yr, vr = m[0], m[1], m[2], m[8], m[9], m[11]
@@ -272,7 +281,7 @@ def event_indicators(g: Gains, m: list) -> list:
     return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min]
 
 
-def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> ControlLaw:
+def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=math) -> ControlLaw:
     """Evaluate the three DSC steps, equations (10)-(27).
 
     Parameters
@@ -285,6 +294,9 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> Co
         The measurements (14 entries, see the module).
     held : Switches or None, optional
         The switches held since the last event (model exchange). Default None: chosen at ``m``.
+    math : namespace, optional
+        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives on duals.
 
     Returns
     -------
@@ -299,9 +311,9 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> Co
     k1 = g.k1
 
     # Step 1, kinematics: (10), (12), (14)-(16).
-    S11, S12, p, den, beta = _surfaces(k1, m)
+    S11, S12, p, den, beta = _surfaces(k1, m, math)
     if held is None:
-        S13bar = wrap(thetar - theta)
+        S13bar = wrap(thetar - theta, math)
         guarded = beta < g.beta_min
     else:
         S13bar = (thetar - theta) - 2.0 * math.pi * held.turns
@@ -310,7 +322,7 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> Co
     S13 = S13bar + a
     sin_e, cos_e = math.sin(S13bar), math.cos(S13bar)
     alpha1 = (k1 * vr * vr * sin_e + k1 * S12 * vr_dot) / den
-    al2 = alpha2(S13, a)
+    al2 = alpha2(S13, a, math)
     kv = k1 * vr
     h1 = a1_hat * vr * cos_e + g.k2 * S11 + 0.5 * kv * kv * kv * kv * S11 * S11 * S11
     h2 = (a1_hat * al2 * vr * S12 + a2_hat * (wr + alpha1) + g.k3 * S13 + 0.5 * S13 * S13 * S13) / (
@@ -363,7 +375,7 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None) -> Co
     return ControlLaw(u1, u2, derivative, S11, S12, S13, beta, guarded, (x2bar1, x2bar2), (x3bar1, x3bar2))
 
 
-def start_filters(g: Gains, xc: list, m: list) -> list:
+def start_filters(g: Gains, xc: list, m: list, math=math) -> list:
     """Start the filters: ``x2f(0) = x2bar(0)`` of (17), then ``x3f(0) = x3bar(0)`` of (23) (docs/model.md §5.2).
 
     With ``x2f = x2bar`` the filter derivative ``x2f_dot`` is zero when ``x3bar`` is formed.
@@ -376,6 +388,9 @@ def start_filters(g: Gains, xc: list, m: list) -> list:
         The controller state (20 entries); its filter entries are replaced.
     m : list of float
         The measurements the filters start from (14 entries, see the module).
+    math : namespace, optional
+        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives on duals.
 
     Returns
     -------
@@ -383,6 +398,6 @@ def start_filters(g: Gains, xc: list, m: list) -> list:
         A new controller state.
     """
     xc = list(xc)
-    xc[2:4] = control_law(g, xc, m).x2bar
-    xc[12:14] = control_law(g, xc, m).x3bar
+    xc[2:4] = control_law(g, xc, m, math=math).x2bar
+    xc[12:14] = control_law(g, xc, m, math=math).x3bar
     return xc

@@ -124,7 +124,7 @@ def initial_plant_state(p: dict) -> list:
     return [p["x0"], p["y0"], p["theta0"], p["omega1_0"], p["omega2_0"], p["i1_0"], p["i2_0"]]
 
 
-def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float) -> list:
+def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float, math=math) -> list:
     """Time derivative of the plant's state under the motor voltages, equations (6)-(8).
 
     Parameters
@@ -135,6 +135,9 @@ def plant_derivatives(k: PlantCoefficients, x: list, u1: float, u2: float) -> li
         The state ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
     u1, u2 : float
         Motor voltages of the right and left wheel, in V.
+    math : namespace, optional
+        Where ``sin`` and ``cos`` come from: the ``math`` module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives with ``x``, ``u1``, ``u2`` duals.
 
     Returns
     -------

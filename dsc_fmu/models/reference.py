@@ -81,7 +81,7 @@ def initial_reference_state(p: dict) -> list:
     return [p["x0"], p["y0"], p["theta0"]]
 
 
-def reference_derivatives(p: dict, t: float, x: list) -> list:
+def reference_derivatives(p: dict, t: float, x: list, math=math) -> list:
     """Time derivative of the reference's state, equation (9).
 
     Parameters
@@ -92,6 +92,9 @@ def reference_derivatives(p: dict, t: float, x: list) -> list:
         Time, in s.
     x : list of float
         The state ``[xr, yr, thetar]`` in m, m, rad.
+    math : namespace, optional
+        Where ``sin`` and ``cos`` come from: the ``math`` module (default), or ``dual.DUAL_MATH`` for
+        directional derivatives with ``x`` duals (the profile depends on ``t`` alone).
 
     Returns
     -------

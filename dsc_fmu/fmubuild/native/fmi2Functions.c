@@ -299,13 +299,17 @@ fmi2Status fmi2GetStringStatus(fmi2Component c, const fmi2StatusKind s, fmi2Stri
     END(instance_fail(instance, STATUS_DISCARD, NOT_AVAILABLE));
 }
 
-/* --- what these FMUs do not offer ------------------------------------------------------------------------- */
+/* --- partial derivatives: exact, the model code differentiated in Python ---------------------------------- */
 
 fmi2Status fmi2GetDirectionalDerivative(fmi2Component c, const fmi2ValueReference vUnknown_ref[], size_t nUnknown,
                                         const fmi2ValueReference vKnown_ref[], size_t nKnown,
                                         const fmi2Real dvKnown[], fmi2Real dvUnknown[]) {
-    UNSUPPORTED(fmi2GetDirectionalDerivative, "providesDirectionalDerivative is false");
+    BEGIN(fmi2GetDirectionalDerivative);
+    Partials partials = {vUnknown_ref, nUnknown, vKnown_ref, nKnown, dvKnown, nKnown, dvUnknown, nUnknown};
+    END(instance_partials(instance, &partials, 0));
 }
+
+/* --- what these FMUs do not offer ------------------------------------------------------------------------- */
 
 fmi2Status fmi2GetRealOutputDerivatives(fmi2Component c, const fmi2ValueReference vr[], size_t nvr,
                                         const fmi2Integer order[], fmi2Real value[]) {

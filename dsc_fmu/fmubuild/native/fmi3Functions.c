@@ -397,6 +397,24 @@ fmi3Status fmi3GetNumberOfEventIndicators(fmi3Instance c, size_t *nEventIndicato
     END(instance_count(instance, nEventIndicators, instance->slave.nz));
 }
 
+/* --- partial derivatives: exact, the model code differentiated in Python ---------------------------------- */
+
+fmi3Status fmi3GetDirectionalDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                        const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
+                                        size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    BEGIN(fmi3GetDirectionalDerivative);
+    Partials partials = {unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity, nSensitivity};
+    END(instance_partials(instance, &partials, 0));
+}
+
+fmi3Status fmi3GetAdjointDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
+                                    const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
+                                    size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
+    BEGIN(fmi3GetAdjointDerivative);
+    Partials partials = {unknowns, nUnknowns, knowns, nKnowns, seed, nSeed, sensitivity, nSensitivity};
+    END(instance_partials(instance, &partials, 1));
+}
+
 /* --- what these FMUs do not offer: functions.h admits these in every state, and each says why ------------ */
 
 #define NO_EVENT_MODE "hasEventMode is false"
@@ -429,18 +447,6 @@ fmi3Status fmi3GetVariableDependencies(fmi3Instance c, fmi3ValueReference depend
                                        fmi3ValueReference independents[], size_t elementIndicesOfIndependents[],
                                        fmi3DependencyKind dependencyKinds[], size_t nDependencies) {
     UNSUPPORTED(fmi3GetVariableDependencies, NO_DEPENDENCIES);
-}
-
-fmi3Status fmi3GetDirectionalDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
-                                        const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
-                                        size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
-    UNSUPPORTED(fmi3GetDirectionalDerivative, "providesDirectionalDerivatives is false");
-}
-
-fmi3Status fmi3GetAdjointDerivative(fmi3Instance c, const fmi3ValueReference unknowns[], size_t nUnknowns,
-                                    const fmi3ValueReference knowns[], size_t nKnowns, const fmi3Float64 seed[],
-                                    size_t nSeed, fmi3Float64 sensitivity[], size_t nSensitivity) {
-    UNSUPPORTED(fmi3GetAdjointDerivative, "providesAdjointDerivatives is false");
 }
 
 fmi3Status fmi3GetOutputDerivatives(fmi3Instance c, const fmi3ValueReference valueReferences[],

@@ -15,6 +15,11 @@
 #define FMI2_SET (Instantiated | InitializationMode | StepMode | EventMode)
 #define FMI2_STATUS (StepMode | StepFailed | Terminated)
 #define FMI2_VECTOR (InitializationMode | EventMode | ContinuousTimeMode | Terminated | Error)
+/* fmi2GetDirectionalDerivative: the getters' states (FMI 2.0.4, 3.2.3: initialization, event, continuous-time
+   mode, terminated, and error "always, but retrieved values are usable for debugging only"; 4.2.4:
+   initialization mode, stepComplete, terminated, stepFailed "always, but if status is other than
+   fmi2Terminated, retrieved values are useable for debugging only", error as above). */
+#define FMI2_DERIVATIVE FMI2_GET
 /* FMI 3.0: no error state (an error leads to Terminated), no event mode in co-simulation, no clocks. */
 #define FMI3_GET (Instantiated | InitializationMode | StepMode | EventMode | ContinuousTimeMode | Terminated)
 #define FMI3_SET (Instantiated | InitializationMode | StepMode | EventMode)
@@ -22,6 +27,9 @@
 /* fmi2SetReal and fmi3SetFloat64 also set continuous states in model exchange's event and continuous-time
    mode: which variables a set may change is checked per value reference (instance.c, not_settable). */
 #define FMI3_VECTOR (InitializationMode | EventMode | ContinuousTimeMode | Terminated)
+/* fmi3GetDirectionalDerivative, fmi3GetAdjointDerivative: among the allowed calls of Initialization Mode, Event
+   Mode and Terminated (FMI 3.0.2, 2.3), Continuous-Time Mode (3.2) and Step Mode (4.2); not of Instantiated. */
+#define FMI3_DERIVATIVES (InitializationMode | StepMode | EventMode | ContinuousTimeMode | Terminated)
 
 /* The getter and setter of the FMI 3.0 type T. */
 #define FMI3_VALUES(FUNCTION, T, set) FUNCTION(fmi3Get##T, 3, CS_ME, FMI3_GET) FUNCTION(fmi3Set##T, 3, CS_ME, set)
@@ -40,7 +48,7 @@
     FUNCTION(fmi2GetFMUstate, 2, CS_ME, ANY_STATE) FUNCTION(fmi2SetFMUstate, 2, CS_ME, ANY_STATE)              \
     FUNCTION(fmi2FreeFMUstate, 2, CS_ME, ANY_STATE) FUNCTION(fmi2SerializedFMUstateSize, 2, CS_ME, ANY_STATE)  \
     FUNCTION(fmi2SerializeFMUstate, 2, CS_ME, ANY_STATE) FUNCTION(fmi2DeSerializeFMUstate, 2, CS_ME, ANY_STATE) \
-    FUNCTION(fmi2GetDirectionalDerivative, 2, CS_ME, FMI2_GET)                                                 \
+    FUNCTION(fmi2GetDirectionalDerivative, 2, CS_ME, FMI2_DERIVATIVE)                                          \
     FUNCTION(fmi2EnterEventMode, 2, ME, EventMode | ContinuousTimeMode)                                        \
     FUNCTION(fmi2NewDiscreteStates, 2, ME, EventMode)                                                          \
     FUNCTION(fmi2EnterContinuousTimeMode, 2, ME, EventMode)                                                    \
@@ -82,6 +90,8 @@
     FUNCTION(fmi3GetNumberOfContinuousStates, 3, ME, ANY_STATE)                                                \
     FUNCTION(fmi3GetNumberOfEventIndicators, 3, ME, ANY_STATE)                                                 \
     FUNCTION(fmi3DoStep, 3, CS, StepMode)                                                                      \
+    FUNCTION(fmi3GetDirectionalDerivative, 3, CS_ME, FMI3_DERIVATIVES)                                         \
+    FUNCTION(fmi3GetAdjointDerivative, 3, CS_ME, FMI3_DERIVATIVES)                                             \
     FMI3_UNSUPPORTED(FUNCTION)
 
 /* The FMI 3.0 functions of capabilities these FMUs do not declare: refused with why in any state. */
@@ -91,8 +101,6 @@
     FUNCTION(fmi3ExitConfigurationMode, 3, CS_ME, ANY_STATE)                                                   \
     FUNCTION(fmi3GetNumberOfVariableDependencies, 3, CS_ME, ANY_STATE)                                         \
     FUNCTION(fmi3GetVariableDependencies, 3, CS_ME, ANY_STATE)                                                 \
-    FUNCTION(fmi3GetDirectionalDerivative, 3, CS_ME, ANY_STATE)                                                \
-    FUNCTION(fmi3GetAdjointDerivative, 3, CS_ME, ANY_STATE)                                                    \
     FUNCTION(fmi3GetOutputDerivatives, 3, CS_ME, ANY_STATE)                                                    \
     FUNCTION(fmi3GetClock, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetClock, 3, CS_ME, ANY_STATE)                    \
     FUNCTION(fmi3GetIntervalDecimal, 3, CS_ME, ANY_STATE) FUNCTION(fmi3SetIntervalDecimal, 3, CS_ME, ANY_STATE) \

@@ -313,6 +313,40 @@ int instance_set_input_derivatives(Instance *instance, const unsigned int vr[], 
     return slave_set_input_derivatives(&instance->slave, vr, nvr, order, value);
 }
 
+/* --- partial derivatives ------------------------------------------------------------------------------- */
+
+/* Whether the array named `what`, `n` long, is given where n > 0 (if not, logged). */
+static int partials_array(Instance *instance, const void *array, size_t n, const char *what) {
+    if (n == 0 || array) return 1;
+    instance_fail(instance, STATUS_ERROR, "%zu %s but no array of them (NULL)", n, what);
+    return 0;
+}
+
+/* Whether the length `n` of the argument `name` equals `count`, that of `counted` (if not, logged). */
+static int partials_length(Instance *instance, const char *name, size_t n, const char *counted, size_t count) {
+    if (n == count) return 1;
+    instance_fail(instance, STATUS_ERROR, "%s is %zu but %s is %zu; allowed: %s = %s (every variable is a scalar)",
+                  name, n, counted, count, name, counted);
+    return 0;
+}
+
+int instance_partials(Instance *instance, const Partials *p, int adjoint) {
+    const char *seeded = adjoint ? "nUnknowns" : "nKnowns", *sensed = adjoint ? "nKnowns" : "nUnknowns";
+    size_t seeds = adjoint ? p->n_unknowns : p->n_knowns, sensitivities = adjoint ? p->n_knowns : p->n_unknowns;
+    if (!partials_length(instance, "nSeed", p->n_seed, seeded, seeds) ||
+        !partials_length(instance, "nSensitivity", p->n_sensitivity, sensed, sensitivities) ||
+        !partials_array(instance, p->unknowns, p->n_unknowns, "unknowns") ||
+        !partials_array(instance, p->knowns, p->n_knowns, "knowns") ||
+        !partials_array(instance, p->seed, p->n_seed, "seed values") ||
+        !partials_array(instance, p->sensitivity, p->n_sensitivity, "sensitivity values") ||
+        check(instance, TYPE_REAL, TYPE_NAMES[TYPE_REAL], p->unknowns, p->n_unknowns, 0) ||
+        check(instance, TYPE_REAL, TYPE_NAMES[TYPE_REAL], p->knowns, p->n_knowns, 0)) {
+        return STATUS_ERROR;
+    }
+    if (p->n_unknowns == 0 && p->n_knowns == 0) return STATUS_OK;
+    return slave_partials(&instance->slave, p, adjoint, instance->model_exchange);
+}
+
 /* --- model exchange --------------------------------------------------------------------------------------- */
 
 int instance_set_time(Instance *instance, double time) {

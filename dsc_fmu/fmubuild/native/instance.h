@@ -110,6 +110,13 @@ int instance_set(Instance *instance, int type, const unsigned int vr[], size_t n
 int instance_set_input_derivatives(Instance *instance, const unsigned int vr[], size_t nvr, const int order[],
                                    const double value[]);
 
+/* J·seed (fmiGetDirectionalDerivative) or, if `adjoint`, seedᵀ·J (fmi3GetAdjointDerivative), by the slave
+   (slave_partials) for the instance's interface. Refused with STATUS_ERROR before Python sees them: a seed or
+   sensitivity whose length is not the knowns' or unknowns' count (every variable is a scalar), a NULL array
+   with a nonzero count, a value reference that is not a Real variable. With no unknowns and no knowns,
+   STATUS_OK and nothing called. */
+int instance_partials(Instance *instance, const Partials *p, int adjoint);
+
 /* Model exchange. */
 int instance_set_time(Instance *instance, double time);
 int instance_set_states(Instance *instance, const double x[], size_t nx);

@@ -113,6 +113,26 @@ int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *
 /* The slave's set_input_derivatives(value references, orders, values). */
 int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, const int *order, const double *values);
 
+/* The arguments of a partial-derivative call (fmi2GetDirectionalDerivative, fmi3GetDirectionalDerivative,
+   fmi3GetAdjointDerivative): value references of the unknowns and knowns, the seed and the place for the
+   sensitivity, each with its length. */
+typedef struct {
+    const unsigned int *unknowns;
+    size_t n_unknowns;
+    const unsigned int *knowns;
+    size_t n_knowns;
+    const double *seed;
+    size_t n_seed;
+    double *sensitivity;
+    size_t n_sensitivity;
+} Partials;
+
+/* J·seed (the slave's directional_derivative) or seedᵀ·J (`adjoint`: adjoint_derivative), J the Jacobian of the
+   unknowns with respect to the knowns, for model exchange or co-simulation: the lists go to the method, its
+   n_sensitivity floats come back. STATUS_OK, or STATUS_ERROR after logging the exception (one message) or a
+   result of another length. */
+int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange);
+
 /* Call a method of the slave with `n` float arguments (None where `defined`, if not NULL, is 0).
    STATUS_OK, or STATUS_ERROR after logging the exception. */
 int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined);

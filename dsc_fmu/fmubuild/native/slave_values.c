@@ -83,6 +83,42 @@ int slave_set_input_derivatives(Slave *s, const unsigned int *vr, size_t n, cons
     return finished(s, gil, result, STATUS_ERROR, "set_input_derivatives");
 }
 
+static PyObject *floats(const double *values, size_t n) {
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) py.PyList_SetItem(list, (Py_ssize_t)i, py.PyFloat_FromDouble(values[i]));
+    return list;
+}
+
+/* The `n` floats of `result`, the return of `method`, into `values`: STATUS_OK, or STATUS_ERROR with the
+   exception set or a result of another length logged. */
+static int copy_floats(Slave *s, const char *method, PyObject *result, double *values, size_t n) {
+    Py_ssize_t size = py.PySequence_Size(result);
+    if (size >= 0 && size != (Py_ssize_t)n) {
+        say(s, STATUS_ERROR, "%s returned %zd values; expected %zu", method, size, n);
+        return STATUS_ERROR;
+    }
+    for (Py_ssize_t i = 0; size >= 0 && i < size && !py.PyErr_Occurred(); i++) {
+        PyObject *item = py.PySequence_GetItem(result, i);
+        if (item) values[i] = py.PyFloat_AsDouble(item);
+        clear(&item);
+    }
+    return py.PyErr_Occurred() ? STATUS_ERROR : STATUS_OK;
+}
+
+int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange) {
+    const char *method = adjoint ? "adjoint_derivative" : "directional_derivative";
+    PyGILState_STATE gil = enter(s);
+    PyObject *items[] = {references(p->unknowns, p->n_unknowns), references(p->knowns, p->n_knowns),
+                         floats(p->seed, p->n_seed), py.PyBool_FromLong(model_exchange)};
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, method), pack(4, items));
+    int status = result ? copy_floats(s, method, result, p->sensitivity, p->n_sensitivity) : STATUS_ERROR;
+    if (py.PyErr_Occurred() || !result) log_exception(s, STATUS_ERROR, method);
+    clear(&result);
+    drain_log(s);
+    leave(s, gil);
+    return status;
+}
+
 int slave_set_time(Slave *s, double time) {
     s->time = time;
     s->pending |= PENDING_TIME;
