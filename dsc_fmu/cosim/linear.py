@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..registry import ORDER
 from .instance import LoadedFmu
 
 if TYPE_CHECKING:
@@ -105,7 +106,14 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
     -------
     numpy.ndarray
         ``d z' / d z``, square of the loop's state count.
+
+    Raises
+    ------
+    ValueError
+        If the plant's D is not zero (an algebraic loop this assembly does not solve).
     """
+    if plant.D.any():
+        raise ValueError("the plant's outputs depend on its inputs (D is not zero): the loop would be algebraic")
     nr, npl, nc = len(reference.states), len(plant.states), len(controller.states)
     n = nr + npl + nc
     rows = {name: (reference, i) for i, name in enumerate(reference.outputs)}
@@ -148,7 +156,7 @@ def closed_loop(blocks: dict) -> control.StateSpace:
     """
     import control
 
-    reference, plant, controller = blocks.values()
+    reference, plant, controller = (blocks[name] for name in ORDER)
     nr, npl = len(reference.states), len(plant.states)
     n = nr + npl + len(controller.states)
     B = np.zeros((n, len(plant.inputs)))

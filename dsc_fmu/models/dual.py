@@ -105,14 +105,20 @@ class Dual:
         return self
 
     def __abs__(self):
-        """``|x|``: the tangent of the branch the value is on (+ at 0)."""
-        return self if self.value >= 0.0 else Dual(-self.value, -self.tangent)
+        """``|x|``: the tangent of the branch the value is on (the + branch at 0, -0.0 included)."""
+        return Dual(abs(self.value), self.tangent) if self.value >= 0.0 else Dual(-self.value, -self.tangent)
 
     def __pow__(self, exponent):
-        """``x ** exponent`` for a float (or int) exponent."""
+        """``x ** exponent`` for a float (or int) exponent (``x ** 0`` is 1 with tangent 0)."""
         if type(exponent) is Dual:
             return NotImplemented
+        if exponent == 0:
+            return Dual(1.0, 0.0)
         return Dual(self.value ** exponent, exponent * self.value ** (exponent - 1) * self.tangent)
+
+    def __bool__(self):
+        """Whether the value is not zero, as for a float (``if x:`` takes the value's branch)."""
+        return self.value != 0.0
 
     def __lt__(self, other):
         return self.value < _value(other)
