@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from pathlib import Path
 
 import control
 import numpy as np
@@ -11,15 +12,16 @@ from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
 from ..models.controller import W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters
-from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients
 from ..models.parameters import DISCRETIZATIONS, PROFILES
 from ..models.reference import initial_reference_state
 from ..errors import DscFmuError
 from ..scenario import Coupling, Order, Scenario, one_of
+from .tracking import error_coordinates, error_measurements, error_outputs, error_plant_derivatives
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
-    "error_measurements", "closed_loop", "jacobian", "operating_point", "linearise", "sampled_pieces",
+    "error_measurements", "closed_loop", "jacobian", "operating_point", "SOURCES", "linearise", "sampled_pieces",
     "transition_matrix", "ramp_pieces", "linear_transition_matrix", "spectral_radius", "spectral_radius_curve",
     "predicted_boundary",
 ]
@@ -28,6 +30,7 @@ __all__ = [
 ESTIMATES = (7, 8, *range(7 + W1_SLICE.start, 7 + W1_SLICE.stop), *range(7 + W2_SLICE.start, 7 + W2_SLICE.stop))
 _FREE = tuple(i for i in range(27) if i not in ESTIMATES)  # S11, S12, S13bar, v1, v2, i1, i2, x2f, x3f
 DEFAULT_STEPS = np.logspace(-5.0, 0.0, 201)
+SOURCES = ("model", "fmus")  # where ``linearise`` takes the matrices from: differences of the model, the FMUs
 
 
 class OperatingPointError(DscFmuError, RuntimeError):
@@ -109,101 +112,6 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
         raise ValueError(f"{scenario.name}: the reference profile must be 'constant' for an operating point "
                          f"of steady tracking; got {PROFILES[int(scenario.reference['profile'])]!r}")
     return scenario.reference["vr0"], scenario.reference["wr0"]
-
-
-def error_coordinates(plant: list, reference: list) -> list:
-    """The plant state in error coordinates, eqs. (10), (12) (S13bar not wrapped).
-
-    Parameters
-    ----------
-    plant : list of float
-        ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
-    reference : list of float
-        ``[xr, yr, thetar]`` in m, m, rad.
-
-    Returns
-    -------
-    list of float
-        ``xp = [S11, S12, S13bar, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
-    """
-    x, y, theta = plant[:3]
-    ex, ey = reference[0] - x, reference[1] - y
-    c, s = math.cos(theta), math.sin(theta)
-    return [c * ex + s * ey, -s * ex + c * ey, reference[2] - theta, *plant[3:]]
-
-
-def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -> list:
-    """The derivative of the plant state in error coordinates, eqs. (11), (7), (8).
-
-    Eq. (11) gives S11, S12, S13bar; the wheel and motor rows (7), (8) come from
-    ``models.plant.plant_derivatives`` (they do not depend on the pose).
-
-    Parameters
-    ----------
-    k : models.plant.PlantCoefficients
-        The plant's coefficients (``plant_coefficients``).
-    vr : float
-        The reference's speed, in m/s.
-    wr : float
-        The reference's turn rate, in rad/s.
-    xp : sequence of float
-        ``[S11, S12, S13bar, v1, v2, i1, i2]`` (``error_coordinates``).
-    u : sequence of float
-        The voltages ``[u1, u2]``, in V.
-
-    Returns
-    -------
-    list of float
-        The 7 derivatives of ``xp``, per s.
-    """
-    S11, S12, S13bar, v1, v2, i1, i2 = xp
-    w = theta_dot(k, v1, v2)
-    rows = plant_derivatives(k, [0.0, 0.0, 0.0, v1, v2, i1, i2], u[0], u[1])
-    return [w * S12 - 0.5 * k.r * (v1 + v2) + vr * math.cos(S13bar), -w * S11 + vr * math.sin(S13bar),
-            wr - w, *rows[3:]]
-
-
-def error_outputs(k: PlantCoefficients, xp) -> list:
-    """The measurement of the plant state in error coordinates.
-
-    Parameters
-    ----------
-    k : models.plant.PlantCoefficients
-        The plant's coefficients (``plant_coefficients``).
-    xp : sequence of float
-        ``[S11, S12, S13bar, v1, v2, i1, i2]`` (``error_coordinates``).
-
-    Returns
-    -------
-    list of float
-        ``y = [S11, S12, S13bar, theta_dot, v1, v2, i1, i2]``, theta_dot in rad/s from eq. (1).
-    """
-    S11, S12, S13bar, v1, v2, i1, i2 = xp
-    return [S11, S12, S13bar, theta_dot(k, v1, v2), v1, v2, i1, i2]
-
-
-def error_measurements(y, vr: float, wr: float) -> list:
-    """The controller's inputs equivalent to a measurement in error coordinates.
-
-    The robot is put at the origin heading 0, so xr = S11, yr = S12, thetar = S13bar (eq. (10) with
-    theta = 0), and vr_dot = 0.
-
-    Parameters
-    ----------
-    y : sequence of float
-        ``[S11, S12, S13bar, theta_dot, v1, v2, i1, i2]`` (``error_outputs``).
-    vr : float
-        The reference's speed, in m/s.
-    wr : float
-        The reference's turn rate, in rad/s.
-
-    Returns
-    -------
-    list of float
-        The controller's 14 inputs ``m`` in its input order (docs/model.md §3).
-    """
-    S11, S12, S13bar, td, v1, v2, i1, i2 = y
-    return [0.0, 0.0, 0.0, td, v1, v2, i1, i2, S11, S12, S13bar, vr, wr, 0.0]
 
 
 def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
@@ -338,11 +246,15 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
 
 
 def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = True, rel: float = 1e-6,
-              state=None) -> LinearLoop:
+              state=None, *, source: str = "model", fmu_paths: dict | None = None,
+              workdir: Path | None = None) -> LinearLoop:
     """Linearise the plant and the controller about the operating point of steady tracking.
 
-    By central differences (``jacobian``) of ``error_plant_derivatives``, ``error_outputs`` and the
-    control law at ``operating_point(scenario, at_time, frozen, state)``.
+    At ``operating_point(scenario, at_time, frozen, state)``, either by central differences
+    (``jacobian``) of ``error_plant_derivatives``, ``error_outputs`` and the control law (``source`` =
+    "model"), or from the FMUs' exact directional derivatives there (``source`` = "fmus":
+    ``study.fmu_loop.fmu_matrices``). The two agree to the differences' error: within 1e-9 of each
+    matrix's largest entry for on_reference (tests/test_stability_fmus.py).
 
     Parameters
     ----------
@@ -353,9 +265,15 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
     frozen : bool, optional
         Freeze the 16 estimates at the operating point (see ``operating_point``). Default True.
     rel : float, optional
-        Relative finite-difference step. Default 1e-6.
+        Relative finite-difference step of the model route. Default 1e-6.
     state : array_like or None, optional
         ``[xp; xc]`` (27) in error coordinates to start from instead of integrating. Default None.
+    source : {"model", "fmus"}, optional
+        Where the matrices come from (``SOURCES``). Default "model".
+    fmu_paths : dict or None, optional
+        The three FMU files by name (``registry.ORDER``), built with model exchange; needed for "fmus".
+    workdir : pathlib.Path or None, optional
+        Where the FMUs are extracted for "fmus". Default None: the system's temporary folder.
 
     Returns
     -------
@@ -366,27 +284,43 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
     Raises
     ------
     ValueError
-        If the scenario's reference profile is not constant.
+        If the scenario's reference profile is not constant, ``source`` is not one of ``SOURCES``, or
+        "fmus" is asked for without ``fmu_paths``.
     OperatingPointError
         If no operating point is found.
     """
+    source = one_of(SOURCES, source, "source")
+    if source == "fmus" and fmu_paths is None:
+        raise ValueError("source 'fmus' needs fmu_paths: the three FMU files by name")
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     z, T = operating_point(scenario, at_time, frozen, state)
+    if source == "model":
+        matrices = _model_matrices(k, g, vr, wr, z, rel)
+    else:
+        from .fmu_loop import fmu_matrices  # fmpy only when the FMUs are asked for
+
+        matrices = fmu_matrices(scenario, fmu_paths, z, T, workdir)
+    return LinearLoop(*matrices, operating_point=z, drift=float(np.max(np.abs(closed_loop(k, g, vr, wr, z)))),
+                      at_time=T, discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
+
+
+def _model_matrices(k: PlantCoefficients, g: Gains, vr: float, wr: float, z, rel: float) -> tuple:
+    """``(Ap, Bp, Cp, Ac, Bc, Cc, Dc)`` at ``z`` by central differences of the Python model (``jacobian``)."""
     xp, xc = z[:7], z[7:]
     y = np.array(error_outputs(k, xp))
     law = control_law(g, list(xc), error_measurements(y, vr, wr))
     u = np.array([law.u1, law.u2])
     fp = lambda v: error_plant_derivatives(k, vr, wr, v[:7], v[7:])  # noqa: E731
+
     def fc(v):
         c = control_law(g, list(v[:20]), error_measurements(v[20:], vr, wr))
         return [*c.derivative, c.u1, c.u2]
+
     P = jacobian(fp, np.concatenate([xp, u]), rel)
     Cp = jacobian(lambda v: error_outputs(k, v), xp, rel)
     K = jacobian(fc, np.concatenate([xc, y]), rel)
-    return LinearLoop(P[:, :7], P[:, 7:], Cp, K[:20, :20], K[:20, 20:], K[20:, :20], K[20:, 20:],
-                      operating_point=z, drift=float(np.max(np.abs(closed_loop(k, g, vr, wr, z)))),
-                      at_time=T, discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
+    return P[:, :7], P[:, 7:], Cp, K[:20, :20], K[:20, 20:], K[20:, :20], K[20:, 20:]
 
 
 def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.ndarray, ...]:
