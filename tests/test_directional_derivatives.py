@@ -378,18 +378,3 @@ def test_the_dual_switches_take_the_branch_of_the_value():
     assert Dual(1.0, 5.0) < 2.0 and Dual(1.0, 5.0) == Dual(1.0, -5.0) and not Dual(1.0) > Dual(1.0)
     with pytest.raises(TypeError):
         math.sin(Dual(1.0, 1.0))  # no conversion to float: the tangent is never lost silently
-
-
-def test_the_bridge_takes_what_the_binary_passes(after_5s):
-    """native_bridge: sequences of ints and floats in (as the binary packs them), a list of floats out."""
-    from dsc_fmu.fmu import native_bridge
-
-    inst = _at(after_5s, 3, "DSCController", "after 5 s", False)
-    unknowns, knowns = (inst.vr["u1"], inst.vr["u2"]), (inst.vr["theta"], inst.vr["v_r"])
-    forward = native_bridge.directional_derivative(inst.slave, unknowns, knowns, (1.0, 0.0), 0)
-    assert forward == inst.slave.directional_derivative(list(unknowns), list(knowns), [1.0, 0.0], False)
-    assert all(type(v) is float for v in forward)
-    adjoint = native_bridge.adjoint_derivative(inst.slave, unknowns, knowns, (1.0, 0.0), 0)
-    assert adjoint[0] == forward[0]
-    with pytest.raises(ValueError, match="allowed knowns: continuous states and Real inputs"):
-        native_bridge.directional_derivative(inst.slave, unknowns, (inst.vr["u1"],), (1.0,), 1)

@@ -19,7 +19,6 @@ import sys
 
 __all__ = [
     "acquire", "release", "instantiate", "variables", "dimensions", "drain_log", "state_to_bytes", "state_from_bytes",
-    "directional_derivative", "adjoint_derivative",
     "TYPE_NAMES", "TYPES", "CAUSALITIES", "VARIABILITIES",
 ]
 
@@ -236,60 +235,3 @@ def state_from_bytes(slave, data: bytes):
     if identity != _identity(slave):
         raise ValueError(f"the serialized FMU state belongs to {identity}, not to {_identity(slave)}")
     return state
-
-
-def directional_derivative(slave, unknowns, knowns, seed, model_exchange) -> list:
-    """``J seed`` of the slave (fmi2GetDirectionalDerivative, fmi3GetDirectionalDerivative).
-
-    Parameters
-    ----------
-    slave : object
-        A slave made by ``instantiate``.
-    unknowns, knowns : sequence of int
-        Value references: state derivatives and Real outputs by continuous states and Real inputs
-        (model exchange), Real outputs by Real inputs (co-simulation).
-    seed : sequence of float
-        One entry per known.
-    model_exchange : bool
-        Whether the instance is one of model exchange.
-
-    Returns
-    -------
-    list of float
-        One entry per unknown (``SlaveCore.directional_derivative``).
-
-    Raises
-    ------
-    ValueError
-        For a reference that is not allowed or a count that does not match, in one line.
-    """
-    return slave.directional_derivative(
-        [int(r) for r in unknowns], [int(r) for r in knowns], [float(v) for v in seed], bool(model_exchange))
-
-
-def adjoint_derivative(slave, unknowns, knowns, seed, model_exchange) -> list:
-    """``seed^T J`` of the slave (fmi3GetAdjointDerivative).
-
-    Parameters
-    ----------
-    slave : object
-        A slave made by ``instantiate``.
-    unknowns, knowns : sequence of int
-        Value references, as ``directional_derivative``.
-    seed : sequence of float
-        One entry per unknown.
-    model_exchange : bool
-        Whether the instance is one of model exchange.
-
-    Returns
-    -------
-    list of float
-        One entry per known (``SlaveCore.adjoint_derivative``).
-
-    Raises
-    ------
-    ValueError
-        For a reference that is not allowed or a count that does not match, in one line.
-    """
-    return slave.adjoint_derivative(
-        [int(r) for r in unknowns], [int(r) for r in knowns], [float(v) for v in seed], bool(model_exchange))
