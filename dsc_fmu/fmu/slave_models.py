@@ -85,7 +85,7 @@ class MobileRobotModel:
             The time derivative of each entry of ``x``.
         """
         u1, u2 = self.inputs(t)
-        return plant_derivatives(self.constants, x, u1, u2)
+        return plant_derivatives(self.constants, x, u1, u2, math)
 
     def rates(self, t, x, u, math=math):
         """Equations (6)-(8) under the voltages ``u`` (``derivatives`` with the inputs given).
@@ -162,7 +162,7 @@ class ReferenceRobotModel:
         list of float
             The time derivative of each entry of ``x``.
         """
-        return reference_derivatives(self.p, t, x)
+        return reference_derivatives(self.p, t, x, math)
 
     def rates(self, t, x, u, math=math):
         """Equation (9) with the velocity profile of the parameters (``derivatives`` with the inputs given).
@@ -399,7 +399,7 @@ class DSCControllerModel:
         list of float
             The time derivative of each entry of ``x``.
         """
-        law = control_law(self.constants, x, self.inputs(t), self.held)
+        law = control_law(self.constants, x, self.inputs(t), self.held, math)
         if law.guarded and self._guard_seen is None:
             self._guard_seen = (t, law.beta)
         return law.derivative
