@@ -123,9 +123,9 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
         source, i = rows[name]
         start = 0 if source is reference else nr
         dm[k, start:start + len(source.states)] = source.C[i]
-    dxc = np.eye(n)  # the loop's state against itself: the controller's rows pick its states
     voltages = [controller.outputs.index(name) for name in plant.inputs]
-    du = controller.C[voltages] @ dxc[nr + npl:] + controller.D[voltages] @ dm
+    du = controller.D[voltages] @ dm
+    du[:, nr + npl:] += controller.C[voltages]
     jacobian = np.zeros((n, n))
     jacobian[:nr, :nr] = reference.A
     jacobian[nr:nr + npl, nr:nr + npl] = plant.A
