@@ -10,6 +10,7 @@ from fmpy.validation import validate_fmu
 
 from dsc_fmu.interop.container import EXPOSED_OUTPUTS, export_fmu
 from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
+from needs_libcosimpy import libcosimpy  # noqa: F401 (the fixture)
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import ScenarioError, load_scenario
 
@@ -50,6 +51,7 @@ def test_fmpy_run_is_our_jacobi(container, fmu_paths, interval):
         np.testing.assert_allclose(theirs[name], ours[name], rtol=1e-12, atol=1e-12)
 
 
+@pytest.mark.usefixtures("libcosimpy")
 @pytest.mark.parametrize("interval", [H, 10 * H])
 def test_libcosim_run_is_fmpys_run(container, interval):
     """libcosim runs the container FMU alone (CosimExecution.from_step_size, CosimLocalSlave, a time

@@ -9,6 +9,7 @@ from fmpy.util import read_csv, read_ref_opt_file, validate_result
 from dsc_fmu.cosim import signals
 from dsc_fmu.interop.crosscheck import write_crosscheck
 from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
+from needs_libcosimpy import libcosimpy  # noqa: F401 (the fixture)
 
 H, T = 1e-3, 0.2
 
@@ -43,6 +44,7 @@ def test_inputs_are_held_with_repeated_stamps(folders):
     assert np.array_equal(inputs["time"][1:-1:2], inputs["time"][2::2])
 
 
+@pytest.mark.usefixtures("libcosimpy")
 @pytest.mark.parametrize("model", ["ReferenceRobot", "MobileRobot", "DSCController"])
 def test_libcosim_replay(folders, model):
     """Each FMU alone in libcosim (in a process of its own), its inputs fed from `<Model>_in.csv`
@@ -64,6 +66,7 @@ def test_libcosim_replay(folders, model):
         np.testing.assert_allclose(result[name], reference[name], rtol=1e-11, atol=1e-18, err_msg=name)
 
 
+@pytest.mark.usefixtures("libcosimpy")
 def test_libcosim_override_reaches_the_step_it_is_set_before(folders, tmp_path):
     """The override set before the step from t_k is what the FMU holds over that step: feeding the
     plant its inputs one step late (each value applied from t_k+1) puts its speeds and currents

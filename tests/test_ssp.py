@@ -18,6 +18,7 @@ from dsc_fmu.scenario import Interface, ScenarioError, load_scenario, scenario_n
 from dsc_fmu.interop.ssp import SSD_NAMESPACES as NS
 from dsc_fmu.errors import FmiVersionError
 from dsc_fmu.interop.ssp import FMI2_ONLY, export_ssp, model_name, run_simulate_ssp, validate_ssp
+from needs_libcosimpy import libcosimpy  # noqa: F401 (the fixture)
 
 H, T = 1e-3, 0.2
 COMPARED = ("x", "y", "theta", "omega1", "i1", "x_r", "theta_r", "u1", "u2", "a1_hat", "a2_hat", "W1_hat_norm",
@@ -188,6 +189,7 @@ def libcosim_in_its_own_process(ssp_file, h, t, folder):
     return np.load(out)
 
 
+@pytest.mark.usefixtures("libcosimpy")
 def test_libcosim_matches_the_libcosim_mode(ssp_file, paper, fmu_paths, tmp_path):
     libcosim = libcosim_in_its_own_process(ssp_file, H, T, tmp_path)
     mode = cosimulate_exchange(paper, fmu_paths, "libcosim", step_size=H, stop_time=T).result
@@ -243,6 +245,7 @@ def test_simulate_ssp_runs_the_loop_and_matches_its_mode(ssp_file, waiting, fmu_
     assert theirs["x"][1] == waiting.plant["x0"] and theirs["x"][2] != waiting.plant["x0"]  # u = 0 for two steps
 
 
+@pytest.mark.usefixtures("libcosimpy")
 def test_model_exchange_archive_co_simulates_as_the_other(ssp_file, paper, fmu_paths, tmp_path):
     """Only OMSimulator's annotation differs: libcosim and fmpy.ssp co-simulate the model-exchange
     archive at its fixed step, with the same results as the co-simulation archive's."""

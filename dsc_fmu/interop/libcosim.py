@@ -9,6 +9,8 @@ own and saves the result (``.npy``): libcosim and fmpy's container FMU loaded in
 sometimes abort at the process's exit (a double free while unloading), see docs/other-tools.md; so did,
 2 times in about 15, a process that ran the three pythonfmu FMUs one after another in libcosim
 ("corrupted double-linked list" after the last run), while one FMU per process never did (30 runs).
+libcosimpy is the optional extra ``libcosim``: each of these functions checks first that it imports
+(``libcosim_install.require_libcosimpy``) and says in one line how to get it, or that it has no wheel here.
 
 When libcosim samples and when an override takes effect (libcosim's ``execution::step``: the
 manipulators' ``step_commencing(t_k)``, then the algorithm's step from ``t_k``, then the
@@ -47,7 +49,9 @@ from pathlib import Path
 import numpy as np
 
 from ..cosim import signals
+from ..errors import DscFmuError
 from ..registry import ORDER
+from .libcosim_install import require_libcosimpy
 from .ssp import SSPError
 
 __all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "held_value_index", "main"]
@@ -137,7 +141,10 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
     SSPError
         If the archive's components are not the three FMUs, a variable cannot be observed or libcosim
         fails.
+    LibcosimUnavailableError
+        If libcosimpy is not installed (the extra ``libcosim``).
     """
+    require_libcosimpy("run_libcosim")
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimObserver import CosimObserver
 
@@ -227,7 +234,10 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
     SSPError
         If libcosim cannot load the FMU, a name of ``outputs`` is not a variable of it, a column of
         ``inputs`` is not a Real input of it, the table starts after 0, or libcosim fails.
+    LibcosimUnavailableError
+        If libcosimpy is not installed (the extra ``libcosim``).
     """
+    require_libcosimpy("run_libcosim_fmu")
     from libcosimpy.CosimEnums import CosimVariableCausality, CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
     from libcosimpy.CosimManipulator import CosimManipulator
@@ -316,9 +326,12 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
     ------
     SSPError
         If the child fails, with the end of its error output.
+    LibcosimUnavailableError
+        If libcosimpy is not installed (the extra ``libcosim``): checked before the child starts.
     subprocess.TimeoutExpired
         If the child runs longer than ``timeout``.
     """
+    require_libcosimpy("run_libcosim_fmu_in_own_process")
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_libcosim_") as tmp:
         out = Path(tmp) / "result.npy"
         command = [sys.executable, "-m", "dsc_fmu.interop.libcosim", str(fmu_path), repr(float(step_size)),
@@ -336,6 +349,8 @@ def main(argv=None) -> int:
     """Run one FMU in libcosim from the command line and save the result as ``.npy``.
 
     Usage: ``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``.
+    An error a user can fix (``DscFmuError``: libcosimpy missing, an FMU libcosim refuses) is printed as
+    one line, ``dsc-fmu: error: ...``, with exit code 1.
 
     Parameters
     ----------
@@ -345,7 +360,7 @@ def main(argv=None) -> int:
     Returns
     -------
     int
-        The exit code, 0.
+        The exit code: 0, or 1 after an error a user can fix.
     """
     parser = argparse.ArgumentParser(prog="python -m dsc_fmu.interop.libcosim", description=__doc__.splitlines()[0])
     parser.add_argument("fmu")
@@ -355,15 +370,20 @@ def main(argv=None) -> int:
     parser.add_argument("--outputs", required=True, help="comma-separated output names")
     parser.add_argument("--inputs", help="input table (CSV, the cross-check format)")
     args = parser.parse_args(argv)
-    from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
+    try:
+        require_libcosimpy("python -m dsc_fmu.interop.libcosim")
+        from libcosimpy.CosimLogging import CosimLogLevel, log_output_level
 
-    log_output_level(CosimLogLevel.WARNING)
-    inputs = None
-    if args.inputs:
-        from fmpy.util import read_csv
+        log_output_level(CosimLogLevel.WARNING)
+        inputs = None
+        if args.inputs:
+            from fmpy.util import read_csv
 
-        inputs = read_csv(args.inputs)
-    result = run_libcosim_fmu(args.fmu, args.step_size, args.stop_time, args.outputs.split(","), inputs=inputs)
+            inputs = read_csv(args.inputs)
+        result = run_libcosim_fmu(args.fmu, args.step_size, args.stop_time, args.outputs.split(","), inputs=inputs)
+    except DscFmuError as error:
+        print(f"dsc-fmu: error: {error}", file=sys.stderr)
+        return 1
     np.save(args.out, result)
     return 0
 
