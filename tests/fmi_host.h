@@ -63,8 +63,14 @@ static long host_resident_kb(void) {
 }
 #else
 #include <dlfcn.h>
+#ifdef __aarch64__
+/* FMI 2.0 names no aarch64 Linux folder: the FMUs put that binary in FMI 3.0's. */
+#define HOST_FOLDER2 "aarch64-linux"
+#define HOST_FOLDER3 "aarch64-linux"
+#else
 #define HOST_FOLDER2 "linux64"
 #define HOST_FOLDER3 "x86_64-linux"
+#endif
 #define HOST_SUFFIX ".so"
 #define HOST_RESOURCES_URI "file://%s/resources"
 
