@@ -120,11 +120,15 @@ def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> di
     from fmpy import extract, read_model_description
     from fmpy.fmi2 import FMU2Model, FMU2Slave
 
+    from dsc_fmu.platforms import library_path
+
     costs = {}
     for name, path in fmus.items():
         md = read_model_description(str(path))
         folder = extract(str(path), unzipdir=tmp / f"eval_{name}")
-        model = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name)
+        library = library_path(folder, 2, name)
+        model = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name,
+                          libraryPath=library)
         model.instantiate()
         model.setupExperiment(startTime=0.0)
         model.enterInitializationMode()
@@ -148,7 +152,8 @@ def _evaluation_costs(fmus: dict[str, Path], tmp: Path, calls: int = 2000) -> di
             if euler and name != "DSCController":
                 steps.append(None)
                 continue
-            slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name)
+            slave = FMU2Slave(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=name,
+                              libraryPath=library)
             slave.instantiate()
             slave.setupExperiment(startTime=0.0)
             slave.enterInitializationMode()

@@ -12,7 +12,7 @@ from .errors import FmiVersionError
 __all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_bundled_python", "fmu_fmi_version", "require_fmi2"]
 
 # Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
-# (the version of each system's CPython it carries) in one built with ``--bundle-python``.
+# (the version of the CPython it carries for each platform) in one built with ``--bundle-python``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
 
@@ -43,8 +43,8 @@ def fmu_bundled_python(fmu: Path) -> dict | None:
     Returns
     -------
     dict of str to str or None
-        The full version by system (``{"linux": "3.11.7", "windows": "3.11.9"}``); None if it carries
-        none, is not one of ours or is not readable.
+        The full version by platform, as FMI 3.0 tuples (``{"x86_64-linux": "3.11.7", "x86_64-windows":
+        "3.11.9"}``); None if it carries none, is not one of ours or is not readable.
     """
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data).get("python"))
 

@@ -206,6 +206,8 @@ class Fmi2Slave(_Slave):
 
     @staticmethod
     def _platform_folder(system):
+        if system == "Linux" and platform.machine().lower() in ("aarch64", "arm64"):
+            return "aarch64-linux"  # FMI 2.0.4 names x86 folders only: FMI 3.0's tuple elsewhere
         bits = "64" if sys.maxsize > 2**32 else "32"
         return ("win" if system == "Windows" else system.lower()) + bits
 

@@ -112,6 +112,7 @@ def test_documentation_states_what_the_importing_machine_needs(fmus, version, na
     assert dependencies == paragraph  # FMI 3.0's externalDependencies.txt, the same text
     (flag,) = flags  # both interfaces declare the same
     assert f"needsExecutionTool = {flag}" in paragraph
-    for requirement in ("x86-64 Linux or Windows", "64-bit CPython 3.9 or newer", "DSC_FMU_PYTHON",
-                        "the Python that built the FMU", "PEP 514"):
+    for requirement in ("x86-64 or aarch64 Linux", "x86-64 Windows", "macOS (11.0 or newer on Apple Silicon",
+                        "64-bit CPython 3.9 or newer", "DSC_FMU_PYTHON", "the Python that built the FMU", "PEP 514",
+                        "Homebrew"):
         assert requirement in paragraph

@@ -90,13 +90,13 @@ def errors(run) -> list[str]:
 
 
 @pytest.mark.parametrize("version", (2, 3))
-def test_every_fmu_carries_our_binaries_for_linux_and_windows_and_no_other(fmu_paths, fmu3_paths, version, tmp_path):
-    """Each FMU holds exactly our two binaries; the Windows one imports KERNEL32 and the UCRT only
-    and exports exactly the standard's functions."""
+def test_every_fmu_carries_our_binaries_for_every_platform_and_no_other(fmu_paths, fmu3_paths, version, tmp_path):
+    """Each FMU holds exactly our binaries, one file per platform folder; the Windows one imports KERNEL32
+    and the UCRT only and exports exactly the standard's functions."""
     for name, path in (fmu3_paths if version == 3 else fmu_paths).items():
         with zipfile.ZipFile(path) as fmu:
             binaries = {item for item in fmu.namelist() if item.startswith("binaries/") and not item.endswith("/")}
-            assert binaries == {target.file(version, name) for target in TARGETS}
+            assert binaries == {file for target in TARGETS for file in target.files(version, name)}
             dll = pefile.PE(data=fmu.read(WINDOWS.file(version, name)))
         imports = {entry.dll.decode() for entry in dll.DIRECTORY_ENTRY_IMPORT}
         assert "KERNEL32.dll" in imports and all(d == "KERNEL32.dll" or UCRT.fullmatch(d) for d in imports), imports

@@ -18,6 +18,7 @@ from fmpy.fmi3 import FMU3Model, FMU3Slave
 from fmpy.model_description import ValidationError
 
 from ..errors import CosimulationError
+from ..platforms import library_path
 
 __all__ = ["LogMessage", "LoadedFmu", "failed_call", "logging_callbacks", "type_name"]
 
@@ -270,7 +271,8 @@ class LoadedFmu:
         """
         kind = _CLASSES[self.fmi_version, self.model_exchange]
         slave = kind(guid=self.guid, unzipDirectory=self.folder, modelIdentifier=self.model_identifier,
-                     instanceName=self.name)
+                     instanceName=self.name,
+                     libraryPath=library_path(self.folder, self.fmi_version, self.model_identifier))
         if self.fmi_version == 3:
             slave.instantiate(loggingOn=True, logMessage=_fmi3_logger(self.log, self.name))
         else:

@@ -1,12 +1,15 @@
 """The FMUs' binary layer: ``dsc_fmu/fmubuild/native`` compiled with Zig's C compiler (the ``ziglang`` package)
-for x86-64 Linux and Windows, on any OS.
+for x86-64 and aarch64 Linux, x86-64 Windows and macOS on Apple Silicon and Intel, on any OS.
 
 The binary replaces pythonfmu's and pythonfmu3's binaries in every FMU. It links no Python: it finds
 one at run time (``native/pyhost.c``), so the FMUs load in C and C++ importers with no set-up, and any
 CPython from 3.9 on runs them. Zig comes from the package index with everything it needs (a C
-compiler, a linker, the glibc stubs and the MinGW-w64 import libraries), so building needs no system
-compiler. The Linux binary targets glibc 2.17, so it also loads on distributions older than the one
-that built it; the Windows binary imports KERNEL32 and the UCRT only.
+compiler, a linker, the glibc stubs, the MinGW-w64 import libraries and macOS's libSystem stubs), so
+building needs no system compiler and no SDK. The Linux binaries target glibc 2.17, so they also load on
+distributions older than the one that built them; the Windows binary imports KERNEL32 and the UCRT only;
+the macOS binaries link libSystem only, target macOS 11.0 (Apple Silicon) and 10.13 (Intel), are
+stripped, name themselves ``@rpath/<model identifier>.dylib`` and carry the ad-hoc signature Zig's linker
+gives arm64 code (Apple Silicon runs no unsigned code).
 """
 
 from __future__ import annotations
@@ -23,12 +26,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
+from .. import platforms
 from ..errors import DscFmuError
+from ..platforms import Platform
 from ..fmu.native_bridge import CAUSALITIES, TYPE_NAMES, TYPES, VARIABILITIES
 
 __all__ = [
-    "BinaryBuildError", "PythonRuntime", "Target", "TARGETS", "LINUX", "WINDOWS", "build_python", "compile_binary",
-    "binary_sources", "OVERRIDE_VARIABLE", "ENTRY_FILE",
+    "BinaryBuildError", "PythonRuntime", "Target", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64",
+    "MACOS_X86_64", "host_target", "build_python", "compile_binary", "binary_sources", "OVERRIDE_VARIABLE",
+    "ENTRY_FILE",
 ]
 
 NATIVE_DIR = Path(__file__).parent / "native"
@@ -49,72 +55,59 @@ class BinaryBuildError(DscFmuError, RuntimeError):
 
 
 @dataclass(frozen=True)
-class Target:
-    """An operating system the binary is built for.
+class Target(Platform):
+    """A platform (``dsc_fmu.platforms``) and how its binary is compiled.
 
     Parameters
     ----------
-    os : {"linux", "windows"}
-        The system's name.
+    os, cpu, folders, suffix
+        The platform's (``Platform``).
     zig_target : str
-        Zig's target triple (for Linux with the oldest glibc the binary runs on).
-    folders : tuple of str
-        The FMI platform folders of FMI 2.0 and 3.0 (``linux64``, ``x86_64-linux``).
-    suffix : str
-        The binary's file suffix (``.so``, ``.dll``).
-    platform_source : str
-        The platform seam's source in ``native/`` (``platform.h``).
+        Zig's target triple (with the oldest glibc or macOS the binary runs on).
+    platform_sources : tuple of str
+        The platform seam's sources in ``native/`` (``platform.h``).
     flags : tuple of str
-        Compiler flags for this system.
+        Compiler and linker flags for this platform.
     libraries : tuple of str
         What the binary links.
+    install_name : str, optional
+        The name a macOS binary gives itself, with ``{}`` for the model identifier. Default "": none.
     """
 
-    os: str
-    zig_target: str
-    folders: tuple[str, str]
-    suffix: str
-    platform_source: str
-    flags: tuple[str, ...]
-    libraries: tuple[str, ...]
+    zig_target: str = ""
+    platform_sources: tuple[str, ...] = ()
+    flags: tuple[str, ...] = ()
+    libraries: tuple[str, ...] = ()
+    install_name: str = ""
 
-    def folder(self, fmi_version: int) -> str:
-        """The FMI platform folder of the binary.
-
-        Parameters
-        ----------
-        fmi_version : {2, 3}
-            The FMI version of the binary.
-
-        Returns
-        -------
-        str
-            The folder's name under ``binaries/``.
-        """
-        return self.folders[fmi_version - 2]
-
-    def file(self, fmi_version: int, model_identifier: str) -> str:
-        """The binary's path in an FMU.
-
-        Parameters
-        ----------
-        fmi_version : {2, 3}
-            The FMI version of the binary.
-        model_identifier : str
-            The FMU's model identifier, the binary's file name without suffix.
-
-        Returns
-        -------
-        str
-            The path inside the FMU archive, with ``/``.
-        """
-        return f"binaries/{self.folder(fmi_version)}/{model_identifier}{self.suffix}"
+    @classmethod
+    def of(cls, platform: Platform, zig_target: str, platform_sources: tuple[str, ...], flags: tuple[str, ...] = (),
+           libraries: tuple[str, ...] = (), install_name: str = "") -> Target:
+        """The target that compiles for ``platform`` (the other parameters as the class's)."""
+        return cls(platform.os, platform.cpu, platform.folders, platform.suffix, zig_target, platform_sources, flags,
+                   libraries, install_name)
 
 
-LINUX = Target("linux", "x86_64-linux-gnu.2.17", ("linux64", "x86_64-linux"), ".so", "platform_posix.c",
-               ("-fPIC", "-fvisibility=hidden"), ("-ldl", "-lpthread", "-lm"))
-WINDOWS = Target("windows", "x86_64-windows-gnu", ("win64", "x86_64-windows"), ".dll", "platform_windows.c", (), ())
-TARGETS = (LINUX, WINDOWS)
+_POSIX = ("-fPIC", "-fvisibility=hidden")
+_LINUX_SOURCES = ("platform_posix.c", "platform_linux.c")
+_LINUX_LIBRARIES = ("-ldl", "-lpthread", "-lm")
+_MACOS_SOURCES = ("platform_posix.c", "platform_macos.c")
+# Stripped: otherwise the symbol table names the objects in Zig's cache and the temporary output.
+_MACOS_FLAGS = (*_POSIX, "-s")
+LINUX = Target.of(platforms.LINUX, "x86_64-linux-gnu.2.17", _LINUX_SOURCES, _POSIX, _LINUX_LIBRARIES)
+LINUX_AARCH64 = Target.of(platforms.LINUX_AARCH64, "aarch64-linux-gnu.2.17", _LINUX_SOURCES, _POSIX, _LINUX_LIBRARIES)
+WINDOWS = Target.of(platforms.WINDOWS, "x86_64-windows-gnu", ("platform_windows.c",))
+MACOS_ARM64 = Target.of(platforms.MACOS_ARM64, "aarch64-macos.11.0", _MACOS_SOURCES, _MACOS_FLAGS,
+                        install_name="@rpath/{}.dylib")
+MACOS_X86_64 = Target.of(platforms.MACOS_X86_64, "x86_64-macos.10.13", _MACOS_SOURCES, _MACOS_FLAGS,
+                         install_name="@rpath/{}.dylib")
+TARGETS = (LINUX, LINUX_AARCH64, WINDOWS, MACOS_ARM64, MACOS_X86_64)
+
+
+def host_target() -> Target | None:
+    """The target of the machine this runs on, or None if the FMUs have no binary for it."""
+    here = platforms.host_platform()
+    return next((target for target in TARGETS if here is not None and target.name == here.name), None)
 
 
 @dataclass(frozen=True)
@@ -127,12 +120,12 @@ class PythonRuntime:
         Its version, major and minor (``"3.11"``): its candidates come first among the system's.
     library : str
         The shared library of the Python that built the binary, or "" if it has none (or runs on
-        another system).
+        another platform).
     home : str
         That Python's home (``sys.base_prefix``), or "".
     system_name : str, optional
         The file name of the system's CPython libraries with ``%d`` for the minor version. Default "":
-        ``libpython3.%d.so.1.0`` on Linux, ``python3%d.dll`` on Windows.
+        ``libpython3.%d.so.1.0`` on Linux, ``libpython3.%d.dylib`` on macOS, ``python3%d.dll`` on Windows.
     """
 
     version: str
@@ -152,6 +145,8 @@ def build_python() -> PythonRuntime:
     library = ""
     if sys.platform == "win32":
         candidate = Path(sys.base_prefix) / f"python{sys.version_info.major}{sys.version_info.minor}.dll"
+    elif sysconfig.get_config_var("PYTHONFRAMEWORK"):  # a macOS framework: INSTSONAME is Python.framework/...
+        candidate = Path(sysconfig.get_config_var("PYTHONFRAMEWORKPREFIX") or "") / sysconfig.get_config_var("INSTSONAME")
     elif sysconfig.get_config_var("Py_ENABLE_SHARED"):
         candidate = Path(sysconfig.get_config_var("LIBDIR") or "") / (sysconfig.get_config_var("INSTSONAME") or "")
     else:
@@ -162,9 +157,8 @@ def build_python() -> PythonRuntime:
 
 
 def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
-    """What a binary for ``target`` may know of the building Python: its library only on the same OS."""
-    here = "windows" if sys.platform == "win32" else sys.platform
-    return runtime if target.os == here else PythonRuntime(runtime.version, "", "", runtime.system_name)
+    """What a binary for ``target`` may know of the building Python: its library only on the same platform."""
+    return runtime if target == host_target() else PythonRuntime(runtime.version, "", "", runtime.system_name)
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
@@ -180,7 +174,7 @@ def binary_sources(fmi_version: int) -> list[Path]:
     list of pathlib.Path
         The sources and headers in ``native/``, for every target (the standard's headers excluded).
     """
-    platforms = tuple(target.platform_source for target in TARGETS)
+    platforms = dict.fromkeys(name for target in TARGETS for name in target.platform_sources)
     return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *platforms, *_HEADERS)]
 
 
@@ -241,9 +235,11 @@ def _contract(fmi_version: int) -> list[str]:
     ]
 
 
-def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path) -> list[str]:
+def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path, model_identifier: str) -> list[str]:
+    install_name = [f"-Wl,-install_name,{target.install_name.format(model_identifier)}"] if target.install_name else []
     return [
-        sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, "-O2",
+        sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, *install_name,
+        "-O2",
         "-std=c11", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
         f"-I{NATIVE_DIR}", f"-I{_fmi_headers()}",
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
@@ -251,7 +247,7 @@ def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: P
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
         *([f"-DDSC_SYSTEM_PYTHON={_c_string(runtime.system_name)}"] if runtime.system_name else []),
         *_contract(fmi_version),
-        *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], target.platform_source)),
+        *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], *target.platform_sources)),
         "-o", str(output), *target.libraries,
     ]
 
@@ -264,8 +260,9 @@ def _compiler_environment() -> dict:
     return env
 
 
-def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None) -> bytes:
-    """Compile the binary layer of one FMI version for one system.
+def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None,
+                   model_identifier: str = "") -> bytes:
+    """Compile the binary layer of one FMI version for one platform.
 
     Compiled once per process for the same sources and arguments.
 
@@ -274,33 +271,40 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
     fmi_version : {2, 3}
         The FMI version of the binary.
     target : Target, optional
-        The system it runs on. Default ``LINUX``.
+        The platform it runs on. Default ``LINUX``.
     runtime : PythonRuntime, optional
-        The Python it prefers. Default ``build_python()``, whose library a binary for another system
+        The Python it prefers. Default ``build_python()``, whose library a binary for another platform
         does not know.
+    model_identifier : str, optional
+        The FMU's model identifier, for a target whose binary names itself (``Target.install_name``):
+        required there, ignored elsewhere. Default "".
 
     Returns
     -------
     bytes
-        The shared library (``.so`` or ``.dll``).
+        The shared library (``.so``, ``.dll`` or ``.dylib``).
 
     Raises
     ------
     BinaryBuildError
-        If the compiler cannot be run or fails.
+        If the compiler cannot be run or fails, or a target that names its binary is given no model
+        identifier.
     """
+    if target.install_name and not model_identifier:
+        raise BinaryBuildError(f"the {target.name} binary names itself after its FMU: give its model identifier")
+    model_identifier = model_identifier if target.install_name else ""
     runtime = _runtime_for(target, runtime or build_python())
-    digest = hashlib.sha256(repr((fmi_version, target, runtime, _contract(fmi_version))).encode())
+    digest = hashlib.sha256(repr((fmi_version, target, runtime, model_identifier, _contract(fmi_version))).encode())
     for path in binary_sources(fmi_version):
         digest.update(path.read_bytes())
-    return _compile(fmi_version, target, runtime, digest.hexdigest())
+    return _compile(fmi_version, target, runtime, model_identifier, digest.hexdigest())
 
 
-@functools.lru_cache(maxsize=16)
-def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, digest: str) -> bytes:
+@functools.lru_cache(maxsize=32)
+def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, model_identifier: str, digest: str) -> bytes:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_binary_") as tmp:
-        output = Path(tmp) / f"fmu{target.suffix}"
-        command = _command(fmi_version, target, runtime, output)
+        output = Path(tmp) / f"{model_identifier or 'fmu'}{target.suffix}"  # a signature's identifier is its name
+        command = _command(fmi_version, target, runtime, output, model_identifier)
         try:
             run = subprocess.run(command, capture_output=True, text=True, timeout=600, env=_compiler_environment())
         except (OSError, subprocess.TimeoutExpired) as error:
@@ -308,6 +312,6 @@ def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, digest: s
         if run.returncode != 0:
             detail = (run.stderr or run.stdout).strip().splitlines()
             raise BinaryBuildError(
-                f"compiling the FMU binary for {target.os} failed ({' '.join(command[:6])} ...): {' | '.join(detail[-5:])}"
+                f"compiling the FMU binary for {target.name} failed ({' '.join(command[:6])} ...): {' | '.join(detail[-5:])}"
             )
         return output.read_bytes()

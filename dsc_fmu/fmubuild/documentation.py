@@ -77,24 +77,29 @@ masters without an initial exchange) and starts from the first valid inputs; out
 REQUIREMENTS = (
     "The FMU needs no execution tool (needsExecutionTool = false): it carries the model and the Python code "
     "that runs it (standard library only), and its binary loads CPython as a library. The importing machine "
-    "needs x86-64 Linux or Windows and a 64-bit CPython 3.9 or newer, which the FMU finds by itself: a "
+    "needs x86-64 or aarch64 Linux (glibc 2.17 or newer), x86-64 Windows or macOS (11.0 or newer on Apple "
+    "Silicon, 10.13 or newer on Intel) and a 64-bit CPython 3.9 or newer, which the FMU finds by itself: a "
     "CPython already in the process, DSC_FMU_PYTHON naming a CPython's folder or shared library "
-    "(libpython3.X.so.1.0 on Linux, python3X.dll on Windows), the Python that built the FMU, then the "
-    "system's (on Linux the dynamic loader's search, on Windows the PEP 514 registrations and PATH). If none "
-    "serves, instantiation fails with one message naming every place it looked.")
+    "(libpython3.X.so.1.0 on Linux, libpython3.X.dylib or a framework's Python on macOS, python3X.dll on "
+    "Windows), the Python that built the FMU, then the system's (on Linux the dynamic loader's search; on "
+    "macOS python.org's, Homebrew's, conda's active environment, pyenv's, Xcode's, then the dynamic "
+    "loader's search; on Windows the PEP 514 registrations and PATH). If none serves, instantiation fails "
+    "with one message naming every place it looked.")
 
 
-def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
+def bundled_requirements(runtimes: dict, folders: dict, licences: dict, others: list) -> str:
     """What the importing machine needs of an FMU that carries its own CPython.
 
     Parameters
     ----------
     runtimes : dict of str to bundle.Runtime
-        The runtimes, by system (``"linux"``, ``"windows"``).
+        The runtimes, by platform (``"x86_64-linux"``, ``"x86_64-windows"``).
     folders : dict of str to str
-        The runtime's folder in the FMU, by system.
+        The runtime's folder in the FMU, by platform.
     licences : dict of str to list of str
-        The licence files in the FMU (CPython's first), by system.
+        The licence files in the FMU (CPython's first), by platform.
+    others : list of str
+        The FMU's platforms that carry no runtime.
 
     Returns
     -------
@@ -102,16 +107,18 @@ def bundled_requirements(runtimes: dict, folders: dict, licences: dict) -> str:
         The requirements, as ``REQUIREMENTS`` gives them for FMUs without one.
     """
     carried = "; ".join(
-        f"for {system.capitalize()} CPython {runtime.version} in {folders[system]}"
+        f"for {platform} CPython {runtime.version} in {folders[platform]}"
         + (f" (it needs {', '.join(runtime.needs)})" if runtime.needs else "")
-        + f", licences in {', '.join(licences[system])}"
-        for system, runtime in sorted(runtimes.items()))
-    return ("The FMU needs no execution tool (needsExecutionTool = false) and no Python on the importing machine: "
-            f"it carries the model, the Python code that runs it and a CPython to run it ({carried}). The "
-            "importing machine needs x86-64 Linux or Windows. The binary uses a CPython already in the process "
-            "(one per process), else the one DSC_FMU_PYTHON names, else the FMU's own, which starts isolated "
-            "(PYTHON* variables and user site-packages ignored, no bytecode written). A damaged runtime fails "
-            "instantiation with one message naming it and what failed.")
+        + f", licences in {', '.join(licences[platform])}"
+        for platform, runtime in sorted(runtimes.items()))
+    elsewhere = (f" On {', '.join(others)} it carries none and needs the importing machine's 64-bit CPython 3.9 or "
+                 "newer, as an FMU without one does." if others else "")
+    return ("The FMU needs no execution tool (needsExecutionTool = false) and no Python on the importing machine "
+            f"where it carries one: it carries the model, the Python code that runs it and a CPython to run it "
+            f"({carried}). The binary uses a CPython already in the process (one per process), else the one "
+            "DSC_FMU_PYTHON names, else the FMU's own, which starts isolated (PYTHON* variables and user "
+            "site-packages ignored, no bytecode written). A damaged runtime fails instantiation with one message "
+            f"naming it and what failed.{elsewhere}")
 
 
 _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:collapse}td,th{border:1px solid #999;padding:2px 6px}"

@@ -9,6 +9,7 @@ import shutil
 import sys
 import tempfile
 import textwrap
+import warnings
 import zipfile
 from contextlib import contextmanager
 from pathlib import Path
@@ -22,13 +23,14 @@ from ..files import atomic_write
 from ..identity import BUILD_ID_FILE, fmu_build_id, fmu_bundled_python
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
-from .binary import TARGETS, BinaryBuildError, binary_sources, build_python, compile_binary
+from .binary import TARGETS, WINDOWS, BinaryBuildError, binary_sources, compile_binary
 from .folders import (
     DEFAULT_FMU_DIR, DEFAULT_FMU_DIRS, FMI_VERSIONS, check_fmi_version, default_fmu_dir, resolve_fmu_dir,
 )
 from .bundle import MANIFEST, ROOT, Runtime, bundle_minor, bundled_runtimes
 from .bundle.runtime import bytecode
 from .documentation import REQUIREMENTS, bundled_requirements
+from .macho import universal
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -41,9 +43,9 @@ ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
 DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
-# The licences of what a carried runtime holds (CPython's, a library's), by name and system (FMI 3.0's
+# The licences of what a carried runtime holds (CPython's, a library's), by name and platform (FMI 3.0's
 # place for licences).
-LICENCE_FILE = "documentation/licenses/{name}-{system}.txt"
+LICENCE_FILE = "documentation/licenses/{name}-{platform}.txt"
 # What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
 _FMU_MODULES = ("__init__.py", "slave_core.py", "jacobian.py", "slave_models.py", "glue.py", "native_bridge.py")
@@ -84,8 +86,9 @@ def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
     """The hash of everything an FMU is built from.
 
-    Its sources, this builder, the binary's sources, the FMI library's version and the Python its
-    binary looks for: an FMU whose build id (``identity.fmu_build_id``) equals it is current.
+    Its sources, this builder, the binary's sources and the FMI library's version: an FMU whose build
+    id (``identity.fmu_build_id``) equals it is current, whichever machine and CPython built it (the
+    Python its binary looks for first is a preference, not a source).
 
     Parameters
     ----------
@@ -106,7 +109,7 @@ def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
     """
     check_fmi_version(fmi_version)
     library = _library_version(fmi_version)
-    digest = hashlib.sha256(f"{__version__} {library} {spec.name} {build_python()}".encode())
+    digest = hashlib.sha256(f"{__version__} {library} {spec.name}".encode())
     for path in _bundled_files(spec, fmi_version):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
@@ -202,21 +205,45 @@ def _forget_staged_modules(package: str, script: str) -> None:
         del sys.modules[name]
 
 
-def _runtime_files(runtime: Runtime, folder: str) -> dict:
-    """The files of ``runtime`` in an FMU whose binary for its system is in ``binaries/<folder>``."""
-    root = f"binaries/{folder}/{ROOT}"
+def _binaries(spec: FmuSpec, fmi_version: int) -> dict[str, bytes]:
+    """The FMU's binaries by path: one per target and folder, the targets that share a folder joined in
+    one universal file (macOS's ``darwin64``)."""
+    slices = {}
+    for target in TARGETS:
+        binary = compile_binary(fmi_version, target, model_identifier=spec.name)
+        for name in target.files(fmi_version, spec.name):
+            slices.setdefault(name, []).append(binary)
+    return {name: images[0] if len(images) == 1 else universal(images) for name, images in slices.items()}
+
+
+def _runtime_files(runtime: Runtime, platform: str, fmi_version: int) -> dict:
+    """The files of ``runtime`` in an FMU, beside the binary of ``platform`` (an FMI 3.0 tuple)."""
+    root = f"binaries/{_target(platform).folder(fmi_version)}/{ROOT}"
     return {**{f"{root}/{path}": data for path, data in runtime.files.items()}, f"{root}/{MANIFEST}": runtime.manifest(),
-            **{LICENCE_FILE.format(name=name, system=runtime.os): text for name, text in runtime.licences.items()}}
+            **{LICENCE_FILE.format(name=name, platform=platform): text for name, text in runtime.licences.items()}}
+
+
+def _target(platform: str):
+    return next(target for target in TARGETS if target.name == platform)
 
 
 def _requirements(runtimes: dict, fmi_version: int) -> str:
     """What the importing machine needs: ``REQUIREMENTS``, or ``bundled_requirements`` of ``runtimes``."""
     if not runtimes:
         return REQUIREMENTS
-    folders = {target.os: f"binaries/{target.folder(fmi_version)}/{ROOT}" for target in TARGETS}
-    licences = {system: [LICENCE_FILE.format(name=name, system=system) for name in runtime.licences]
-                for system, runtime in runtimes.items()}
-    return bundled_requirements(runtimes, folders, licences)
+    folders = {platform: f"binaries/{_target(platform).folder(fmi_version)}/{ROOT}" for platform in runtimes}
+    licences = {platform: [LICENCE_FILE.format(name=name, platform=platform) for name in runtime.licences]
+                for platform, runtime in runtimes.items()}
+    others = [target.name for target in TARGETS if target.name not in runtimes]
+    return bundled_requirements(runtimes, folders, licences, others)
+
+
+def _uncarried(runtimes: dict) -> None:
+    """Warn that the platforms an FMU carries no CPython for (``runtimes`` by platform) use the importing
+    machine's."""
+    others = [target.name for target in TARGETS if target.name not in runtimes]
+    warnings.warn(f"--bundle-python: the FMUs carry a CPython for {', '.join(runtimes)} and none for "
+                  f"{', '.join(others)}, where they use the importing machine's CPython 3.9 or newer", stacklevel=3)
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
@@ -232,9 +259,10 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in ``out_dir``, else 2 (``resolve_fmu_dir``).
     bundle_python : bool or str, optional
-        Carry a CPython for each system the FMU has binaries for (``fmubuild.bundle``): True for the
-        building CPython's minor version, or ``"3.X"`` for Windows' (Linux's is the building CPython).
-        Default False: the FMU uses the importing machine's.
+        Carry a CPython for the platforms it can (``fmubuild.bundle``: x86-64 Windows, and Linux of the
+        building machine's CPU; a warning names the others): True for the building CPython's minor
+        version, or ``"3.X"`` for Windows' (Linux's is the building CPython). Default False: the FMU uses
+        the importing machine's.
 
     Returns
     -------
@@ -267,14 +295,14 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
         runtimes = {}
         if bundle_python:
             entry = f"{package_dir.name}.fmu.native_bridge {script.stem}"
-            runtimes = bundled_runtimes(raw, entry, bundle_python, [system.os for system in TARGETS])
+            runtimes = bundled_runtimes(raw, entry, bundle_python, [target.name for target in TARGETS])
         staged = tmp / f"{spec.name}.fmu"
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
-            for system in TARGETS:
-                dst.writestr(system.file(fmi_version, spec.name), compile_binary(fmi_version, system))
-                if system.os in runtimes:
-                    for name, data in _runtime_files(runtimes[system.os], system.folder(fmi_version)).items():
-                        dst.writestr(name, data)
+            for name, data in _binaries(spec, fmi_version).items():
+                dst.writestr(name, data)
+            for platform, runtime in runtimes.items():
+                for name, data in _runtime_files(runtime, platform, fmi_version).items():
+                    dst.writestr(name, data)
             requirements = _requirements(runtimes, fmi_version)
             for item in src.infolist():
                 if item.filename.startswith("binaries/"):
@@ -294,10 +322,13 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
                         dst.writestr(*_bytecode(name, data))
             record = {"source_hash": digest, "dsc_fmu": __version__, "fmi_version": fmi_version}
             if runtimes:
-                record["python"] = {system: runtime.version for system, runtime in runtimes.items()}
+                record["python"] = {platform: runtime.version for platform, runtime in runtimes.items()}
             dst.writestr(BUILD_ID_FILE, json.dumps(record))
         out_dir.mkdir(parents=True, exist_ok=True)
-        return atomic_write(target, staged.read_bytes())
+        path = atomic_write(target, staged.read_bytes())
+    if runtimes:
+        _uncarried(runtimes)
+    return path
 
 
 def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None,
@@ -417,5 +448,5 @@ def _carries(fmu: Path, bundle_python: bool | str) -> bool:
     Windows runtime's minor version decides, since Linux's is always the building CPython's."""
     if not bundle_python:
         return True
-    windows = (fmu_bundled_python(fmu) or {}).get("windows", "")
+    windows = (fmu_bundled_python(fmu) or {}).get(WINDOWS.name, "")
     return windows.startswith(f"3.{bundle_minor(bundle_python)}.")

@@ -1,8 +1,10 @@
 """A CPython inside each FMU (``dsc-fmu build --bundle-python``), so that it runs where no Python is
-installed: for each system the FMU has binaries for, the runtime its binary starts when no CPython is
-already in the process and DSC_FMU_PYTHON is not set (``native/pyhost.c``). Linux takes the building
-CPython's (``linux``), Windows the official embeddable one (``windows``); each carries only the
-standard-library modules the FMU's code imports (``modules``)."""
+installed: for the platforms the FMU can carry one for, the runtime its binary starts when no CPython is
+already in the process and DSC_FMU_PYTHON is not set (``native/pyhost.c``). Linux of the building
+machine's CPU takes the building CPython's (``linux``), x86-64 Windows the official embeddable one
+(``windows``); each carries only the standard-library modules the FMU's code imports (``modules``). The
+other platforms (macOS, Linux of another CPU) carry none: their binaries use the importing machine's
+CPython."""
 
 from __future__ import annotations
 
@@ -12,12 +14,14 @@ import tempfile
 import zipfile
 from pathlib import Path
 
+from ..binary import WINDOWS, host_target
 from .linux import linux_library, linux_refused, linux_runtime
 from .modules import BundleError, imported_modules
 from .runtime import MANIFEST, ROOT, Runtime
 from .windows import windows_refused, windows_runtime
 
-__all__ = ["BundleError", "MANIFEST", "ROOT", "OLDEST_MINOR", "Runtime", "bundle_minor", "bundled_runtimes"]
+__all__ = ["BundleError", "MANIFEST", "ROOT", "OLDEST_MINOR", "Runtime", "bundle_minor", "bundled_runtimes",
+           "carried_platforms"]
 
 # The oldest CPython the FMUs' code runs on (``native/pyhost.c`` refuses older ones).
 OLDEST_MINOR = 9
@@ -51,8 +55,16 @@ def bundle_minor(python: bool | str) -> int:
     return int(match.group(1))
 
 
-def bundled_runtimes(fmu: Path, entry: str, python: bool | str, systems) -> dict:
-    """The runtimes an FMU carries for ``systems``.
+def carried_platforms(platforms) -> list[str]:
+    """The platforms among ``platforms`` (FMI 3.0 tuples) that an FMU built here can carry a CPython for:
+    x86-64 Windows, and Linux if this is Linux (its CPU's)."""
+    here = host_target()
+    linux = here.name if here is not None and here.os == "linux" else None
+    return [platform for platform in platforms if platform in (linux, WINDOWS.name)]
+
+
+def bundled_runtimes(fmu: Path, entry: str, python: bool | str, platforms) -> dict:
+    """The runtimes an FMU carries for those of ``platforms`` it can (``carried_platforms``).
 
     Parameters
     ----------
@@ -62,32 +74,33 @@ def bundled_runtimes(fmu: Path, entry: str, python: bool | str, systems) -> dict
         The modules the binary imports first: ``"<bridge module> <slave module>"``.
     python : True or str
         The Windows runtime's version (``bundle_minor``); Linux's is the building CPython.
-    systems : iterable of str
-        ``"linux"``, ``"windows"``.
+    platforms : iterable of str
+        The FMU's platforms, as FMI 3.0 tuples (``"x86_64-linux"``).
 
     Returns
     -------
     dict of str to Runtime
-        By system.
+        By platform.
 
     Raises
     ------
     BundleError
-        If a runtime cannot be bundled (not on x86-64 Linux, no shared library, no download, code that
-        does not import).
+        If a runtime cannot be bundled (no shared library, no download, code that does not import).
     """
     minor = bundle_minor(python)
-    systems = set(systems)
-    if "linux" in systems:
+    carried = carried_platforms(platforms)
+    linux = next((platform for platform in carried if platform.endswith("-linux")), None)
+    windows = WINDOWS.name in carried
+    if linux:
         linux_library()
-    refused = (linux_refused() if "linux" in systems else set()) | (windows_refused(minor) if "windows" in systems else set())
+    refused = (linux_refused() if linux else set()) | (windows_refused(minor) if windows else set())
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_bundle_") as tmp:
         with zipfile.ZipFile(fmu) as archive:
             archive.extractall(tmp, [name for name in archive.namelist() if name.startswith("resources/")])
         imports = imported_modules(Path(tmp) / "resources", entry, refused)
     runtimes = {}
-    if "linux" in systems:
-        runtimes["linux"] = linux_runtime(imports)
-    if "windows" in systems:
-        runtimes["windows"] = windows_runtime(minor, imports, whole_stdlib=minor != sys.version_info.minor)
+    if linux:
+        runtimes[linux] = linux_runtime(imports)
+    if windows:
+        runtimes[WINDOWS.name] = windows_runtime(minor, imports, whole_stdlib=minor != sys.version_info.minor)
     return runtimes

@@ -1,4 +1,4 @@
-"""The Linux x86-64 runtime: the building CPython's shared library, the standard-library modules the
+"""The Linux runtime (x86-64 or aarch64, the building machine's): the building CPython's shared library, the standard-library modules the
 FMU's code imports as bytecode in ``lib/python3X.zip``, and the extension modules it imports in
 ``lib/python3.X/lib-dynload`` (the libraries without their debug sections), so that with the runtime's
 folder as its home CPython finds them itself."""
@@ -11,7 +11,7 @@ import sys
 import sysconfig
 from pathlib import Path
 
-from ..binary import build_python
+from ..binary import build_python, host_target
 from .elf import needed, without_debug
 from .modules import BundleError, Imports, building_stdlib
 from .runtime import Runtime, bytecode, stored_zip
@@ -21,7 +21,7 @@ __all__ = ["GLIBC", "linux_library", "linux_refused", "linux_runtime"]
 # The libraries of the C runtime every glibc system has: extension modules that need nothing else are
 # bundled freely.
 GLIBC = ("libc.so.6", "libm.so.6", "libpthread.so.0", "libdl.so.2", "librt.so.1", "libutil.so.1",
-         "ld-linux-x86-64.so.2")
+         "ld-linux-x86-64.so.2", "ld-linux-aarch64.so.1")
 _MINOR = f"{sys.version_info.major}.{sys.version_info.minor}"
 
 
@@ -36,12 +36,13 @@ def linux_library() -> Path:
     Raises
     ------
     BundleError
-        If this is not x86-64 Linux (the FMUs' Linux binary), or the building CPython has no shared
+        If this is not Linux on a CPU the FMUs have a binary for, or the building CPython has no shared
         library; the message says what provides one.
     """
-    if sys.platform != "linux" or platform.machine() != "x86_64":
+    here = host_target()
+    if here is None or here.os != "linux":
         raise BundleError(f"the Linux runtime is the building CPython's, and this is {sys.platform} on "
-                          f"{platform.machine()}; allowed: build with --bundle-python on x86-64 Linux")
+                          f"{platform.machine()}; allowed: build with --bundle-python on x86-64 or aarch64 Linux")
     library = build_python().library
     if not library:
         raise BundleError(
@@ -121,7 +122,7 @@ def linux_runtime(imports: Imports) -> Runtime:
     Raises
     ------
     BundleError
-        If this is not x86-64 Linux, the building CPython has no shared library, or a library an
+        If this is not Linux, the building CPython has no shared library, or a library an
         extension module needs, or its licence, was not found.
     """
     library = linux_library()

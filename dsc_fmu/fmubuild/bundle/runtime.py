@@ -24,7 +24,7 @@ class Runtime:
     Parameters
     ----------
     os : {"linux", "windows"}
-        The system it runs on.
+        The system it runs on (its CPU is that of the folder it is carried in).
     version : str
         Its full version (``"3.11.7"``).
     files : dict of str to bytes

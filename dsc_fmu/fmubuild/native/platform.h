@@ -1,6 +1,7 @@
 /* What differs between the operating systems the binary runs on: loading libraries, paths and files,
-   the places a Python is installed, threads. One implementation per system: platform_posix.c
-   (Linux) and platform_windows.c; everything else is the same source for both. Paths are UTF-8. */
+   the places a Python is installed, threads. One implementation per system: platform_posix.c with
+   platform_linux.c (Linux) or platform_macos.c (macOS), and platform_windows.c; everything else is the
+   same source for all. Paths are UTF-8. */
 
 #ifndef DSC_PLATFORM_H
 #define DSC_PLATFORM_H
@@ -16,12 +17,13 @@
 /* A loaded shared library. */
 typedef void *Library;
 
-/* Load `path` without making its symbols visible to others; NULL with why in `error`. */
+/* Load `path`, on Linux and Windows without making its symbols visible to others (macOS: global, see
+   platform_posix.c); NULL with why in `error`. */
 Library platform_load(const char *path, char *error, size_t size);
 void platform_unload(Library library);
 void *platform_symbol(Library library, const char *name);
 /* Make the symbols of the loaded library `path` visible to libraries loaded later (Python's
-   extension modules resolve the C API that way on Linux; nothing to do on Windows). */
+   extension modules resolve the C API that way on Linux; nothing to do on Windows and macOS). */
 int platform_share_symbols(const char *path, char *error, size_t size);
 /* A library already in the process that exports `name`, or NULL. */
 Library platform_loaded_with(const char *name);
@@ -44,25 +46,31 @@ void platform_native_path(char *path);
    Py_DecodeLocale, which Linux uses); NULL if it cannot be converted. */
 wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *));
 
-/* This system's name in a bundle's bundle.txt: "linux" or "windows". */
+/* This system's name in a bundle's bundle.txt: "linux", "windows" or "darwin". */
 extern const char PLATFORM_OS[];
 
 /* The CPythons 3.`oldest` and newer this system registers, each as `visit(context, library, home,
-   label, minor)`: on Linux libpython3.X.so.1.0 for the dynamic loader to search (label ""); on
-   Windows the installs under PEP 514 (HKCU, then HKLM, each python3X.dll in its InstallPath), then
-   python3X.dll in the folders on PATH; newest first where the system gives no order. */
+   label, minor)`: on Linux libpython3.X.so.1.0 for the dynamic loader to search (label ""); on macOS
+   the installers' places that hold a library (python.org's framework, Homebrew's on Apple Silicon and
+   Intel, $CONDA_PREFIX/lib, pyenv's versions, Xcode's and the Command Line Tools' Python3.framework),
+   then libpython3.X.dylib for the dynamic loader; on Windows the installs under PEP 514 (HKCU, then
+   HKLM, each python3X.dll in its InstallPath), then python3X.dll in the folders on PATH; newest first
+   where the system gives no order. */
 void platform_registered_pythons(void (*visit)(void *context, const char *library, const char *home,
                                                const char *label, int minor),
                                  void *context, int oldest);
 /* The `place`-th place (from 0) where the installation in `folder` keeps the shared library of CPython
-   3.`minor`, in `path`: on Linux <folder>/lib/libpython3.X.so.1.0, then <folder>/lib/x86_64-linux-gnu/
-   libpython3.X.so.1.0 (Debian's layout); on Windows <folder>\python3X.dll. 0, or -1 past the last place. */
+   3.`minor`, in `path` ("" where this place cannot hold it): on Linux <folder>/lib/libpython3.X.so.1.0,
+   then <folder>/lib/<multiarch>/libpython3.X.so.1.0 (Debian's layout, the CPU's folder); on macOS
+   <folder>/lib/libpython3.X.dylib, <folder>/Python or Python3 where <folder> is a framework's Versions/3.X,
+   then <folder>/Frameworks/Python.framework/Versions/3.X/Python (Homebrew's prefix); on Windows
+   <folder>\python3X.dll. 0, or -1 past the last place. */
 int platform_library_in(const char *folder, int place, int minor, char *path, size_t size);
 /* Those places, for messages. */
 extern const char PLATFORM_LIBRARY_PLACES[];
 /* The home of the CPython 3.`minor` whose library is the file `library`: `given` if not empty,
-   checked; else found from the library's folder (on Linux the nearest folder above it that holds a
-   standard library). HOME_TO_SET; HOME_FIXED where the installation fixes its paths itself (Windows'
+   checked; else found from the library's folder (on Linux and macOS the nearest folder above it that
+   holds a standard library). HOME_TO_SET; HOME_FIXED where the installation fixes its paths itself (Windows'
    embeddable CPython: a python3X._pth file in the home, which setting a home would override); or -1
    with why in `why`. */
 enum { HOME_TO_SET = 0, HOME_FIXED = 1 };

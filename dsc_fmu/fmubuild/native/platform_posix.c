@@ -1,4 +1,5 @@
-/* The platform seam on Linux (see platform.h): dlopen, pthreads, stat. */
+/* The platform seam on Linux and macOS (see platform.h), what POSIX gives both: dlopen, pthreads, stat,
+   an installation's home. Where a CPython is installed: platform_linux.c, platform_macos.c. */
 
 #define _GNU_SOURCE
 #include "platform.h"
@@ -11,9 +12,14 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
-/* The name of the system's CPython library (the minor version for %d). */
-#ifndef DSC_SYSTEM_PYTHON
-#define DSC_SYSTEM_PYTHON "libpython3.%d.so.1.0"
+/* How a library is loaded: on Linux local, its symbols made global once it is the Python to use
+   (platform_share_symbols); on macOS global from the start, since dyld makes a library loaded local
+   global by no later call, and extension modules (linked `-undefined dynamic_lookup`) find the C API
+   only in the global scope. */
+#ifdef __APPLE__
+#define LOAD_MODE RTLD_GLOBAL
+#else
+#define LOAD_MODE RTLD_LOCAL
 #endif
 
 static pthread_once_t once = PTHREAD_ONCE_INIT;
@@ -24,7 +30,7 @@ static pthread_cond_t signal_ = PTHREAD_COND_INITIALIZER;
 static pid_t owner; /* the process that last used the lock */
 
 Library platform_load(const char *path, char *error, size_t size) {
-    Library library = dlopen(path, RTLD_NOW | RTLD_LOCAL);
+    Library library = dlopen(path, RTLD_NOW | LOAD_MODE);
     if (!library) snprintf(error, size, "%s", dlerror());
     return library;
 }
@@ -38,15 +44,26 @@ void *platform_symbol(Library library, const char *name) {
 }
 
 int platform_share_symbols(const char *path, char *error, size_t size) {
+#ifdef __APPLE__
+    return 0; /* loaded global already (LOAD_MODE) */
+#else
     if (dlopen(path, RTLD_NOW | RTLD_NOLOAD | RTLD_GLOBAL)) return 0;
     snprintf(error, size, "%s", dlerror());
     return -1;
+#endif
 }
 
-/* The process's global scope (the program and the libraries loaded global), whose handle is not
-   RTLD_DEFAULT: glibc's RTLD_DEFAULT is NULL, the answer for none. */
+/* The process's global scope (the program and the libraries loaded global). glibc's RTLD_DEFAULT is
+   NULL, the answer for none, so Linux answers dlopen(NULL), the program with everything loaded global;
+   macOS's RTLD_DEFAULT is a handle that searches every image, where dlopen(NULL) would search only the
+   program and what it loaded at launch. */
 Library platform_loaded_with(const char *name) {
-    return dlsym(RTLD_DEFAULT, name) ? dlopen(NULL, RTLD_NOW) : NULL;
+    if (!dlsym(RTLD_DEFAULT, name)) return NULL;
+#ifdef __APPLE__
+    return RTLD_DEFAULT;
+#else
+    return dlopen(NULL, RTLD_NOW);
+#endif
 }
 
 int platform_library_file(const void *address, char *path, size_t size) {
@@ -98,28 +115,6 @@ void platform_native_path(char *path) {
 
 wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *)) {
     return decode(path, NULL);
-}
-
-void platform_registered_pythons(void (*visit)(void *, const char *, const char *, const char *, int), void *context,
-                                 int oldest) {
-    char name[64];
-    for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
-        snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
-        visit(context, name, NULL, "", minor);
-    }
-}
-
-const char PLATFORM_OS[] = "linux";
-
-static const char *const LIBRARY_PLACES[] = {"lib/", "lib/x86_64-linux-gnu/"};
-const char PLATFORM_LIBRARY_PLACES[] = "lib/" DSC_SYSTEM_PYTHON " or lib/x86_64-linux-gnu/" DSC_SYSTEM_PYTHON;
-
-int platform_library_in(const char *folder, int place, int minor, char *path, size_t size) {
-    if (place < 0 || place >= (int)(sizeof LIBRARY_PLACES / sizeof LIBRARY_PLACES[0])) return -1;
-    char name[64];
-    snprintf(name, sizeof name, DSC_SYSTEM_PYTHON, minor);
-    snprintf(path, size, "%s/%s%s", folder, LIBRARY_PLACES[place], name);
-    return 0;
 }
 
 /* A standard library under `home`: lib/python3.X with os.py and encodings, or lib/python3X.zip (a bundle's,
