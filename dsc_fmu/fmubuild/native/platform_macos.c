@@ -2,6 +2,7 @@
    Silicon and Intel, conda's active environment, pyenv, Xcode and its Command Line Tools), then the
    dynamic loader's search; an installation's lib/ or its framework version folder. */
 
+#define _POSIX_C_SOURCE 200809L /* scandir, alphasort */
 #include "platform.h"
 
 #include <dirent.h>
