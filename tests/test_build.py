@@ -40,6 +40,22 @@ def test_ensure_rebuilds_an_fmu_built_from_other_sources(tmp_path):
     assert fmu_build_id(stale) == source_hash(FMUS["MobileRobot"])
 
 
+def test_fmus_built_by_another_machine_s_cpython_are_used_as_they_are(tmp_path, monkeypatch):
+    """The Python a binary prefers is not a source: FMUs built where another CPython (another version,
+    library and home) built them are current here, their binaries keep that preference, nothing is rebuilt."""
+    import dsc_fmu.fmubuild.binary as binary
+
+    elsewhere = binary.PythonRuntime("3.13", "/opt/elsewhere/lib/libpython3.13.so.1.0", "/opt/elsewhere")
+    with monkeypatch.context() as patch:
+        patch.setattr(binary, "build_python", lambda: elsewhere)
+        first = build.build_fmus(tmp_path)
+    stamps = {name: path.stat().st_mtime_ns for name, path in first.items()}
+    again = ensure_fmus(tmp_path)
+    assert {name: path.stat().st_mtime_ns for name, path in again.items()} == stamps
+    with zipfile.ZipFile(again["MobileRobot"]) as fmu:
+        assert elsewhere.library.encode() in fmu.read(binary.LINUX.file(2, "MobileRobot"))
+
+
 def test_ensure_replaces_a_file_that_is_not_an_fmu(tmp_path):
     (tmp_path / "DSCController.fmu").write_text("not a zip")
     path = ensure_fmus(tmp_path)["DSCController"]
