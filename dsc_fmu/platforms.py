@@ -41,17 +41,52 @@ class Platform:
         return f"{self.cpu}-{self.os}"
 
     def folder(self, fmi_version: int) -> str:
-        """The folder under ``binaries/`` of the binary of FMI ``fmi_version`` (2 or 3); the first where
-        several hold it."""
+        """The folder of the binary.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version of the binary.
+
+        Returns
+        -------
+        str
+            The folder's name under ``binaries/``; the first where several hold the binary.
+        """
         return self.folders[fmi_version - 2][0]
 
     def file(self, fmi_version: int, model_identifier: str) -> str:
-        """The binary's path in an FMU, with ``/``; the first where several hold it (``files``)."""
+        """The binary's path in an FMU.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version of the binary.
+        model_identifier : str
+            The FMU's model identifier, the binary's file name without suffix.
+
+        Returns
+        -------
+        str
+            The path inside the FMU archive, with ``/``; the first where several hold the binary.
+        """
         return self.files(fmi_version, model_identifier)[0]
 
     def files(self, fmi_version: int, model_identifier: str) -> list[str]:
-        """Every path of the binary in an FMU of FMI ``fmi_version`` whose model identifier (the binary's
-        file name without suffix) is ``model_identifier``."""
+        """Every path of the binary in an FMU.
+
+        Parameters
+        ----------
+        fmi_version : {2, 3}
+            The FMI version of the binary.
+        model_identifier : str
+            The FMU's model identifier, the binary's file name without suffix.
+
+        Returns
+        -------
+        list of str
+            The paths inside the FMU archive, with ``/``, the one importers read first first.
+        """
         return [f"binaries/{folder}/{model_identifier}{self.suffix}" for folder in self.folders[fmi_version - 2]]
 
 
@@ -69,7 +104,13 @@ _CPUS = {"x86_64": "x86_64", "amd64": "x86_64", "aarch64": "aarch64", "arm64": "
 
 
 def host_platform() -> Platform | None:
-    """The platform this runs on, or None if the FMUs carry no binary for it."""
+    """The platform this runs on.
+
+    Returns
+    -------
+    Platform or None
+        One of ``PLATFORMS``, or None if the FMUs carry no binary for this system and CPU.
+    """
     here = (_SYSTEMS.get(sys.platform), _CPUS.get(platform.machine().lower()))
     return next((candidate for candidate in PLATFORMS if (candidate.os, candidate.cpu) == here), None)
 

@@ -277,7 +277,40 @@ def fmpy_user(fmus: dict, library_folder: str = "") -> dict:
     return outputs
 
 
-TASKS = {"cosimulation": paper_cosimulation, "model-exchange": paper_model_exchange, "fmpy": fmpy_user}
+def bundled_runtime(fmus: dict) -> dict:
+    """What ``--bundle-python`` carries when built here for the one FMU of ``fmus``: this platform, the
+    platforms an FMU built here can carry a CPython for, the runtimes made for this platform, and the ELF
+    machine of each library of this platform's runtime."""
+    import zipfile
+
+    from dsc_fmu.fmubuild.binary import TARGETS, ENTRY_FILE, host_target
+    from dsc_fmu.fmubuild.bundle import bundled_runtimes, carried_platforms
+
+    (path,) = fmus.values()
+    with zipfile.ZipFile(path) as fmu:
+        entry = " ".join(fmu.read(f"resources/{ENTRY_FILE}").decode().split()[:2])
+    here = host_target().name
+    runtimes = bundled_runtimes(Path(path), entry, True, [target.name for target in TARGETS if target.os == "linux"])
+    runtime = runtimes[here]
+    return {"host": here, "carried": carried_platforms([target.name for target in TARGETS]),
+            "platforms": sorted(runtimes), "os": runtime.os, "needs": list(runtime.needs), "licences": sorted(runtime.licences),
+            "machines": {name: elf_machine(data) for name, data in runtime.files.items() if ".so" in name}}
+
+
+def ssp_in_fmpy(fmus: dict) -> dict:
+    """``run_simulate_ssp`` of the SSP archive that is the one file of ``fmus``: the error it raises."""
+    from dsc_fmu.interop.ssp import SSPError, run_simulate_ssp
+
+    (archive,) = fmus.values()
+    try:
+        run_simulate_ssp(archive, 1e-3, 0.01)
+    except SSPError as error:
+        return {"error": str(error)}
+    return {"error": None}
+
+
+TASKS = {"cosimulation": paper_cosimulation, "model-exchange": paper_model_exchange, "fmpy": fmpy_user,
+         "bundle": bundled_runtime, "ssp": ssp_in_fmpy}
 
 
 def main(task: str, fmus: str, out: str, *options: str) -> None:

@@ -63,7 +63,7 @@ static long host_resident_kb(void) {
 }
 #else
 #include <dlfcn.h>
-#ifdef __aarch64__
+#if defined(__linux__) && defined(__aarch64__)
 /* FMI 2.0 names no aarch64 Linux folder: the FMUs put that binary in FMI 3.0's. */
 #define HOST_FOLDER2 "aarch64-linux"
 #define HOST_FOLDER3 "aarch64-linux"

@@ -153,3 +153,34 @@ def test_the_mirror_is_read_from_either_form_of_apt_sources(tmp_path):
     (tmp_path / "sources.list").write_text("deb http://other.example/debian trixie main\n")
     (tmp_path / "sources.list.d" / "debian.sources").unlink()
     assert debian_mirror(tmp_path) == ""
+
+
+def test_bundle_python_built_on_aarch64_carries_this_machine_s_cpython(arm64_root, workspace, fmu_paths):
+    """``--bundle-python`` as it runs on aarch64 Linux (the root's Debian CPython 3.11 building): this
+    platform is aarch64-linux, an FMU built here carries a CPython for it and for Windows, none for the
+    x86-64 Linux it does not run on, and the runtime's libraries (libpython, lib-dynload's modules, what
+    they need) are all aarch64 ELF files, with their licences."""
+    fmus = copied({"MobileRobot": fmu_paths["MobileRobot"]}, workspace / "fmus")
+    bundle = arm64_root.run_task(workspace, "bundle", fmus)
+    assert (bundle["host"], bundle["carried"], bundle["platforms"]) == (
+        "aarch64-linux", ["aarch64-linux", "x86_64-windows"], ["aarch64-linux"])
+    assert bundle["os"] == "linux" and bundle["needs"] == ["glibc 2.36 or newer"]
+    machines = bundle["machines"]
+    assert "lib/libpython3.11.so.1.0" in machines and any("/lib-dynload/_json." in name for name in machines)
+    assert set(machines.values()) == {AARCH64}, machines
+    assert "CPython" in bundle["licences"]
+
+
+def test_fmpy_s_ssp_simulation_is_refused_on_aarch64_in_one_line(arm64_root, workspace, fmu_paths, tmp_path):
+    """``run_simulate_ssp`` would have fmpy load the x86-64 binary of ``linux64``: on aarch64 it says so and
+    what works instead."""
+    from dsc_fmu import load_scenario
+    from dsc_fmu.interop.ssp import export_ssp
+
+    archive = export_ssp(load_scenario("paper"), tmp_path / "paper.ssp", fmu_paths)
+    copy = copied({"paper": archive}, workspace / "ssp")["paper"]
+    error = arm64_root.run_task(workspace, "ssp", {"paper": copy})["error"]
+    assert error == (f"{arm64_root.inside(copy)}: fmpy's simulate_ssp loads FMI 2.0 binaries from binaries/linux64, "
+                     "which holds x86-64's, and this is aarch64 Linux (its binaries are in binaries/aarch64-linux); "
+                     "allowed here: dsc_fmu.cosimulate of the same FMUs, or simulate_ssp on x86-64 Linux, Windows or "
+                     "macOS")

@@ -1,6 +1,7 @@
 """The closed loop as one container FMU: fmpy simulates it as our master's Jacobi at its internal step."""
 
 import zipfile
+from pathlib import Path
 from xml.etree import ElementTree
 
 import numpy as np
@@ -10,6 +11,7 @@ from fmpy.validation import validate_fmu
 
 from dsc_fmu.interop.container import EXPOSED_OUTPUTS, export_fmu
 from dsc_fmu.interop.libcosim import run_libcosim_fmu_in_own_process
+from dsc_fmu.macho import read_slices
 from needs_libcosimpy import libcosimpy  # noqa: F401 (the fixture)
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import ScenarioError, load_scenario
@@ -69,6 +71,21 @@ def test_libcosim_run_is_fmpys_run(container, interval):
     np.testing.assert_allclose(libcosim["time"], theirs["time"], rtol=0, atol=1e-15)
     for name in EXPOSED_OUTPUTS:
         assert np.array_equal(libcosim[name], theirs[name]), name
+
+
+def test_the_container_s_macos_binaries_are_fmpy_s_for_both_cpus(container):
+    """``darwin64`` is the universal file of the two dylibs fmpy ships (not Intel's alone, as fmpy writes
+    it), ``aarch64-darwin`` Apple Silicon's, byte for byte."""
+    import fmpy
+
+    shipped = Path(fmpy.__file__).parent / "container_fmu" / "binaries"
+    with zipfile.ZipFile(container[1]) as fmu:
+        darwin64 = fmu.read("binaries/darwin64/container_fmu.dylib")
+        arm64 = fmu.read("binaries/aarch64-darwin/container_fmu.dylib")
+    slices = {s.cpu: darwin64[s.offset:s.offset + s.size] for s in read_slices(darwin64)}
+    assert slices == {"x86_64": (shipped / "x86_64-darwin" / "container_fmu.dylib").read_bytes(),
+                      "arm64": (shipped / "aarch64-darwin" / "container_fmu.dylib").read_bytes()}
+    assert arm64 == slices["arm64"]
 
 
 def test_start_values_reach_the_components(container, fmu_paths):

@@ -22,7 +22,7 @@ import pytest
 from fmpy import extract, read_model_description
 
 from fmi_ctypes import Fmi2Slave, Fmi3Slave, FmiCallError
-from dsc_fmu.fmubuild.binary import NATIVE_DIR
+from dsc_fmu.fmubuild.binary import LINUX, NATIVE_DIR
 
 ERROR, DISCARD = 3, 2
 FMI2_STATES = "INSFTE"
@@ -246,7 +246,7 @@ def test_the_tables_name_every_function_the_binary_exports(folders):
     """The walk covers the whole API: every function of the standard's header is exported, and the
     tables name only functions of the header (FMI 2.0: every one, in one interface or the other)."""
     for version in (2, 3):
-        library = ctypes.CDLL(str(next((folders[version] / "binaries").glob("*/ReferenceRobot.so"))))
+        library = ctypes.CDLL(str(folders[version] / LINUX.file(version, "ReferenceRobot")))
         names = set(api(version))
         assert [name for name in sorted(names) if not hasattr(library, name)] == []
         cosimulation, model_exchange = TABLES[version, False][0], TABLES[version, True][0]

@@ -1,4 +1,4 @@
-"""``dsc_fmu.fmubuild.macho`` on dylibs Zig compiles here for both Mac CPUs, checked against macholib."""
+"""``dsc_fmu.macho`` on dylibs Zig compiles here for both Mac CPUs, checked against macholib."""
 
 from __future__ import annotations
 
@@ -12,7 +12,7 @@ import pytest
 from macholib import mach_o
 from macholib.MachO import MachO
 
-from dsc_fmu.fmubuild.macho import read_slices, universal
+from dsc_fmu.macho import read_slices, universal
 
 SOURCE = """\
 #include <string.h>

@@ -11,7 +11,7 @@ from pathlib import Path
 import pytest
 
 import dsc_fmu
-from dsc_fmu.fmubuild.macho import read_slices
+from dsc_fmu.macho import read_slices
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
 # Per FMI version, the macOS folders and the CPUs of their binary, in lipo's order. FMI 2.0 names darwin64

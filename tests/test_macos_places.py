@@ -44,7 +44,8 @@ def mac(tmp_path_factory):
         "the Command Line Tools'": install(root / TOOLS.format(9), 9, "Python3"),
         "conda's": install(home / "miniforge3" / "envs" / "sim", 12, "lib/libpython3.12.dylib"),
         "pyenv 3.12.1": install(home / ".pyenv" / "versions" / "3.12.1", 12, "lib/libpython3.12.dylib"),
-        "pyenv 3.12.8": install(home / ".pyenv" / "versions" / "3.12.8", 12, "lib/libpython3.12.dylib"),
+        "pyenv 3.12.9": install(home / ".pyenv" / "versions" / "3.12.9", 12, "lib/libpython3.12.dylib"),
+        "pyenv 3.12.10": install(home / ".pyenv" / "versions" / "3.12.10", 12, "lib/libpython3.12.dylib"),
     }
     (home / ".pyenv" / "versions" / "3.11.9" / "bin").mkdir(parents=True)  # built without --enable-shared
     program = root / "c_macos_places"
@@ -67,17 +68,18 @@ def ask(program: Path, *arguments, env: dict | None = None) -> list[str]:
 def test_every_installer_s_place_is_visited_newest_minor_first_then_the_loader_s_search(mac):
     """With conda's environment active and pyenv under HOME: each installed library once, by minor (newest
     first) and within a minor in the order python.org, Homebrew (Apple Silicon, Intel), conda, pyenv
-    (newest version name first), Xcode, the Command Line Tools; then libpython3.X.dylib for dyld's
+    (newest version first, by its numbers), Xcode, the Command Line Tools; then libpython3.X.dylib for dyld's
     search, every minor from 3.20 down."""
     root, home, program, lib = mac
     env = {"PATH": "/usr/bin:/bin", "HOME": str(home), "CONDA_PREFIX": str(home / "miniforge3" / "envs" / "sim")}
     found = ask(program, "registered", 9, env=env)
     expected = [(13, "python.org's", "python.org's"), (12, "Homebrew's", "Homebrew's (Apple Silicon)"),
-                (12, "conda's (CONDA_PREFIX)", "conda's"), (12, "pyenv's", "pyenv 3.12.8"),
-                (12, "pyenv's", "pyenv 3.12.1"), (11, "Homebrew's", "Homebrew's (Intel)"), (9, "Xcode's", "Xcode's"),
+                (12, "conda's (CONDA_PREFIX)", "conda's"), (12, "pyenv's", "pyenv 3.12.10"),
+                (12, "pyenv's", "pyenv 3.12.9"), (12, "pyenv's", "pyenv 3.12.1"), (11, "Homebrew's", "Homebrew's (Intel)"),
+                (9, "Xcode's", "Xcode's"),
                 (9, "the Command Line Tools'", "the Command Line Tools'")]
-    assert found[:8] == [f"{minor} {label}|{lib[installer]}" for minor, label, installer in expected]
-    assert found[8:] == [f"{minor} |libpython3.{minor}.dylib" for minor in range(20, 8, -1)]
+    assert found[:9] == [f"{minor} {label}|{lib[installer]}" for minor, label, installer in expected]
+    assert found[9:] == [f"{minor} |libpython3.{minor}.dylib" for minor in range(20, 8, -1)]
 
 
 def test_without_conda_or_home_only_the_fixed_places_and_pyenv_root(mac):
@@ -86,11 +88,11 @@ def test_without_conda_or_home_only_the_fixed_places_and_pyenv_root(mac):
     found = ask(program, "registered", 12)
     assert [line.split("|")[0] for line in found if "|lib" not in line] == ["13 python.org's", "12 Homebrew's"]
     found = ask(program, "registered", 12, env={"PATH": "/usr/bin:/bin", "PYENV_ROOT": str(home / ".pyenv")})
-    assert f"12 pyenv's|{lib['pyenv 3.12.8']}" in found and not any("conda" in line for line in found)
+    assert f"12 pyenv's|{lib['pyenv 3.12.10']}" in found and not any("conda" in line for line in found)
 
 
 @pytest.mark.parametrize("installer, minor", [("python.org's", 13), ("Homebrew's (Apple Silicon)", 12), ("Xcode's", 9),
-                                              ("conda's", 12), ("pyenv 3.12.8", 12)])
+                                              ("conda's", 12), ("pyenv 3.12.10", 12)])
 def test_the_home_is_the_nearest_folder_above_the_library_with_a_standard_library(mac, installer, minor):
     """A framework's Versions/3.X, an environment's or pyenv version's prefix."""
     root, home, program, lib = mac

@@ -60,8 +60,14 @@ class Target(Platform):
 
     Parameters
     ----------
-    os, cpu, folders, suffix
-        The platform's (``Platform``).
+    os : {"linux", "windows", "darwin"}
+        The platform's system (``Platform``).
+    cpu : {"x86_64", "aarch64"}
+        The platform's CPU.
+    folders : tuple of (tuple of str)
+        The platform's folders in an FMU, for FMI 2.0 and 3.0.
+    suffix : str
+        The binary's file suffix.
     zig_target : str
         Zig's target triple (with the oldest glibc or macOS the binary runs on).
     platform_sources : tuple of str
@@ -83,7 +89,28 @@ class Target(Platform):
     @classmethod
     def of(cls, platform: Platform, zig_target: str, platform_sources: tuple[str, ...], flags: tuple[str, ...] = (),
            libraries: tuple[str, ...] = (), install_name: str = "") -> Target:
-        """The target that compiles for ``platform`` (the other parameters as the class's)."""
+        """The target that compiles for a platform of ``dsc_fmu.platforms``.
+
+        Parameters
+        ----------
+        platform : dsc_fmu.platforms.Platform
+            The platform, whose fields the target takes.
+        zig_target : str
+            Zig's target triple.
+        platform_sources : tuple of str
+            The platform seam's sources in ``native/``.
+        flags : tuple of str, optional
+            Compiler and linker flags. Default none.
+        libraries : tuple of str, optional
+            What the binary links. Default none.
+        install_name : str, optional
+            The name a macOS binary gives itself, with ``{}`` for the model identifier. Default "": none.
+
+        Returns
+        -------
+        Target
+            The platform with how to compile for it.
+        """
         return cls(platform.os, platform.cpu, platform.folders, platform.suffix, zig_target, platform_sources, flags,
                    libraries, install_name)
 
@@ -105,7 +132,13 @@ TARGETS = (LINUX, LINUX_AARCH64, WINDOWS, MACOS_ARM64, MACOS_X86_64)
 
 
 def host_target() -> Target | None:
-    """The target of the machine this runs on, or None if the FMUs have no binary for it."""
+    """The target of the machine this runs on.
+
+    Returns
+    -------
+    Target or None
+        One of ``TARGETS``, or None if the FMUs have no binary for this system and CPU.
+    """
     here = platforms.host_platform()
     return next((target for target in TARGETS if here is not None and target.name == here.name), None)
 
@@ -152,13 +185,15 @@ def build_python() -> PythonRuntime:
     else:
         candidate = None
     if candidate is not None and candidate.is_file():
-        library = str(candidate.resolve())
+        # On macOS as found: Homebrew's opt/ path outlives the versioned Cellar folder it links to.
+        library = str(candidate if sys.platform == "darwin" else candidate.resolve())
     return PythonRuntime(f"{sys.version_info.major}.{sys.version_info.minor}", library, sys.base_prefix)
 
 
 def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
-    """What a binary for ``target`` may know of the building Python: its library only on the same platform."""
-    return runtime if target == host_target() else PythonRuntime(runtime.version, "", "", runtime.system_name)
+    """What a binary for ``target`` may know of the building Python: its library and its system's library
+    name only on the same platform."""
+    return runtime if target == host_target() else PythonRuntime(runtime.version, "", "")
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
@@ -174,8 +209,8 @@ def binary_sources(fmi_version: int) -> list[Path]:
     list of pathlib.Path
         The sources and headers in ``native/``, for every target (the standard's headers excluded).
     """
-    platforms = dict.fromkeys(name for target in TARGETS for name in target.platform_sources)
-    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *platforms, *_HEADERS)]
+    seams = dict.fromkeys(name for target in TARGETS for name in target.platform_sources)
+    return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *seams, *_HEADERS)]
 
 
 def _fmi_headers() -> Path:

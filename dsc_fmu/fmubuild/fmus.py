@@ -30,7 +30,7 @@ from .folders import (
 from .bundle import MANIFEST, ROOT, Runtime, bundle_minor, bundled_runtimes
 from .bundle.runtime import bytecode
 from .documentation import REQUIREMENTS, bundled_requirements
-from .macho import universal
+from ..macho import universal
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -227,6 +227,11 @@ def _target(platform: str):
     return next(target for target in TARGETS if target.name == platform)
 
 
+def _uncarried(runtimes: dict) -> list[str]:
+    """The platforms an FMU carries no CPython for (``runtimes`` by platform)."""
+    return [target.name for target in TARGETS if target.name not in runtimes]
+
+
 def _requirements(runtimes: dict, fmi_version: int) -> str:
     """What the importing machine needs: ``REQUIREMENTS``, or ``bundled_requirements`` of ``runtimes``."""
     if not runtimes:
@@ -234,16 +239,7 @@ def _requirements(runtimes: dict, fmi_version: int) -> str:
     folders = {platform: f"binaries/{_target(platform).folder(fmi_version)}/{ROOT}" for platform in runtimes}
     licences = {platform: [LICENCE_FILE.format(name=name, platform=platform) for name in runtime.licences]
                 for platform, runtime in runtimes.items()}
-    others = [target.name for target in TARGETS if target.name not in runtimes]
-    return bundled_requirements(runtimes, folders, licences, others)
-
-
-def _uncarried(runtimes: dict) -> None:
-    """Warn that the platforms an FMU carries no CPython for (``runtimes`` by platform) use the importing
-    machine's."""
-    others = [target.name for target in TARGETS if target.name not in runtimes]
-    warnings.warn(f"--bundle-python: the FMUs carry a CPython for {', '.join(runtimes)} and none for "
-                  f"{', '.join(others)}, where they use the importing machine's CPython 3.9 or newer", stacklevel=3)
+    return bundled_requirements(runtimes, folders, licences, _uncarried(runtimes))
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
@@ -327,7 +323,9 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
         out_dir.mkdir(parents=True, exist_ok=True)
         path = atomic_write(target, staged.read_bytes())
     if runtimes:
-        _uncarried(runtimes)
+        warnings.warn(f"--bundle-python: the FMUs carry a CPython for {', '.join(runtimes)} and none for "
+                      f"{', '.join(_uncarried(runtimes))}, where they use the importing machine's CPython 3.9 or newer",
+                      stacklevel=2)
     return path
 
 

@@ -62,15 +62,34 @@ def _literal(value, integer: bool) -> str:
     return str(int(value)) if integer else repr(float(value))
 
 
+def _macos_binaries(staged: zipfile.ZipFile) -> dict[str, bytes]:
+    """The container's macOS binaries laid out as ours are (``dsc_fmu.platforms``): fmpy writes both of its
+    dylibs to ``darwin64``, the second over the first, leaving Intel's alone; ``darwin64`` becomes the
+    universal file of both and ``aarch64-darwin`` holds Apple Silicon's."""
+    import fmpy
+
+    from ..macho import universal
+
+    name = next((item for item in staged.namelist() if item.startswith("binaries/darwin64/") and item.endswith(".dylib")),
+                None)
+    if name is None:
+        return {}
+    shipped = Path(fmpy.__file__).parent / "container_fmu" / "binaries"
+    arm64, x86_64 = ((shipped / folder / Path(name).name).read_bytes() for folder in ("aarch64-darwin", "x86_64-darwin"))
+    return {name: universal([arm64, x86_64]), name.replace("/darwin64/", "/aarch64-darwin/"): arm64}
+
+
 def _repair(staged: Path, repaired: Path) -> None:
-    """Work around two slips of fmpy 0.3.32's ``create_container_fmu`` for FMI 2.0 components:
+    """Work around three slips of fmpy 0.3.32's ``create_container_fmu`` for FMI 2.0 components:
     connections are written with the FMI 2 type names (``Real``, ``Integer``), which the container
     refuses ("unknown variant `Real`"): they become ``Float64`` and ``Int32`` as the variables are;
-    and the archive holds a stray empty ``Container.zip``, which is dropped."""
+    the archive holds a stray empty ``Container.zip``, which is dropped; and ``darwin64`` holds Intel's
+    binary only (``_macos_binaries``)."""
     names = {"Real": "Float64", "Integer": "Int32"}
     with zipfile.ZipFile(staged) as src, zipfile.ZipFile(repaired, "w", zipfile.ZIP_DEFLATED) as dst:
+        macos = _macos_binaries(src)
         for item in src.infolist():
-            if item.filename == "Container.zip":
+            if item.filename == "Container.zip" or item.filename in macos:
                 continue
             data = src.read(item)
             if item.filename == "resources/container.json":
@@ -79,6 +98,8 @@ def _repair(staged: Path, repaired: Path) -> None:
                     connection["variableType"] = names.get(connection["variableType"], connection["variableType"])
                 data = json.dumps(config, indent=4).encode()
             dst.writestr(item, data)
+        for name, data in macos.items():
+            dst.writestr(name, data)
 
 
 def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict):

@@ -29,6 +29,7 @@ from ..cosim import signals
 from ..errors import DscFmuError
 from ..identity import require_fmi2
 from ..models.parameters import START_ON
+from ..platforms import LINUX_AARCH64, host_platform
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Interface, Scenario, ScenarioError, one_of
 
@@ -323,9 +324,15 @@ def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *
     ------
     ValueError
         If ``start_on`` is not one of the allowed names or None.
+    SSPError
+        On aarch64 Linux, where ``simulate_ssp`` loads the FMI 2.0 FMUs' x86-64 binary from ``linux64``.
     """
     if start_on is not None and start_on not in START_ON:
         raise ValueError(f"start_on = {start_on!r} is not allowed; allowed: {', '.join(START_ON)} or None")
+    if host_platform() is LINUX_AARCH64:
+        raise SSPError(f"{ssp_file}: fmpy's simulate_ssp loads FMI 2.0 binaries from binaries/linux64, which holds "
+                       f"x86-64's, and this is aarch64 Linux (its binaries are in binaries/aarch64-linux); allowed "
+                       f"here: dsc_fmu.cosimulate of the same FMUs, or simulate_ssp on x86-64 Linux, Windows or macOS")
     from fmpy.ssp.simulation import simulate_ssp
     from fmpy.ssp.ssd import Parameter, ParameterSet, read_ssd
 

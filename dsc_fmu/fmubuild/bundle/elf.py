@@ -1,9 +1,11 @@
-"""What the Linux runtime needs to know of an x86-64 ELF shared library, read and cut in plain Python
+"""What the Linux runtime needs to know of an x86-64 or aarch64 ELF shared library, read and cut in plain Python
 (no binutils on a user's machine): the libraries it needs, and the file without its debug sections."""
 
 from __future__ import annotations
 
 import struct
+
+from .modules import BundleError
 
 __all__ = ["ElfError", "needed", "without_debug"]
 
@@ -13,19 +15,20 @@ _PROGRAM = struct.Struct("<IIQQQQQQ")  # Elf64_Phdr
 _DYNAMIC = struct.Struct("<qQ")  # Elf64_Dyn
 _ALLOC, _NOBITS, _DYNAMIC_SECTION, _LOAD, _NEEDED, _STRTAB_TAG = 0x2, 8, 6, 1, 1, 5
 _INFO_LINK = 0x40
-_SHARED, _X86_64 = 3, 62  # e_type ET_DYN, e_machine EM_X86_64
+_SHARED = 3  # e_type ET_DYN
+_MACHINES = {62: "x86-64", 183: "aarch64"}  # e_machine EM_X86_64, EM_AARCH64
 
 
-class ElfError(ValueError):
-    """The file is not an x86-64 ELF shared library this module can read or cut."""
+class ElfError(BundleError, ValueError):
+    """The file is not an x86-64 or aarch64 ELF shared library this module can read or cut."""
 
 
 def _header(data: bytes) -> tuple:
     if len(data) < _HEADER.size or data[:4] != b"\x7fELF" or data[4] != 2 or data[5] != 1:
         raise ElfError("not a 64-bit little-endian ELF file")
     header = _HEADER.unpack_from(data)
-    if header[1] != _SHARED or header[2] != _X86_64:
-        raise ElfError(f"not an x86-64 shared library (type {header[1]}, machine {header[2]})")
+    if header[1] != _SHARED or header[2] not in _MACHINES:
+        raise ElfError(f"not an x86-64 or aarch64 shared library (type {header[1]}, machine {header[2]})")
     return header
 
 

@@ -2,7 +2,7 @@
    Silicon and Intel, conda's active environment, pyenv, Xcode and its Command Line Tools), then the
    dynamic loader's search; an installation's lib/ or its framework version folder. */
 
-#define _POSIX_C_SOURCE 200809L /* scandir, alphasort */
+#define _POSIX_C_SOURCE 200809L /* scandir */
 #include "platform.h"
 
 #include <dirent.h>
@@ -62,8 +62,23 @@ static void visit_conda(Visit visit, void *context, int minor) {
     visit_if_file(visit, context, library, "conda's (CONDA_PREFIX)", minor);
 }
 
-/* pyenv's versions ($PYENV_ROOT, else ~/.pyenv), newest name first; a version has a library only if
-   built with --enable-shared or --enable-framework. */
+/* The order of pyenv's version folders, newest first: "3.12.10" before "3.12.9" before "3.12.9t", by the
+   numbers in their names, then by name. */
+static int newest_first(const struct dirent **a, const struct dirent **b) {
+    const char *p = (*a)->d_name, *q = (*b)->d_name;
+    while (*p && *q) {
+        char *p_end, *q_end;
+        long x = strtol(p, &p_end, 10), y = strtol(q, &q_end, 10);
+        if (p_end == p || q_end == q) break;
+        if (x != y) return x > y ? -1 : 1;
+        p = p_end + (*p_end == '.');
+        q = q_end + (*q_end == '.');
+    }
+    return strcmp((*b)->d_name, (*a)->d_name);
+}
+
+/* pyenv's versions ($PYENV_ROOT, else ~/.pyenv), newest first; a version has a library only if built with
+   --enable-shared or --enable-framework. */
 static void visit_pyenv(Visit visit, void *context, int minor) {
     char root[PLATFORM_PATH_MAX], versions[PLATFORM_PATH_MAX + 16], library[2 * PLATFORM_PATH_MAX];
     if (!platform_getenv("PYENV_ROOT", root, sizeof root)) {
@@ -73,9 +88,9 @@ static void visit_pyenv(Visit visit, void *context, int minor) {
     }
     snprintf(versions, sizeof versions, "%s/versions", root);
     struct dirent **names;
-    int count = scandir(versions, &names, NULL, alphasort);
+    int count = scandir(versions, &names, NULL, newest_first);
     if (count < 0) return;
-    for (int i = count - 1; i >= 0; i--) {
+    for (int i = 0; i < count; i++) {
         if (names[i]->d_name[0] != '.') {
             snprintf(library, sizeof library, "%s/%s/lib/" DSC_SYSTEM_PYTHON, versions, names[i]->d_name, minor);
             visit_if_file(visit, context, library, "pyenv's", minor);

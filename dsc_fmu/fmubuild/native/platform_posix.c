@@ -15,7 +15,10 @@
 /* How a library is loaded: on Linux local, its symbols made global once it is the Python to use
    (platform_share_symbols); on macOS global from the start, since dyld makes a library loaded local
    global by no later call, and extension modules (linked `-undefined dynamic_lookup`) find the C API
-   only in the global scope. */
+   only in the global scope. A CPython refused there after loading (too old, a symbol missing) stays in
+   that scope, as dyld keeps any image with thread-local variables (CPython 3.12 on) loaded; the next
+   candidate's symbols are found first by the binary (dlsym on its own handle), not by extension modules.
+   _POSIX_C_SOURCE must not be defined here: macOS's headers would hide dladdr and RTLD_NOLOAD. */
 #ifdef __APPLE__
 #define LOAD_MODE RTLD_GLOBAL
 #else
@@ -53,17 +56,10 @@ int platform_share_symbols(const char *path, char *error, size_t size) {
 #endif
 }
 
-/* The process's global scope (the program and the libraries loaded global). glibc's RTLD_DEFAULT is
-   NULL, the answer for none, so Linux answers dlopen(NULL), the program with everything loaded global;
-   macOS's RTLD_DEFAULT is a handle that searches every image, where dlopen(NULL) would search only the
-   program and what it loaded at launch. */
+/* The process's global scope (the program and the libraries loaded global) as dlopen(NULL) gives it:
+   glibc's RTLD_DEFAULT is NULL, the answer for none; macOS's dlopen(NULL) is RTLD_DEFAULT's equivalent. */
 Library platform_loaded_with(const char *name) {
-    if (!dlsym(RTLD_DEFAULT, name)) return NULL;
-#ifdef __APPLE__
-    return RTLD_DEFAULT;
-#else
-    return dlopen(NULL, RTLD_NOW);
-#endif
+    return dlsym(RTLD_DEFAULT, name) ? dlopen(NULL, RTLD_NOW) : NULL;
 }
 
 int platform_library_file(const void *address, char *path, size_t size) {

@@ -4,9 +4,11 @@
    only functions every such CPython exports). Order (docs/other-tools.md, "What the importing machine needs"):
      0. a CPython already in the process (fmpy, libcosimpy, PyFMI): used as it is;
      1. DSC_FMU_PYTHON, if set, the only place looked at: the path of a CPython shared library
-        (libpython3.X.so.1.0, python3X.dll), or a folder: an installation's (on Linux its prefix, whose
-        lib/ holds the library; on Windows the folder of python3X.dll), or a virtual environment's,
-        which stands for the installation its pyvenv.cfg names (`home`, or on Linux home's parent);
+        (libpython3.X.so.1.0, libpython3.X.dylib or a framework's Python, python3X.dll), or a folder: an
+        installation's (platform_library_in: on Linux and macOS its prefix, whose lib/ holds the library,
+        on macOS also a framework's version folder; on Windows the folder of python3X.dll), or a virtual
+        environment's, which stands for the installation its pyvenv.cfg names (`home`, or on Linux and
+        macOS home's parent);
      2. the FMU's own CPython (`dsc-fmu build --bundle-python`), if the folder ROOT = `python` beside
         this binary's file exists, the only place looked at then: ROOT/bundle.txt lists every other
         file of ROOT with its size, all checked before anything is loaded; the library is ROOT's
@@ -18,8 +20,10 @@
         unloaded to make room for another;
      3. the Python that built the FMU (DSC_BUILD_LIBPYTHON, its home DSC_BUILD_PYTHON_HOME), where it
         exists;
-     4. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on Windows the
-        installs registered under PEP 514, then the folders on PATH (platform.h).
+     4. the system's: on Linux libpython3.X.so.1.0 by the dynamic loader's search; on macOS the
+        installers' places (python.org, Homebrew, conda, pyenv, Xcode), then libpython3.X.dylib by the
+        dynamic loader's search; on Windows the installs registered under PEP 514, then the folders on
+        PATH (platform.h).
    Among the candidates of a folder, 3 and 4, those of the minor version that built the FMU come first,
    then the newest. Every CPython 3 is looked for, older ones too: one older than 3.9 is refused before
    it starts, and named with its version in the message if nothing serves.
@@ -342,7 +346,7 @@ static void add_installation(Candidates *list, const char *folder, const char *h
 }
 
 /* The candidates of the folder that DSC_FMU_PYTHON names: its installation's, or those of the installation
-   its virtual environment names (home, and home's parent: on Linux home is the installation's bin). */
+   its virtual environment names (home, and home's parent: on Linux and macOS home is the installation's bin). */
 static void gather_folder(Candidates *list, const char *folder) {
     char home[PLATFORM_PATH_MAX];
     const char *label = DSC_OVERRIDE_VARIABLE " folder:";
