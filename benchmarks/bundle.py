@@ -25,7 +25,7 @@ from pathlib import Path
 
 from fmpy import extract, read_model_description
 
-from dsc_fmu.fmubuild.binary import OVERRIDE_VARIABLE, TARGETS
+from dsc_fmu.fmubuild.binary import OVERRIDE_VARIABLE, TARGETS, WINDOWS, host_target
 from dsc_fmu.fmubuild.bundle import ROOT
 from dsc_fmu.fmubuild.fmus import build_fmus
 from dsc_fmu.registry import FMUS
@@ -37,10 +37,10 @@ MB = 1e6
 
 
 def _runtime_share(fmu: Path, version: int) -> dict[str, int]:
-    """The compressed bytes of each system's runtime in ``fmu``."""
+    """The compressed bytes of each platform's runtime in ``fmu``."""
     with zipfile.ZipFile(fmu) as archive:
-        return {target.os: sum(item.compress_size for item in archive.infolist()
-                               if item.filename.startswith(f"binaries/{target.folder(version)}/{ROOT}/"))
+        return {target.name: sum(item.compress_size for item in archive.infolist()
+                                 if item.filename.startswith(f"binaries/{target.folder(version)}/{ROOT}/"))
                 for target in TARGETS}
 
 
@@ -51,7 +51,7 @@ def _sizes(default: dict, bundled: dict, version: int) -> None:
         plain, carried = default[name].stat().st_size, bundled[name].stat().st_size
         share = _runtime_share(bundled[name], version)
         print(f"{name:16}{plain / MB:10.2f}{carried / MB:10.2f}{(carried - plain) / MB:10.2f}"
-              f"{share['linux'] / MB:10.2f}{share['windows'] / MB:10.2f}")
+              f"{share[host_target().name] / MB:10.2f}{share[WINDOWS.name] / MB:10.2f}")
 
 
 def _process_seconds(host: Path, folders: list[Path], version: int, env: dict, repeat: int) -> float:
