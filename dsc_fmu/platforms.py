@@ -85,7 +85,7 @@ class Platform:
         Returns
         -------
         list of str
-            The paths inside the FMU archive, with ``/``, the one importers read first first.
+            The paths inside the FMU archive, with ``/``: first the one importers read first.
         """
         return [f"binaries/{folder}/{model_identifier}{self.suffix}" for folder in self.folders[fmi_version - 2]]
 

@@ -21,6 +21,7 @@ from pythonfmu import FmuBuilder
 from .. import __version__
 from ..files import atomic_write
 from ..identity import BUILD_ID_FILE, fmu_build_id, fmu_bundled_python
+from ..macho import universal
 from ..registry import FMUS, FmuSpec
 from .binary import ENTRY_FILE as _BINARY_ENTRY_FILE
 from .binary import TARGETS, WINDOWS, BinaryBuildError, binary_sources, compile_binary
@@ -30,7 +31,6 @@ from .folders import (
 from .bundle import MANIFEST, ROOT, Runtime, bundle_minor, bundled_runtimes
 from .bundle.runtime import bytecode
 from .documentation import REQUIREMENTS, bundled_requirements
-from ..macho import universal
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -224,6 +224,7 @@ def _runtime_files(runtime: Runtime, platform: str, fmi_version: int) -> dict:
 
 
 def _target(platform: str):
+    """The target of ``platform`` (an FMI 3.0 tuple)."""
     return next(target for target in TARGETS if target.name == platform)
 
 
