@@ -102,19 +102,49 @@ typedef struct {
     int count;
 } Candidates;
 
-static const struct {
+typedef struct {
     const char *name;
     size_t offset;
-} SYMBOLS[] = {
+} Symbol;
+
 #define SYMBOL_OF_FUNCTION(type, name, parameters) {#name, offsetof(PyApi, name)},
 #define SYMBOL_OF_DATA(type, name, symbol) {#symbol, offsetof(PyApi, name)},
-    PY_API(SYMBOL_OF_FUNCTION, SYMBOL_OF_DATA)
-};
+static const Symbol CALLS[] = {PY_CALLS(SYMBOL_OF_FUNCTION, SYMBOL_OF_DATA)};
+static const Symbol RAISED[] = {PY_RAISED(SYMBOL_OF_FUNCTION)};
+static const Symbol FETCHED[] = {PY_FETCHED(SYMBOL_OF_FUNCTION)};
+static const Symbol INIT_CONFIG[] = {PY_START_INIT_CONFIG(SYMBOL_OF_FUNCTION)};
+static const Symbol CONFIG[] = {PY_START_CONFIG(SYMBOL_OF_FUNCTION)};
+#define COUNT(array) (sizeof array / sizeof array[0])
 
-/* PyConfig's leading int fields (Include/cpython/initconfig.h, 3.8 and later). */
-enum { CONFIG_INIT, CONFIG_ISOLATED, CONFIG_USE_ENVIRONMENT, CONFIG_DEV_MODE, CONFIG_INSTALL_SIGNAL_HANDLERS };
-enum { CONFIG_INIT_COMPAT = 1 };
-/* Room for a PyConfig of any version (about 500 bytes in 3.13). */
+#define INIT_CONFIG_MINOR 14 /* PEP 741's PyInitConfig from here on, PEP 587's PyConfig before */
+#define RAISED_MINOR 12      /* PyErr_GetRaisedException */
+#define CONSTANT_MINOR 13    /* Py_GetConstantBorrowed, Py_IsFinalizing */
+#define Py_CONSTANT_NONE 0
+
+/* Where PyConfig (Include/cpython/initconfig.h) keeps the fields set here, CPython 3.9 to 3.13, as
+   offsets in bytes: on Windows (LLP64, where `hash_seed` is 4 bytes and `legacy_windows_stdio` comes
+   before `check_hash_pycs_mode`) and elsewhere (LP64). The leading ints (`isolated`, `use_environment`)
+   sit where they do in every version. Checked against every version's header by the tests, and at run
+   time against what PyConfig_InitIsolatedConfig and PyConfig_InitPythonConfig write. */
+typedef struct {
+    int parse_argv, site_import, write_bytecode, user_site_directory, configure_c_stdio, home;
+} ConfigLayout;
+#ifdef _WIN32
+static const ConfigLayout CONFIG_LAYOUTS[] = {
+    [9] = {80, 144, 168, 180, 184, 240},  [10] = {80, 152, 180, 192, 196, 264},
+    [11] = {96, 168, 196, 208, 212, 288}, [12] = {96, 168, 196, 208, 212, 288},
+    [13] = {96, 168, 196, 208, 212, 296},
+};
+#else
+static const ConfigLayout CONFIG_LAYOUTS[] = {
+    [9] = {88, 152, 176, 188, 192, 240},  [10] = {80, 152, 180, 192, 196, 256},
+    [11] = {96, 168, 196, 208, 212, 280}, [12] = {104, 176, 204, 216, 220, 288},
+    [13] = {104, 176, 204, 216, 220, 296},
+};
+#endif
+enum { CONFIG_ISOLATED = 1, CONFIG_USE_ENVIRONMENT = 2 }; /* int fields, in every layout */
+enum { PRECONFIG_UTF8_MODE_LP64 = 7, PRECONFIG_UTF8_MODE_WINDOWS = 8 }; /* int fields of PyPreConfig */
+/* Room for a PyConfig or PyPreConfig of any version (448 bytes in 3.13). */
 #define CONFIG_SIZE 8192
 
 static void append(char *text, size_t size, const char *format, ...) {
@@ -126,12 +156,24 @@ static void append(char *text, size_t size, const char *format, ...) {
     va_end(args);
 }
 
-/* Fill `py` from `library`; the name of a missing symbol, or NULL. */
-static const char *resolve(Library library) {
-    for (size_t i = 0; i < sizeof SYMBOLS / sizeof SYMBOLS[0]; i++) {
-        void *address = platform_symbol(library, SYMBOLS[i].name);
-        if (!address) return SYMBOLS[i].name;
-        memcpy((char *)&py + SYMBOLS[i].offset, &address, sizeof address);
+/* The symbol `name` of `library`, or NULL. A test build treats the names in DSC_ABSENT_SYMBOLS (separated
+   by spaces) as absent, as a CPython that removed them would. */
+static void *symbol(Library library, const char *name) {
+#ifdef DSC_ABSENT_SYMBOLS
+    size_t length = strlen(name);
+    for (const char *p = strstr(DSC_ABSENT_SYMBOLS, name); p; p = strstr(p + 1, name)) {
+        if ((p == DSC_ABSENT_SYMBOLS || p[-1] == ' ') && (p[length] == ' ' || p[length] == '\0')) return NULL;
+    }
+#endif
+    return platform_symbol(library, name);
+}
+
+/* Fill the fields of `py` that `symbols` name from `library`; the name of the first missing one, or NULL. */
+static const char *resolve(Library library, const Symbol *symbols, size_t count) {
+    for (size_t i = 0; i < count; i++) {
+        void *address = symbol(library, symbols[i].name);
+        if (!address) return symbols[i].name;
+        memcpy((char *)&py + symbols[i].offset, &address, sizeof address);
     }
     return NULL;
 }
@@ -142,48 +184,132 @@ static int minor_of(const char *version) {
     return atoi(version + 2);
 }
 
-/* Py_InitializeEx(0), with the failure returned: -1 with why in start_error. */
-static int start_python(const char *what, const char *home) {
-    union {
-        int fields[CONFIG_SIZE / sizeof(int)];
-        max_align_t align;
-    } config;
-    memset(&config, 0, sizeof config);
-    py._PyConfig_InitCompatConfig(&config);
-    if (config.fields[CONFIG_INIT] != CONFIG_INIT_COMPAT || config.fields[CONFIG_INSTALL_SIGNAL_HANDLERS] != 1) {
-        append(start_error, sizeof start_error, "%s: its PyConfig does not start as CPython 3.8 and later; ", what);
+/* The one message of the CPython in `library` (which has Py_GetVersion), named `what`, without the symbol
+   `missing`: its version and file. */
+static void missing_symbol(Library library, const char *what, const char *missing) {
+    static char file[PLATFORM_PATH_MAX];
+    const char *(*get_version)(void);
+    void *address = symbol(library, "Py_GetVersion");
+    memcpy(&get_version, &address, sizeof address);
+    const char *version = get_version();
+    append(start_error, sizeof start_error, "%s: CPython %.*s", what, (int)strcspn(version, " "), version);
+    if (platform_library_file(address, file, sizeof file) == 0) append(start_error, sizeof start_error, " in %s", file);
+    append(start_error, sizeof start_error, " has no symbol %s; ", missing);
+}
+
+/* What Python failed to start with: `status`, or PyInitConfig's message and exit code (`message`, `exit`). */
+static void not_started(const char *what, const char *home, const char *function, const char *message, int exit,
+                        int exitcode) {
+    append(start_error, sizeof start_error, "%s (home %s): Python did not start: %s%s%s", what, home,
+           function ? function : "", function ? ": " : "", message ? message : "no reason given");
+    if (exit) append(start_error, sizeof start_error, " (exit code %d)", exitcode);
+    append(start_error, sizeof start_error, "; ");
+}
+
+/* Start CPython 3.14 or newer through PEP 741's PyInitConfig: isolated, UTF-8 mode, no site, no bytecode,
+   and `home` unless NULL; 0, or -1 (logged as `what`). */
+static int start_with_init_config(const char *what, const char *home) {
+    PyInitConfig *config = py.PyInitConfig_Create();
+    if (!config) {
+        append(start_error, sizeof start_error, "%s: PyInitConfig_Create failed (no memory); ", what);
         return -1;
     }
-    config.fields[CONFIG_INSTALL_SIGNAL_HANDLERS] = 0;
+    int set = py.PyInitConfig_SetInt(config, "utf8_mode", 1) == 0 && py.PyInitConfig_SetInt(config, "site_import", 0) == 0
+              && py.PyInitConfig_SetInt(config, "write_bytecode", 0) == 0
+              && (!home || py.PyInitConfig_SetStr(config, "home", home) == 0);
+    if (set) start_attempted = 1;
+    int result = set && py.Py_InitializeFromInitConfig(config) == 0 && py.Py_IsInitialized() ? 0 : -1;
+    if (result != 0) {
+        const char *message = NULL;
+        int exitcode = 0, exit = py.PyInitConfig_GetExitCode(config, &exitcode) == 1;
+        py.PyInitConfig_GetError(config, &message);
+        not_started(what, home ? home : "fixed by its ._pth file", set ? "Py_InitializeFromInitConfig" : "PyInitConfig_Set",
+                    message, exit, exitcode);
+    }
+    py.PyInitConfig_Free(config);
+    return result;
+}
+
+/* The int field `field` (an index) of a configuration. */
+#define INT_FIELD(config, index) (((int *)(config))[index])
+#define INT_AT(config, offset) (*(int *)((char *)(config) + (offset)))
+#define POINTER_AT(config, offset) (*(wchar_t **)((char *)(config) + (offset)))
+
+/* PyConfig_InitIsolatedConfig and PyConfig_InitPythonConfig wrote what they write at the offsets of
+   `layout`: the layout is this CPython's. */
+static int layout_holds(const ConfigLayout *layout, void *isolated, void *python) {
+    return INT_FIELD(isolated, CONFIG_ISOLATED) == 1 && INT_FIELD(isolated, CONFIG_USE_ENVIRONMENT) == 0
+           && INT_AT(isolated, layout->parse_argv) == 0 && INT_AT(python, layout->parse_argv) == 1
+           && INT_AT(isolated, layout->user_site_directory) == 0 && INT_AT(python, layout->user_site_directory) == 1
+           && INT_AT(isolated, layout->configure_c_stdio) == 0 && INT_AT(python, layout->configure_c_stdio) == 1
+           && INT_AT(isolated, layout->site_import) == 1 && INT_AT(isolated, layout->write_bytecode) == 1
+           && !POINTER_AT(isolated, layout->home) && !POINTER_AT(python, layout->home);
+}
+
+typedef union {
+    int fields[CONFIG_SIZE / sizeof(int)];
+    max_align_t align;
+} ConfigMemory;
+
+/* Start CPython 3.9 to 3.13 through PEP 587's PyPreConfig and PyConfig, as start_with_init_config does;
+   0, or -1 (logged as `what`). */
+static int start_with_config(const char *what, const char *home, int minor) {
+    static ConfigMemory preconfig, config, python;
+    const ConfigLayout *layout = minor < (int)COUNT(CONFIG_LAYOUTS) ? &CONFIG_LAYOUTS[minor] : NULL;
+    if (!layout || !layout->home) {
+        append(start_error, sizeof start_error, "%s: no PyConfig layout of CPython 3.%d is known; ", what, minor);
+        return -1;
+    }
+    py.PyConfig_InitIsolatedConfig(&config);
+    py.PyConfig_InitPythonConfig(&python);
+    int holds = layout_holds(layout, &config, &python);
+    py.PyConfig_Clear(&python);
+    if (!holds) {
+        py.PyConfig_Clear(&config);
+        append(start_error, sizeof start_error, "%s: its PyConfig is not laid out as CPython 3.%d's (a free-threaded "
+               "or debug build?); ", what, minor);
+        return -1;
+    }
+    py.PyPreConfig_InitIsolatedConfig(&preconfig);
+#ifdef _WIN32
+    preconfig.fields[PRECONFIG_UTF8_MODE_WINDOWS] = 1;
+#else
+    preconfig.fields[PRECONFIG_UTF8_MODE_LP64] = 1;
+#endif
+    PyStatus status = py.Py_PreInitialize(&preconfig);
+    home_wide = home && status.type == 0 ? platform_wide_path(home, py.Py_DecodeLocale) : NULL;
+    if (status.type == 0 && home && !home_wide) {
+        append(start_error, sizeof start_error, "%s: cannot decode its home %s; ", what, home);
+        py.PyConfig_Clear(&config);
+        return -1;
+    }
+    if (home_wide) status = py.PyConfig_SetString(&config, &POINTER_AT(&config, layout->home), home_wide);
+    INT_AT(&config, layout->site_import) = 0;
+    INT_AT(&config, layout->write_bytecode) = 0;
     start_attempted = 1;
-    PyStatus status = py.Py_InitializeFromConfig(&config);
+    if (status.type == 0) status = py.Py_InitializeFromConfig(&config);
     py.PyConfig_Clear(&config);
     if (status.type != 0 || !py.Py_IsInitialized()) {
-        append(start_error, sizeof start_error, "%s (home %s): Python did not start: %s%s%s",
-               what, home, status.func ? status.func : "", status.func ? ": " : "",
-               status.err_msg ? status.err_msg : "no reason given");
-        if (status.type == 2) append(start_error, sizeof start_error, " (exit code %d)", status.exitcode);
-        append(start_error, sizeof start_error, "; ");
+        not_started(what, home ? home : "fixed by its ._pth file", status.func, status.err_msg, status.type == 2,
+                    status.exitcode);
         return -1;
     }
-    py.PyEval_SaveThread();
     return 0;
 }
 
-/* Start Python with `home`, or (`set_home` 0) with the paths its installation's ._pth file fixes,
-   which a home set here would override. */
-static int initialize(const char *home, int set_home, const char *what) {
-    home_wide = set_home ? platform_wide_path(home, py.Py_DecodeLocale) : NULL;
-    if (set_home && !home_wide) {
-        append(start_error, sizeof start_error, "%s: cannot decode its home %s; ", what, home);
+/* Start the CPython 3.`minor` resolved in `library`, with `home` (NULL: the paths its installation's
+   ._pth file fixes, which a home set here would override), and release the GIL; 0, or -1 (logged). */
+static int start_python(Library library, int minor, const char *what, const char *home) {
+    int with_init_config = minor >= INIT_CONFIG_MINOR;
+    const char *missing = with_init_config ? resolve(library, INIT_CONFIG, COUNT(INIT_CONFIG))
+                                           : resolve(library, CONFIG, COUNT(CONFIG));
+    if (missing) {
+        missing_symbol(library, what, missing);
         return -1;
     }
-    if (set_home) py.Py_SetPythonHome(home_wide);
-    *py.Py_IgnoreEnvironmentFlag = 1;
-    *py.Py_NoSiteFlag = 1;
-    *py.Py_NoUserSiteDirectory = 1;
-    *py.Py_DontWriteBytecodeFlag = 1;
-    return start_python(what, home);
+    int result = with_init_config ? start_with_init_config(what, home) : start_with_config(what, home, minor);
+    if (result == 0) py.PyEval_SaveThread();
+    return result;
 }
 
 /* The minor version of the CPython in `library`, asked before anything else is resolved, so that one too
@@ -191,7 +317,7 @@ static int initialize(const char *home, int set_home, const char *what) {
    says none. */
 static int old_version(Library library, const char *what) {
     const char *(*get_version)(void);
-    void *address = platform_symbol(library, "Py_GetVersion");
+    void *address = symbol(library, "Py_GetVersion");
     if (!address) {
         append(start_error, sizeof start_error, "%s: no symbol Py_GetVersion (not a CPython library); ", what);
         return -1;
@@ -205,6 +331,31 @@ static int old_version(Library library, const char *what) {
         return -1;
     }
     return minor;
+}
+
+/* Resolve what every use calls, the exception API of this version, and where Python finalizes (Py_IsFinalizing
+   from 3.13, _Py_IsFinalizing before where exported); the name of the first missing symbol, or NULL. */
+static const char *resolve_calls(Library library, int minor) {
+    const char *missing = resolve(library, CALLS, COUNT(CALLS));
+    if (!missing) missing = minor >= RAISED_MINOR ? resolve(library, RAISED, COUNT(RAISED)) : resolve(library, FETCHED, COUNT(FETCHED));
+    void *finalizing = symbol(library, minor >= CONSTANT_MINOR ? "Py_IsFinalizing" : "_Py_IsFinalizing");
+    memcpy(&is_finalizing, &finalizing, sizeof finalizing);
+    return missing;
+}
+
+/* None, once Python runs; 0, or -1 (logged as `what`). */
+static int resolve_none(Library library, int minor, const char *what) {
+    if (minor >= CONSTANT_MINOR) {
+        PyObject *(*constant)(unsigned int);
+        void *address = symbol(library, "Py_GetConstantBorrowed");
+        memcpy(&constant, &address, sizeof address);
+        py.None = address ? constant(Py_CONSTANT_NONE) : NULL;
+    } else {
+        py.None = symbol(library, "_Py_NoneStruct");
+    }
+    if (py.None) return 0;
+    missing_symbol(library, what, minor >= CONSTANT_MINOR ? "Py_GetConstantBorrowed" : "_Py_NoneStruct");
+    return -1;
 }
 
 /* Make the symbols of the library loaded from `path` (NULL: one already global) visible to those loaded
@@ -223,16 +374,14 @@ static int share(const char *path, const char *what) {
 static int adopt(Library library, const char *path, const char *home, const char *what) {
     int minor = old_version(library, what);
     if (minor < 0) return -1;
-    const char *missing = resolve(library);
+    const char *missing = resolve_calls(library, minor);
     if (missing) {
-        append(start_error, sizeof start_error, "%s: no symbol %s; ", what, missing);
+        missing_symbol(library, what, missing);
         return -1;
     }
-    void *finalizing = platform_symbol(library, "Py_IsFinalizing");
-    if (!finalizing) finalizing = platform_symbol(library, "_Py_IsFinalizing");
-    memcpy(&is_finalizing, &finalizing, sizeof finalizing);
-    if (py.Py_IsInitialized()) return share(path, what);
-    char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256] = "";
+    if (py.Py_IsInitialized()) return share(path, what) == 0 ? resolve_none(library, minor, what) : -1;
+    static char file[PLATFORM_PATH_MAX], found[PLATFORM_PATH_MAX], why[256];
+    why[0] = '\0';
     if (platform_library_file((const void *)py.Py_IsInitialized, file, sizeof file) != 0) file[0] = '\0';
     int layout = platform_python_home(file, home, minor, found, sizeof found, why, sizeof why);
     if (layout < 0) {
@@ -240,12 +389,14 @@ static int adopt(Library library, const char *path, const char *home, const char
         return -1;
     }
     if (share(path, what) != 0) return -1;
-    return initialize(found, layout == HOME_TO_SET, what);
+    if (start_python(library, minor, what, layout == HOME_TO_SET ? found : NULL) != 0) return -1;
+    return resolve_none(library, minor, what);
 }
 
 /* Load, check and start the candidate. */
 static int try_candidate(const Candidate *candidate) {
-    char label[3 * PLATFORM_PATH_MAX + 64], why[512] = "", file[PLATFORM_PATH_MAX];
+    static char label[3 * PLATFORM_PATH_MAX + 64], why[512], file[PLATFORM_PATH_MAX];
+    why[0] = '\0';
     snprintf(label, sizeof label, "%s %s", *candidate->label ? candidate->label : "the system's", candidate->library);
     Library library = platform_load(candidate->library, why, sizeof why);
     if (!library && !*candidate->label) {
@@ -313,31 +464,43 @@ static void gather(Candidates *list) {
     prefer_building_minor(list);
 }
 
-/* The `home` of the virtual environment in `folder` (its pyvenv.cfg's "home = ..."); 1 if there is one. */
-static int venv_home(const char *folder, char *home, size_t size) {
-    char path[PLATFORM_PATH_MAX + 16], line[PLATFORM_PATH_MAX + 16];
+/* The value of `key` in a line "key = value" of pyvenv.cfg, trimmed, in `value`; 1 if the line has it. */
+static int venv_value(const char *line, const char *key, char *value, size_t size) {
+    const char *p = line + strspn(line, " \t");
+    size_t length = strlen(key);
+    if (strncmp(p, key, length) != 0) return 0;
+    p += length + strspn(p + length, " \t");
+    if (*p != '=') return 0;
+    p += 1 + strspn(p + 1, " \t");
+    length = strlen(p);
+    while (length > 0 && isspace((unsigned char)p[length - 1])) length--;
+    snprintf(value, size, "%.*s", (int)length, p);
+    return 1;
+}
+
+/* The virtual environment in `folder`: its pyvenv.cfg's `home`, and in `minor` the minor version its `version`
+   (the venv module's) or `version_info` (virtualenv's, uv's) names, -1 if neither does; 1 if there is one. */
+static int venv_home(const char *folder, char *home, size_t size, int *minor) {
+    static char path[PLATFORM_PATH_MAX + 16], line[PLATFORM_PATH_MAX + 16];
+    char version[64] = "";
     snprintf(path, sizeof path, "%s/pyvenv.cfg", folder);
     FILE *file = platform_open_file(path, "r");
     if (!file) return 0;
     *home = '\0';
-    while (!*home && fgets(line, sizeof line, file)) {
-        char *p = line + strspn(line, " \t");
-        if (strncmp(p, "home", 4) != 0) continue;
-        p += 4 + strspn(p + 4, " \t");
-        if (*p != '=') continue;
-        p += 1 + strspn(p + 1, " \t");
-        size_t length = strlen(p);
-        while (length > 0 && isspace((unsigned char)p[length - 1])) p[--length] = '\0';
-        snprintf(home, size, "%s", p);
+    while (fgets(line, sizeof line, file)) {
+        if (!venv_value(line, "home", home, size) && !venv_value(line, "version", version, sizeof version)) {
+            venv_value(line, "version_info", version, sizeof version);
+        }
     }
     fclose(file);
+    *minor = minor_of(version);
     return *home != '\0';
 }
 
 /* The CPython libraries of the installation in `folder`, newest first, each called `label` and started
    with `home` (NULL: the home found from the library's file). */
 static void add_installation(Candidates *list, const char *folder, const char *home, const char *label) {
-    char library[PLATFORM_PATH_MAX];
+    static char library[PLATFORM_PATH_MAX];
     for (int minor = NEWEST_MINOR; minor >= OLDEST_LOOKED_FOR; minor--) {
         for (int place = 0; platform_library_in(folder, place, minor, library, sizeof library) == 0; place++) {
             if (platform_is_file(library)) add_candidate(list, library, home, label, minor);
@@ -345,20 +508,32 @@ static void add_installation(Candidates *list, const char *folder, const char *h
     }
 }
 
+/* The CPython libraries of the installation in `folder` of the minor version `minor` (every one if -1). */
+static void add_minor(Candidates *list, const char *folder, int minor, const char *label) {
+    add_installation(list, folder, NULL, label);
+    int kept = 0;
+    for (int i = 0; i < list->count; i++) {
+        if (minor < 0 || list->items[i].minor == minor) list->items[kept++] = list->items[i];
+    }
+    list->count = kept;
+}
+
 /* The candidates of the folder that DSC_FMU_PYTHON names: its installation's, or those of the installation
-   its virtual environment names (home, and home's parent: on Linux and macOS home is the installation's bin). */
-static void gather_folder(Candidates *list, const char *folder) {
-    char home[PLATFORM_PATH_MAX];
+   its virtual environment names (home, and home's parent: on Linux and macOS home is the installation's bin),
+   of the environment's version only. */
+static void gather_folder(Candidates *list, const char *folder, int *venv_minor) {
+    static char home[PLATFORM_PATH_MAX];
     const char *label = DSC_OVERRIDE_VARIABLE " folder:";
-    if (!venv_home(folder, home, sizeof home)) {
+    *venv_minor = -1;
+    if (!venv_home(folder, home, sizeof home, venv_minor)) {
         add_installation(list, folder, NULL, label);
     } else {
-        add_installation(list, home, NULL, label);
+        add_minor(list, home, *venv_minor, label);
         char *separator = strrchr(home, '/'), *other = strrchr(home, '\\');
         if (other > separator) separator = other;
         if (separator && separator != home) {
             *separator = '\0';
-            add_installation(list, home, NULL, label);
+            add_minor(list, home, *venv_minor, label);
         }
     }
     prefer_building_minor(list);
@@ -375,7 +550,16 @@ static void append_pattern(const char *pattern) {
 
 /* The candidates of the folder `folder` tried in turn; -1 (logged) if none serves or there is none. */
 static int start_from_folder(Candidates *list, const char *folder) {
-    gather_folder(list, folder);
+    int venv_minor;
+    gather_folder(list, folder, &venv_minor);
+    if (list->count == 0 && venv_minor >= 0) {
+        append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " = %s: a virtual environment of CPython 3.%d "
+               "(its pyvenv.cfg), whose installation has no CPython 3.%d library (looked for ", folder, venv_minor,
+               venv_minor);
+        append_pattern(PLATFORM_LIBRARY_PLACES);
+        append(start_error, sizeof start_error, " in its home and the home's parent); ");
+        return -1;
+    }
     if (list->count == 0) {
         append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " = %s: a folder without a CPython library "
                "(looked for ", folder);
@@ -389,7 +573,7 @@ static int start_from_folder(Candidates *list, const char *folder) {
 /* ROOT, the folder `python` beside this binary's file, in `root`, and the separator of that file's path;
    1 if ROOT is a folder. */
 static int bundle_root(char *root, size_t size, char *separator) {
-    char file[PLATFORM_PATH_MAX];
+    static char file[PLATFORM_PATH_MAX];
     if (platform_library_file((const void *)bundle_root, file, sizeof file) != 0) {
         append(start_error, sizeof start_error, "this binary's own file is unknown, so is the FMU's own CPython; ");
         return 0;
@@ -417,9 +601,22 @@ static int check_header(FILE *list, const char *what) {
 
 /* The libraries beside a bundled CPython that its extension modules need (on Linux lib/lib*.so*, but
    libpython), loaded before it starts so that the loader finds them by soname. */
-#define MAX_PRELOADS 16
-static char preloads[MAX_PRELOADS][PLATFORM_PATH_MAX];
+static char **preloads;
 static int preload_count;
+
+/* `path` kept in `preloads`; 0, or -1 (logged as `what`) out of memory. */
+static int add_preload(const char *path, const char *what) {
+    size_t size = strlen(path) + 1;
+    char **more = realloc(preloads, (size_t)(preload_count + 1) * sizeof *more);
+    if (more) preloads = more;
+    char *copy = more ? malloc(size) : NULL;
+    if (!copy) {
+        append(start_error, sizeof start_error, "%s: out of memory listing the libraries to load first; ", what);
+        return -1;
+    }
+    preloads[preload_count++] = memcpy(copy, path, size);
+    return 0;
+}
 
 /* A file of the bundle to load before CPython starts: lib/lib*.so* but libpython. */
 static int is_preload(const char *path) {
@@ -430,7 +627,7 @@ static int is_preload(const char *path) {
    with that size, and at least one is listed; the libraries to load first are kept in `preloads`. 0, or -1
    (logged as `what`) at the first line that fails. */
 static int check_files(FILE *list, const char *root, char separator, const char *what) {
-    char line[PLATFORM_PATH_MAX + 32], path[2 * PLATFORM_PATH_MAX + 32];
+    static char line[PLATFORM_PATH_MAX + 32], path[2 * PLATFORM_PATH_MAX + 32];
     int files = 0;
     for (int number = 2; fgets(line, sizeof line, list); number++) {
         size_t length = strcspn(line, "\r\n");
@@ -456,9 +653,7 @@ static int check_files(FILE *list, const char *root, char separator, const char 
                    end + 1, size, listed);
             return -1;
         }
-        if (is_preload(end + 1) && preload_count < MAX_PRELOADS) {
-            snprintf(preloads[preload_count++], PLATFORM_PATH_MAX, "%s", path);
-        }
+        if (is_preload(end + 1) && add_preload(path, what) != 0) return -1;
         files++;
     }
     if (ferror(list)) {
@@ -474,12 +669,14 @@ static int check_files(FILE *list, const char *root, char separator, const char 
    those that need one another; 0, or -1 (logged as `what`) if one does not load. */
 static int load_preloads(const char *what) {
     char why[512] = "";
-    int loaded[MAX_PRELOADS] = {0}, left = preload_count;
+    int left = preload_count;
     for (int progress = 1; left > 0 && progress;) {
         progress = 0;
         for (int i = 0; i < preload_count; i++) {
-            if (loaded[i] || !platform_load(preloads[i], why, sizeof why)) continue;
-            loaded[i] = progress = 1;
+            if (!preloads[i] || !platform_load(preloads[i], why, sizeof why)) continue;
+            free(preloads[i]);
+            preloads[i] = NULL;
+            progress = 1;
             left--;
         }
     }
@@ -491,7 +688,7 @@ static int load_preloads(const char *what) {
 /* The bundle in `root` as its bundle.txt lists it, checked before anything of it is loaded; 0, or -1
    (logged as `what`). */
 static int check_bundle(const char *root, char separator, const char *what) {
-    char path[PLATFORM_PATH_MAX + 32];
+    static char path[PLATFORM_PATH_MAX + 32];
     snprintf(path, sizeof path, "%s%c" BUNDLE_LIST, root, separator);
     if (!platform_is_file(path)) {
         append(start_error, sizeof start_error, "%s: no " BUNDLE_LIST " in it; ", what);
@@ -510,7 +707,7 @@ static int check_bundle(const char *root, char separator, const char *what) {
 /* The FMU's own CPython in `root`: checked, then its library started with home `root`; -1 (logged) if
    anything fails, and then no other Python is tried (the header comment says why). */
 static int start_own(Candidates *list, const char *root, char separator) {
-    char what[PLATFORM_PATH_MAX + 64], label[PLATFORM_PATH_MAX + 64];
+    static char what[PLATFORM_PATH_MAX + 64], label[PLATFORM_PATH_MAX + 64];
     snprintf(what, sizeof what, "the FMU's own CPython (%s)", root);
     snprintf(label, sizeof label, "%s:", what);
     int result = check_bundle(root, separator, what);
@@ -536,14 +733,14 @@ static int find_and_start(void) {
     if (present) return adopt(present, NULL, NULL, "the Python in this process");
     static Candidate items[MAX_CANDIDATES];
     Candidates list = {items, 0};
-    char override[PLATFORM_PATH_MAX];
+    static char override[PLATFORM_PATH_MAX];
     if (platform_getenv(DSC_OVERRIDE_VARIABLE, override, sizeof override)) {
         if (platform_is_folder(override)) return start_from_folder(&list, override);
         add_candidate(&list, override, NULL, DSC_OVERRIDE_VARIABLE " =", -1);
         return try_candidate(&items[0]);
     }
     append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " not set; ");
-    char root[PLATFORM_PATH_MAX], separator;
+    static char root[PLATFORM_PATH_MAX], separator;
     if (bundle_root(root, sizeof root, &separator)) return start_own(&list, root, separator);
     gather(&list);
     int supported = 0;
@@ -567,6 +764,27 @@ static void free_ended(Ended *list) {
 
 int pyhost_alive(void) {
     return py.Py_IsInitialized() && !(is_finalizing && is_finalizing()) && py.PyInterpreterState_Main() == interpreter;
+}
+
+PyObject *pyhost_take_error(void) {
+    if (py.PyErr_GetRaisedException) return py.PyErr_GetRaisedException();
+    PyObject *type = NULL, *value = NULL, *traceback = NULL;
+    py.PyErr_Fetch(&type, &value, &traceback);
+    if (!type) return NULL;
+    py.PyErr_NormalizeException(&type, &value, &traceback);
+    if (value && traceback) py.PyException_SetTraceback(value, traceback);
+    if (traceback) py.Py_DecRef(traceback);
+    if (value) py.Py_DecRef(type);
+    return value ? value : type;
+}
+
+void pyhost_restore_error(PyObject *error) {
+    if (!error) return;
+    if (py.PyErr_SetRaisedException) {
+        py.PyErr_SetRaisedException(error);
+        return;
+    }
+    py.PyErr_Restore(py.PyObject_Type(error), error, py.PyException_GetTraceback(error));
 }
 
 /* Delete the thread states in `list` (their threads have ended) and free the list. The reaper takes

@@ -66,10 +66,9 @@ static PyObject *load_file(const char *name, const char *path) {
         PyObject *run[] = {borrowed(module)};
         done = call(py.PyObject_GetAttrString(loader, "exec_module"), pack(1, run));
         if (!done) {
-            PyObject *type, *value, *traceback;
-            py.PyErr_Fetch(&type, &value, &traceback);
+            PyObject *error = pyhost_take_error();
             py.PyDict_DelItemString(modules, name);
-            py.PyErr_Restore(type, value, traceback);
+            pyhost_restore_error(error);
         }
     }
     if (!done) clear(&module);

@@ -23,21 +23,20 @@ void clear(PyObject **object) {
 
 /* The pending exception as "Type: message" in `text`; clears it. 1 if it was a KeyboardInterrupt. */
 static int exception_text(char *text, size_t size) {
-    PyObject *type = NULL, *value = NULL, *traceback = NULL;
-    py.PyErr_Fetch(&type, &value, &traceback);
-    int interrupt = type && type == *py.PyExc_KeyboardInterrupt;
+    PyObject *error = pyhost_take_error();
+    int interrupt = error && py.PyErr_GivenExceptionMatches(error, *py.PyExc_KeyboardInterrupt);
+    PyObject *type = error ? py.PyObject_Type(error) : NULL;
     PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
     const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
-    PyObject *str = value ? py.PyObject_Str(value) : NULL;
+    PyObject *str = error ? py.PyObject_Str(error) : NULL;
     const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
-    if (type) snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
+    if (error) snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
     else snprintf(text, size, "no Python exception was raised");
     py.PyErr_Clear();
     clear(&str);
     clear(&type_name);
     clear(&type);
-    clear(&value);
-    clear(&traceback);
+    clear(&error);
     return interrupt;
 }
 
