@@ -160,9 +160,10 @@ static void append(char *text, size_t size, const char *format, ...) {
    by spaces) as absent, as a CPython that removed them would. */
 static void *symbol(Library library, const char *name) {
 #ifdef DSC_ABSENT_SYMBOLS
+    static const char absent[] = DSC_ABSENT_SYMBOLS;
     size_t length = strlen(name);
-    for (const char *p = strstr(DSC_ABSENT_SYMBOLS, name); p; p = strstr(p + 1, name)) {
-        if ((p == DSC_ABSENT_SYMBOLS || p[-1] == ' ') && (p[length] == ' ' || p[length] == '\0')) return NULL;
+    for (const char *p = strstr(absent, name); p; p = strstr(p + 1, name)) {
+        if ((p == absent || p[-1] == ' ') && (p[length] == ' ' || p[length] == '\0')) return NULL;
     }
 #endif
     return platform_symbol(library, name);
