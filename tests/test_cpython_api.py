@@ -225,3 +225,15 @@ def test_a_virtual_environment_whose_version_its_home_lacks_is_one_message(impor
     assert (f"{OVERRIDE_VARIABLE} = {venv}: a virtual environment of CPython 3.10 (its pyvenv.cfg), whose "
             "installation has no CPython 3.10 library (looked for lib/libpython3.X.so.1.0 or "
             "lib/x86_64-linux-gnu/libpython3.X.so.1.0 in its home and the home's parent)") in message, message
+
+
+def test_an_fmu_under_a_non_ascii_path_runs_in_a_host_with_the_c_locale(importer, fmu_paths, tmp_path):
+    """The CPython started here is in UTF-8 mode: from an empty environment (the C locale, whose encoding is
+    ASCII), DSCController unzipped under "Röbot 模型" gives the rows it gives under an ASCII path."""
+    md, outputs = controller(fmu_paths, tmp_path / "ascii")
+    unicode = tmp_path / "Röbot 模型"
+    controller(fmu_paths, unicode)
+    expected = rows_of(importer, tmp_path / "ascii", md, outputs, tmp_path, {})
+    run = rows_of(importer, unicode, md, outputs, tmp_path, {})
+    assert expected.returncode == 0 and run.returncode == 0, run.stderr[-2000:]
+    assert parse_rows(run.stdout) == parse_rows(expected.stdout)

@@ -1,7 +1,9 @@
 /* What differs between the operating systems the binary runs on: loading libraries, paths and files,
    the places a Python is installed, threads. One implementation per system: platform_posix.c with
    platform_linux.c (Linux) or platform_macos.c (macOS), and platform_windows.c; everything else is the
-   same source for all. Paths are UTF-8. */
+   same source for all. Paths are UTF-8. The functions that find a Python run only in pyhost_start's one
+   search per process, on whatever thread the host calls first: their path buffers are static, not on that
+   thread's stack. */
 
 #ifndef DSC_PLATFORM_H
 #define DSC_PLATFORM_H

@@ -47,7 +47,7 @@ static void visit_if_file(Visit visit, void *context, const char *library, const
 }
 
 static void visit_fixed(Visit visit, void *context, const char *pattern, const char *label, int minor) {
-    char library[PLATFORM_PATH_MAX];
+    static char library[PLATFORM_PATH_MAX];
     snprintf(library, sizeof library, "%s", DSC_PLACES_ROOT);
     size_t used = strlen(library);
     snprintf(library + used, sizeof library - used, pattern, minor, minor);
@@ -56,7 +56,7 @@ static void visit_fixed(Visit visit, void *context, const char *pattern, const c
 
 /* conda's active environment: $CONDA_PREFIX/lib. */
 static void visit_conda(Visit visit, void *context, int minor) {
-    char prefix[PLATFORM_PATH_MAX], library[PLATFORM_PATH_MAX + 64];
+    static char prefix[PLATFORM_PATH_MAX], library[PLATFORM_PATH_MAX + 64];
     if (!platform_getenv("CONDA_PREFIX", prefix, sizeof prefix)) return;
     snprintf(library, sizeof library, "%s/lib/" DSC_SYSTEM_PYTHON, prefix, minor);
     visit_if_file(visit, context, library, "conda's (CONDA_PREFIX)", minor);
@@ -80,9 +80,9 @@ static int newest_first(const struct dirent **a, const struct dirent **b) {
 /* pyenv's versions ($PYENV_ROOT, else ~/.pyenv), newest first; a version has a library only if built with
    --enable-shared or --enable-framework. */
 static void visit_pyenv(Visit visit, void *context, int minor) {
-    char root[PLATFORM_PATH_MAX], versions[PLATFORM_PATH_MAX + 16], library[2 * PLATFORM_PATH_MAX];
+    static char root[PLATFORM_PATH_MAX], versions[PLATFORM_PATH_MAX + 16], library[2 * PLATFORM_PATH_MAX];
     if (!platform_getenv("PYENV_ROOT", root, sizeof root)) {
-        char home[PLATFORM_PATH_MAX];
+        static char home[PLATFORM_PATH_MAX];
         if (!platform_getenv("HOME", home, sizeof home)) return;
         snprintf(root, sizeof root, "%s/.pyenv", home);
     }

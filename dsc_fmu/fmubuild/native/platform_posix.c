@@ -65,7 +65,7 @@ Library platform_loaded_with(const char *name) {
 int platform_library_file(const void *address, char *path, size_t size) {
     Dl_info info;
     if (!dladdr(address, &info) || !info.dli_fname) return -1;
-    char resolved[PATH_MAX];
+    static char resolved[PATH_MAX];
     snprintf(path, size, "%s", realpath(info.dli_fname, resolved) ? resolved : info.dli_fname);
     return 0;
 }
@@ -116,7 +116,7 @@ wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, s
 /* A standard library under `home`: lib/python3.X with os.py and encodings, or lib/python3X.zip (a bundle's,
    which CPython puts first on sys.path for that home). */
 static int has_stdlib(const char *home, int minor) {
-    char path[PATH_MAX + 64];
+    static char path[PATH_MAX + 64];
     snprintf(path, sizeof path, "%s/lib/python3%d.zip", home, minor);
     if (platform_is_file(path)) return 1;
     snprintf(path, sizeof path, "%s/lib/python3.%d/os.py", home, minor);
@@ -136,7 +136,7 @@ int platform_python_home(const char *library, const char *given, int minor, char
                  minor, minor);
         return -1;
     }
-    char path[PATH_MAX];
+    static char path[PATH_MAX];
     snprintf(path, sizeof path, "%s", library);
     char *slash;
     while ((slash = strrchr(path, '/')) != NULL && slash != path) {

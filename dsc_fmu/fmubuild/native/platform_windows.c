@@ -107,7 +107,7 @@ Library platform_loaded_with(const char *name) {
 }
 
 static int module_file(HMODULE module, char *path, size_t size) {
-    wchar_t name[PLATFORM_PATH_MAX];
+    static wchar_t name[PLATFORM_PATH_MAX];
     DWORD n = GetModuleFileNameW(module, name, PLATFORM_PATH_MAX);
     if (n == 0 || n >= PLATFORM_PATH_MAX) return -1;
     return narrow(name, path, size);
@@ -244,7 +244,8 @@ int platform_library_in(const char *folder, int place, int minor, char *path, si
 static void registered_under(const Registry *r, HKEY root, const char *label, Visit visit, void *context, int oldest) {
     HKEY core;
     if (r->open(root, L"Software\\Python\\PythonCore", 0, KEY_READ | KEY_WOW64_64KEY, &core) != ERROR_SUCCESS) return;
-    wchar_t found[NEWEST_MINOR + 1][PLATFORM_PATH_MAX / 4] = {{0}};
+    static wchar_t found[NEWEST_MINOR + 1][PLATFORM_PATH_MAX / 4];
+    memset(found, 0, sizeof found);
     wchar_t tag[64];
     for (DWORD i = 0;; i++) {
         DWORD length = sizeof tag / sizeof tag[0];
@@ -258,7 +259,7 @@ static void registered_under(const Registry *r, HKEY root, const char *label, Vi
     }
     r->close(core);
     for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
-        char folder[PLATFORM_PATH_MAX], library[PLATFORM_PATH_MAX + 32];
+        static char folder[PLATFORM_PATH_MAX], library[PLATFORM_PATH_MAX + 32];
         if (!found[minor][0] || narrow(found[minor], folder, sizeof folder) != 0) continue;
         join(library, sizeof library, folder, minor);
         if (platform_is_file(library)) visit(context, library, NULL, label, minor);
@@ -271,7 +272,7 @@ static void on_path(Visit visit, void *context, int oldest) {
     if (!platform_getenv("PATH", path, sizeof path)) return;
     for (char *folder = strtok(path, ";"); folder; folder = strtok(NULL, ";")) {
         for (int minor = NEWEST_MINOR; minor >= oldest; minor--) {
-            char library[PLATFORM_PATH_MAX + 32];
+            static char library[PLATFORM_PATH_MAX + 32];
             join(library, sizeof library, folder, minor);
             if (platform_is_file(library)) visit(context, library, NULL, "on PATH:", minor);
         }
@@ -288,7 +289,7 @@ void platform_registered_pythons(Visit visit, void *context, int oldest) {
 }
 
 static int has_stdlib(const char *home, int minor) {
-    char path[PLATFORM_PATH_MAX + 64];
+    static char path[PLATFORM_PATH_MAX + 64];
     snprintf(path, sizeof path, "%s\\Lib\\os.py", home);
     if (platform_is_file(path)) return 1;
     snprintf(path, sizeof path, "%s\\python3%d.zip", home, minor);
@@ -297,7 +298,7 @@ static int has_stdlib(const char *home, int minor) {
 
 int platform_python_home(const char *library, const char *given, int minor, char *home, size_t size, char *why,
                          size_t why_size) {
-    char folder[PLATFORM_PATH_MAX];
+    static char folder[PLATFORM_PATH_MAX];
     snprintf(folder, sizeof folder, "%s", given && *given ? given : library);
     if (!(given && *given)) {
         char *slash = strrchr(folder, '\\');
@@ -306,7 +307,7 @@ int platform_python_home(const char *library, const char *given, int minor, char
         if (slash) *slash = '\0';
     }
     if (has_stdlib(folder, minor)) {
-        char paths[PLATFORM_PATH_MAX + 32];
+        static char paths[PLATFORM_PATH_MAX + 32];
         snprintf(home, size, "%s", folder);
         snprintf(paths, sizeof paths, "%s\\python3%d._pth", folder, minor);
         return platform_is_file(paths) ? HOME_FIXED : HOME_TO_SET;

@@ -1,14 +1,17 @@
 /* The Python runtime that runs the model code: found, loaded and started at run time, never linked.
 
-   Any CPython from 3.9 on will do (the bundled Python code is version-neutral, and the binary calls
-   only functions every such CPython exports). Order (docs/other-tools.md, "What the importing machine needs"):
+   Any CPython from 3.9 on will do (the bundled Python code is version-neutral). The binary calls only public
+   functions, and only those the path it takes needs: adopting a running CPython resolves what the model's calls
+   use (pyhost.h), starting one also what starting that version takes; where a CPython offers the replacement of
+   a deprecated function, the replacement is used. A missing symbol is named with the CPython's version and file.
+   Order (docs/other-tools.md, "What the importing machine needs"):
      0. a CPython already in the process (fmpy, libcosimpy, PyFMI): used as it is;
      1. DSC_FMU_PYTHON, if set, the only place looked at: the path of a CPython shared library
         (libpython3.X.so.1.0, libpython3.X.dylib or a framework's Python, python3X.dll), or a folder: an
         installation's (platform_library_in: on Linux and macOS its prefix, whose lib/ holds the library,
         on macOS also a framework's version folder; on Windows the folder of python3X.dll), or a virtual
         environment's, which stands for the installation its pyvenv.cfg names (`home`, or on Linux and
-        macOS home's parent);
+        macOS home's parent) and for the version it names (`version`, or virtualenv's `version_info`);
      2. the FMU's own CPython (`dsc-fmu build --bundle-python`), if the folder ROOT = `python` beside
         this binary's file exists, the only place looked at then: ROOT/bundle.txt lists every other
         file of ROOT with its size, all checked before anything is loaded; the library is ROOT's
@@ -27,14 +30,16 @@
    Among the candidates of a folder, 3 and 4, those of the minor version that built the FMU come first,
    then the newest. Every CPython 3 is looked for, older ones too: one older than 3.9 is refused before
    it starts, and named with its version in the message if nothing serves.
-   A Python this binary starts gets its home set explicitly (an embeddable CPython on Windows: the paths
-   its python3X._pth fixes), ignores PYTHON* environment variables, imports no site packages, writes no
-   bytecode and installs no signal handlers; its symbols are made global before it starts (on Linux the
-   extension modules it may load while starting, zlib for a compressed zip, resolve the C API there).
-   It is started as Py_InitializeEx(0) would start it, but through Py_InitializeFromConfig, whose
-   status says why it failed where Py_InitializeEx would end the process; of the configuration it
-   touches only the leading fields whose offsets every CPython since 3.8 shares, checked before they
-   are set.
+   A Python this binary starts has the isolated configuration meant for embedding (PYTHON* environment
+   variables ignored, the host's locale and signal handlers left alone, no user site), in UTF-8 mode (paths are
+   UTF-8 whatever the host's locale), imports no site packages, writes no bytecode, and gets its home set
+   explicitly (an embeddable CPython on Windows: the paths its python3X._pth fixes); its symbols are made
+   global before it starts (on Linux the extension modules it may load while starting, zlib for a compressed
+   zip, resolve the C API there). From 3.14 on that is PEP 741's PyInitConfig; before, PEP 587's PyPreConfig
+   and PyConfig, whose fields are set at the offsets of the CPython's version (CONFIG_LAYOUTS), checked first
+   against what the CPython's own initialisers write. Either says why a start failed where Py_Initialize would
+   end the process. The search runs once per process, on whichever host thread calls first, whose stack may be
+   small: its path buffers are static.
 
    A host thread Python does not know gets a thread state on its first call, kept for its life. When
    the thread ends, its thread state is handed to the reaper, a thread of this binary's that deletes
