@@ -1,6 +1,6 @@
-"""The project on aarch64 Linux, under qemu-user in an arm64 Debian root (``aarch64.py``), against the same run
-on this x86-64 host: the C master cross-compiled for aarch64, our master (co-simulation and model exchange)
-and fmpy's ``simulate_fmu`` as its users call it, with FMI 2.0 and 3.0 FMUs built here."""
+"""The project on aarch64 Linux, under qemu-user in an arm64 Debian root (``aarch64.py`` on ``debian_root.py``),
+against the same run on this x86-64 host: the C master cross-compiled for aarch64, our master (co-simulation and
+model exchange) and fmpy's ``simulate_fmu`` as its users call it, with FMI 2.0 and 3.0 FMUs built here."""
 
 import re
 import shutil
@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 from fmpy import extract
 
-from aarch64 import (EXCHANGE_TOLERANCE, NAMES, PAPER_STOP, compile_for_aarch64, debian_mirror, debian_root,
-                     elf_machine, fmpy_user, fmu_outputs, paper_cosimulation, paper_model_exchange)
+from aarch64 import NAMES, bundled_runtime, cached_arm64_root, compile_for_aarch64, elf_machine, ssp_in_fmpy
+from debian_root import (EXCHANGE_TOLERANCE, PAPER_STOP, assert_identical, copied, debian_mirror, fmpy_user,
+                         fmu_outputs, paper_cosimulation, paper_model_exchange)
 from c_hosts import compile_c, parse_rows, run_c, write_plan
 
 pytestmark = pytest.mark.slow
@@ -25,13 +26,13 @@ LOAD_ERROR = re.compile(r"Failed to load shared library (?P<library>/tmp/tmp\w+/
 
 @pytest.fixture(scope="module")
 def arm64_root():
-    return debian_root()
+    return cached_arm64_root()
 
 
 @pytest.fixture()
 def workspace(arm64_root):
     """A folder in the root with the project's sources, removed after the test."""
-    folder = arm64_root.workspace()
+    folder = arm64_root.workspace(Path(__file__).parent / "aarch64.py")
     yield folder
     shutil.rmtree(folder)
 
@@ -41,20 +42,8 @@ def version(request):
     return request.param
 
 
-def copied(fmus: dict, folder: Path) -> dict:
-    """The FMUs copied into ``folder``, by name: both sides run these files."""
-    folder.mkdir()
-    return {name: Path(shutil.copy(path, folder / Path(path).name)) for name, path in fmus.items()}
-
-
 def fmus_of(version, fmu_paths, fmu3_paths, workspace) -> dict:
     return copied(fmu_paths if version == 2 else fmu3_paths, workspace / "fmus")
-
-
-def assert_identical(arm: np.ndarray, host: np.ndarray, columns) -> None:
-    """Every column of ``columns`` equal to the last bit."""
-    differing = [c for c in columns if arm[c].tobytes() != host[c].tobytes()]
-    assert not differing, {c: int(np.flatnonzero(arm[c] != host[c])[0]) for c in differing}
 
 
 def test_the_c_master_cross_compiled_runs_the_paper_loop_on_aarch64_bit_identical(arm64_root, workspace, fmu_paths,
@@ -81,7 +70,7 @@ def test_the_c_master_cross_compiled_runs_the_paper_loop_on_aarch64_bit_identica
 def test_the_paper_scenario_through_our_master_on_aarch64_equals_x86_64(arm64_root, workspace, fmu_paths,
                                                                        fmu3_paths, version):
     fmus = fmus_of(version, fmu_paths, fmu3_paths, workspace)
-    arm = arm64_root.run_task(workspace, "cosimulation", fmus)
+    arm = arm64_root.run_task(workspace, paper_cosimulation, fmus)
     host = paper_cosimulation(fmus)
     assert arm["steps"] == host["steps"] == round(PAPER_STOP / STEP)
     arm, host = arm["result"], host["result"]
@@ -99,7 +88,7 @@ def test_model_exchange_on_aarch64_equals_x86_64_to_rounding(arm64_root, workspa
     round differently on the two machines; the same steps, and a difference a thousand times below the
     solver's tolerance (seen: 1.5e-11 of a column's largest value)."""
     fmus = fmus_of(version, fmu_paths, fmu3_paths, workspace)
-    arm = arm64_root.run_task(workspace, "model-exchange", fmus)
+    arm = arm64_root.run_task(workspace, paper_model_exchange, fmus)
     host = paper_model_exchange(fmus)
     assert arm["steps"] == host["steps"] > 100
     arm, host = arm["result"], host["result"]
@@ -114,7 +103,7 @@ def test_fmpy_simulate_fmu_on_aarch64(arm64_root, workspace, fmu_paths, fmu3_pat
     """FMI 3.0: as on x86-64. FMI 2.0: fmpy loads ``linux64`` and fails; through an ``FMU2Slave`` of the
     ``aarch64-linux`` binary (``libraryPath``) as on x86-64."""
     fmus = fmus_of(version, fmu_paths, fmu3_paths, workspace)
-    arm = arm64_root.run_task(workspace, "fmpy", fmus, *(["aarch64-linux"] if version == 2 else []))
+    arm = arm64_root.run_task(workspace, fmpy_user, fmus, *(["aarch64-linux"] if version == 2 else []))
     host = fmpy_user(fmus)
     assert arm["platform"] == ["linux64", "aarch64-linux"] and host["platform"] == ["linux64", "x86_64-linux"]
     for name in NAMES:
@@ -161,7 +150,7 @@ def test_bundle_python_built_on_aarch64_carries_this_machine_s_cpython(arm64_roo
     x86-64 Linux it does not run on, and the runtime's libraries (libpython, lib-dynload's modules, what
     they need) are all aarch64 ELF files, with their licences."""
     fmus = copied({"MobileRobot": fmu_paths["MobileRobot"]}, workspace / "fmus")
-    bundle = arm64_root.run_task(workspace, "bundle", fmus)
+    bundle = arm64_root.run_task(workspace, bundled_runtime, fmus)
     assert (bundle["host"], bundle["carried"], bundle["platforms"]) == (
         "aarch64-linux", ["aarch64-linux", "x86_64-windows"], ["aarch64-linux"])
     assert bundle["os"] == "linux" and bundle["needs"] == ["glibc 2.36 or newer"]
@@ -179,7 +168,7 @@ def test_fmpy_s_ssp_simulation_is_refused_on_aarch64_in_one_line(arm64_root, wor
 
     archive = export_ssp(load_scenario("paper"), tmp_path / "paper.ssp", fmu_paths)
     copy = copied({"paper": archive}, workspace / "ssp")["paper"]
-    error = arm64_root.run_task(workspace, "ssp", {"paper": copy})["error"]
+    error = arm64_root.run_task(workspace, ssp_in_fmpy, {"paper": copy})["error"]
     assert error == (f"{arm64_root.inside(copy)}: fmpy's simulate_ssp loads FMI 2.0 binaries from binaries/linux64, "
                      "which holds x86-64's, and this is aarch64 Linux (its binaries are in binaries/aarch64-linux); "
                      "allowed here: dsc_fmu.cosimulate of the same FMUs, or simulate_ssp on x86-64 Linux, Windows or "
