@@ -19,7 +19,7 @@ from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.scenario import load_scenario
 
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
-OTHER_MINORS = (9, 12, 13)  # the oldest CPython the FMUs take, and newer ones
+OTHER_MINORS = (9, 10, 12, 13)  # the oldest CPython the FMUs take, and newer ones
 STEPS, STEP = 50, 0.02
 SYSTEM_LIBPYTHON = Path("/usr/lib") / (sysconfig.get_config_var("MULTIARCH") or "") / f"libpython{build_python().version}.so.1.0"
 

@@ -5,6 +5,7 @@ root from an empty environment with DSC_FMU_PYTHON naming the root's CPython, an
 on each of the root's CPythons, which the FMUs adopt. Which CPython served is checked, not assumed: from the
 dynamic loader's trace (LD_DEBUG) in the C importer, from an audit hook in fmpy's process."""
 
+import json
 import re
 import shutil
 import tempfile
@@ -14,9 +15,10 @@ from pathlib import Path
 import pytest
 from fmpy import extract, read_model_description
 
-from c_hosts import EMPTY_ENVIRONMENT, compile_c, parse_rows, run_c
+from c_hosts import EMPTY_ENVIRONMENT, HERE, compile_c, parse_rows, run_c
 from debian_root import (PAPER_STOP, Site, Specification, assert_identical, cached_root, copied, fmu_outputs,
                          host_versions, paper_cosimulation, served_paper_cosimulation)
+from test_cpython_api import ADOPT, NEVER, OLDER_ONLY, STEP as STEP_API, STEPS as STEPS_API, absent_build, controller, rows_of
 from dsc_fmu.fmubuild.binary import ENTRY_FILE, LINUX, OVERRIDE_VARIABLE, build_python
 from dsc_fmu.scenario import load_scenario
 
@@ -135,3 +137,46 @@ def test_the_paper_scenario_through_our_master_on_fmpy_on_the_newest_cpythons_eq
     outputs = fmu_outputs(fmus)
     assert len(outputs & set(host.dtype.names)) > 30 and "position_error" not in outputs
     assert_identical(inside, host, host.dtype.names)
+
+
+@pytest.mark.parametrize("python", PYTHONS)
+def test_without_every_removed_and_deprecated_name_the_newest_cpythons_start_and_are_adopted(
+        sid_root, importer, workspace, fmu_paths, tmp_path, python):
+    """The build that treats every removed, deprecated and private name as absent (``test_cpython_api.py``):
+    started by the C importer through PEP 741, and adopted inside the root's ``python3.X`` (ctypes), both with
+    the rows of the default build here."""
+    md, outputs = controller(fmu_paths, tmp_path / "default")
+    expected = parse_rows(rows_of(c_importer_here(tmp_path), tmp_path / "default", md, outputs, tmp_path, {}).stdout)
+    folder = workspace / "absent"
+    controller(fmu_paths, folder, absent_build((*NEVER, *OLDER_ONLY)))
+    started = sid_root.run([sid_root.inside(importer), 2, sid_root.inside(folder), "DSCController", md.guid, STEPS_API,
+                            STEP_API, *outputs], env={OVERRIDE_VARIABLE: f"{LIBRARIES}/libpython{python}.so.1.0"})
+    assert started.returncode == 0, started.stderr[-3000:]
+    assert parse_rows(started.stdout) == expected
+    shutil.copy(HERE / "fmi_ctypes.py", workspace / "fmi_ctypes.py")
+    by_reference = {v.valueReference: v.name for v in md.modelVariables}
+    names = ",".join(by_reference[int(reference)] for reference in outputs)
+    adopted = sid_root.run([f"/usr/bin/python{python}", "-I", "-c", ADOPT, sid_root.inside(workspace / "fmi_ctypes.py"),
+                            sid_root.inside(folder), names, STEPS_API, repr(STEP_API)])
+    assert adopted.returncode == 0, adopted.stderr[-3000:]
+    report = json.loads(adopted.stdout.splitlines()[-1])
+    assert report["version"].startswith(python + ".") and report["rows"] == expected
+
+
+def test_an_fmu_under_a_non_ascii_path_runs_on_the_newest_cpython_from_the_c_locale(sid_root, importer, workspace,
+                                                                                    fmu_paths, tmp_path):
+    """UTF-8 mode through PEP 741: DSCController under "Röbot 模型" in the root, CPython 3.15 started from an
+    empty environment, gives the rows of the default build here."""
+    md, outputs = controller(fmu_paths, tmp_path / "default")
+    expected = parse_rows(rows_of(c_importer_here(tmp_path), tmp_path / "default", md, outputs, tmp_path, {}).stdout)
+    folder = workspace / "Röbot 模型"
+    controller(fmu_paths, folder)
+    run = sid_root.run([sid_root.inside(importer), 2, sid_root.inside(folder), "DSCController", md.guid, STEPS_API,
+                        STEP_API, *outputs], env={OVERRIDE_VARIABLE: f"{LIBRARIES}/libpython3.15.so.1.0"})
+    assert run.returncode == 0, run.stderr[-3000:]
+    assert parse_rows(run.stdout) == expected
+
+
+def c_importer_here(tmp_path: Path) -> Path:
+    """``c_importer`` for runs on this machine."""
+    return compile_c("c_importer.c", tmp_path / "c_importer")
