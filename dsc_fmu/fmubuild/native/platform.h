@@ -44,7 +44,7 @@ int platform_getenv(const char *name, char *value, size_t size);
 int platform_is_absolute(const char *path);
 /* `path` as a native path in place: on Windows "/C:/x" (a file URI's path) becomes "C:/x". */
 void platform_native_path(char *path);
-/* `path` as the wide string Py_SetPythonHome takes (malloc'ed; `decode` is Python's
+/* `path` as the wide string PyConfig_SetString takes (malloc'ed; `decode` is Python's
    Py_DecodeLocale, which Linux uses); NULL if it cannot be converted. */
 wchar_t *platform_wide_path(const char *path, wchar_t *(*decode)(const char *, size_t *));
 
