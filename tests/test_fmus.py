@@ -582,6 +582,37 @@ def test_an_exception_in_the_model_discards_the_step_and_the_state_api_rolls_bac
     expected.close()
 
 
+WIDE = """
+    def get_integer(self, vrs):
+        return [2 ** 40 for _ in vrs] if self.u[0] == 123.0 else super().get_integer(vrs)
+
+    def do_step(self, current_time, step_size):
+        if self.u[0] == 123.0:
+            raise RuntimeError("100% " + "x" * 5000 + " end")
+        return super().do_step(current_time, step_size)
+"""
+
+
+def test_an_integer_beyond_32_bits_is_an_error_and_a_long_message_arrives_whole(patched_mobile_robot, tmp_path):
+    """A getter's integer that an fmi2Integer cannot hold is fmi2Error with one line naming it (not a value
+    cut to 32 bits); an exception's message of 5,000 characters reaches the logger whole, its '%' doubled
+    for the logger's format."""
+    path = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', WIDE, "wide")
+    plant = Instance(read_model_description(str(path)), extract(str(path), unzipdir=tmp_path / "u"), "wide")
+    plant.initialize()
+    plant.set(("u1",), (123.0,))
+    with pytest.raises(FMICallException) as failure:
+        plant.step(0.0, 0.01)
+    assert failure.value.status == FMI2_DISCARD
+    assert any(m.endswith("RuntimeError: 100%% " + "x" * 5000 + " end") for _, m in plant.messages())
+    with pytest.raises(FMICallException) as failure:
+        plant.fmu.getInteger([plant.vr["coupling"]])
+    assert failure.value.status == FMI2_ERROR
+    assert (FMI2_ERROR, f"{plant.name}: get_integer returned {2 ** 40} for value reference {plant.vr['coupling']}; "
+            "allowed: -2147483648 to 2147483647 (an Integer has 32 bits)") in plant.messages()
+    plant.fmu.freeInstance()
+
+
 def test_messages_reach_the_importers_logger_with_their_status_and_category(new):
     """The guard's warning, a refusal's error and the discarded step: each through fmi2CallbackLogger,
     with the status the slave gave it and that status's category."""

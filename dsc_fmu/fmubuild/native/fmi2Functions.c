@@ -4,6 +4,7 @@
 
 #include <math.h>
 #include <stdio.h>
+#include <stdlib.h>
 
 #include "fmi2Functions.h"
 
@@ -16,19 +17,21 @@ typedef struct {
     fmi2CallbackFunctions functions;
 } Fmi2Instance;
 
-/* The logger takes a printf format: the message goes as a format with every '%' doubled and no
-   arguments, so loggers that format and loggers that do not both show the text. */
+/* The logger takes a printf format: the message goes as a format with every '%' doubled (in a copy, if it has
+   any) and no arguments, so loggers that format and loggers that do not both show the text. */
 static void host_log(Instance *instance, int status, const char *category, const char *message) {
     const fmi2CallbackFunctions *functions = &((Fmi2Instance *)instance)->functions;
     if (!functions->logger) return;
-    char text[4096];
-    size_t k = 0;
-    for (const char *p = message; *p && k + 2 < sizeof text; p++) {
-        if (*p == '%') text[k++] = '%';
-        text[k++] = *p;
+    size_t length = 0, signs = 0;
+    for (; message[length]; length++) signs += message[length] == '%';
+    char *doubled = signs ? malloc(length + signs + 1) : NULL;
+    for (size_t i = 0, k = 0; doubled && i <= length; i++) {
+        if (message[i] == '%') doubled[k++] = '%';
+        doubled[k++] = message[i];
     }
-    text[k] = '\0';
-    functions->logger(functions->componentEnvironment, instance->name, (fmi2Status)status, category, text);
+    const char *format = !signs ? message : doubled ? doubled : "(a message was lost: no memory to copy it)";
+    functions->logger(functions->componentEnvironment, instance->name, (fmi2Status)status, category, format);
+    free(doubled);
 }
 
 /* Warnings, errors and fatal errors are shown whatever the debug logging (section 2.1.3); OK and

@@ -25,6 +25,8 @@ typedef struct {
     unsigned int magic;
     PyObject *object;
     ModelState state;
+    char *bytes; /* serialized, kept from the first fmiSerializedFMUstateSize or fmiSerializeFMUstate; or NULL */
+    size_t size;
 } State;
 
 /* The log categories the model descriptions declare (pythonfmu's, passed by the build). A message of a
@@ -83,32 +85,45 @@ int instance_fail(Instance *instance, int status, const char *format, ...) {
 
 Instance *instance_alloc(size_t size, const char *name, int logging_on, int model_exchange, const Standard *standard) {
     Instance *instance = calloc(1, size);
-    if (!instance) return NULL;
+    char *copy = malloc(strlen(name) + 1);
+    if (!instance || !copy) {
+        free(instance);
+        free(copy);
+        return NULL;
+    }
+    instance->name = strcpy(copy, name);
     instance->magic = INSTANCE_MAGIC;
     instance->model_exchange = model_exchange;
     instance->state = Instantiated;
     instance->stop_time = INFINITY;
     instance->categories = logging_on ? ALL_CATEGORIES : 0;
     instance->standard = standard;
-    snprintf(instance->name, sizeof instance->name, "%s", name);
     slave_init(&instance->slave, instance->name, forward, instance);
     return instance;
 }
 
 int instance_start(Instance *instance, const char *function, const char *resources, const char *token, int visible) {
-    char folder[4096];
-    if (uri_to_path(resources, folder, sizeof folder) != 0) {
-        instance_log(instance, STATUS_ERROR, "%s: the resource location %s is not a file URI or an absolute path",
-                     function, resources ? resources : "(null)");
+    char *folder = resources ? malloc(strlen(resources) + 1) : NULL; /* a path is never longer than its URI */
+    if (resources && !folder) {
+        instance_log(instance, STATUS_ERROR, "%s: out of memory for the resource location", function);
         return -1;
     }
-    return slave_create(&instance->slave, folder, token, visible);
+    if (uri_to_path(resources, folder, resources ? strlen(resources) + 1 : 0) != 0) {
+        instance_log(instance, STATUS_ERROR, "%s: the resource location %s is not a file URI or an absolute path",
+                     function, resources ? resources : "(null)");
+        free(folder);
+        return -1;
+    }
+    int result = slave_create(&instance->slave, folder, token, visible);
+    free(folder);
+    return result;
 }
 
 void instance_free(Instance *instance) {
     if (!instance || instance->magic != INSTANCE_MAGIC) return;
     slave_free(&instance->slave);
     instance->magic = 0;
+    free(instance->name);
     free(instance);
 }
 
@@ -438,9 +453,12 @@ int instance_get_state(Instance *instance, void **pointer) {
         return STATUS_ERROR;
     }
     slave_release(state->object);
+    free(state->bytes);
     state->magic = STATE_MAGIC;
     state->object = object;
     state->state = instance->state;
+    state->bytes = NULL;
+    state->size = 0;
     *pointer = state;
     return STATUS_OK;
 }
@@ -463,27 +481,31 @@ int instance_free_state(Instance *instance, void **pointer) {
     State *state = valid_state(instance, *pointer);
     if (!state) return STATUS_ERROR;
     slave_release(state->object);
+    free(state->bytes);
     state->magic = 0;
     free(state);
     *pointer = NULL;
     return STATUS_OK;
 }
 
-/* Serialized: one byte with the instance's state, then native_bridge.state_to_bytes. */
-static int serialize(Instance *instance, State *state, char **bytes, size_t *size) {
+/* Serialize `state` into its `bytes`, once (fmiSerializedFMUstateSize, then fmiSerializeFMUstate of the same
+   state, run Python once; the state object does not change until it is freed or taken anew): one byte
+   with the instance's state, then native_bridge.state_to_bytes. 0, or -1 after logging why. */
+static int serialize(Instance *instance, State *state) {
+    if (state->bytes) return 0;
     char *body = NULL;
     size_t length = 0;
     if (slave_serialize(&instance->slave, state->object, &body, &length) != STATUS_OK) return -1;
-    *bytes = malloc(length + 1);
-    if (*bytes) {
-        (*bytes)[0] = (char)state->state;
-        memcpy(*bytes + 1, body, length);
-        *size = length + 1;
+    state->bytes = malloc(length + 1);
+    if (state->bytes) {
+        state->bytes[0] = (char)state->state;
+        memcpy(state->bytes + 1, body, length);
+        state->size = length + 1;
     } else {
-        instance_log(instance, STATUS_ERROR, "out of memory for the serialized FMU state");
+        instance_fail(instance, STATUS_ERROR, "out of memory for the serialized FMU state");
     }
     free(body);
-    return *bytes ? 0 : -1;
+    return state->bytes ? 0 : -1;
 }
 
 int instance_given(Instance *instance, const void *pointer, const char *what) {
@@ -493,31 +515,24 @@ int instance_given(Instance *instance, const void *pointer, const char *what) {
 
 int instance_serialized_size(Instance *instance, void *pointer, size_t *size) {
     State *state = valid_state(instance, pointer);
-    char *bytes = NULL;
-    if (!state || !instance_given(instance, size, "place for the size") ||
-        serialize(instance, state, &bytes, size) != 0) {
+    if (!state || !instance_given(instance, size, "place for the size") || serialize(instance, state) != 0) {
         return STATUS_ERROR;
     }
-    free(bytes);
+    *size = state->size;
     return STATUS_OK;
 }
 
 int instance_serialize(Instance *instance, void *pointer, char *buffer, size_t size) {
     State *state = valid_state(instance, pointer);
-    char *bytes = NULL;
-    size_t needed = 0;
-    if (!state || !instance_given(instance, buffer, "buffer") ||
-        serialize(instance, state, &bytes, &needed) != 0) {
+    if (!state || !instance_given(instance, buffer, "buffer") || serialize(instance, state) != 0) {
         return STATUS_ERROR;
     }
-    int status = STATUS_OK;
-    if (size < needed) {
-        status = instance_fail(instance, STATUS_ERROR, "the buffer holds %zu bytes, the state needs %zu", size, needed);
-    } else {
-        memcpy(buffer, bytes, needed);
+    if (size < state->size) {
+        return instance_fail(instance, STATUS_ERROR, "the buffer holds %zu bytes, the state needs %zu", size,
+                             state->size);
     }
-    free(bytes);
-    return status;
+    memcpy(buffer, state->bytes, state->size);
+    return STATUS_OK;
 }
 
 int instance_deserialize(Instance *instance, const char *buffer, size_t size, void **pointer) {

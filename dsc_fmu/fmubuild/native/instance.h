@@ -51,7 +51,7 @@ struct Instance {
     Slave slave;
     ModelState state;
     Function function; /* the call in progress (set by instance_refused): its name is in the call's messages */
-    char name[256];
+    char *name;
     int categories; /* the log categories enabled, bit i for the i-th of DSC_LOG_CATEGORIES */
     double stop_time; /* of the experiment (INFINITY: none); no step may end after it */
     int model_exchange; /* instantiated for model exchange, else co-simulation */

@@ -12,8 +12,10 @@
 #ifndef DSC_ENTRY_FILE
 #error DSC_ENTRY_FILE (the resources file that names the bridge, slave and token) must be defined
 #endif
+/* The variable tables are indexed by value reference: the largest they take (about 400 kB of tables). */
 #define MAX_VALUE_REFERENCE 100000
-#define MAX_VARIABLES 1024
+/* Room for the message of a Python that cannot start: pyhost.c's whole text (4 kB) and the advice around it. */
+#define START_ERROR_SIZE 8192
 /* The cells of a row of the variable table (native_bridge.variables). */
 enum { CELL_REFERENCE, CELL_TYPE, CELL_CAUSALITY, CELL_VARIABILITY, CELL_STATE, CELLS };
 
@@ -21,23 +23,77 @@ const char *const TYPE_NAMES[TYPES + 1] = {DSC_TYPE_NAMES};
 const char *const GET_METHODS[TYPES] = {DSC_GET_METHODS};
 const char *const SET_METHODS[TYPES] = {DSC_SET_METHODS};
 
-/* The entry file: the bridge module (its top level the build's private package), the slave's
-   module and class, and the token; read before Python is started. */
-static int read_entry(Slave *s, char bridge[256]) {
-    char path[sizeof s->resources + 32];
-    snprintf(path, sizeof path, "%s/%s", s->resources, DSC_ENTRY_FILE);
-    FILE *file = platform_open_file(path, "r");
-    if (!file) {
-        say(s, STATUS_ERROR, "cannot read %s: the FMU's resources are incomplete", path);
-        return -1;
+/* A new string: the first `length` characters of `text`; NULL if out of memory. */
+static char *copy_text(const char *text, size_t length) {
+    char *copy = malloc(length + 1);
+    if (!copy) return NULL;
+    memcpy(copy, text, length);
+    copy[length] = '\0';
+    return copy;
+}
+
+/* A new string: the path of the file `name` + `suffix` in `folder`, every '.' of `name` a '/' if `dotted`
+   (a module's file). NULL if out of memory. */
+static char *file_in(const char *folder, const char *name, const char *suffix, int dotted) {
+    size_t head = strlen(folder), length = strlen(name), tail = strlen(suffix);
+    char *path = malloc(head + 1 + length + tail + 1);
+    if (!path) return NULL;
+    memcpy(path, folder, head);
+    path[head] = '/';
+    for (size_t i = 0; i < length; i++) path[head + 1 + i] = dotted && name[i] == '.' ? '/' : name[i];
+    memcpy(path + head + 1 + length, suffix, tail + 1);
+    return path;
+}
+
+/* The whole text of the (small) file `file`, a new string; NULL if it cannot be read or memory runs out. */
+static char *read_text(FILE *file) {
+    size_t size = 0, room = 256;
+    char *text = malloc(room);
+    for (size_t got; text && (got = fread(text + size, 1, room - 1 - size, file)) > 0;) {
+        size += got;
+        char *larger = size + 1 < room ? text : realloc(text, room *= 2);
+        if (!larger) free(text);
+        text = larger;
     }
-    int found = fscanf(file, "%255s %255s %127s %127s", bridge, s->module, s->class_name, s->token);
-    fclose(file);
-    if (found != 4 || !strchr(bridge, '.')) {
-        say(s, STATUS_ERROR, "%s does not name the bridge, module, class and token", path);
-        return -1;
+    if (text && ferror(file)) {
+        free(text);
+        return NULL;
     }
-    return 0;
+    if (text) text[size] = '\0';
+    return text;
+}
+
+/* The next whitespace-separated word at `*cursor`, ended in place, `*cursor` moved past it; NULL if none. */
+static const char *next_word(char **cursor) {
+    char *word = *cursor + strspn(*cursor, " \t\r\n");
+    if (!*word) return NULL;
+    char *end = word + strcspn(word, " \t\r\n");
+    *cursor = *end ? end + 1 : end;
+    *end = '\0';
+    return word;
+}
+
+/* The entry file: the bridge module (its top level the build's private package, in `*bridge`), the slave's
+   module and class, and the token, kept in `s->entry`; read before Python is started. */
+static int read_entry(Slave *s, const char **bridge) {
+    char *path = file_in(s->resources, DSC_ENTRY_FILE, "", 0);
+    FILE *file = path ? platform_open_file(path, "r") : NULL;
+    s->entry = file ? read_text(file) : NULL;
+    if (file) fclose(file);
+    char *cursor = s->entry;
+    *bridge = cursor ? next_word(&cursor) : NULL;
+    s->module = *bridge ? next_word(&cursor) : NULL;
+    s->class_name = s->module ? next_word(&cursor) : NULL;
+    s->token = s->class_name ? next_word(&cursor) : NULL;
+    int result = -1;
+    if (!path) say(s, STATUS_ERROR, "out of memory for the path of the entry file in %s", s->resources);
+    else if (!file) say(s, STATUS_ERROR, "cannot read %s: the FMU's resources are incomplete", path);
+    else if (!s->entry) say(s, STATUS_ERROR, "cannot read %s to its end", path);
+    else if (!s->token || !strchr(*bridge, '.')) say(s, STATUS_ERROR, "%s does not name the bridge, module, class "
+                                                      "and token", path);
+    else result = 0;
+    free(path);
+    return result;
 }
 
 /* Hold (`hold` 1) or release (0) the import system's lock, under which the instances of a build are
@@ -85,11 +141,13 @@ static PyObject *load_file(const char *name, const char *path) {
 static int import_bridge(Slave *s, const char *bridge) {
     PyObject *modules = py.PySys_GetObject("modules");
     PyObject *known = modules ? py.PyDict_GetItemString(modules, bridge) : NULL;
-    char path[sizeof s->resources + 256];
-    int written = snprintf(path, sizeof path, "%s/", s->resources);
-    for (const char *p = bridge; *p && written + 4 < (int)sizeof path; p++) path[written++] = *p == '.' ? '/' : *p;
-    snprintf(path + written, sizeof path - written, ".py");
+    char *path = known ? NULL : file_in(s->resources, bridge, ".py", 1);
+    if (!known && !path) {
+        say(s, STATUS_ERROR, "out of memory for the path of the module %s", bridge);
+        return -1;
+    }
     s->bridge = known ? borrowed(known) : load_file(bridge, path);
+    free(path);
     PyObject *items[] = {py.PyUnicode_FromString(s->resources)};
     PyObject *counted = s->bridge ? bridge_call(s, "acquire", pack(1, items)) : NULL;
     if (!counted) {
@@ -151,18 +209,25 @@ static int adopt_slave(Slave *s, PyObject *slave) {
     return 0;
 }
 
-/* The numbers of continuous states and event indicators (native_bridge.dimensions). */
-static int read_dimensions(Slave *s) {
+/* The numbers of continuous states and event indicators (native_bridge.dimensions), each at most the number
+   of variables, `variables`. */
+static int read_dimensions(Slave *s, Py_ssize_t variables) {
     PyObject *items[] = {borrowed(s->slave)};
     PyObject *sizes = bridge_call(s, "dimensions", pack(1, items));
     PyObject *nx = sizes ? py.PySequence_GetItem(sizes, 0) : NULL;
-    PyObject *nz = sizes ? py.PySequence_GetItem(sizes, 1) : NULL;
-    long states = nx ? py.PyLong_AsLong(nx) : -1, indicators = nz ? py.PyLong_AsLong(nz) : -1;
+    PyObject *nz = nx ? py.PySequence_GetItem(sizes, 1) : NULL;
+    long states = nz ? py.PyLong_AsLong(nx) : -1;
+    long indicators = nz && !py.PyErr_Occurred() ? py.PyLong_AsLong(nz) : -1;
     clear(&nz);
     clear(&nx);
     clear(&sizes);
-    if (py.PyErr_Occurred() || states < 0 || indicators < 0 || states > MAX_VARIABLES || indicators > MAX_VARIABLES) {
+    if (py.PyErr_Occurred()) {
         log_exception(s, STATUS_ERROR, "reading the numbers of states and event indicators");
+        return -1;
+    }
+    if (states < 0 || indicators < 0 || states > variables || indicators > variables) {
+        say(s, STATUS_ERROR, "the slave has %ld continuous states and %ld event indicators; allowed: 0 to %zd, its "
+            "number of variables, each", states, indicators, variables);
         return -1;
     }
     s->nx = (size_t)states;
@@ -172,48 +237,46 @@ static int read_dimensions(Slave *s) {
     return s->x ? 0 : -1;
 }
 
+/* The name and allowed values of each cell of a row of the variable table. */
+static const char *const CELL_NAMES[CELLS] = {"value reference", "type", "causality", "variability", "state"};
+static const long CELL_LIMITS[CELLS][2] = {
+    [CELL_REFERENCE] = {0, MAX_VALUE_REFERENCE - 1}, [CELL_TYPE] = {-128, 127}, [CELL_CAUSALITY] = {-128, 127},
+    [CELL_VARIABILITY] = {-128, 127}, [CELL_STATE] = {0, 1},
+};
+
 /* Row `i` of the variable table: value reference, type, causality, variability and whether a state, in
-   `cells`; 0, or -1 (the exception set, or a cell that is not a number) with every cell -1. */
-static int read_row(PyObject *table, Py_ssize_t i, long cells[CELLS]) {
+   `cells`; 0, or -1 after logging why (a Python error, a cell that is not a number or out of range). */
+static int read_row(Slave *s, PyObject *table, Py_ssize_t i, long cells[CELLS]) {
     PyObject *row = py.PySequence_GetItem(table, i);
-    int complete = row != NULL;
-    for (int k = 0; k < CELLS; k++) {
-        PyObject *cell = complete ? py.PySequence_GetItem(row, k) : NULL;
+    int k = 0, complete = row != NULL;
+    for (; complete && k < CELLS; k++) {
+        PyObject *cell = py.PySequence_GetItem(row, k);
         cells[k] = cell ? py.PyLong_AsLong(cell) : -1;
         complete = cell && !py.PyErr_Occurred();
         clear(&cell);
     }
     clear(&row);
-    if (complete) return 0;
-    for (int k = 0; k < CELLS; k++) cells[k] = -1;
-    return -1;
+    if (!complete) {
+        log_exception(s, STATUS_ERROR, "reading the variable table");
+        return -1;
+    }
+    for (k = 0; k < CELLS; k++) {
+        if (cells[k] < CELL_LIMITS[k][0] || cells[k] > CELL_LIMITS[k][1]) {
+            say(s, STATUS_ERROR, "row %zd of the variable table has the %s %ld; allowed: %ld to %ld", i, CELL_NAMES[k],
+                cells[k], CELL_LIMITS[k][0], CELL_LIMITS[k][1]);
+            return -1;
+        }
+    }
+    return 0;
 }
 
-static int read_variables(Slave *s) {
-    PyObject *items[] = {borrowed(s->slave)};
-    PyObject *table = bridge_call(s, "variables", pack(1, items));
-    Py_ssize_t n = table ? py.PySequence_Size(table) : -1;
-    long rows[CELLS * MAX_VARIABLES];
-    if (n < 0 || n > MAX_VARIABLES) {
-        clear(&table);
-        if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
-        else say(s, STATUS_ERROR, "the slave has %zd variables; allowed: at most %d", n, MAX_VARIABLES);
-        return -1;
-    }
+/* The variable table of the slave's `n` variables, `rows`, by value reference, and the model's dimensions. */
+static int fill_tables(Slave *s, const long *rows, Py_ssize_t n) {
     long largest = -1;
-    int valid = 1;
-    for (Py_ssize_t i = 0; i < n && valid; i++) {
-        long *row = &rows[CELLS * i];
-        valid = read_row(table, i, row) == 0;
-        if (valid && row[CELL_REFERENCE] > largest) largest = row[CELL_REFERENCE];
+    for (Py_ssize_t i = 0; i < n; i++) {
+        if (rows[CELLS * i + CELL_REFERENCE] > largest) largest = rows[CELLS * i + CELL_REFERENCE];
     }
-    clear(&table);
-    if (!valid || largest >= MAX_VALUE_REFERENCE) {
-        py.PyErr_Clear();
-        say(s, STATUS_ERROR, "the variable table of the slave is not valid");
-        return -1;
-    }
-    if (read_dimensions(s) != 0) return -1;
+    if (read_dimensions(s, n) != 0) return -1;
     s->size = (unsigned int)(largest + 1);
     s->type = malloc(s->size ? s->size : 1);
     s->causality = malloc(s->size ? s->size : 1);
@@ -226,13 +289,28 @@ static int read_variables(Slave *s) {
     memset(s->type, NO_VARIABLE, s->size);
     for (Py_ssize_t i = 0; i < n; i++) {
         const long *row = &rows[CELLS * i];
-        if (row[CELL_REFERENCE] < 0) continue;
         s->type[row[CELL_REFERENCE]] = (signed char)row[CELL_TYPE];
         s->causality[row[CELL_REFERENCE]] = (signed char)row[CELL_CAUSALITY];
         s->variability[row[CELL_REFERENCE]] = (signed char)row[CELL_VARIABILITY];
         s->is_state[row[CELL_REFERENCE]] = row[CELL_STATE] == 1;
     }
     return 0;
+}
+
+/* The slave's variable table (native_bridge.variables), read into memory of the table's size. */
+static int read_variables(Slave *s) {
+    PyObject *items[] = {borrowed(s->slave)};
+    PyObject *table = bridge_call(s, "variables", pack(1, items));
+    Py_ssize_t n = table ? py.PySequence_Size(table) : -1;
+    long *rows = n >= 0 ? malloc(sizeof *rows * CELLS * (size_t)(n ? n : 1)) : NULL;
+    int result = rows ? 0 : -1;
+    if (n < 0) log_exception(s, STATUS_ERROR, "reading the variable table");
+    else if (!rows) say(s, STATUS_ERROR, "out of memory for the variable table of %zd variables", n);
+    for (Py_ssize_t i = 0; result == 0 && i < n; i++) result = read_row(s, table, i, &rows[CELLS * i]);
+    clear(&table);
+    if (result == 0) result = fill_tables(s, rows, n);
+    free(rows);
+    return result;
 }
 
 /* Count one user less of the build's package; the last forgets its modules (native_bridge.release).
@@ -263,21 +341,32 @@ void slave_init(Slave *s, const char *instance_name, SlaveLog log, void *context
     s->last = &s->messages;
 }
 
+/* Start Python if needed: 0, or -1 after logging why not. */
+static int start_python(Slave *s) {
+    char *error = malloc(START_ERROR_SIZE);
+    if (!error) {
+        say(s, STATUS_ERROR, "out of memory for starting Python");
+        return -1;
+    }
+    int result = pyhost_start(error, START_ERROR_SIZE);
+    if (result != 0) say(s, STATUS_ERROR, "%s", error);
+    free(error);
+    return result;
+}
+
 int slave_create(Slave *s, const char *resources, const char *token, int visible) {
     s->visible = visible;
-    snprintf(s->resources, sizeof s->resources, "%s", resources);
-    size_t length = strlen(s->resources);
-    while (length > 1 && s->resources[length - 1] == '/') s->resources[--length] = '\0';
-    char bridge[256] = "", error[3072];
-    int result = read_entry(s, bridge);
+    size_t length = strlen(resources);
+    while (length > 1 && resources[length - 1] == '/') length--;
+    s->resources = copy_text(resources, length);
+    const char *bridge = NULL;
+    int result = s->resources ? read_entry(s, &bridge) : -1;
+    if (!s->resources) say(s, STATUS_ERROR, "out of memory for the path of the resources");
     if (result == 0 && (!token || strcmp(token, s->token) != 0)) {
         say(s, STATUS_ERROR, "the token %s does not match this FMU's %s", token ? token : "(null)", s->token);
         result = -1;
     }
-    if (result == 0 && pyhost_start(error, sizeof error) != 0) {
-        say(s, STATUS_ERROR, "%s", error);
-        result = -1;
-    }
+    if (result == 0) result = start_python(s);
     if (result == 0) {
         PyGILState_STATE gil = pyhost_enter();
         int locked = lock_imports(s);
@@ -323,6 +412,10 @@ void slave_free(Slave *s) {
     }
     free(s->x);
     s->x = NULL;
+    free(s->entry);
+    free(s->resources);
+    s->entry = s->resources = NULL;
+    s->module = s->class_name = s->token = NULL;
     free(s->type);
     free(s->causality);
     free(s->variability);

@@ -54,11 +54,11 @@ typedef enum { C_DOUBLE, C_INT, C_INT32, C_BOOL_INT, C_BOOL_BYTE } CType;
 
 typedef void (*SlaveLog)(void *context, int status, const char *category, const char *message);
 
-/* A message waiting for the GIL to be released. */
+/* A message waiting for the GIL to be released: one block, the category after the text. */
 typedef struct Message {
     struct Message *next;
     int status;
-    char category[32];
+    const char *category;
     char text[];
 } Message;
 
@@ -67,10 +67,11 @@ typedef struct {
     PyObject *slave;
     PyObject *log_queue;
     PyObject *bound[BOUND_METHODS];
-    char module[256];
-    char class_name[128];
-    char token[128];            /* the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
-    char resources[4096];
+    char *entry;                /* the entry file's text, its words ended in place: */
+    const char *module;         /*   the slave's module, */
+    const char *class_name;     /*   its class */
+    const char *token;          /*   and the GUID (FMI 2.0) or instantiation token (FMI 3.0) */
+    char *resources;            /* the resources folder's path */
     const char *instance_name;  /* the instance's, which outlives the slave */
     int visible;
     size_t nx;                  /* continuous states (model exchange) */
@@ -86,8 +87,9 @@ typedef struct {
     SlaveLog log;
     void *context;
     Message *messages;          /* queued while the GIL is held */
-    int interrupted;            /* a KeyboardInterrupt to raise again in the host once the GIL is released */
     Message **last;
+    int lost;                   /* messages that found no memory since the last delivery: counted, then reported */
+    int interrupted;            /* a KeyboardInterrupt to raise again in the host once the GIL is released */
 } Slave;
 
 /* An empty slave of the instance `instance_name` (which must outlive it) whose messages go to `log`. */
@@ -134,7 +136,9 @@ typedef struct {
 int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange);
 
 /* Call a method of the slave with `n` float arguments (None where `defined`, if not NULL, is 0).
-   STATUS_OK, or STATUS_ERROR after logging the exception. */
+   STATUS_OK, or STATUS_ERROR after logging the exception. Like every call below that runs the slave, it
+   first hands over what model exchange set (set_point); if that fails, STATUS_ERROR (logged) and nothing
+   else runs. */
 int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined);
 
 /* do_step(time, step): STATUS_OK with `accepted` the slave's answer, or STATUS_DISCARD after logging

@@ -21,36 +21,30 @@ void clear(PyObject **object) {
     *object = NULL;
 }
 
-/* The pending exception as "Type: message" in `text`; clears it. 1 if it was a KeyboardInterrupt. */
-static int exception_text(char *text, size_t size) {
+/* Log the pending exception as the failure of `doing` ("<doing> failed: Type: message", whole) and clear it.
+   A KeyboardInterrupt (the host's Ctrl-C arriving while the model code ran) is not the model's failure: the
+   call still fails, and the interrupt is raised again in the host's Python once the call has returned
+   (``leave``). */
+void log_exception(Slave *s, int status, const char *doing) {
     PyObject *error = pyhost_take_error();
-    int interrupt = error && py.PyErr_GivenExceptionMatches(error, *py.PyExc_KeyboardInterrupt);
     PyObject *type = error ? py.PyObject_Type(error) : NULL;
     PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
     const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
     PyObject *str = error ? py.PyObject_Str(error) : NULL;
     const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
-    if (error) snprintf(text, size, "%s: %s", name ? name : "exception", detail ? detail : "(no message)");
-    else snprintf(text, size, "no Python exception was raised");
+    if (error && py.PyErr_GivenExceptionMatches(error, *py.PyExc_KeyboardInterrupt)) {
+        say(s, status, "%s interrupted: the KeyboardInterrupt goes on to the host", doing);
+        s->interrupted = 1;
+    } else if (error) {
+        say(s, status, "%s failed: %s: %s", doing, name ? name : "exception", detail ? detail : "(no message)");
+    } else {
+        say(s, status, "%s failed: no Python exception was raised", doing);
+    }
     py.PyErr_Clear();
     clear(&str);
     clear(&type_name);
     clear(&type);
     clear(&error);
-    return interrupt;
-}
-
-/* Log the pending exception as the failure of `doing` and clear it. A KeyboardInterrupt (the host's
-   Ctrl-C arriving while the model code ran) is not the model's failure: the call still fails, and
-   the interrupt is raised again in the host's Python once the call has returned (``leave``). */
-void log_exception(Slave *s, int status, const char *doing) {
-    char text[1536];
-    if (exception_text(text, sizeof text)) {
-        say(s, status, "%s interrupted: the KeyboardInterrupt goes on to the host", doing);
-        s->interrupted = 1;
-    } else {
-        say(s, status, "%s failed: %s", doing, text);
-    }
 }
 
 PyObject *pack(int n, PyObject **items) {
@@ -58,10 +52,20 @@ PyObject *pack(int n, PyObject **items) {
     for (int i = 0; i < n; i++) complete = complete && items[i];
     PyObject *tuple = complete ? py.PyTuple_New(n) : NULL;
     for (int i = 0; i < n; i++) {
-        if (tuple) py.PyTuple_SetItem(tuple, i, items[i]);
-        else if (items[i]) py.Py_DecRef(items[i]);
+        if (!tuple) clear(&items[i]);
+        else if (py.PyTuple_SetItem(tuple, i, items[i]) != 0) clear(&tuple); /* it released the item */
     }
     return tuple;
+}
+
+void put(PyObject **list, size_t i, PyObject *item) {
+    if (!item || py.PyList_SetItem(*list, (Py_ssize_t)i, item) != 0) clear(list); /* it released the item */
+}
+
+PyObject *float_list(const double *values, size_t n) {
+    PyObject *list = py.PyList_New((Py_ssize_t)n);
+    for (size_t i = 0; list && i < n; i++) put(&list, i, py.PyFloat_FromDouble(values[i]));
+    return list;
 }
 
 PyObject *borrowed(PyObject *object) {
@@ -80,23 +84,45 @@ PyObject *bridge_call(Slave *s, const char *name, PyObject *args) {
     return call(py.PyObject_GetAttrString(s->bridge, name), args);
 }
 
-/* Hand the time and states set since the slave's last call to its set_point (the GIL held). */
-static void apply_pending(Slave *s) {
-    PyObject *states = s->pending & PENDING_STATES ? py.PyList_New((Py_ssize_t)s->nx) : borrowed(py.None);
-    for (size_t i = 0; states && s->pending & PENDING_STATES && i < s->nx; i++) {
-        py.PyList_SetItem(states, (Py_ssize_t)i, py.PyFloat_FromDouble(s->x[i]));
-    }
-    PyObject *items[] = {s->pending & PENDING_TIME ? py.PyFloat_FromDouble(s->time) : borrowed(py.None), states};
+/* Hand the time and states set since the slave's last call to its set_point (the GIL held): 0, or -1 after
+   logging why (they stay pending). */
+static int apply_pending(Slave *s) {
+    PyObject *items[] = {s->pending & PENDING_TIME ? py.PyFloat_FromDouble(s->time) : borrowed(py.None),
+                         s->pending & PENDING_STATES ? float_list(s->x, s->nx) : borrowed(py.None)};
     PyObject *result = call(borrowed(s->bound[BOUND_SET_POINT]), pack(2, items));
-    if (!result) log_exception(s, STATUS_ERROR, "set_point");
+    if (!result) {
+        log_exception(s, STATUS_ERROR, "set_point");
+        return -1;
+    }
     clear(&result);
     s->pending = 0;
+    return 0;
 }
 
-PyGILState_STATE enter(Slave *s) {
-    PyGILState_STATE gil = pyhost_enter();
-    if (s->pending) apply_pending(s);
-    return gil;
+int enter(Slave *s, PyGILState_STATE *gil) {
+    *gil = pyhost_enter();
+    return s->pending && apply_pending(s) != 0 ? STATUS_ERROR : STATUS_OK;
+}
+
+/* Queue message `i` of `messages`, what the slave logged: (status, category, text); a status that is not
+   one of FMI's is an error's. 0, or -1 with the exception set. */
+static int queue_logged(Slave *s, PyObject *messages, Py_ssize_t i) {
+    PyObject *message = py.PySequence_GetItem(messages, i);
+    PyObject *status = message ? py.PySequence_GetItem(message, 0) : NULL;
+    PyObject *category = status ? py.PySequence_GetItem(message, 1) : NULL;
+    PyObject *text = category ? py.PySequence_GetItem(message, 2) : NULL;
+    long code = text ? py.PyLong_AsLong(status) : -1;
+    const char *category_text = text && !py.PyErr_Occurred() ? py.PyUnicode_AsUTF8(category) : NULL;
+    const char *message_text = category_text ? py.PyUnicode_AsUTF8(text) : NULL;
+    if (message_text) {
+        queue_message(s, code >= STATUS_OK && code <= STATUS_FATAL ? (int)code : STATUS_ERROR, category_text,
+                      message_text);
+    }
+    clear(&text);
+    clear(&category);
+    clear(&status);
+    clear(&message);
+    return message_text ? 0 : -1;
 }
 
 void drain_log(Slave *s) {
@@ -106,24 +132,17 @@ void drain_log(Slave *s) {
     }
     PyObject *items[] = {borrowed(s->slave)};
     PyObject *messages = bridge_call(s, "drain_log", pack(1, items));
-    Py_ssize_t n = messages ? py.PySequence_Size(messages) : 0;
-    for (Py_ssize_t i = 0; i < n; i++) {
-        PyObject *message = py.PySequence_GetItem(messages, i);
-        PyObject *status = message ? py.PySequence_GetItem(message, 0) : NULL;
-        PyObject *category = message ? py.PySequence_GetItem(message, 1) : NULL;
-        PyObject *text = message ? py.PySequence_GetItem(message, 2) : NULL;
-        const char *category_text = category ? py.PyUnicode_AsUTF8(category) : NULL;
-        const char *message_text = text ? py.PyUnicode_AsUTF8(text) : NULL;
-        if (status && category_text && message_text) {
-            queue_message(s, (int)py.PyLong_AsLong(status), category_text, message_text);
-        }
-        clear(&text);
-        clear(&category);
-        clear(&status);
-        clear(&message);
-    }
+    Py_ssize_t n = messages ? py.PySequence_Size(messages) : -1;
+    int read = n >= 0;
+    for (Py_ssize_t i = 0; read && i < n; i++) read = queue_logged(s, messages, i) == 0;
     clear(&messages);
-    py.PyErr_Clear();
+    if (!read) log_exception(s, STATUS_WARNING, "reading the messages the slave logged");
+}
+
+int done(Slave *s, PyGILState_STATE gil, int status) {
+    drain_log(s);
+    leave(s, gil);
+    return status;
 }
 
 int finished(Slave *s, PyGILState_STATE gil, PyObject *result, int failure, const char *what) {
@@ -133,30 +152,32 @@ int finished(Slave *s, PyGILState_STATE gil, PyObject *result, int failure, cons
         status = failure;
     }
     clear(&result);
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return done(s, gil, status);
 }
 
-/* A tuple of `n` floats; where `defined` (if not NULL) is 0, None. */
+/* A tuple of the `n` floats of `values`, None where `defined` (if not NULL) is 0; NULL with the exception set. */
 static PyObject *doubles(int n, const double *values, const int *defined) {
-    PyObject *items[8] = {NULL};
-    for (int i = 0; i < n && i < 8; i++) {
-        items[i] = !defined || defined[i] ? py.PyFloat_FromDouble(values[i]) : borrowed(py.None);
+    PyObject *tuple = py.PyTuple_New(n);
+    for (int i = 0; tuple && i < n; i++) {
+        PyObject *item = !defined || defined[i] ? py.PyFloat_FromDouble(values[i]) : borrowed(py.None);
+        if (!item || py.PyTuple_SetItem(tuple, i, item) != 0) clear(&tuple); /* it released the item */
     }
-    return pack(n < 8 ? n : 8, items);
+    return tuple;
 }
 
 /* Call the method `method` of the slave (`cached`, its bound method, if not NULL) with `n` floats;
-   STATUS_OK, or `failure` after logging the exception. `truth` (if not NULL) receives whether the
-   result is true. */
+   STATUS_OK, or `failure` after logging the exception (STATUS_ERROR if what model exchange set could not be
+   handed over first). `truth` (if not NULL) receives whether the result is true. */
 static int call_logged(Slave *s, const char *method, PyObject *cached, int n, const double *values,
                        const int *defined, int failure, int *truth) {
-    PyGILState_STATE gil = enter(s);
+    PyGILState_STATE gil;
+    if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *function = cached ? borrowed(cached) : py.PyObject_GetAttrString(s->slave, method);
     PyObject *args = n ? doubles(n, values, defined) : NULL;
     PyObject *result = call(function, args);
-    if (result && truth) *truth = py.PyObject_IsTrue(result) == 1;
+    int answer = result && truth ? py.PyObject_IsTrue(result) : 0;
+    if (answer < 0) clear(&result); /* its truth raised: the call's failure */
+    if (truth) *truth = answer == 1;
     return finished(s, gil, result, failure, method);
 }
 

@@ -21,10 +21,14 @@ void say(Slave *s, int status, const char *format, ...);
 
 /* --- calls into Python (slave_calls.c); all but `enter` with the GIL held ------------------------------ */
 
-/* Take the GIL for a call of the slave, which first sees what model exchange set since its last call. */
-PyGILState_STATE enter(Slave *s);
+/* Take the GIL (in `*gil`) for a call of the slave, which first sees what model exchange set since its last
+   call: STATUS_OK, or STATUS_ERROR after logging why it could not (the GIL is held all the same; what was set
+   stays pending). */
+int enter(Slave *s, PyGILState_STATE *gil);
 /* Release the GIL, then deliver what was queued under it. */
 void leave(Slave *s, PyGILState_STATE gil);
+/* Queue the slave's log messages, leave (`gil`) and return `status`. */
+int done(Slave *s, PyGILState_STATE gil, int status);
 
 /* Release `*object` (if any) and set it to NULL. */
 void clear(PyObject **object);
@@ -32,6 +36,11 @@ void clear(PyObject **object);
 PyObject *borrowed(PyObject *object);
 /* A tuple of `n` new references, which it steals; NULL (the exception set) if any is NULL. */
 PyObject *pack(int n, PyObject **items);
+/* Put `item` (a new reference, which it steals, or NULL with the exception set) at `i` of the list `*list`;
+   if that fails, the list is released and `*list` is NULL, the exception set. */
+void put(PyObject **list, size_t i, PyObject *item);
+/* A list of the `n` floats of `values`; NULL with the exception set. */
+PyObject *float_list(const double *values, size_t n);
 /* Call `function` (a new reference, which it steals) with `args` (stolen; NULL for none, unless an
    exception is set: then the arguments failed and nothing is called). */
 PyObject *call(PyObject *function, PyObject *args);

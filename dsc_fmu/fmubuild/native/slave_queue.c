@@ -16,16 +16,32 @@ const char *slave_category(int status) {
     return STATUS_CATEGORIES[status >= STATUS_OK && status <= STATUS_FATAL ? status : STATUS_FATAL];
 }
 
-void queue_message(Slave *s, int status, const char *category, const char *text) {
-    size_t length = strlen(text);
-    Message *message = malloc(sizeof *message + length + 1);
-    if (!message) return;
+/* A message of `status` and `category` with room for a text of `length` characters, not yet queued; NULL
+   (counted as lost) if there is no memory for it. */
+static Message *new_message(Slave *s, int status, const char *category, size_t length) {
+    size_t category_size = strlen(category) + 1;
+    Message *message = malloc(sizeof *message + length + 1 + category_size);
+    if (!message) {
+        s->lost++;
+        return NULL;
+    }
     message->next = NULL;
     message->status = status;
-    snprintf(message->category, sizeof message->category, "%s", category);
-    memcpy(message->text, text, length + 1);
+    message->category = memcpy(message->text + length + 1, category, category_size);
+    return message;
+}
+
+static void append(Slave *s, Message *message) {
     *s->last = message;
     s->last = &message->next;
+}
+
+void queue_message(Slave *s, int status, const char *category, const char *text) {
+    size_t length = strlen(text);
+    Message *message = new_message(s, status, category, length);
+    if (!message) return;
+    memcpy(message->text, text, length + 1);
+    append(s, message);
 }
 
 void slave_deliver(Slave *s) {
@@ -38,14 +54,30 @@ void slave_deliver(Slave *s) {
         free(message);
         message = next;
     }
+    if (s->lost) {
+        char text[160];
+        snprintf(text, sizeof text, "%s: %d messages were lost: no memory to queue them", s->instance_name, s->lost);
+        s->lost = 0;
+        s->log(s->context, STATUS_WARNING, slave_category(STATUS_WARNING), text);
+    }
 }
 
+/* Formatted in place, at its full length: measured first, then written into the message's own block. */
 void slave_vlog(Slave *s, int status, const char *call, const char *format, va_list args) {
-    char message[2048];
-    int k = call ? snprintf(message, sizeof message, "%s: %s: ", s->instance_name, call)
-                 : snprintf(message, sizeof message, "%s: ", s->instance_name);
-    vsnprintf(message + k, sizeof message - k, format, args);
-    queue_message(s, status, slave_category(status), message);
+    va_list again;
+    va_copy(again, args);
+    const char *separator = call ? ": " : "";
+    call = call ? call : "";
+    int prefix = snprintf(NULL, 0, "%s: %s%s", s->instance_name, call, separator);
+    int body = vsnprintf(NULL, 0, format, args);
+    Message *message = prefix < 0 || body < 0 ? NULL
+                       : new_message(s, status, slave_category(status), (size_t)prefix + (size_t)body);
+    if (message) {
+        snprintf(message->text, (size_t)prefix + 1, "%s: %s%s", s->instance_name, call, separator);
+        vsnprintf(message->text + prefix, (size_t)body + 1, format, again);
+        append(s, message);
+    }
+    va_end(again);
 }
 
 void say(Slave *s, int status, const char *format, ...) {

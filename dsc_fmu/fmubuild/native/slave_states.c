@@ -8,13 +8,15 @@
 
 /* `finished` releases a reference of its own: the caller keeps the state (also in slave_deserialize). */
 int slave_get_state(Slave *s, PyObject **state) {
-    PyGILState_STATE gil = enter(s);
+    PyGILState_STATE gil;
+    if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     *state = call(py.PyObject_GetAttrString(s->slave, "_get_fmu_state"), NULL);
     return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "getting the FMU state");
 }
 
 int slave_set_state(Slave *s, PyObject *state) {
-    PyGILState_STATE gil = enter(s);
+    PyGILState_STATE gil;
+    if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *items[] = {borrowed(state)};
     PyObject *result = call(py.PyObject_GetAttrString(s->slave, "_set_fmu_state"), pack(1, items));
     return finished(s, gil, result, STATUS_ERROR, "setting the FMU state");
@@ -28,7 +30,8 @@ void slave_release(PyObject *object) {
 }
 
 int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
-    PyGILState_STATE gil = enter(s);
+    PyGILState_STATE gil;
+    if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *items[] = {borrowed(s->slave), borrowed(state)};
     PyObject *data = bridge_call(s, "state_to_bytes", pack(2, items));
     char *buffer = NULL;
@@ -44,13 +47,12 @@ int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size) {
         say(s, STATUS_ERROR, "out of memory for the serialized FMU state");
     }
     clear(&data);
-    drain_log(s);
-    leave(s, gil);
-    return status;
+    return done(s, gil, status);
 }
 
 int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state) {
-    PyGILState_STATE gil = enter(s);
+    PyGILState_STATE gil;
+    if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *items[] = {borrowed(s->slave), py.PyBytes_FromStringAndSize(bytes, (Py_ssize_t)size)};
     *state = bridge_call(s, "state_from_bytes", pack(2, items));
     return finished(s, gil, *state ? borrowed(*state) : NULL, STATUS_ERROR, "deserializing the FMU state");
