@@ -19,6 +19,11 @@
      steps N STEPS THREADED  N instances, each doing STEPS steps of 1 ms: one after another on this
                              thread (THREADED 0), or each on a thread of its own at once (1). Prints
                              "seconds=S", the wall time of the steps.
+     stack KB STEPS VR...    one instance's whole life on a thread with a stack of KB kB (0: on this
+                             thread): instantiate, initialise, STEPS steps of 1 ms, free; in a process
+                             that has not called the FMU before, so that its first call, which finds
+                             and starts CPython, is made there too. Prints "time,value,..." with the
+                             Real (Float64) VRs at t = 0 and after every step; messages go to stderr.
    Exits 1 with a message on any failing call. Builds for Linux and Windows (pthreads: MinGW-w64's). */
 
 #include <errno.h>
@@ -380,6 +385,79 @@ static int run_steppers(Fmu *fmu, int n, int steps, int threaded) {
     return 0;
 }
 
+/* --- stack -------------------------------------------------------------------------------------------- */
+
+typedef struct {
+    Fmu *fmu;
+    int steps;
+    const unsigned int *vr;
+    size_t n;
+} Life;
+
+static void *instantiate_logged(Fmu *fmu) {
+    static fmi2CallbackFunctions callbacks = {logger2, calloc, free, NULL, NULL};
+    void *c = fmu->version == 2
+        ? ((fmi2InstantiateTYPE *)symbol(fmu, "fmi2Instantiate"))(fmu->model, fmi2CoSimulation, fmu->token,
+                                                                fmu->resources, &callbacks, fmi2False, fmi2True)
+        : ((fmi3InstantiateCoSimulationTYPE *)symbol(fmu, "fmi3InstantiateCoSimulation"))(
+              fmu->model, fmu->token, fmu->resources, fmi3False, fmi3True, fmi3False, fmi3False, NULL, 0, NULL,
+              logger3, NULL);
+    if (!c) fail("instantiating %s returned NULL", fmu->model);
+    return c;
+}
+
+static void print_row(Fmu *fmu, void *c, const Life *life, double t, double *values) {
+    if (fmu->version == 2) {
+        check(((fmi2GetRealTYPE *)symbol(fmu, "fmi2GetReal"))(c, life->vr, life->n, values), "get");
+    } else {
+        check(((fmi3GetFloat64TYPE *)symbol(fmu, "fmi3GetFloat64"))(c, life->vr, life->n, values, life->n), "get");
+    }
+    printf("%.17g", t);
+    for (size_t i = 0; i < life->n; i++) printf(",%.17g", values[i]);
+    printf("\n");
+}
+
+static void *live(void *argument) {
+    Life *life = argument;
+    Fmu *fmu = life->fmu;
+    double *values = calloc(life->n ? life->n : 1, sizeof *values); /* not on the small stack under test */
+    if (!values) fail("out of memory");
+    void *c = instantiate_logged(fmu);
+    initialize(fmu, c);
+    print_row(fmu, c, life, 0.0, values);
+    for (int k = 0; k < life->steps; k++) {
+        step(fmu, c, k * 1e-3, 1e-3);
+        print_row(fmu, c, life, (k + 1) * 1e-3, values);
+    }
+    if (fmu->version == 2) check(((fmi2TerminateTYPE *)symbol(fmu, "fmi2Terminate"))(c), "terminate");
+    else check(((fmi3TerminateTYPE *)symbol(fmu, "fmi3Terminate"))(c), "terminate");
+    release(fmu, c);
+    free(values);
+    return NULL;
+}
+
+static int run_stack(Fmu *fmu, int kb, int steps, char **refs, int n) {
+    unsigned int *vr = calloc(n ? (size_t)n : 1, sizeof *vr);
+    if (!vr) fail("out of memory");
+    for (int i = 0; i < n; i++) vr[i] = (unsigned int)strtoul(refs[i], NULL, 10);
+    Life life = {fmu, steps, vr, (size_t)n};
+    if (kb == 0) {
+        live(&life);
+    } else {
+        pthread_attr_t attributes;
+        pthread_t thread;
+        pthread_attr_init(&attributes);
+        int error = pthread_attr_setstacksize(&attributes, (size_t)kb * 1024);
+        if (error) fail("a stack of %d kB: pthread_attr_setstacksize failed: %s", kb, strerror(error));
+        error = pthread_create(&thread, &attributes, live, &life);
+        if (error) fail("pthread_create failed: %s", strerror(error));
+        pthread_join(thread, NULL);
+        pthread_attr_destroy(&attributes);
+    }
+    free(vr);
+    return 0;
+}
+
 int main(int argc, char **argv) {
     if (argc < 6) fail("usage: %s MODE FMI_VERSION UNZIPPED_DIR MODEL_IDENTIFIER GUID_OR_TOKEN [ARG...]", argv[0]);
     Fmu fmu = {atoi(argv[2]), NULL, "", argv[4], argv[5]};
@@ -398,6 +476,9 @@ int main(int argc, char **argv) {
     if (strcmp(argv[1], "create") == 0 && argc == 8) return run_creators(&fmu, atoi(argv[6]), atoi(argv[7]));
     if (strcmp(argv[1], "steps") == 0 && argc == 9) {
         return run_steppers(&fmu, atoi(argv[6]), atoi(argv[7]), atoi(argv[8]));
+    }
+    if (strcmp(argv[1], "stack") == 0 && argc >= 8) {
+        return run_stack(&fmu, atoi(argv[6]), atoi(argv[7]), argv + 8, argc - 8);
     }
     fail("unknown mode %s or wrong arguments", argv[1]);
     return 1;

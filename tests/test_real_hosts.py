@@ -1,7 +1,7 @@
-"""The binary layer in hosts that do what real tools do: a logger that blocks, thread pools, a Python
-that cannot start, a wrong token, FMUs whose bundled pythonfmu differ, a host with a pythonfmu of its
-own, hosts that free the FMUs and delete their folders, and hosts whose standard streams are files or
-closed. C hosts run with an empty environment."""
+"""The binary layer in hosts that do what real tools do: a logger that blocks, thread pools, threads with
+small stacks, a Python that cannot start, a wrong token, FMUs whose bundled pythonfmu differ, a host with
+a pythonfmu of its own, hosts that free the FMUs and delete their folders, and hosts whose standard
+streams are files or closed. C hosts run with an empty environment."""
 
 import json
 import os
@@ -87,6 +87,27 @@ def test_threads_create_and_free_instances_of_one_build_at_once(c_threads, fmu_p
     folder, md, token = unzipped((fmu3_paths if version == 3 else fmu_paths)["MobileRobot"], tmp_path / "plant")
     run = run_c([c_threads, "create", version, folder, "MobileRobot", token, 8, 25], tmp_path)
     assert run.returncode == 0 and fields(run.stdout) == {"failures": "0"}, run.stdout + run.stderr
+
+
+SMALL_STACK_KB = 64
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("name", FMUS)
+def test_an_instance_lives_its_whole_life_on_a_thread_with_a_64_kb_stack(c_threads, fmu_paths, fmu3_paths, tmp_path,
+                                                                         name, version):
+    """Hosts call FMUs from worker threads with small stacks. In a process that has not called the FMU before
+    (so that its first call, which finds and starts CPython, is made there too), an instance is created,
+    initialised, stepped, terminated and freed on a thread with a 64 kB stack, and its outputs are those of
+    the same run on the main thread, row for row and bit for bit."""
+    folder, md, token = unzipped((fmu3_paths if version == 3 else fmu_paths)[name], tmp_path / name)
+    refs = [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type in ("Real", "Float64")]
+    runs = {kb: run_c([c_threads, "stack", version, folder, name, token, kb, STEPS, *refs], tmp_path)
+            for kb in (0, SMALL_STACK_KB)}
+    for kb, run in runs.items():
+        assert run.returncode == 0, f"stack {kb or 'main thread'} kB: exit {run.returncode}: {run.stderr[-2000:]}"
+    assert len(parse_rows(runs[0].stdout)) == STEPS + 1
+    assert runs[SMALL_STACK_KB].stdout == runs[0].stdout
 
 
 @pytest.fixture()
