@@ -335,15 +335,26 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
     return _compile(fmi_version, target, runtime, model_identifier, digest.hexdigest())
 
 
+# Zig's first compile for a platform also builds that platform's C library (MinGW's for Windows): 12 minutes
+# on two emulated aarch64 cores.
+COMPILE_TIMEOUT = 3600
+
+
 @functools.lru_cache(maxsize=32)
 def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, model_identifier: str, digest: str) -> bytes:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_binary_") as tmp:
         output = Path(tmp) / f"{model_identifier or 'fmu'}{target.suffix}"  # a signature's identifier is its name
         command = _command(fmi_version, target, runtime, output, model_identifier)
         try:
-            run = subprocess.run(command, capture_output=True, text=True, timeout=600, env=_compiler_environment())
-        except (OSError, subprocess.TimeoutExpired) as error:
-            raise BinaryBuildError(f"compiling the FMU binary failed: {error}") from None
+            run = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT,
+                                 env=_compiler_environment())
+        except subprocess.TimeoutExpired:
+            raise BinaryBuildError(
+                f"compiling the FMU binary for {target.name} took more than {COMPILE_TIMEOUT} s (Zig's first build for "
+                "a platform compiles that platform's C library, kept in its cache): run the command again"
+            ) from None
+        except OSError as error:
+            raise BinaryBuildError(f"compiling the FMU binary for {target.name} failed: cannot run Zig: {error}") from None
         if run.returncode != 0:
             detail = (run.stderr or run.stdout).strip().splitlines()
             raise BinaryBuildError(
