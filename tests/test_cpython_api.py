@@ -7,6 +7,7 @@ environment starts the version its ``pyvenv.cfg`` names."""
 
 import json
 import re
+import shutil
 import subprocess
 import sys
 from dataclasses import replace
@@ -18,7 +19,8 @@ from fmpy import extract, read_model_description
 from c_hosts import EMPTY_ENVIRONMENT, HERE, compile_c, parse_rows, run_c
 from test_c_importer import cpython_home, outputs as real_outputs, shared_cpython
 from wine import required
-from dsc_fmu.fmubuild.binary import LINUX, NATIVE_DIR, OVERRIDE_VARIABLE, TARGETS, build_python, compile_binary
+from dsc_fmu.fmubuild.binary import (ENTRY_FILE, LINUX, NATIVE_DIR, OVERRIDE_VARIABLE, TARGETS, PythonRuntime, build_python,
+                                     compile_binary)
 
 LAYOUT_MINORS = (9, 10, 11, 12, 13)  # started through PyConfig, whose layout changes with every minor version
 LAYOUT_FIELDS = ("PARSE_ARGV", "SITE_IMPORT", "WRITE_BYTECODE", "USER_SITE_DIRECTORY", "CONFIG_C_STDIO", "HOME")
@@ -237,3 +239,26 @@ def test_an_fmu_under_a_non_ascii_path_runs_in_a_host_with_the_c_locale(importer
     run = rows_of(importer, unicode, md, outputs, tmp_path, {})
     assert expected.returncode == 0 and run.returncode == 0, run.stderr[-2000:]
     assert parse_rows(run.stdout) == parse_rows(expected.stdout)
+
+
+def test_a_cpython_that_failed_before_starting_leaves_nothing_behind(importer, fmu_paths, tmp_path):
+    """The override names a folder holding a copy of CPython 3.12's library without its standard library
+    (tried first: the FMU prefers 3.10, absent, then the newest) and the building CPython 3.11, which starts.
+    The FMU's bridge module raises on import: that exception, taken through 3.11's API (not the unloaded
+    3.12's newer one), is the one message, and the importer is told in a NULL instance."""
+    built = build_python()
+    assert built.version == "3.11", "the building CPython must be older than 3.12 for this test"
+    md, outputs = controller(fmu_paths, tmp_path / "c")
+    folder = tmp_path / "c"
+    runtime = PythonRuntime("3.10", "/nonexistent/lib/libpython3.10.so.1.0", "/nonexistent")
+    (folder / LINUX.file(2, "DSCController")).write_bytes(compile_binary(2, LINUX, runtime))
+    bridge = (folder / "resources" / ENTRY_FILE).read_text().split()[0]
+    (folder / "resources" / (bridge.replace(".", "/") + ".py")).write_text("raise RuntimeError('broken on purpose')\n")
+    pythons = tmp_path / "pythons" / "lib"
+    pythons.mkdir(parents=True)
+    shutil.copy(shared_cpython(12), pythons / "libpython3.12.so.1.0")
+    (pythons / "libpython3.11.so.1.0").symlink_to(built.library)
+    run = rows_of(importer, folder, md, outputs, tmp_path, {OVERRIDE_VARIABLE: str(pythons.parent)})
+    assert run.returncode == 2, run.stderr[-2000:]
+    (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
+    assert "importing the FMU's package failed: RuntimeError: broken on purpose" in message, message

@@ -340,8 +340,10 @@ static int old_version(Library library, const char *what) {
 }
 
 /* Resolve what every use calls, the exception API of this version, and where Python finalizes (Py_IsFinalizing
-   from 3.13, _Py_IsFinalizing before where exported); the name of the first missing symbol, or NULL. */
+   from 3.13, _Py_IsFinalizing before where exported), into a `py` cleared of any earlier candidate's; the name
+   of the first missing symbol, or NULL. */
 static const char *resolve_calls(Library library, int minor) {
+    memset(&py, 0, sizeof py); /* nothing of a candidate tried before, which may be unloaded */
     const char *missing = resolve(library, CALLS, COUNT(CALLS));
     if (!missing) missing = minor >= RAISED_MINOR ? resolve(library, RAISED, COUNT(RAISED)) : resolve(library, FETCHED, COUNT(FETCHED));
     void *finalizing = symbol(library, minor >= CONSTANT_MINOR ? "Py_IsFinalizing" : "_Py_IsFinalizing");

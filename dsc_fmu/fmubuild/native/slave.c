@@ -112,7 +112,7 @@ static int import_lock(int hold) {
 static PyObject *load_file(const char *name, const char *path) {
     PyObject *modules = py.PySys_GetObject("modules");
     PyObject *util = py.PyImport_ImportModule("importlib.util");
-    PyObject *items[] = {py.PyUnicode_FromString(name), py.PyUnicode_FromString(path)};
+    PyObject *items[] = {util ? py.PyUnicode_FromString(name) : NULL, util ? py.PyUnicode_FromString(path) : NULL};
     PyObject *spec = util ? call(py.PyObject_GetAttrString(util, "spec_from_file_location"), pack(2, items)) : NULL;
     PyObject *from_spec[] = {spec ? borrowed(spec) : NULL};
     PyObject *module = spec ? call(py.PyObject_GetAttrString(util, "module_from_spec"), pack(1, from_spec)) : NULL;
@@ -148,7 +148,7 @@ static int import_bridge(Slave *s, const char *bridge) {
     }
     s->bridge = known ? borrowed(known) : load_file(bridge, path);
     free(path);
-    PyObject *items[] = {py.PyUnicode_FromString(s->resources)};
+    PyObject *items[] = {s->bridge ? py.PyUnicode_FromString(s->resources) : NULL};
     PyObject *counted = s->bridge ? bridge_call(s, "acquire", pack(1, items)) : NULL;
     if (!counted) {
         log_exception(s, STATUS_ERROR, "importing the FMU's package");
@@ -240,7 +240,7 @@ static int read_dimensions(Slave *s, Py_ssize_t variables) {
 /* The name and allowed values of each cell of a row of the variable table. */
 static const char *const CELL_NAMES[CELLS] = {"value reference", "type", "causality", "variability", "state"};
 static const long CELL_LIMITS[CELLS][2] = {
-    [CELL_REFERENCE] = {0, MAX_VALUE_REFERENCE - 1}, [CELL_TYPE] = {-128, 127}, [CELL_CAUSALITY] = {-128, 127},
+    [CELL_REFERENCE] = {0, MAX_VALUE_REFERENCE - 1}, [CELL_TYPE] = {0, 127}, [CELL_CAUSALITY] = {-128, 127},
     [CELL_VARIABILITY] = {-128, 127}, [CELL_STATE] = {0, 1},
 };
 
@@ -376,9 +376,9 @@ int slave_create(Slave *s, const char *resources, const char *token, int visible
             if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
             result = slave && adopt_slave(s, slave) == 0 ? read_variables(s) : -1;
         }
+        drain_log(s);
         if (result != 0) release_bridge(s);
         if (locked) unlock_imports(s);
-        drain_log(s);
         pyhost_leave(gil);
     }
     if (result != 0) slave_free(s);

@@ -30,6 +30,7 @@ void log_exception(Slave *s, int status, const char *doing) {
     PyObject *type = error ? py.PyObject_Type(error) : NULL;
     PyObject *type_name = type ? py.PyObject_GetAttrString(type, "__name__") : NULL;
     const char *name = type_name ? py.PyUnicode_AsUTF8(type_name) : NULL;
+    if (!name) py.PyErr_Clear(); /* no Python call with an exception pending */
     PyObject *str = error ? py.PyObject_Str(error) : NULL;
     const char *detail = str ? py.PyUnicode_AsUTF8(str) : NULL;
     if (error && py.PyErr_GivenExceptionMatches(error, *py.PyExc_KeyboardInterrupt)) {
@@ -126,7 +127,7 @@ static int queue_logged(Slave *s, PyObject *messages, Py_ssize_t i) {
 }
 
 void drain_log(Slave *s) {
-    if (!s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
+    if (!s->bridge || !s->log_queue || py.PyList_Size(s->log_queue) <= 0) {
         py.PyErr_Clear();
         return;
     }
