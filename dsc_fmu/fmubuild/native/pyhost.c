@@ -69,7 +69,6 @@
 
 #define OLDEST_MINOR 9
 #define OLDEST_LOOKED_FOR 0 /* older than OLDEST_MINOR: looked for, to be named if nothing serves */
-#define MAX_CANDIDATES 48
 #define BUNDLE_FOLDER "python"           /* ROOT, beside this binary's file */
 #define BUNDLE_LIST "bundle.txt"         /* in ROOT: the header line, then "<size> <path>" per file */
 #define BUNDLE_HEADER "dsc-fmu CPython " /* then "<version> <os>" */
@@ -103,7 +102,7 @@ typedef struct {
 } Candidate;
 
 typedef struct {
-    Candidate *items;
+    Candidate **items; /* each malloc'ed, as the list */
     int count;
 } Candidates;
 
@@ -431,10 +430,16 @@ static int try_candidate(const Candidate *candidate) {
 static void add_candidate(void *context, const char *library, const char *home, const char *label, int minor) {
     Candidates *list = context;
     for (int i = 0; i < list->count; i++) {
-        if (strcmp(list->items[i].library, library) == 0) return;
+        if (strcmp(list->items[i]->library, library) == 0) return;
     }
-    if (list->count == MAX_CANDIDATES) return;
-    Candidate *c = &list->items[list->count++];
+    Candidate **more = realloc(list->items, (size_t)(list->count + 1) * sizeof *more);
+    if (more) list->items = more;
+    Candidate *c = more ? malloc(sizeof *c) : NULL;
+    if (!c) {
+        append(start_error, sizeof start_error, "out of memory listing %s; ", library);
+        return;
+    }
+    list->items[list->count++] = c;
     snprintf(c->library, sizeof c->library, "%s", library);
     snprintf(c->home, sizeof c->home, "%s", home ? home : "");
     snprintf(c->label, sizeof c->label, "%s", label);
@@ -444,7 +449,7 @@ static void add_candidate(void *context, const char *library, const char *home, 
 /* The candidates in turn, until one starts or one has been started (and failed); 0, or -1. */
 static int try_in_turn(const Candidates *list) {
     for (int i = 0; i < list->count && !start_attempted; i++) {
-        if (try_candidate(&list->items[i]) == 0) return 0;
+        if (try_candidate(list->items[i]) == 0) return 0;
     }
     return -1;
 }
@@ -453,8 +458,8 @@ static int try_in_turn(const Candidates *list) {
 static void prefer_building_minor(Candidates *list) {
     int preferred = minor_of(DSC_PYTHON_VERSION), first = 0;
     for (int i = 0; i < list->count; i++) {
-        if (list->items[i].minor != preferred) continue;
-        Candidate moved = list->items[i];
+        if (list->items[i]->minor != preferred) continue;
+        Candidate *moved = list->items[i];
         memmove(&list->items[first + 1], &list->items[first], (size_t)(i - first) * sizeof moved);
         list->items[first++] = moved;
     }
@@ -521,7 +526,8 @@ static void add_minor(Candidates *list, const char *folder, int minor, const cha
     add_installation(list, folder, NULL, label);
     int kept = 0;
     for (int i = 0; i < list->count; i++) {
-        if (minor < 0 || list->items[i].minor == minor) list->items[kept++] = list->items[i];
+        if (minor < 0 || list->items[i]->minor == minor) list->items[kept++] = list->items[i];
+        else free(list->items[i]);
     }
     list->count = kept;
 }
@@ -735,29 +741,28 @@ static int start_own(Candidates *list, const char *root, char separator) {
     return result;
 }
 
-static int find_and_start(void) {
+/* Find and start a Python, the candidates gathered in `list`. */
+static int find_and_start(Candidates *list) {
     /* A function outside the stable ABI: Windows' python3.dll, which forwards that ABI, does not count. */
     Library present = platform_loaded_with("Py_InitializeFromConfig");
     if (present) return adopt(present, NULL, NULL, "the Python in this process");
-    static Candidate items[MAX_CANDIDATES];
-    Candidates list = {items, 0};
     static char override[PLATFORM_PATH_MAX];
     if (platform_getenv(DSC_OVERRIDE_VARIABLE, override, sizeof override)) {
-        if (platform_is_folder(override)) return start_from_folder(&list, override);
-        add_candidate(&list, override, NULL, DSC_OVERRIDE_VARIABLE " =", -1);
-        return try_candidate(&items[0]);
+        if (platform_is_folder(override)) return start_from_folder(list, override);
+        add_candidate(list, override, NULL, DSC_OVERRIDE_VARIABLE " =", -1);
+        return try_in_turn(list);
     }
     append(start_error, sizeof start_error, DSC_OVERRIDE_VARIABLE " not set; ");
     static char root[PLATFORM_PATH_MAX], separator;
-    if (bundle_root(root, sizeof root, &separator)) return start_own(&list, root, separator);
-    gather(&list);
+    if (bundle_root(root, sizeof root, &separator)) return start_own(list, root, separator);
+    gather(list);
     int supported = 0;
-    for (int i = 0; i < list.count; i++) supported += items[i].minor >= OLDEST_MINOR;
+    for (int i = 0; i < list->count; i++) supported += list->items[i]->minor >= OLDEST_MINOR;
     if (supported == 0) {
         append(start_error, sizeof start_error,
                "no CPython 3.%d or newer is installed where this system registers one; ", OLDEST_MINOR);
     }
-    int result = try_in_turn(&list);
+    int result = try_in_turn(list);
     if (result != 0 && *not_found) append(start_error, sizeof start_error, "the system's, not found: %s; ", not_found);
     return result;
 }
@@ -853,7 +858,10 @@ static void forget_thread(void *state) {
 
 static void start_once(void) {
     start_error[0] = '\0';
-    start_result = find_and_start();
+    Candidates list = {NULL, 0};
+    start_result = find_and_start(&list);
+    for (int i = 0; i < list.count; i++) free(list.items[i]);
+    free(list.items);
     if (start_result != 0) return;
     interpreter = py.PyInterpreterState_Main();
     platform_thread_key(forget_thread);
