@@ -235,7 +235,8 @@ static int start_with_init_config(const char *what, const char *home) {
     return result;
 }
 
-/* A configuration's int field by its index among the leading ints, its int and its string pointer at an offset in bytes. */
+/* A configuration's int field by its index among the leading ints; its int and its string pointer at an
+   offset in bytes. */
 #define INT_FIELD(config, index) (((int *)(config))[index])
 #define INT_AT(config, offset) (*(int *)((char *)(config) + (offset)))
 #define POINTER_AT(config, offset) (*(wchar_t **)((char *)(config) + (offset)))
