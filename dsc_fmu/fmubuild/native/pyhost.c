@@ -219,7 +219,8 @@ static int start_with_init_config(const char *what, const char *home) {
         append(start_error, sizeof start_error, "%s: PyInitConfig_Create failed (no memory); ", what);
         return -1;
     }
-    int set = py.PyInitConfig_SetInt(config, "utf8_mode", 1) == 0 && py.PyInitConfig_SetInt(config, "site_import", 0) == 0
+    int set = py.PyInitConfig_SetInt(config, "utf8_mode", 1) == 0
+              && py.PyInitConfig_SetInt(config, "site_import", 0) == 0
               && py.PyInitConfig_SetInt(config, "write_bytecode", 0) == 0
               && (!home || py.PyInitConfig_SetStr(config, "home", home) == 0);
     if (set) start_attempted = 1;
@@ -228,7 +229,8 @@ static int start_with_init_config(const char *what, const char *home) {
         const char *message = NULL;
         int exitcode = 0, exit = py.PyInitConfig_GetExitCode(config, &exitcode) == 1;
         py.PyInitConfig_GetError(config, &message);
-        not_started(what, home ? home : "fixed by its ._pth file", set ? "Py_InitializeFromInitConfig" : "PyInitConfig_Set",
+        not_started(what, home ? home : "fixed by its ._pth file",
+                    set ? "Py_InitializeFromInitConfig" : "PyInitConfig_Set",
                     message, exit, exitcode);
     }
     py.PyInitConfig_Free(config);
@@ -345,7 +347,10 @@ static int old_version(Library library, const char *what) {
 static const char *resolve_calls(Library library, int minor) {
     memset(&py, 0, sizeof py); /* nothing of a candidate tried before, which may be unloaded */
     const char *missing = resolve(library, CALLS, COUNT(CALLS));
-    if (!missing) missing = minor >= RAISED_MINOR ? resolve(library, RAISED, COUNT(RAISED)) : resolve(library, FETCHED, COUNT(FETCHED));
+    if (!missing) {
+        missing = minor >= RAISED_MINOR ? resolve(library, RAISED, COUNT(RAISED))
+                                        : resolve(library, FETCHED, COUNT(FETCHED));
+    }
     void *finalizing = symbol(library, minor >= CONSTANT_MINOR ? "Py_IsFinalizing" : "_Py_IsFinalizing");
     memcpy(&is_finalizing, &finalizing, sizeof finalizing);
     return missing;
