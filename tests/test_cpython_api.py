@@ -16,11 +16,11 @@ from pathlib import Path
 import pytest
 from fmpy import extract, read_model_description
 
-from c_hosts import EMPTY_ENVIRONMENT, HERE, compile_c, parse_rows, run_c
-from test_c_importer import cpython_home, outputs as real_outputs, shared_cpython
+from c_hosts import EMPTY_ENVIRONMENT, HERE, compile_c, parse_rows
+from test_c_importer import STEP, STEPS, c_run, cpython_home, outputs as real_outputs, shared_cpython
 from wine import required
-from dsc_fmu.fmubuild.binary import (ENTRY_FILE, LINUX, NATIVE_DIR, OVERRIDE_VARIABLE, TARGETS, PythonRuntime, build_python,
-                                     compile_binary)
+from dsc_fmu.fmubuild.binary import (ENTRY_FILE, LINUX, NATIVE_DIR, OVERRIDE_VARIABLE, TARGETS, PythonRuntime,
+                                     build_python, compile_binary)
 
 LAYOUT_MINORS = (9, 10, 11, 12, 13)  # started through PyConfig, whose layout changes with every minor version
 LAYOUT_FIELDS = ("PARSE_ARGV", "SITE_IMPORT", "WRITE_BYTECODE", "USER_SITE_DIRECTORY", "CONFIG_C_STDIO", "HOME")
@@ -35,7 +35,6 @@ NEVER = ("_PyConfig_InitCompatConfig", "Py_SetPythonHome", "Py_SetProgramName", 
 # Used only where the CPython lacks the replacement: PyErr_GetRaisedException (3.12), Py_GetConstantBorrowed and
 # Py_IsFinalizing (3.13).
 OLDER_ONLY = ("PyErr_Fetch", "PyErr_Restore", "PyErr_NormalizeException", "_Py_NoneStruct", "_Py_IsFinalizing")
-STEPS, STEP = 20, 0.01
 
 
 def pyhost_layouts() -> dict:
@@ -69,7 +68,8 @@ def test_the_pyconfig_offsets_are_each_versions_own_on_every_platform(minor, tmp
         kind = "windows" if target.os == "windows" else "other"
         fields = dict(zip(LAYOUT_FIELDS, layouts[kind][minor]), UTF8_MODE=UTF8_MODE[kind])
         run = subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target.split(".2.")[0],
-                              "-c", "-o", str(tmp_path / "layout.o"), f"-I{headers}", *(f"-D{k}={v}" for k, v in fields.items()),
+                              "-c", "-o", str(tmp_path / "layout.o"), f"-I{headers}",
+                              *(f"-D{k}={v}" for k, v in fields.items()),
                               str(HERE / "c_config_layout.c")], capture_output=True, text=True, timeout=300)
         assert run.returncode == 0, f"{target.name}, CPython 3.{minor}: {run.stderr[-1500:]}"
 
@@ -107,12 +107,6 @@ def controller(fmu_paths, folder: Path, binary: bytes | None = None):
     return md, real_outputs(md)
 
 
-def rows_of(importer, folder: Path, md, outputs, tmp_path, env: dict):
-    run = run_c([importer, 2, folder, "DSCController", md.guid, STEPS, STEP, *outputs], tmp_path,
-                {**EMPTY_ENVIRONMENT, **env})
-    return run
-
-
 def test_without_every_removed_and_deprecated_name_a_cpython_with_the_replacements_starts(importer, fmu_paths,
                                                                                           tmp_path):
     """The absent build starts CPython 3.13 (PyConfig, PyErr_GetRaisedException, Py_GetConstantBorrowed) and gives
@@ -121,12 +115,13 @@ def test_without_every_removed_and_deprecated_name_a_cpython_with_the_replacemen
     md, outputs = controller(fmu_paths, tmp_path / "default")
     absent = tmp_path / "absent"
     controller(fmu_paths, absent, absent_build((*NEVER, *OLDER_ONLY)))
-    expected = rows_of(importer, tmp_path / "default", md, outputs, tmp_path, {})
-    newer = rows_of(importer, absent, md, outputs, tmp_path, {OVERRIDE_VARIABLE: str(shared_cpython(13))})
+    expected = c_run(importer, 2, tmp_path / "default", md, outputs, tmp_path)
+    newer = c_run(importer, 2, absent, md, outputs, tmp_path,
+                  {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(shared_cpython(13))})
     assert expected.returncode == 0 and newer.returncode == 0, newer.stderr
     assert parse_rows(newer.stdout) == parse_rows(expected.stdout)
     built = build_python()
-    older = rows_of(importer, absent, md, outputs, tmp_path, {OVERRIDE_VARIABLE: built.library})
+    older = c_run(importer, 2, absent, md, outputs, tmp_path, {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: built.library})
     assert older.returncode == 2, older.stderr
     (message,) = [line for line in older.stderr.splitlines() if line.startswith("[")]
     assert (f"{OVERRIDE_VARIABLE} = {built.library}: CPython {built.version}" in message
@@ -172,7 +167,7 @@ def test_without_every_removed_and_deprecated_name_a_running_cpython_with_the_re
     md, outputs = controller(fmu_paths, tmp_path / "default")
     absent = tmp_path / "absent"
     controller(fmu_paths, absent, absent_build((*NEVER, *OLDER_ONLY)))
-    expected = rows_of(importer, tmp_path / "default", md, outputs, tmp_path, {})
+    expected = c_run(importer, 2, tmp_path / "default", md, outputs, tmp_path)
     python = cpython_home(13) / "bin" / "python3.13"
     adopted = adopted_rows(str(python), absent, md, tmp_path)
     assert adopted["version"].startswith("3.13.")
@@ -206,8 +201,9 @@ def test_a_virtual_environment_starts_its_own_version_where_its_home_holds_two(i
     venv.mkdir()
     (venv / "pyvenv.cfg").write_text(f"home = {home / 'bin'}\ninclude-system-site-packages = false\n{written}\n")
     md, outputs = controller(fmu_paths, tmp_path / "c")
-    expected = rows_of(importer, tmp_path / "c", md, outputs, tmp_path, {})
-    run = rows_of(importer, tmp_path / "c", md, outputs, tmp_path, {OVERRIDE_VARIABLE: str(venv), "LD_DEBUG": "files"})
+    expected = c_run(importer, 2, tmp_path / "c", md, outputs, tmp_path)
+    run = c_run(importer, 2, tmp_path / "c", md, outputs, tmp_path,
+                {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(venv), "LD_DEBUG": "files"})
     assert run.returncode == 0, run.stderr[-2000:]
     assert loaded_pythons(run.stderr) == {"libpython3.12.so.1.0"}
     assert parse_rows(run.stdout) == parse_rows(expected.stdout)
@@ -221,7 +217,8 @@ def test_a_virtual_environment_whose_version_its_home_lacks_is_one_message(impor
     venv.mkdir()
     (venv / "pyvenv.cfg").write_text(f"home = {home / 'bin'}\nversion = 3.10.13\n")
     md, outputs = controller(fmu_paths, tmp_path / "c")
-    run = rows_of(importer, tmp_path / "c", md, outputs, tmp_path, {OVERRIDE_VARIABLE: str(venv), "LD_DEBUG": "files"})
+    run = c_run(importer, 2, tmp_path / "c", md, outputs, tmp_path,
+                {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(venv), "LD_DEBUG": "files"})
     assert run.returncode == 2 and loaded_pythons(run.stderr) == set()
     (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert (f"{OVERRIDE_VARIABLE} = {venv}: a virtual environment of CPython 3.10 (its pyvenv.cfg), whose "
@@ -235,8 +232,8 @@ def test_an_fmu_under_a_non_ascii_path_runs_in_a_host_with_the_c_locale(importer
     md, outputs = controller(fmu_paths, tmp_path / "ascii")
     unicode = tmp_path / "Röbot 模型"
     controller(fmu_paths, unicode)
-    expected = rows_of(importer, tmp_path / "ascii", md, outputs, tmp_path, {})
-    run = rows_of(importer, unicode, md, outputs, tmp_path, {})
+    expected = c_run(importer, 2, tmp_path / "ascii", md, outputs, tmp_path)
+    run = c_run(importer, 2, unicode, md, outputs, tmp_path)
     assert expected.returncode == 0 and run.returncode == 0, run.stderr[-2000:]
     assert parse_rows(run.stdout) == parse_rows(expected.stdout)
 
@@ -258,7 +255,8 @@ def test_a_cpython_that_failed_before_starting_leaves_nothing_behind(importer, f
     pythons.mkdir(parents=True)
     shutil.copy(shared_cpython(12), pythons / "libpython3.12.so.1.0")
     (pythons / "libpython3.11.so.1.0").symlink_to(built.library)
-    run = rows_of(importer, folder, md, outputs, tmp_path, {OVERRIDE_VARIABLE: str(pythons.parent)})
+    run = c_run(importer, 2, folder, md, outputs, tmp_path,
+                {**EMPTY_ENVIRONMENT, OVERRIDE_VARIABLE: str(pythons.parent)})
     assert run.returncode == 2, run.stderr[-2000:]
     (message,) = [line for line in run.stderr.splitlines() if line.startswith("[")]
     assert "importing the FMU's package failed: RuntimeError: broken on purpose" in message, message

@@ -18,7 +18,8 @@ from fmpy import extract, read_model_description
 from c_hosts import EMPTY_ENVIRONMENT, HERE, compile_c, parse_rows, run_c
 from debian_root import (PAPER_STOP, Site, Specification, assert_identical, cached_root, copied, fmu_outputs,
                          host_versions, paper_cosimulation, served_paper_cosimulation)
-from test_cpython_api import ADOPT, NEVER, OLDER_ONLY, STEP as STEP_API, STEPS as STEPS_API, absent_build, controller, rows_of
+from test_c_importer import STEP as STEP_API, STEPS as STEPS_API, c_run
+from test_cpython_api import ADOPT, NEVER, OLDER_ONLY, absent_build, controller
 from dsc_fmu.fmubuild.binary import ENTRY_FILE, LINUX, OVERRIDE_VARIABLE, build_python
 from dsc_fmu.scenario import load_scenario
 
@@ -146,7 +147,7 @@ def test_without_every_removed_and_deprecated_name_the_newest_cpythons_start_and
     started by the C importer through PEP 741, and adopted inside the root's ``python3.X`` (ctypes), both with
     the rows of the default build here."""
     md, outputs = controller(fmu_paths, tmp_path / "default")
-    expected = parse_rows(rows_of(c_importer_here(tmp_path), tmp_path / "default", md, outputs, tmp_path, {}).stdout)
+    expected = parse_rows(c_run(importer, 2, tmp_path / "default", md, outputs, tmp_path).stdout)
     folder = workspace / "absent"
     controller(fmu_paths, folder, absent_build((*NEVER, *OLDER_ONLY)))
     started = sid_root.run([sid_root.inside(importer), 2, sid_root.inside(folder), "DSCController", md.guid, STEPS_API,
@@ -168,15 +169,10 @@ def test_an_fmu_under_a_non_ascii_path_runs_on_the_newest_cpython_from_the_c_loc
     """UTF-8 mode through PEP 741: DSCController under "Röbot 模型" in the root, CPython 3.15 started from an
     empty environment, gives the rows of the default build here."""
     md, outputs = controller(fmu_paths, tmp_path / "default")
-    expected = parse_rows(rows_of(c_importer_here(tmp_path), tmp_path / "default", md, outputs, tmp_path, {}).stdout)
+    expected = parse_rows(c_run(importer, 2, tmp_path / "default", md, outputs, tmp_path).stdout)
     folder = workspace / "Röbot 模型"
     controller(fmu_paths, folder)
     run = sid_root.run([sid_root.inside(importer), 2, sid_root.inside(folder), "DSCController", md.guid, STEPS_API,
                         STEP_API, *outputs], env={OVERRIDE_VARIABLE: f"{LIBRARIES}/libpython3.15.so.1.0"})
     assert run.returncode == 0, run.stderr[-3000:]
     assert parse_rows(run.stdout) == expected
-
-
-def c_importer_here(tmp_path: Path) -> Path:
-    """``c_importer`` for runs on this machine."""
-    return compile_c("c_importer.c", tmp_path / "c_importer")

@@ -146,7 +146,7 @@ static const ConfigLayout CONFIG_LAYOUTS[] = {
     [13] = {104, 176, 204, 216, 220, 296},
 };
 #endif
-enum { CONFIG_ISOLATED = 1, CONFIG_USE_ENVIRONMENT = 2 }; /* int fields, in every layout */
+enum { CONFIG_ISOLATED = sizeof(int), CONFIG_USE_ENVIRONMENT = 2 * sizeof(int) }; /* the same in every layout */
 enum { PRECONFIG_UTF8_MODE_LP64 = 7, PRECONFIG_UTF8_MODE_WINDOWS = 8 }; /* int fields of PyPreConfig */
 /* Room for a PyConfig or PyPreConfig of any version (448 bytes in 3.13). */
 #define CONFIG_SIZE 8192
@@ -189,16 +189,24 @@ static int minor_of(const char *version) {
     return atoi(version + 2);
 }
 
+/* What Py_GetVersion of `library` says ("3.11.7 (main, ...)"), or NULL if it has none: callable before the
+   CPython starts. */
+static const char *version_of(Library library) {
+    const char *(*get_version)(void);
+    void *address = symbol(library, "Py_GetVersion");
+    memcpy(&get_version, &address, sizeof address);
+    return address ? get_version() : NULL;
+}
+
 /* The one message of the CPython in `library` (which has Py_GetVersion), named `what`, without the symbol
    `missing`: its version and file. */
 static void missing_symbol(Library library, const char *what, const char *missing) {
     static char file[PLATFORM_PATH_MAX];
-    const char *(*get_version)(void);
-    void *address = symbol(library, "Py_GetVersion");
-    memcpy(&get_version, &address, sizeof address);
-    const char *version = get_version();
+    const char *version = version_of(library);
     append(start_error, sizeof start_error, "%s: CPython %.*s", what, (int)strcspn(version, " "), version);
-    if (platform_library_file(address, file, sizeof file) == 0) append(start_error, sizeof start_error, " in %s", file);
+    if (platform_library_file(symbol(library, "Py_GetVersion"), file, sizeof file) == 0) {
+        append(start_error, sizeof start_error, " in %s", file);
+    }
     append(start_error, sizeof start_error, " has no symbol %s; ", missing);
 }
 
@@ -237,16 +245,14 @@ static int start_with_init_config(const char *what, const char *home) {
     return result;
 }
 
-/* A configuration's int field by its index among the leading ints; its int and its string pointer at an
-   offset in bytes. */
-#define INT_FIELD(config, index) (((int *)(config))[index])
+/* A configuration's int and string pointer at an offset in bytes. */
 #define INT_AT(config, offset) (*(int *)((char *)(config) + (offset)))
 #define POINTER_AT(config, offset) (*(wchar_t **)((char *)(config) + (offset)))
 
 /* PyConfig_InitIsolatedConfig and PyConfig_InitPythonConfig wrote what they write at the offsets of
    `layout`: the layout is this CPython's. */
 static int layout_holds(const ConfigLayout *layout, void *isolated, void *python) {
-    return INT_FIELD(isolated, CONFIG_ISOLATED) == 1 && INT_FIELD(isolated, CONFIG_USE_ENVIRONMENT) == 0
+    return INT_AT(isolated, CONFIG_ISOLATED) == 1 && INT_AT(isolated, CONFIG_USE_ENVIRONMENT) == 0
            && INT_AT(isolated, layout->parse_argv) == 0 && INT_AT(python, layout->parse_argv) == 1
            && INT_AT(isolated, layout->user_site_directory) == 0 && INT_AT(python, layout->user_site_directory) == 1
            && INT_AT(isolated, layout->configure_c_stdio) == 0 && INT_AT(python, layout->configure_c_stdio) == 1
@@ -324,14 +330,11 @@ static int start_python(Library library, int minor, const char *what, const char
    old for the rest is named with its version; -1 (logged as `what`) if it is older than 3.OLDEST_MINOR or
    says none. */
 static int old_version(Library library, const char *what) {
-    const char *(*get_version)(void);
-    void *address = symbol(library, "Py_GetVersion");
-    if (!address) {
+    const char *version = version_of(library);
+    if (!version) {
         append(start_error, sizeof start_error, "%s: no symbol Py_GetVersion (not a CPython library); ", what);
         return -1;
     }
-    memcpy(&get_version, &address, sizeof address);
-    const char *version = get_version();
     int minor = minor_of(version);
     if (minor < OLDEST_MINOR) {
         append(start_error, sizeof start_error, "%s: Python %.*s, older than 3.%d; ", what, (int)strcspn(version, " "),
@@ -516,26 +519,16 @@ static int venv_home(const char *folder, char *home, size_t size, int *minor) {
     return *home != '\0';
 }
 
-/* The CPython libraries of the installation in `folder`, newest first, each called `label` and started
-   with `home` (NULL: the home found from the library's file). */
-static void add_installation(Candidates *list, const char *folder, const char *home, const char *label) {
+/* The CPython libraries of the installation in `folder`, newest first, of the minor version `only` (every one
+   if -1), each called `label` and started with `home` (NULL: the home found from the library's file). */
+static void add_installation(Candidates *list, const char *folder, const char *home, const char *label, int only) {
     static char library[PLATFORM_PATH_MAX];
     for (int minor = NEWEST_MINOR; minor >= OLDEST_LOOKED_FOR; minor--) {
+        if (only >= 0 && minor != only) continue;
         for (int place = 0; platform_library_in(folder, place, minor, library, sizeof library) == 0; place++) {
             if (platform_is_file(library)) add_candidate(list, library, home, label, minor);
         }
     }
-}
-
-/* The CPython libraries of the installation in `folder` of the minor version `minor` (every one if -1). */
-static void add_minor(Candidates *list, const char *folder, int minor, const char *label) {
-    add_installation(list, folder, NULL, label);
-    int kept = 0;
-    for (int i = 0; i < list->count; i++) {
-        if (minor < 0 || list->items[i]->minor == minor) list->items[kept++] = list->items[i];
-        else free(list->items[i]);
-    }
-    list->count = kept;
 }
 
 /* The candidates of the folder that DSC_FMU_PYTHON names: its installation's, or those of the installation
@@ -546,14 +539,14 @@ static void gather_folder(Candidates *list, const char *folder, int *venv_minor)
     const char *label = DSC_OVERRIDE_VARIABLE " folder:";
     *venv_minor = -1;
     if (!venv_home(folder, home, sizeof home, venv_minor)) {
-        add_installation(list, folder, NULL, label);
+        add_installation(list, folder, NULL, label, -1);
     } else {
-        add_minor(list, home, *venv_minor, label);
+        add_installation(list, home, NULL, label, *venv_minor);
         char *separator = strrchr(home, '/'), *other = strrchr(home, '\\');
         if (other > separator) separator = other;
         if (separator && separator != home) {
             *separator = '\0';
-            add_minor(list, home, *venv_minor, label);
+            add_installation(list, home, NULL, label, *venv_minor);
         }
     }
     prefer_building_minor(list);
@@ -733,7 +726,7 @@ static int start_own(Candidates *list, const char *root, char separator) {
     int result = check_bundle(root, separator, what);
     if (result == 0) result = load_preloads(what);
     if (result == 0) {
-        add_installation(list, root, root, label);
+        add_installation(list, root, root, label, -1);
         if (list->count == 0) {
             append(start_error, sizeof start_error, "%s: no CPython library in it (looked for ", what);
             append_pattern(PLATFORM_LIBRARY_PLACES);
