@@ -39,11 +39,8 @@ def fmu_dir(fmu_paths):
 
 
 @pytest.fixture(scope="module")
-def fmu3_dir(tmp_path_factory):
-    """A folder of FMI 3.0 FMUs built by ``dsc-fmu build --fmi-version 3``."""
-    folder = tmp_path_factory.mktemp("cli_fmus3")
-    assert main(["build", "--fmi-version", "3", "--out", str(folder)]) == 0
-    return folder
+def fmu3_dir(fmu3_paths):
+    return next(iter(fmu3_paths.values())).parent
 
 
 def test_run_writes_results_summary_and_figures(tmp_path, fmu_dir, capsys):
@@ -185,23 +182,23 @@ def test_console_script_error_has_no_traceback(tmp_path, command):
     )
 
 
-def test_build_command(tmp_path, capsys):
-    assert main(["build", "--out", str(tmp_path)]) == 0
-    printed = capsys.readouterr().out.split()
-    assert sorted(printed) == sorted(str(tmp_path / f"{n}.fmu") for n in ("ReferenceRobot", "MobileRobot", "DSCController"))
+def test_build_fmus_script_builds_fmi2_by_default(tmp_path):
+    """``build_fmus.py`` is ``dsc-fmu build`` (test_fmi3 runs it with ``--fmi-version 3``): it prints the FMUs' paths."""
+    from fmpy import read_model_description
+
+    process = subprocess.run([sys.executable, str(REPO / "build_fmus.py"), "--out", str(tmp_path)], capture_output=True,
+                             text=True)
+    assert process.returncode == 0, process.stderr
+    paths = [Path(line) for line in process.stdout.split()]
+    assert sorted(paths) == sorted(tmp_path / f"{n}.fmu" for n in ("ReferenceRobot", "MobileRobot", "DSCController"))
+    assert sorted(tmp_path.iterdir()) == sorted(paths)
+    assert {read_model_description(str(path)).fmiVersion for path in paths} == {"2.0"}
 
 
 def test_scenarios_command_lists_the_shipped_ones(capsys):
     assert main(["scenarios"]) == 0
     names = [line.split(":")[0] for line in capsys.readouterr().out.splitlines()]
     assert {"paper", "figure_eight", "ahead_start"} <= set(names)
-
-
-def test_build_fmus_script(tmp_path):
-    script = REPO / "build_fmus.py"
-    process = subprocess.run([sys.executable, str(script), "--out", str(tmp_path)], capture_output=True, text=True)
-    assert process.returncode == 0, process.stderr
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["DSCController.fmu", "MobileRobot.fmu", "ReferenceRobot.fmu"]
 
 
 @pytest.mark.parametrize("command, suffix", [("export-ssp", ".ssp"), ("export-fmu", ".fmu")])
@@ -227,13 +224,6 @@ def test_export_of_a_bad_scenario_writes_nothing(tmp_path, fmu_dir, capsys, comm
     error = capsys.readouterr().err.strip().splitlines()
     assert len(error) == 1 and "[plant] mc = -30.0 is not allowed" in error[0]
     assert not out.exists()
-
-
-def test_build_fmi_3(fmu3_dir):
-    from fmpy import read_model_description
-    assert sorted(p.name for p in fmu3_dir.iterdir()) == ["DSCController.fmu", "MobileRobot.fmu", "ReferenceRobot.fmu"]
-    for path in fmu3_dir.iterdir():
-        assert read_model_description(str(path)).fmiVersion == "3.0"
 
 
 def _snapshot(folder: Path) -> dict:
