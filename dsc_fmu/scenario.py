@@ -22,8 +22,7 @@ __all__ = [
 
 
 class _Named(enum.StrEnum):
-    """A closed set of names with attributes: a member is ``NAME = "name", *attributes``, its value the
-    name (as scenarios and the command line give it) and its ``__init__`` keeping the attributes."""
+    """A closed set of names: a member is ``NAME = "name", *attributes``, kept by its ``__init__``."""
 
     def __new__(cls, value: str, *attributes):
         member = str.__new__(cls, value)
@@ -34,14 +33,9 @@ class _Named(enum.StrEnum):
 class Order(_Named):
     """In what order the FMUs step and exchange within a communication step.
 
-    ``"gauss-seidel"``: the reference and the plant step, the controller's inputs are set from their
-    new outputs, then the controller steps. ``"jacobi"``: all three step from the values of the step's
-    start, and exchange at its end.
-
-    Attributes
-    ----------
-    sequential : bool
-        Whether the controller steps after the plant with its inputs at the step's end (Gauss-Seidel).
+    ``"gauss-seidel"`` (``sequential``): the reference and the plant step, the controller's inputs are
+    set from their new outputs, then the controller steps. ``"jacobi"``: all three step from the values
+    of the step's start, and exchange at its end.
     """
 
     GAUSS_SEIDEL = "gauss-seidel", True
@@ -52,21 +46,14 @@ class Order(_Named):
 
 
 class Coupling(_Named):
-    """How the exchanged signals vary over a communication step.
+    """How the exchanged signals vary over a communication step (docs/co-simulation.md).
 
     ``"hold"``: held over the step (zero-order hold). ``"linear"``: on a line (first-order hold): the
     plant extrapolates ``u``, the controller interpolates its inputs with Gauss-Seidel and extrapolates
-    them with Jacobi. A coupling sets the FMUs' ``coupling`` parameters, which a scenario does not set
-    itself (docs/co-simulation.md).
-
-    Attributes
-    ----------
-    order : int
-        The order in h of the deviation the coupling causes, and of its defect (``cosim.step_control``).
-    from_start : str
-        The FMU input law (a name of ``models.parameters.INPUT_COUPLINGS``) for inputs set at a step's start.
-    to_end : str
-        The FMU input law for inputs set at the step's end (the controller's, with Gauss-Seidel).
+    them with Jacobi. It sets the FMUs' ``coupling`` parameters: ``from_start`` and ``to_end`` are the
+    input laws (``models.parameters.INPUT_COUPLINGS``) for inputs set at a step's start and at its end
+    (the controller's, with Gauss-Seidel); ``order`` is the order in h of the deviation it causes and of
+    its defect (``cosim.step_control``).
     """
 
     HOLD = "hold", 1, "hold", "hold"
@@ -79,10 +66,7 @@ class Coupling(_Named):
 class Interface(_Named):
     """How the FMUs run: stepped by the co-simulation master, or integrated as one ODE through model exchange.
 
-    Attributes
-    ----------
-    settings : tuple of str
-        The ``Simulation`` settings a run through this interface reads.
+    ``settings``: the ``Simulation`` settings a run through this interface reads.
     """
 
     CO_SIMULATION = "co-simulation", ("stop_time", "step_size", "order", "output_interval", "bound", "coupling",
@@ -96,14 +80,9 @@ class Interface(_Named):
 class Stability(_Named):
     """What a step-size study calls a stable run (``study.rows.stability_definition``).
 
-    ``"settled"`` judges where the run ends up; ``"local"``, for a scenario that starts in steady
-    tracking, also asks that the run stay with the reference solution from its start (the stability
-    of steady tracking, what the linearised prediction predicts).
-
-    Attributes
-    ----------
-    from_start : bool
-        Whether a stable run must stay with the reference solution from its start.
+    ``"settled"`` judges where the run ends up; ``"local"`` (``from_start``), for a scenario that starts
+    in steady tracking, also asks that the run stay with the reference solution from its start (the
+    stability of steady tracking, what the linearised prediction predicts).
     """
 
     SETTLED = "settled", False
@@ -114,16 +93,11 @@ class Stability(_Named):
 
 
 class Reference(_Named):
-    """What a step-size study measures its runs against.
+    """What a step-size study measures its runs against, solved with DOP853 at a relative tolerance of 1e-10.
 
     ``"monolithic"``: the monolithic ODE of the equations (``cosim.reference_solution``);
-    ``"model-exchange"``: the three FMUs as one ODE through model exchange (``cosim.model_exchange``);
-    both solved with DOP853 at a relative tolerance of 1e-10.
-
-    Attributes
-    ----------
-    through_fmus : bool
-        Whether the reference solution runs the FMUs (and so depends on their builds).
+    ``"model-exchange"`` (``through_fmus``, so depending on their builds): the three FMUs as one ODE
+    through model exchange (``cosim.model_exchange``).
     """
 
     MONOLITHIC = "monolithic", False
@@ -136,13 +110,8 @@ class Reference(_Named):
 class Method(_Named):
     """SciPy's integrator of a model-exchange run (``cosim.model_exchange``).
 
-    ``"DOP853"``: the explicit Runge-Kutta of order 8; ``"Radau"`` and ``"BDF"``: implicit, given the
-    loop's Jacobian from the FMUs' directional derivatives.
-
-    Attributes
-    ----------
-    implicit : bool
-        Whether it takes a Jacobian.
+    ``"DOP853"``: the explicit Runge-Kutta of order 8; ``"Radau"`` and ``"BDF"`` (``implicit``): given
+    the loop's Jacobian from the FMUs' directional derivatives.
     """
 
     DOP853 = "DOP853", False
@@ -153,18 +122,9 @@ class Method(_Named):
         self.implicit = implicit
 
 
-ORDERS = tuple(order.value for order in Order)
-"""The names of the coupling orders (``Order``)."""
-COUPLINGS = tuple(coupling.value for coupling in Coupling)
-"""The names of the couplings (``Coupling``), as scenarios and the command line give them."""
-STABILITIES = tuple(stability.value for stability in Stability)
-"""The names of the definitions of a stable run (``Stability``)."""
-INTERFACES = tuple(interface.value for interface in Interface)
-"""The names of the interfaces (``Interface``)."""
-REFERENCES = tuple(reference.value for reference in Reference)
-"""The names of the references of a step-size study (``Reference``)."""
-METHODS = tuple(method.value for method in Method)
-"""The names of the model-exchange integrators (``Method``)."""
+# The names of each closed set's members, as scenarios and the command line give them.
+ORDERS, COUPLINGS, STABILITIES, INTERFACES, REFERENCES, METHODS = (
+    tuple(member.value for member in kind) for kind in (Order, Coupling, Stability, Interface, Reference, Method))
 
 _HERE = Path(__file__).parent
 SCENARIO_DIR = next((d for d in (_HERE / "scenarios", _HERE.parent / "scenarios") if d.is_dir()), _HERE / "scenarios")
@@ -183,8 +143,7 @@ def one_of(allowed, value, name: str):
     Parameters
     ----------
     allowed : type or sequence of str
-        A closed set (``Order``, ``Coupling``, ``Interface``, ``Stability``, ``Reference``) or the
-        names allowed (``models.parameters.DISCRETIZATIONS``, a parameter's choices).
+        A closed set (``Order``, ``Coupling``, ...) or the names allowed (a parameter's choices).
     value : object
         What was given.
     name : str
@@ -223,8 +182,7 @@ _CLOSED_SETS = {"order": Order, "coupling": Coupling, "stability": Stability, "r
 class Simulation:
     """How a scenario is simulated: the ``[simulation]`` table of a scenario file.
 
-    Names of orders, couplings, stabilities, references and methods become ``Order``, ``Coupling``,
-    ``Stability``, ``Reference`` and ``Method``; ``check`` says whether the settings are allowed.
+    Names of closed sets become their members (``Order``, ``Coupling``, ...); ``check`` checks the ranges.
 
     Parameters
     ----------
@@ -242,16 +200,14 @@ class Simulation:
     coupling : Coupling or {"hold", "linear"}, optional
         How the exchanged signals vary over a step. Default "hold".
     tolerance : float, optional
-        Error-controlled step: the estimated position error (m) each step may add; None (default):
-        a fixed step.
+        Error-controlled step: the estimated position error (m) each step may add. Default None: fixed.
     h_min, h_max : float, optional
         Range of the error-controlled step in s. Defaults 1e-5 and 0.02.
     error_gain : float, optional
         Position error per volt of coupling defect in m/V (``cosim.step_control``). Default 0.02.
     input_derivatives : bool, optional
-        Realise the linear coupling through the standard route instead of the FMUs' ``coupling``
-        parameters: the master sets the slopes with ``fmi2SetRealInputDerivatives``, the FMUs hold
-        (``cosim.derivatives``; FMI 2.0 FMUs, a fixed step). Default False.
+        Realise the linear coupling by ``fmi2SetRealInputDerivatives`` (``cosim.derivatives``; FMI 2.0,
+        a fixed step) instead of the FMUs' ``coupling`` parameters. Default False.
     stability : Stability or {"settled", "local"}, optional
         How a step-size study judges a run. Default "settled".
     reference : Reference or {"monolithic", "model-exchange"}, optional
@@ -327,9 +283,8 @@ class Simulation:
         Returns
         -------
         int or None
-            The index in ``models.parameters.INPUT_COUPLINGS`` of its input law: the coupling's law for
-            inputs set at the step's start, or at its end for the controller with Gauss-Seidel; None
-            for an FMU without inputs.
+            The index in ``models.parameters.INPUT_COUPLINGS`` of its input law (``Coupling``); None for
+            an FMU without inputs.
         """
         if fmu == REFERENCE:
             return None
@@ -339,9 +294,7 @@ class Simulation:
 
 @dataclass(frozen=True)
 class Scenario:
-    """A validated scenario: settings and the value of every parameter of the three FMUs.
-
-    Made by ``load_scenario`` and ``with_simulation``, which check it.
+    """A validated scenario (``load_scenario``, ``with_simulation``): settings and every FMU parameter's value.
 
     Parameters
     ----------
@@ -374,13 +327,12 @@ class Scenario:
         fmu : str
             The FMU's name (``MobileRobot``, ``DSCController``, ``ReferenceRobot``).
         slopes_from_master : bool, optional
-            The master gives the slopes (``input_derivatives``, which only this project's master
-            does): the FMU's ``coupling`` is the hold. Default False.
+            The master gives the slopes (``input_derivatives``): the FMU holds. Default False.
 
         Returns
         -------
         dict
-            Its table, and its ``coupling`` from the simulation settings (``Simulation.fmu_coupling``).
+            Its table, and its ``coupling`` (``Simulation.fmu_coupling``).
         """
         table = {v: k for k, v in FMU_OF_TABLE.items()}[fmu]
         coupling = self.simulation.fmu_coupling(fmu)

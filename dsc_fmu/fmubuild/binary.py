@@ -60,10 +60,8 @@ class Target(Platform):
 
     Parameters
     ----------
-    os : {"linux", "windows", "darwin"}
-        The platform's system (``Platform``).
-    cpu : {"x86_64", "aarch64"}
-        The platform's CPU.
+    os, cpu : str
+        The platform's system and CPU (``Platform``).
     folders : tuple of (tuple of str)
         The platform's folders in an FMU, for FMI 2.0 and 3.0.
     suffix : str
@@ -86,34 +84,6 @@ class Target(Platform):
     libraries: tuple[str, ...] = ()
     install_name: str = ""
 
-    @classmethod
-    def of(cls, platform: Platform, zig_target: str, platform_sources: tuple[str, ...], flags: tuple[str, ...] = (),
-           libraries: tuple[str, ...] = (), install_name: str = "") -> Target:
-        """The target that compiles for a platform of ``dsc_fmu.platforms``.
-
-        Parameters
-        ----------
-        platform : dsc_fmu.platforms.Platform
-            The platform, whose fields the target takes.
-        zig_target : str
-            Zig's target triple.
-        platform_sources : tuple of str
-            The platform seam's sources in ``native/``.
-        flags : tuple of str, optional
-            Compiler and linker flags. Default none.
-        libraries : tuple of str, optional
-            What the binary links. Default none.
-        install_name : str, optional
-            The name a macOS binary gives itself, with ``{}`` for the model identifier. Default "": none.
-
-        Returns
-        -------
-        Target
-            The platform with how to compile for it.
-        """
-        return cls(platform.os, platform.cpu, platform.folders, platform.suffix, zig_target, platform_sources, flags,
-                   libraries, install_name)
-
 
 _POSIX = ("-fPIC", "-fvisibility=hidden")
 _LINUX_SOURCES = ("platform_posix.c", "platform_linux.c")
@@ -121,13 +91,15 @@ _LINUX_LIBRARIES = ("-ldl", "-lpthread", "-lm")
 _MACOS_SOURCES = ("platform_posix.c", "platform_macos.c")
 # Stripped: otherwise the symbol table names the objects in Zig's cache and the temporary output.
 _MACOS_FLAGS = (*_POSIX, "-s")
-LINUX = Target.of(platforms.LINUX, "x86_64-linux-gnu.2.17", _LINUX_SOURCES, _POSIX, _LINUX_LIBRARIES)
-LINUX_AARCH64 = Target.of(platforms.LINUX_AARCH64, "aarch64-linux-gnu.2.17", _LINUX_SOURCES, _POSIX, _LINUX_LIBRARIES)
-WINDOWS = Target.of(platforms.WINDOWS, "x86_64-windows-gnu", ("platform_windows.c",))
-MACOS_ARM64 = Target.of(platforms.MACOS_ARM64, "aarch64-macos.11.0", _MACOS_SOURCES, _MACOS_FLAGS,
-                        install_name="@rpath/{}.dylib")
-MACOS_X86_64 = Target.of(platforms.MACOS_X86_64, "x86_64-macos.10.13", _MACOS_SOURCES, _MACOS_FLAGS,
-                         install_name="@rpath/{}.dylib")
+LINUX = Target(**vars(platforms.LINUX), zig_target="x86_64-linux-gnu.2.17", platform_sources=_LINUX_SOURCES,
+               flags=_POSIX, libraries=_LINUX_LIBRARIES)
+LINUX_AARCH64 = Target(**vars(platforms.LINUX_AARCH64), zig_target="aarch64-linux-gnu.2.17",
+                       platform_sources=_LINUX_SOURCES, flags=_POSIX, libraries=_LINUX_LIBRARIES)
+WINDOWS = Target(**vars(platforms.WINDOWS), zig_target="x86_64-windows-gnu", platform_sources=("platform_windows.c",))
+MACOS_ARM64 = Target(**vars(platforms.MACOS_ARM64), zig_target="aarch64-macos.11.0", platform_sources=_MACOS_SOURCES,
+                     flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib")
+MACOS_X86_64 = Target(**vars(platforms.MACOS_X86_64), zig_target="x86_64-macos.10.13", platform_sources=_MACOS_SOURCES,
+                      flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib")
 TARGETS = (LINUX, LINUX_AARCH64, WINDOWS, MACOS_ARM64, MACOS_X86_64)
 
 
@@ -191,8 +163,7 @@ def build_python() -> PythonRuntime:
 
 
 def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
-    """What a binary for ``target`` may know of the building Python: its library and its system's library
-    name only on the same platform."""
+    """What a binary for ``target`` may know of the building Python: its library only on the same platform."""
     return runtime if target == host_target() else PythonRuntime(runtime.version, "", "")
 
 
@@ -214,7 +185,6 @@ def binary_sources(fmi_version: int) -> list[Path]:
 
 
 def _fmi_headers() -> Path:
-    """The FMI standard's headers, as FMPy ships them."""
     import fmpy
 
     return Path(fmpy.__file__).parent / "c-code"
@@ -225,7 +195,7 @@ def _c_string(text: str) -> str:
 
 
 def _status_category(status) -> str:
-    """The log category pythonfmu gives a message of ``status`` (``Fmi2Slave.log``, which owns the rule)."""
+    """The log category pythonfmu's ``Fmi2Slave.log``, which owns the rule, gives a message of ``status``."""
     from pythonfmu import Fmi2Slave
 
     probe = SimpleNamespace(log_categories=Fmi2Slave.log_categories, log_queue=[])
@@ -234,7 +204,7 @@ def _status_category(status) -> str:
 
 
 def _log_categories() -> list[str]:
-    """The log categories of the model descriptions and of each status, as pythonfmu writes and gives them."""
+    """The defines of the declared log categories and of each status's, as pythonfmu gives them."""
     from pythonfmu import Fmi2Slave
     from pythonfmu.enums import Fmi2Status
     from pythonfmu3 import Fmi3Slave
@@ -252,10 +222,9 @@ def _c_strings(texts) -> str:
 
 
 def _contract(fmi_version: int) -> list[str]:
-    """What the binary of ``fmi_version`` and the Python side agree on, owned by the Python side, as the
-    defines the native sources take: the codes and type names of ``fmu/native_bridge.py`` (the slave's get
-    and set method of each type follows from its name), the entry file, the environment variable that names
-    a Python, the log categories."""
+    """What the binary and the Python side agree on, owned by the Python side, as defines: the codes and type
+    names of ``fmu/native_bridge.py`` (and the slave's get and set methods they name), the entry file, the
+    environment variable that names a Python, the log categories."""
     tables = {"TYPE": TYPES, "CAUSALITY": CAUSALITIES, "VARIABILITY": VARIABILITIES}
     named = {(kind, code): name for kind, table in tables.items() for name, code in reversed(table.items())}
     values = [name.lower() for name in TYPE_NAMES[fmi_version][:-1]]  # String values are not supported
@@ -288,7 +257,7 @@ def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: P
 
 
 def _compiler_environment() -> dict:
-    """The environment for Zig: it keeps its cache under HOME or XDG_CACHE_HOME; without either, in the temp folder."""
+    """The environment for Zig, its cache in the temp folder where neither HOME nor XDG_CACHE_HOME is set."""
     env = dict(os.environ)
     if not any(env.get(key) for key in ("ZIG_GLOBAL_CACHE_DIR", "XDG_CACHE_HOME", "HOME")):
         env["ZIG_GLOBAL_CACHE_DIR"] = str(Path(tempfile.gettempdir()) / "dsc-fmu-zig-cache")
@@ -297,9 +266,7 @@ def _compiler_environment() -> dict:
 
 def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None,
                    model_identifier: str = "") -> bytes:
-    """Compile the binary layer of one FMI version for one platform.
-
-    Compiled once per process for the same sources and arguments.
+    """Compile the binary layer of one FMI version for one platform, once per process for the same inputs.
 
     Parameters
     ----------
@@ -308,11 +275,10 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
     target : Target, optional
         The platform it runs on. Default ``LINUX``.
     runtime : PythonRuntime, optional
-        The Python it prefers. Default ``build_python()``, whose library a binary for another platform
-        does not know.
+        The Python it prefers. Default ``build_python()`` (its library only for this platform).
     model_identifier : str, optional
-        The FMU's model identifier, for a target whose binary names itself (``Target.install_name``):
-        required there, ignored elsewhere. Default "".
+        The FMU's model identifier: required for a target whose binary names itself
+        (``Target.install_name``), ignored elsewhere. Default "".
 
     Returns
     -------
@@ -322,8 +288,7 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
     Raises
     ------
     BinaryBuildError
-        If the compiler cannot be run or fails, or a target that names its binary is given no model
-        identifier.
+        If the compiler cannot be run or fails, or a model identifier is missing.
     """
     if target.install_name and not model_identifier:
         raise BinaryBuildError(f"the {target.name} binary names itself after its FMU: give its model identifier")

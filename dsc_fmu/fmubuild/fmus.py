@@ -43,11 +43,9 @@ ENTRY_FILE = f"resources/{_BINARY_ENTRY_FILE}"
 DOCUMENTATION_FILE = "documentation/index.html"
 # FMI 3.0's file for the external resources an FMU needs to load (FMI 2.0 FMUs carry it too).
 DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
-# The licences of what a carried runtime holds (CPython's, a library's), by name and platform (FMI 3.0's
-# place for licences).
+# The licences of what a carried runtime holds, by name and platform (FMI 3.0's place for licences).
 LICENCE_FILE = "documentation/licenses/{name}-{platform}.txt"
-# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
-# module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
+# What each FMU bundles from the package beside its slave script: ``models``, and ``fmu`` with the glue of its FMI version.
 _FMU_MODULES = ("__init__.py", "slave_core.py", "jacobian.py", "slave_models.py", "glue.py", "native_bridge.py")
 _VERSION_MODULE = {2: "fmi2.py", 3: "fmi3.py"}
 # The FMI library each FMU carries, under its build's private package.
@@ -77,35 +75,29 @@ def _bundle(fmi_version: int) -> list[Path]:
 
 
 def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
-    """Every file the FMU is built from: its script, the bundle, this subpackage and the binary's sources."""
+    """Every file the FMU is built from: its script, the bundle, this subpackage, the binary's sources."""
     builder = sorted(Path(__file__).parent.glob("*.py"))
     return [_sources_dir() / spec.script_for(fmi_version), *(PACKAGE_DIR / path for path in _bundle(fmi_version)),
             *builder, *binary_sources(fmi_version)]
 
 
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
-    """The hash of everything an FMU is built from.
+    """The hash of an FMU's sources, this builder, the binary's sources and the FMI library's version.
 
-    Its sources, this builder, the binary's sources and the FMI library's version: an FMU whose build
-    id (``identity.fmu_build_id``) equals it is current, whichever machine and CPython built it (the
-    Python its binary looks for first is a preference, not a source).
+    An FMU whose build id (``identity.fmu_build_id``) equals it is current, whichever machine and
+    CPython built it (the Python its binary looks for first is a preference, not a source).
 
     Parameters
     ----------
     spec : registry.FmuSpec
         The FMU.
     fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+        The FMI version (``ValueError`` for another). Default 2.
 
     Returns
     -------
     str
         The SHA-256 digest, in hex.
-
-    Raises
-    ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
     """
     check_fmi_version(fmi_version)
     library = _library_version(fmi_version)
@@ -132,7 +124,7 @@ def _stage(spec: FmuSpec, stage: Path, digest: str, fmi_version: int = 2) -> tup
 
 
 def _entry(root: ET.Element, script: Path, package_dir: Path, spec: FmuSpec) -> str:
-    """The line of ``ENTRY_FILE``: bridge module, slave module, slave class, GUID (FMI 2.0) or token (FMI 3.0)."""
+    """The line of ``ENTRY_FILE``: bridge module, slave module, slave class, GUID or token."""
     token = root.get("guid") or root.get("instantiationToken")
     return f"{package_dir.name}.fmu.native_bridge {script.stem} {spec.name} {token}\n"
 
@@ -155,17 +147,14 @@ def _private(name: str, data: bytes, package: str, library: str) -> tuple[str, b
 
 
 def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
-    """The cached bytecode of the bundled module ``name`` for the Python that builds, checked against its
-    source by hash (PEP 552): an importer on that Python imports it without compiling, whatever the
-    files' times after unzipping; any other Python compiles the source."""
+    """The bundled module's bytecode for the building Python, checked against its source by hash (PEP 552)."""
     folder, _, file = name.rpartition("/")
     return f"{folder}/__pycache__/{file[:-3]}.{sys.implementation.cache_tag}.pyc", bytecode(data, name, check_source=True)
 
 
 @contextmanager
 def _slave_class_named(class_name: str):
-    """pythonfmu3's builder finds the slave class by searching the script's text for a class statement
-    naming ``Fmi3Slave``; ours derive from it through the glue: give it the class the registry names."""
+    """Tell pythonfmu3's builder the slave class, which it looks for as a class statement naming ``Fmi3Slave``."""
     from pythonfmu3 import builder
 
     find = builder.get_class_name
@@ -177,9 +166,7 @@ def _slave_class_named(class_name: str):
 
 
 def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_version: int) -> Path:
-    """The FMU as the FMI library builds it from the staged script and package. It needs no execution
-    tool: it carries the model and the code that runs it and loads CPython as a library
-    (``documentation.REQUIREMENTS``)."""
+    """The FMU as the FMI library builds it from the staged script and package (no execution tool needed)."""
     if fmi_version == 3:
         from pythonfmu3 import FmuBuilder as Fmu3Builder
 
@@ -197,17 +184,14 @@ def _raw_fmu(script: Path, package_dir: Path, dest: Path, spec: FmuSpec, fmi_ver
 
 
 def _forget_staged_modules(package: str, script: str) -> None:
-    """Drop the modules of these names from ``sys.modules``: before the build, those an FMU of the same
-    build loaded into this process imported from its resources (the FMI library would find their classes
-    instead of the stage's); after it, those imported from the stage (removed with it), so that such an
-    FMU imports its modules from its own resources."""
+    """Drop the build's modules from ``sys.modules``: before the build, those a loaded FMU of the same build
+    imported from its resources; after it, those imported from the stage, which is removed."""
     for name in [name for name in sys.modules if name in (package, script) or name.startswith(f"{package}.")]:
         del sys.modules[name]
 
 
 def _binaries(spec: FmuSpec, fmi_version: int) -> dict[str, bytes]:
-    """The FMU's binaries by path: one per target and folder, the targets that share a folder joined in
-    one universal file (macOS's ``darwin64``)."""
+    """The binaries by path; targets that share a folder (macOS's ``darwin64``) joined in a universal file."""
     slices = {}
     for target in TARGETS:
         binary = compile_binary(fmi_version, target, model_identifier=spec.name)
@@ -217,24 +201,21 @@ def _binaries(spec: FmuSpec, fmi_version: int) -> dict[str, bytes]:
 
 
 def _runtime_files(runtime: Runtime, platform: str, fmi_version: int) -> dict:
-    """The files of ``runtime`` in an FMU, beside the binary of ``platform`` (an FMI 3.0 tuple)."""
+    """The files of ``runtime`` in an FMU, beside the binary of ``platform``."""
     root = f"binaries/{_target(platform).folder(fmi_version)}/{ROOT}"
     return {**{f"{root}/{path}": data for path, data in runtime.files.items()}, f"{root}/{MANIFEST}": runtime.manifest(),
             **{LICENCE_FILE.format(name=name, platform=platform): text for name, text in runtime.licences.items()}}
 
 
 def _target(platform: str):
-    """The target of ``platform`` (an FMI 3.0 tuple)."""
     return next(target for target in TARGETS if target.name == platform)
 
 
 def _uncarried(runtimes: dict) -> list[str]:
-    """The platforms an FMU carries no CPython for (``runtimes`` by platform)."""
     return [target.name for target in TARGETS if target.name not in runtimes]
 
 
 def _requirements(runtimes: dict, fmi_version: int) -> str:
-    """What the importing machine needs: ``REQUIREMENTS``, or ``bundled_requirements`` of ``runtimes``."""
     if not runtimes:
         return REQUIREMENTS
     folders = {platform: f"binaries/{_target(platform).folder(fmi_version)}/{ROOT}" for platform in runtimes}
@@ -273,8 +254,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
     FmiVersionError
         If ``out_dir`` holds FMUs of another FMI version; nothing is written.
     BinaryBuildError
-        If the FMU's binary does not compile or a bundled module imports the FMI library by its
-        public name.
+        If the binary does not compile or a bundled module imports the FMI library by its public name.
     BundleError
         If a CPython cannot be bundled (``bundle_minor``, ``bundled_runtimes``); nothing is written.
     """
@@ -352,16 +332,8 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
 
     Raises
     ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
-    FmiVersionError
-        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
     KeyError
-        If a name is not one of the three FMUs.
-    BinaryBuildError
-        If an FMU's binary does not compile.
-    BundleError
-        If a CPython cannot be bundled; nothing is written.
+        If a name is not one of the three FMUs; else as ``build_fmu``.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     return {name: build_fmu(FMUS[name], out_dir, fmi_version, bundle_python) for name in names}
@@ -384,12 +356,8 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = Non
 
     Raises
     ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
-    FmiVersionError
-        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
-    BinaryBuildError
-        If an FMU's binary does not compile.
+    ValueError, FmiVersionError, BinaryBuildError
+        As ``build_fmu``.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {}
@@ -403,10 +371,9 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = Non
 
 @contextmanager
 def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None, bundle_python: bool | str = False):
-    """The three current FMUs, for exports, which write nothing but their output file.
+    """The three current FMUs, for exports, which write nothing but their output file (a context manager).
 
-    A context manager: those of ``out_dir`` if they are all current, else ones built into a temporary
-    folder that is removed on exit.
+    Those of ``out_dir`` if they are all current, else ones built into a temporary folder removed on exit.
 
     Parameters
     ----------
@@ -425,12 +392,8 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
 
     Raises
     ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
-    FmiVersionError
-        If the directory holds FMUs of another FMI version (``resolve_fmu_dir``); nothing is written.
-    BinaryBuildError
-        If an FMU's binary does not compile.
+    ValueError, FmiVersionError, BinaryBuildError, BundleError
+        As ``build_fmu``.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {name: out_dir / f"{name}.fmu" for name in FMUS}
@@ -443,8 +406,7 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
 
 
 def _carries(fmu: Path, bundle_python: bool | str) -> bool:
-    """Whether ``fmu`` carries the CPython ``bundle_python`` asks for (any FMU if it asks for none): the
-    Windows runtime's minor version decides, since Linux's is always the building CPython's."""
+    """Whether ``fmu`` carries the CPython ``bundle_python`` asks for: Linux's is always the building one's."""
     if not bundle_python:
         return True
     windows = (fmu_bundled_python(fmu) or {}).get(WINDOWS.name, "")

@@ -28,7 +28,7 @@ OLDEST_MINOR = 9
 
 
 def bundle_minor(python: bool | str) -> int:
-    """The minor version of the Windows runtime that ``python`` asks for.
+    """The minor version X of the Windows runtime that ``python`` asks for.
 
     Parameters
     ----------
@@ -56,8 +56,18 @@ def bundle_minor(python: bool | str) -> int:
 
 
 def carried_platforms(platforms) -> list[str]:
-    """The platforms among ``platforms`` (FMI 3.0 tuples) that an FMU built here can carry a CPython for:
-    x86-64 Windows, and Linux if this is Linux (its CPU's)."""
+    """The platforms among ``platforms`` that an FMU built here can carry a CPython for.
+
+    Parameters
+    ----------
+    platforms : iterable of str
+        FMI 3.0 platform tuples.
+
+    Returns
+    -------
+    list of str
+        x86-64 Windows, and this machine's Linux if this is Linux.
+    """
     here = host_target()
     linux = here.name if here is not None and here.os == "linux" else None
     return [platform for platform in platforms if platform in (linux, WINDOWS.name)]
@@ -75,7 +85,7 @@ def bundled_runtimes(fmu: Path, entry: str, python: bool | str, platforms) -> di
     python : True or str
         The Windows runtime's version (``bundle_minor``); Linux's is the building CPython.
     platforms : iterable of str
-        The FMU's platforms, as FMI 3.0 tuples (``"x86_64-linux"``).
+        The FMU's platforms, as FMI 3.0 tuples.
 
     Returns
     -------
@@ -85,7 +95,7 @@ def bundled_runtimes(fmu: Path, entry: str, python: bool | str, platforms) -> di
     Raises
     ------
     BundleError
-        If a runtime cannot be bundled (no shared library, no download, code that does not import).
+        If one cannot be bundled (no shared library, no download, code that does not import).
     """
     minor = bundle_minor(python)
     carried = carried_platforms(platforms)

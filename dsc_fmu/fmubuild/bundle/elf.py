@@ -47,12 +47,12 @@ def _string(data: bytes, offset: int) -> str:
 
 
 def needed(data: bytes) -> list[str]:
-    """The libraries the ELF file ``data`` names as DT_NEEDED, in order.
+    """The libraries an ELF file names as DT_NEEDED, in order.
 
     Parameters
     ----------
     data : bytes
-        A shared library or executable.
+        A shared library.
 
     Returns
     -------
@@ -70,16 +70,14 @@ def needed(data: bytes) -> list[str]:
 
 
 def without_debug(data: bytes) -> bytes:
-    """The shared library ``data`` without the sections a loader never reads.
+    """A shared library without the sections a loader never reads (debug information, static symbols).
 
-    Debug information and the static symbol table go; everything the program headers load is kept byte
-    for byte, with the section headers of what is kept and the section names.
+    What the program headers load is kept byte for byte, with the headers of the sections kept.
 
     Parameters
     ----------
     data : bytes
-        An x86-64 ELF shared library whose unloaded sections all follow its loaded contents (what
-        linkers write).
+        An ELF shared library whose unloaded sections follow its loaded contents (as linkers write).
 
     Returns
     -------

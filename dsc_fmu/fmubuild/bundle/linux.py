@@ -1,7 +1,6 @@
-"""The Linux runtime (x86-64 or aarch64, the building machine's): the building CPython's shared library, the standard-library modules the
-FMU's code imports as bytecode in ``lib/python3X.zip``, and the extension modules it imports in
-``lib/python3.X/lib-dynload`` (the libraries without their debug sections), so that with the runtime's
-folder as its home CPython finds them itself."""
+"""The Linux runtime (the building machine's CPU): the building CPython's shared library, the standard-library
+modules the FMU's code imports as bytecode in ``lib/python3X.zip`` and its extension modules in
+``lib/python3.X/lib-dynload`` (without debug sections): with the runtime's folder as home CPython finds them."""
 
 from __future__ import annotations
 
@@ -18,8 +17,7 @@ from .runtime import Runtime, bytecode, stored_zip
 
 __all__ = ["GLIBC", "linux_library", "linux_refused", "linux_runtime"]
 
-# The libraries of the C runtime every glibc system has: extension modules that need nothing else are
-# bundled freely.
+# The C runtime every glibc system has: extension modules that need nothing else are bundled freely.
 GLIBC = ("libc.so.6", "libm.so.6", "libpthread.so.0", "libdl.so.2", "librt.so.1", "libutil.so.1",
          "ld-linux-x86-64.so.2", "ld-linux-aarch64.so.1")
 _MINOR = f"{sys.version_info.major}.{sys.version_info.minor}"
@@ -36,8 +34,8 @@ def linux_library() -> Path:
     Raises
     ------
     BundleError
-        If this is not Linux on a CPU the FMUs have a binary for, or the building CPython has no shared
-        library; the message says what provides one.
+        If this is not Linux on a CPU of ``binary.TARGETS``, or the building CPython has no shared
+        library (the message says what provides one).
     """
     here = host_target()
     if here is None or here.os != "linux":
@@ -60,12 +58,10 @@ def _foreign(path: Path) -> list[str]:
 def linux_refused() -> set[str]:
     """The extension modules of the building CPython that need a library beyond glibc.
 
-    They (OpenSSL's, zlib's, libuuid's ...) are bundled only where an import cannot do without them.
-
     Returns
     -------
     set of str
-        Their module names.
+        Their names (OpenSSL's, zlib's, ...): bundled only where an import cannot do without them.
     """
     dynload = building_stdlib()[1]
     suffix = sysconfig.get_config_var("EXT_SUFFIX")
@@ -82,10 +78,8 @@ def _loaded(soname: str, mapped: tuple) -> Path:
 
 
 def _licence(library: Path) -> bytes:
-    """The licence of the system library ``library`` as its distribution installs it: the copyright file
-    of the Debian package that installs a file of its name (``/var/lib/dpkg/info/*.list``; with a merged
-    /usr the list names /lib where the loader mapped /usr/lib), or ``/usr/share/licenses/<name>`` (Fedora,
-    Arch)."""
+    """The licence of a system library: its Debian package's copyright file (found by file name, as a
+    merged /usr lists /lib where the loader mapped /usr/lib), or ``/usr/share/licenses/<name>``."""
     real = library.resolve()
     for listing in Path("/var/lib/dpkg/info").glob("*.list"):
         if any(line.endswith(f"/{real.name}") for line in listing.read_text(errors="replace").splitlines()):
@@ -105,8 +99,7 @@ def linux_runtime(imports: Imports) -> Runtime:
     """The Linux runtime for code that imports ``imports``.
 
     The libraries beyond glibc that its extension modules need (zlib's for ``binascii``, libffi's for
-    ``ctypes``, and what they need in turn) are carried in ``lib/`` under their sonames; the binary loads
-    them before CPython starts, so the loader finds them there by soname.
+    ``ctypes``, and theirs) go in ``lib/`` under their sonames; the binary loads them before CPython.
 
     Parameters
     ----------
@@ -116,14 +109,13 @@ def linux_runtime(imports: Imports) -> Runtime:
     Returns
     -------
     Runtime
-        Its files under the runtime's folder, the licences of CPython and of each library carried, and
-        what it needs of the system: the building machine's glibc or newer.
+        Its files, the licences of CPython and of each library, and its need: the building machine's
+        glibc or newer.
 
     Raises
     ------
     BundleError
-        If this is not Linux, the building CPython has no shared library, or a library an
-        extension module needs, or its licence, was not found.
+        As ``linux_library``, or for a library an extension module needs, or its licence, not found.
     """
     library = linux_library()
     stdlib = building_stdlib()[0]

@@ -20,11 +20,9 @@ class BundleError(DscFmuError, RuntimeError):
     """A CPython runtime cannot be bundled; the message says what is missing and what provides it."""
 
 
-# Run by ``python -I -S``: argv[1] the resources folder, argv[2] the entry file's line, argv[3] the refused
-# extension modules (JSON), argv[4] the file to answer in. Imports the bridge and the slave module, then
-# every module any bundled module names in an import statement (those inside functions too); answers
-# each module's name and file and the files the process has mapped (JSON), or the refused module an
-# import needed.
+# Run by ``python -I -S RESOURCES ENTRY REFUSED ANSWER``: imports the bridge and slave modules, then every
+# module a bundled module names in an import statement (in functions too); answers (JSON) each module's file
+# and the files mapped, or the refused module an import needed.
 _CHILD = r"""
 import ast, importlib, json, sys
 resources, entry, refused = sys.argv[1], sys.argv[2].split(), set(json.loads(sys.argv[3]))
@@ -79,11 +77,11 @@ class Imports:
     Parameters
     ----------
     sources : dict of str to pathlib.Path
-        The pure-Python modules, by name: their source files under the standard library.
+        The pure-Python modules' source files under the standard library, by name.
     extensions : dict of str to pathlib.Path
-        The extension modules in their own files (``lib-dynload``), by name.
+        The extension modules' files (``lib-dynload``), by name.
     names : frozenset of str
-        Every module imported, built-in and frozen ones included (what a bundle of another system maps).
+        Every module imported, built-in and frozen ones included.
     mapped : tuple of pathlib.Path
         The files the importing process had mapped (the libraries the extension modules loaded).
     """
@@ -95,7 +93,7 @@ class Imports:
 
 
 def building_stdlib() -> tuple[Path, Path]:
-    """The building CPython's standard-library folder and the folder of its extension modules.
+    """The building CPython's standard-library folder and that of its extension modules.
 
     Returns
     -------
@@ -115,8 +113,7 @@ def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
     entry : str
         Its entry file's line (bridge module, slave module, ...).
     refused : set of str
-        Extension modules to do without where the code falls back (those that need libraries beyond the
-        C runtime); one an import cannot do without is taken after all.
+        Extension modules to do without where the code falls back; one an import needs is taken.
 
     Returns
     -------
@@ -126,7 +123,7 @@ def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
     Raises
     ------
     BundleError
-        If the code cannot be imported.
+        If the code does not import.
     """
     stdlib, dynload = building_stdlib()
     refused = set(refused)

