@@ -4,11 +4,7 @@ __all__ = ["DscFmuError", "FmuNotFoundError", "FmiVersionError", "CosimulationEr
 
 
 class DscFmuError(Exception):
-    """An error a user can cause and fix.
-
-    A bad scenario or option, a missing or wrong FMU, a run that diverged, an archive a tool refuses;
-    its message is one line naming what is wrong and what is allowed.
-    """
+    """An error a user can cause and fix: its message is one line naming what is wrong and what is allowed."""
 
 
 class FmuNotFoundError(DscFmuError, FileNotFoundError):
@@ -46,9 +42,9 @@ class CosimulationError(DscFmuError, RuntimeError):
     def __init__(self, message: str, time: float, signal: str | None = None, value: float | None = None):
         super().__init__(message)
         self.time, self.signal, self.value = time, signal, value
-        self.result = None  # the rows recorded before the failure (numpy structured array)
-        self.steps: int | None = None  # communication steps completed before the failure
-        self.fmu: str | None = None  # the FMU whose FMI call failed, if one did
+        self.result = None
+        self.steps: int | None = None
+        self.fmu: str | None = None
 
     def __reduce__(self):  # picklable with its attributes, to cross from a worker process
         return type(self), (str(self), self.time, self.signal, self.value), self.__dict__

@@ -10,11 +10,9 @@ __all__ = ["atomic_write"]
 
 
 def atomic_write(path: Path | str, data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically: never a partial file.
+    """Write ``data`` to ``path`` through a file beside it that ``os.replace`` moves there: never a partial file.
 
-    The data go to a temporary file beside ``path``, which ``os.replace`` then moves into place; the
-    file gets the permissions of any new file (``0o666`` less the umask; ``tempfile.mkstemp`` would
-    give 0600).
+    The file gets the permissions of any new file (``0o666`` less the umask, not ``mkstemp``'s 0600).
 
     Parameters
     ----------

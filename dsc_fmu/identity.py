@@ -11,7 +11,7 @@ from .errors import FmiVersionError
 
 __all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_bundled_python", "fmu_fmi_version", "require_fmi2"]
 
-# Written by ``build.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
+# Written by ``fmubuild.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
 # (the version of the CPython it carries for each platform) in one built with ``--bundle-python``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
@@ -27,7 +27,7 @@ def fmu_build_id(fmu: Path) -> str | None:
     Returns
     -------
     str or None
-        The ``source_hash`` of its ``BUILD_ID_FILE``, or None if it is not one of ours (or not readable).
+        The ``source_hash`` of its ``BUILD_ID_FILE``; None if it is not one of ours or not readable.
     """
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data)["source_hash"])
 
@@ -43,8 +43,8 @@ def fmu_bundled_python(fmu: Path) -> dict | None:
     Returns
     -------
     dict of str to str or None
-        The full version by platform, as FMI 3.0 tuples (``{"x86_64-linux": "3.11.7", "x86_64-windows":
-        "3.11.9"}``); None if it carries none, is not one of ours or is not readable.
+        The full version by platform (``{"x86_64-linux": "3.11.7"}``); None if it carries none, is not one
+        of ours or is not readable.
     """
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data).get("python"))
 
@@ -60,8 +60,7 @@ def fmu_fmi_version(fmu: Path) -> str | None:
     Returns
     -------
     str or None
-        The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``), or None if it has
-        none (or is not readable).
+        The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``); None if not readable.
     """
     return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
 
@@ -79,8 +78,7 @@ def require_fmi2(fmus, why: str) -> None:
     Raises
     ------
     FmiVersionError
-        ``"<path> is an FMI 3.0 FMU, not allowed here: <why>; allowed: FMI 2.0 FMUs"``, for the first
-        such FMU.
+        ``"<path> is an FMI 3.0 FMU, not allowed here: <why>; allowed: FMI 2.0 FMUs"``, for the first.
     """
     for fmu in fmus:
         version = fmu_fmi_version(fmu)
@@ -89,8 +87,7 @@ def require_fmi2(fmus, why: str) -> None:
 
 
 def _read(fmu: Path, name: str, parse):
-    """``parse`` of the file ``name`` of an FMU, or None if the FMU, the file or what ``parse`` looks for is
-    missing or not readable."""
+    """``parse`` of the file ``name`` of an FMU, or None if anything is missing or not readable."""
     try:
         with zipfile.ZipFile(fmu) as archive:
             return parse(archive.read(name))

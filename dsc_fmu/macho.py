@@ -40,8 +40,7 @@ def universal(slices: list[bytes]) -> bytes:
     Returns
     -------
     bytes
-        The universal file: a big-endian ``0xcafebabe`` header, one ``fat_arch`` per slice, each slice
-        at a multiple of 2**14 bytes.
+        A big-endian ``0xcafebabe`` header, one ``fat_arch`` per slice, each slice at a multiple of 2**14 bytes.
 
     Raises
     ------
@@ -83,14 +82,12 @@ class CodeSignature:
 
     Parameters
     ----------
-    version : int
-        The CodeDirectory's version (``0x20400`` is 2.4).
-    flags : int
-        Its flags (ad hoc ``0x2``, linker-signed ``0x20000``).
+    version, flags : int
+        The CodeDirectory's version (``0x20400`` is 2.4) and flags (ad hoc ``0x2``, linker-signed ``0x20000``).
     hash_type : int
         1 for SHA-1, 2 for SHA-256.
     page_size : int
-        The bytes a code page holds (the CodeDirectory stores its base-2 logarithm).
+        The bytes a code page holds.
     code_limit : int
         The code pages cover the slice's bytes ``[0, code_limit)``; the last page may be short.
     identifier : str
@@ -109,12 +106,12 @@ class CodeSignature:
 
     @property
     def adhoc(self) -> bool:
-        """Whether the signature is ad hoc (no certificate): flag ``0x2``."""
+        """Whether the signature is ad hoc (no certificate)."""
         return bool(self.flags & 0x2)
 
     @property
     def linker_signed(self) -> bool:
-        """Whether the linker made the signature: flag ``0x20000``."""
+        """Whether the linker made the signature."""
         return bool(self.flags & 0x20000)
 
     @property
@@ -133,26 +130,24 @@ class Slice:
         ``"x86_64"`` or ``"arm64"`` (another CPU as its hexadecimal ``cputype``).
     file_type : str
         ``"dylib"``, ``"bundle"``, ``"execute"`` or ``"object"`` (another as its hexadecimal number).
-    offset : int
-        Where the slice starts in the data read (0 for a thin file).
-    size : int
-        The slice's length in bytes.
+    offset, size : int
+        Where the slice starts in the data read (0 for a thin file), and its length in bytes.
     install_name : str or None
-        The install name (``LC_ID_DYLIB``); None if there is none.
+        The install name (``LC_ID_DYLIB``), if any.
     dylibs : tuple of str
         The libraries it links (load, weak, re-export, lazy and upward ``LC_*_DYLIB``), in load-command order.
     minos : str or None
-        The minimum macOS (``"11.0"``, ``"10.13"``) from ``LC_BUILD_VERSION`` or ``LC_VERSION_MIN_MACOSX``.
+        The minimum macOS (``"11.0"``) from ``LC_BUILD_VERSION`` or ``LC_VERSION_MIN_MACOSX``.
     exports : tuple of str
-        The exported symbols, sorted, named as in the file (a C name with a leading ``_``): from the export
-        trie, or the symbol table's external defined symbols if there is no trie.
+        The exported symbols, sorted, as in the file (a C name with a leading ``_``): from the export
+        trie, else the symbol table's external defined symbols.
     signature : CodeSignature or None
-        The embedded code signature; None if there is none.
+        The embedded code signature, if any.
     """
 
     cpu: str
     file_type: str
-    offset: int  # where the slice starts in the data read (0 for a thin file)
+    offset: int
     size: int
     install_name: str | None
     dylibs: tuple[str, ...]
@@ -188,7 +183,7 @@ def _uleb128(data: bytes, pos: int, end: int) -> tuple[int, int]:
 
 
 def _trie_exports(image: bytes, start: int, size: int) -> list[str]:
-    """The names of the exports trie at image[start:start + size]: every node with terminal info is one."""
+    """The names of the exports trie at image[start:start + size]: its nodes with terminal info."""
     end = start + size
     if end > len(image):
         raise ValueError(f"truncated Mach-O: the export trie ends at {end}, the slice at {len(image)}")
@@ -222,7 +217,7 @@ def _symtab_exports(image: bytes, symoff: int, nsyms: int, stroff: int, strsize:
 
 
 def _signature(image: bytes, start: int, size: int) -> CodeSignature:
-    """The CodeDirectory of the SuperBlob at image[start:start + size], its page hashes checked (big-endian)."""
+    """The CodeDirectory of the (big-endian) SuperBlob at image[start:start + size], its page hashes checked."""
     magic, _, count = _unpack(">III", image, start, "the code signature")
     if magic != CSMAGIC_EMBEDDED_SIGNATURE:
         raise ValueError(f"garbled Mach-O: code signature magic 0x{magic:08x},"

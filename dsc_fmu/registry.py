@@ -49,14 +49,13 @@ class FmuSpec:
     parameters, inputs, outputs : tuple of models.parameters.Variable
         Its variable tables.
     states : tuple of models.states.ContinuousState
-        Its continuous states, for model exchange (``models.states``).
+        Its continuous states, for model exchange.
     state_locals : tuple of models.parameters.Variable, optional
         The states' variables that are not outputs.
     indicators : tuple of models.parameters.Variable, optional
         Its event indicators.
     depends : dict, optional
-        For each discrete output, the inputs it depends on (ModelStructure); an output not listed
-        depends on none.
+        Each discrete output's inputs (ModelStructure); one not listed depends on none.
     """
 
     name: str
@@ -86,10 +85,7 @@ class FmuSpec:
 
     @property
     def locals(self) -> tuple:
-        """The local variables, in the order the slave registers them.
-
-        The states that are not outputs, the derivatives of the states, the event indicators.
-        """
+        """The local variables in the order the slave registers them: states that are not outputs, derivatives, indicators."""
         return (*self.state_locals, *(s.derivative for s in self.states), *self.indicators)
 
     @property

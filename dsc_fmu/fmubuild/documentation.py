@@ -8,7 +8,7 @@ from xml.etree import ElementTree as ET
 
 from ..registry import CONTROLLER, PLANT, REFERENCE
 
-__all__ = ["PAPER", "EQUATIONS", "REQUIREMENTS", "documentation_html"]
+__all__ = ["PAPER", "EQUATIONS", "REQUIREMENTS"]
 
 PAPER = ('"Adaptive tracking control of nonholonomic mobile robots considering actuator dynamics", '
          "a dynamic surface control (DSC) design; equation numbers below are the paper's.")
@@ -88,24 +88,8 @@ REQUIREMENTS = (
 
 
 def bundled_requirements(runtimes: dict, folders: dict, licences: dict, others: list) -> str:
-    """What the importing machine needs of an FMU that carries its own CPython.
-
-    Parameters
-    ----------
-    runtimes : dict of str to bundle.Runtime
-        The runtimes, by platform (``"x86_64-linux"``, ``"x86_64-windows"``).
-    folders : dict of str to str
-        The runtime's folder in the FMU, by platform.
-    licences : dict of str to list of str
-        The licence files in the FMU (CPython's first), by platform.
-    others : list of str
-        The FMU's platforms that carry no runtime.
-
-    Returns
-    -------
-    str
-        The requirements, as ``REQUIREMENTS`` gives them for FMUs without one.
-    """
+    """``REQUIREMENTS`` of an FMU that carries ``runtimes`` (by platform, each in ``folders`` with ``licences``)
+    and none for the ``others``."""
     carried = "; ".join(
         f"for {platform} CPython {runtime.version} in {folders[platform]}"
         + (f" (it needs {', '.join(runtime.needs)})" if runtime.needs else "")
@@ -126,33 +110,8 @@ _STYLE = "body{font-family:sans-serif;max-width:60em}table{border-collapse:colla
 
 def documentation_html(model_description: ET.Element, name: str, units: dict[str, str],
                        requirements: str = REQUIREMENTS) -> str:
-    """The HTML documentation page of one FMU.
-
-    It gives the FMU's interfaces, the equations it implements (``EQUATIONS``), every variable of the
-    model description in its order, the default experiment and what the FMU needs to run.
-
-    Parameters
-    ----------
-    model_description : xml.etree.ElementTree.Element
-        The FMU's completed model description (FMI 2.0 or 3.0), its root element.
-    name : str
-        The FMU's name, a key of ``EQUATIONS`` (``registry.ORDER``).
-    units : dict of str to str
-        Variable name -> unit, used where the model description gives none (Integer and Boolean
-        variables).
-    requirements : str, optional
-        What the importing machine needs. Default ``REQUIREMENTS``.
-
-    Returns
-    -------
-    str
-        The HTML page, ending with a newline.
-
-    Raises
-    ------
-    KeyError
-        If ``name`` is not a key of ``EQUATIONS``.
-    """
+    """The HTML page of FMU ``name`` from its completed model description: its interfaces, equations,
+    variables (``units`` where the model description gives none), default experiment and requirements."""
     root = model_description
     version = root.get("fmiVersion")
     rows = []
@@ -192,7 +151,6 @@ def documentation_html(model_description: ET.Element, name: str, units: dict[str
 
 
 def _interfaces(root: ET.Element) -> str:
-    """The interfaces the model description declares, in words."""
     names = [words for tag, words in (("ModelExchange", "model exchange"), ("CoSimulation", "co-simulation"))
              if root.find(tag) is not None]
     return " and ".join(names)

@@ -24,17 +24,12 @@ def check_fmi_version(fmi_version: int) -> int:
     Parameters
     ----------
     fmi_version : {2, 3}
-        The FMI version.
+        The FMI version (``ValueError`` for another).
 
     Returns
     -------
     int
         ``fmi_version``.
-
-    Raises
-    ------
-    ValueError
-        If ``fmi_version`` is not one of ``FMI_VERSIONS``.
     """
     if fmi_version not in FMI_VERSIONS:
         raise ValueError(f"fmi_version = {fmi_version!r} is not allowed; allowed: 2 or 3")
@@ -47,17 +42,12 @@ def default_fmu_dir(fmi_version: int = DEFAULT_FMI_VERSION) -> Path:
     Parameters
     ----------
     fmi_version : {2, 3}, optional
-        The FMI version. Default 2.
+        The FMI version (``ValueError`` for another). Default 2.
 
     Returns
     -------
     pathlib.Path
         ``build/fmus`` (2.0) or ``build/fmus3`` (3.0), relative to the working directory.
-
-    Raises
-    ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
     """
     return DEFAULT_FMU_DIRS[check_fmi_version(fmi_version)]
 
@@ -65,17 +55,15 @@ def default_fmu_dir(fmi_version: int = DEFAULT_FMI_VERSION) -> Path:
 def resolve_fmu_dir(out_dir: Path | str | None = None, fmi_version: int | None = None) -> tuple[Path, int]:
     """The folder of the three FMUs and their FMI version, checked so that nothing replaces FMUs of another.
 
-    The version is ``fmi_version`` if given, else that of the FMUs the folder holds (the
-    ``fmiVersion`` of their ``modelDescription.xml``), else ``DEFAULT_FMI_VERSION`` (2). Only the three FMUs' files
-    (``<name>.fmu``) count; one that is not a readable FMU counts as none.
+    The version is ``fmi_version`` if given, else the ``fmiVersion`` of the FMUs the folder holds (only
+    the three ``<name>.fmu`` that read count), else ``DEFAULT_FMI_VERSION``.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str or None, optional
-        The folder. Default None: ``default_fmu_dir`` of ``fmi_version`` (of ``DEFAULT_FMI_VERSION`` if
-        that is None).
+        The folder. Default None: ``default_fmu_dir`` of the version.
     fmi_version : {2, 3} or None, optional
-        The FMI version asked for. Default None: the folder's.
+        The FMI version asked for (``ValueError`` for another). Default None: the folder's.
 
     Returns
     -------
@@ -84,11 +72,9 @@ def resolve_fmu_dir(out_dir: Path | str | None = None, fmi_version: int | None =
 
     Raises
     ------
-    ValueError
-        If ``fmi_version`` is not 2, 3 or None.
     FmiVersionError
-        One line naming the folder, the FMI version found there and what is allowed, if the folder
-        holds FMUs of another version than ``fmi_version``, of two versions, or of neither 2.0 nor 3.0.
+        In one line, if the folder holds FMUs of another version than ``fmi_version``, of two
+        versions, or of neither 2.0 nor 3.0.
     """
     asked = None if fmi_version is None else check_fmi_version(fmi_version)
     folder = Path(out_dir) if out_dir is not None else default_fmu_dir(asked or DEFAULT_FMI_VERSION)

@@ -48,7 +48,7 @@ def _unit_definitions(used) -> ET.Element:
 
 
 def _complete_variable(typed: ET.Element, v, real: bool) -> None:
-    """Unit and exact start value (Real / Float64), ``min`` and ``max`` of the table variable ``v``."""
+    """Unit and exact start value (Real, Float64), ``min`` and ``max`` of the table variable ``v``."""
     if real:
         typed.set("unit", v.unit)
         if typed.get("start") is not None:
@@ -88,8 +88,7 @@ def _model_exchange(root: ET.Element, cosimulation: ET.Element, fmi_version: int
 
 
 def _declare_states(variable: ET.Element, typed: ET.Element, name: str, spec: FmuSpec, reference: dict) -> None:
-    """A state's nominal, a derivative's ``derivative`` attribute (``reference``: name -> how the
-    model description refers to a variable)."""
+    """A state's nominal, a derivative's ``derivative`` attribute."""
     for state in spec.states:
         if name == state.variable.name:
             typed.set("nominal", repr(float(state.nominal)))
@@ -98,9 +97,7 @@ def _declare_states(variable: ET.Element, typed: ET.Element, name: str, spec: Fm
 
 
 def _structure(spec: FmuSpec, reference: dict, discrete: list) -> dict:
-    """The outputs, derivatives, initial unknowns and event indicators of ModelStructure as
-    ``(name, dependencies)``; dependencies None where the model description states none (every known).
-    ``discrete``: the discrete outputs, which depend on ``spec.depends``."""
+    """ModelStructure's parts as ``(name, dependencies)``, None where it states none (every known)."""
     continuous, initial = continuous_dependencies(spec), initial_dependencies(spec)
 
     def refs(names):
@@ -165,8 +162,7 @@ _VERSIONS = {
 
 
 def _references(variables: ET.Element, version: _Version) -> dict:
-    """How ModelStructure refers to each variable by name, the time (``structure.TIME``) included where
-    the model description declares it."""
+    """How ModelStructure refers to each variable by name, ``structure.TIME`` included where declared."""
     if version.key == "index":
         references = {variable.get("name"): str(i) for i, variable in enumerate(variables, start=1)}
     else:
@@ -178,7 +174,7 @@ def _references(variables: ET.Element, version: _Version) -> dict:
 
 
 def _complete_variables(variables: ET.Element, spec: FmuSpec, version: _Version, references: dict) -> None:
-    """Units, exact start values, ranges, nominals and derivatives of every variable; the time's unit."""
+    """Units, exact start values, ranges, nominals and derivatives of every variable."""
     for variable in variables:
         name = variable.get("name")
         typed = variable[0] if version.scalar_wrapped else variable
@@ -207,13 +203,10 @@ def _write_structure(root: ET.Element, spec: FmuSpec, version: _Version, referen
 def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) -> ET.Element:
     """Complete the model description that pythonfmu (FMI 2.0) or pythonfmu3 (FMI 3.0) writes.
 
-    Adds what they do not write: model exchange beside co-simulation, units (the time's too, where the
-    model description declares it), exact start values, ranges, nominals, derivatives and ModelStructure
-    with its dependencies (``structure``; FMI 3.0 by value reference, the time included, and event
-    indicators; FMI 2.0 by index, and the number of event indicators). An FMI 2.0 FMU with inputs
-    declares ``canInterpolateInputs`` (the project's binary takes input derivatives); both interfaces
-    declare the exact partial derivatives the binary provides (FMI 2.0 ``providesDirectionalDerivative``,
-    FMI 3.0 ``providesDirectionalDerivatives`` and ``providesAdjointDerivatives``).
+    Adds model exchange beside co-simulation, units, exact start values, ranges, nominals, derivatives
+    and ModelStructure with its dependencies (``structure``: FMI 3.0 by value reference with the time and
+    event indicators, FMI 2.0 by index), ``canInterpolateInputs`` for an FMI 2.0 FMU with inputs, and the
+    exact partial derivatives the binary provides.
 
     Parameters
     ----------
@@ -256,11 +249,11 @@ def documentation(root: ET.Element, spec: FmuSpec, requirements: str) -> bytes:
     Parameters
     ----------
     root : xml.etree.ElementTree.Element
-        The FMU's completed model description (``complete_model_description``).
+        The FMU's completed model description.
     spec : registry.FmuSpec
         The FMU it describes.
     requirements : str
-        What the importing machine needs (``documentation.REQUIREMENTS``, ``bundled_requirements``).
+        What the importing machine needs.
 
     Returns
     -------

@@ -1,10 +1,9 @@
 """The dependencies of ModelStructure, found by running the model code that the FMU runs.
 
-An unknown (an output, a state derivative, an initial value) depends on a known (an input, a
-state, the time, a parameter at initialization) if changing the known changes it. Each unknown is
-evaluated at random points (random parameters, inputs, states and time), each known changed in turn, for every value of the parameters that choose
-between laws (``profile``, ``discretization``, ...): at a random point a dependency that exists shows
-as a changed value, and one that does not leaves the value exactly as it was.
+An unknown (an output, a state derivative, an initial value) depends on a known (an input, a state, the
+time, a parameter at initialization) if changing the known changes it: each unknown is evaluated at random
+points, each known changed in turn, for every value of the parameters that choose between laws; at a random
+point a dependency shows as a changed value, and its absence leaves the value exactly as it was.
 """
 
 from __future__ import annotations
@@ -54,8 +53,7 @@ def _changed(value: float) -> float:
 
 
 def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str, ...]]:
-    """For each unknown that ``evaluate(probe)`` returns by name, the names of ``knowns`` (name ->
-    ``(get, set)`` on a probe) whose change changes it."""
+    """For each unknown ``evaluate(probe)`` returns, the ``knowns`` (name -> ``(get, set)``) whose change changes it."""
     rng = random.Random(_SEED)
     found = {}
     for probe in _models(spec):
@@ -80,7 +78,6 @@ def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str,
 
 
 def _setter(attribute: str, key):
-    """A known's setter: item ``key`` of the probe's ``attribute`` (``u``, ``state`` or ``p``)."""
     def put(probe, value):
         getattr(probe, attribute)[key] = value
         probe._stale(parameters=True)
@@ -96,7 +93,7 @@ def _continuous(probe) -> dict:
 
 
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in continuous-time mode (and at communication points), found by running the model.
+    """The dependencies in continuous-time mode (and at communication points).
 
     Parameters
     ----------
@@ -106,8 +103,7 @@ def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
     Returns
     -------
     dict of str to tuple of str
-        Each continuous output, state derivative and event indicator -> the inputs, states and ``TIME``
-        it depends on, in that order.
+        Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``.
     """
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
@@ -126,7 +122,7 @@ def _initial(probe) -> dict:
 
 
 def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in initialization mode, found by running the model.
+    """The dependencies in initialization mode.
 
     Parameters
     ----------
@@ -136,8 +132,7 @@ def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
     Returns
     -------
     dict of str to tuple of str
-        Each continuous output, state and state derivative -> the inputs, Real parameters and ``TIME``
-        it depends on, in that order.
+        Each continuous output, state and state derivative -> its inputs, Real parameters and ``TIME``.
     """
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name))

@@ -7,7 +7,7 @@ import struct
 
 from .modules import BundleError
 
-__all__ = ["ElfError", "needed", "without_debug"]
+__all__ = ["ElfError"]  # ``needed`` and ``without_debug`` serve ``bundle.linux``
 
 _HEADER = struct.Struct("<16sHHIQQQIHHHHHH")  # Elf64_Ehdr
 _SECTION = struct.Struct("<IIQQQQIIQQ")  # Elf64_Shdr
@@ -47,18 +47,7 @@ def _string(data: bytes, offset: int) -> str:
 
 
 def needed(data: bytes) -> list[str]:
-    """The libraries an ELF file names as DT_NEEDED, in order.
-
-    Parameters
-    ----------
-    data : bytes
-        A shared library.
-
-    Returns
-    -------
-    list of str
-        The sonames, for example ``["libz.so.1", "libc.so.6"]``.
-    """
+    """The sonames an ELF file names as DT_NEEDED, in order."""
     sections = _sections(data, _header(data))
     for kind, offset, size, link in ((s[1], s[4], s[5], s[6]) for s in sections):
         if kind != _DYNAMIC_SECTION:
@@ -72,22 +61,8 @@ def needed(data: bytes) -> list[str]:
 def without_debug(data: bytes) -> bytes:
     """A shared library without the sections a loader never reads (debug information, static symbols).
 
-    What the program headers load is kept byte for byte, with the headers of the sections kept.
-
-    Parameters
-    ----------
-    data : bytes
-        An ELF shared library whose unloaded sections follow its loaded contents (as linkers write).
-
-    Returns
-    -------
-    bytes
-        The smaller library; ``data`` itself if it has nothing to cut.
-
-    Raises
-    ------
-    ElfError
-        If the file is not such a library.
+    What the program headers load is kept byte for byte, with the headers of the sections kept; ``data``
+    itself if it has nothing to cut. ``ElfError`` unless its unloaded sections follow its loaded contents.
     """
     header = _header(data)
     sections = _sections(data, header)

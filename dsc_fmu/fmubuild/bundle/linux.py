@@ -15,7 +15,7 @@ from .elf import needed, without_debug
 from .modules import BundleError, Imports, building_stdlib
 from .runtime import Runtime, bytecode, stored_zip
 
-__all__ = ["GLIBC", "linux_library", "linux_refused", "linux_runtime"]
+__all__ = []  # the runtime of ``bundle.bundled_runtimes`` for Linux
 
 # The C runtime every glibc system has: extension modules that need nothing else are bundled freely.
 GLIBC = ("libc.so.6", "libm.so.6", "libpthread.so.0", "libdl.so.2", "librt.so.1", "libutil.so.1",
@@ -24,19 +24,8 @@ _MINOR = f"{sys.version_info.major}.{sys.version_info.minor}"
 
 
 def linux_library() -> Path:
-    """The building CPython's shared library, to carry for Linux.
-
-    Returns
-    -------
-    pathlib.Path
-        ``libpython3.X.so.1.0``.
-
-    Raises
-    ------
-    BundleError
-        If this is not Linux on a CPU of ``binary.TARGETS``, or the building CPython has no shared
-        library (the message says what provides one).
-    """
+    """The building CPython's ``libpython3.X.so.1.0``; ``BundleError`` (saying what provides one) if this is
+    not Linux on a CPU of ``binary.TARGETS`` or the building CPython has none."""
     here = host_target()
     if here is None or here.os != "linux":
         raise BundleError(f"the Linux runtime is the building CPython's, and this is {sys.platform} on "
@@ -56,13 +45,7 @@ def _foreign(path: Path) -> list[str]:
 
 
 def linux_refused() -> set[str]:
-    """The extension modules of the building CPython that need a library beyond glibc.
-
-    Returns
-    -------
-    set of str
-        Their names (OpenSSL's, zlib's, ...): bundled only where an import cannot do without them.
-    """
+    """The building CPython's extension modules that need a library beyond glibc (OpenSSL's, zlib's, ...)."""
     dynload = building_stdlib()[1]
     suffix = sysconfig.get_config_var("EXT_SUFFIX")
     return {path.name[:-len(suffix)] for path in dynload.glob(f"*{suffix}") if _foreign(path)}
@@ -96,26 +79,11 @@ def _licence(library: Path) -> bytes:
 
 
 def linux_runtime(imports: Imports) -> Runtime:
-    """The Linux runtime for code that imports ``imports``.
+    """The Linux runtime for code that imports ``imports``, needing the building machine's glibc or newer.
 
     The libraries beyond glibc that its extension modules need (zlib's for ``binascii``, libffi's for
-    ``ctypes``, and theirs) go in ``lib/`` under their sonames; the binary loads them before CPython.
-
-    Parameters
-    ----------
-    imports : Imports
-        What the FMU's code imports from the building CPython (``modules.imported_modules``).
-
-    Returns
-    -------
-    Runtime
-        Its files, the licences of CPython and of each library, and its need: the building machine's
-        glibc or newer.
-
-    Raises
-    ------
-    BundleError
-        As ``linux_library``, or for a library an extension module needs, or its licence, not found.
+    ``ctypes``, and theirs) go in ``lib/`` under their sonames with their licences; the binary loads them
+    before CPython. ``BundleError`` as ``linux_library``, or for such a library or licence not found.
     """
     library = linux_library()
     stdlib = building_stdlib()[0]

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from ...errors import DscFmuError
 
-__all__ = ["BundleError", "Imports", "building_stdlib", "imported_modules"]
+__all__ = ["BundleError"]
 
 
 class BundleError(DscFmuError, RuntimeError):
@@ -72,59 +72,23 @@ answer(modules={name: getattr(module, "__file__", None) for name, module in sys.
 
 @dataclass(frozen=True)
 class Imports:
-    """What the bundled code imports from the building CPython.
+    """What the bundled code imports from the building CPython."""
 
-    Parameters
-    ----------
-    sources : dict of str to pathlib.Path
-        The pure-Python modules' source files under the standard library, by name.
-    extensions : dict of str to pathlib.Path
-        The extension modules' files (``lib-dynload``), by name.
-    names : frozenset of str
-        Every module imported, built-in and frozen ones included.
-    mapped : tuple of pathlib.Path
-        The files the importing process had mapped (the libraries the extension modules loaded).
-    """
-
-    sources: dict[str, Path]
-    extensions: dict[str, Path]
-    names: frozenset
-    mapped: tuple
+    sources: dict[str, Path]  # the pure-Python modules' source files under the standard library, by name
+    extensions: dict[str, Path]  # the extension modules' files (``lib-dynload``), by name
+    names: frozenset  # every module imported, built-in and frozen ones included
+    mapped: tuple  # the files the process had mapped: the libraries the extension modules loaded
 
 
 def building_stdlib() -> tuple[Path, Path]:
-    """The building CPython's standard-library folder and that of its extension modules.
-
-    Returns
-    -------
-    tuple of pathlib.Path
-        ``stdlib`` and ``DESTSHARED`` (``lib-dynload``), as ``sysconfig`` gives them.
-    """
+    """The building CPython's ``stdlib`` and ``DESTSHARED`` (``lib-dynload``) folders."""
     return Path(sysconfig.get_paths()["stdlib"]), Path(sysconfig.get_config_var("DESTSHARED") or "")
 
 
 def imported_modules(resources: Path, entry: str, refused: set[str]) -> Imports:
-    """The standard-library modules the code in ``resources`` imports when the binary loads it.
-
-    Parameters
-    ----------
-    resources : pathlib.Path
-        An FMU's unzipped ``resources`` folder (its parent takes the child's answer).
-    entry : str
-        Its entry file's line (bridge module, slave module, ...).
-    refused : set of str
-        Extension modules to do without where the code falls back; one an import needs is taken.
-
-    Returns
-    -------
-    Imports
-        The modules, split by kind.
-
-    Raises
-    ------
-    BundleError
-        If the code does not import.
-    """
+    """The standard-library modules the code in an FMU's unzipped ``resources`` imports when the binary
+    loads it (``entry``: the entry file's line), doing without the ``refused`` extension modules where the
+    code falls back; ``BundleError`` if it does not import."""
     stdlib, dynload = building_stdlib()
     refused = set(refused)
     answer_file = resources.parent / "imports.json"

