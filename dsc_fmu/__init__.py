@@ -1,9 +1,6 @@
 """dsc-fmu: the adaptive DSC of an electrically driven mobile robot as FMI FMUs (co-simulation and model exchange).
 
-The names a user needs, imported when first used (so that ``import dsc_fmu`` and ``dsc-fmu --help``
-stay fast): ``load_scenario``, ``build_fmus``, ``ensure_fmus``, ``cosimulate``, ``Cosimulator``,
-``simulate_model_exchange``, ``linearise_at``, ``reference_solution``, ``run_scenario``, ``run_sweep`` with its ``Grid`` and
-``Runner``, ``DscFmuError`` and ``CosimulationError``.
+The names a user needs (``__all__``), imported when first used: ``import dsc_fmu`` and ``dsc-fmu --help`` stay fast.
 """
 
 import importlib

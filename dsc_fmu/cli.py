@@ -1,9 +1,8 @@
 """The ``dsc-fmu`` command line: a thin shell over one public function per command.
 
-Every option is declared once, in ``_OPTIONS``, with one help text; each command adds the options it
-takes. An option left out is not passed on, so that its default is its owner's (the scenario, ``Grid``,
-the FMU builder), and the help texts read those defaults from their owners. Only the command being run
-gets its options, so that a command imports only the owners it needs.
+Every option is declared once, in ``_OPTIONS``; an option left out is not passed on, so its default is its
+owner's (the scenario, ``Grid``, the builder), which its help reads. Only the command run gets its options,
+so that it imports only the owners it needs.
 """
 
 from __future__ import annotations

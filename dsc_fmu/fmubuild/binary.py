@@ -1,16 +1,5 @@
-"""The FMUs' binary layer: ``dsc_fmu/fmubuild/native`` compiled with Zig's C compiler (the ``ziglang`` package)
-for x86-64 and aarch64 Linux, x86-64 Windows and macOS on Apple Silicon and Intel, on any OS.
-
-The binary replaces pythonfmu's and pythonfmu3's binaries in every FMU. It links no Python: it finds
-one at run time (``native/pyhost.c``), so the FMUs load in C and C++ importers with no set-up, and any
-CPython from 3.9 on runs them. Zig comes from the package index with everything it needs (a C
-compiler, a linker, the glibc stubs, the MinGW-w64 import libraries and macOS's libSystem stubs), so
-building needs no system compiler and no SDK. The Linux binaries target glibc 2.17, so they also load on
-distributions older than the one that built them; the Windows binary imports KERNEL32 and the UCRT only;
-the macOS binaries link libSystem only, target macOS 11.0 (Apple Silicon) and 10.13 (Intel), are
-stripped, name themselves ``@rpath/<model identifier>.dylib`` and carry the ad-hoc signature Zig's linker
-gives arm64 code (Apple Silicon runs no unsigned code).
-"""
+"""The FMUs' binary layer: ``native/`` compiled with Zig's C compiler (``ziglang``) for every platform, on any OS
+(docs/fmus.md: no Python linked, any CPython from 3.9 found at run time, no system compiler or SDK needed)."""
 
 from __future__ import annotations
 

@@ -1,10 +1,6 @@
-"""A CPython inside each FMU (``dsc-fmu build --bundle-python``), so that it runs where no Python is
-installed: for the platforms the FMU can carry one for, the runtime its binary starts when no CPython is
-already in the process and DSC_FMU_PYTHON is not set (``native/pyhost.c``). Linux of the building
-machine's CPU takes the building CPython's (``linux``), x86-64 Windows the official embeddable one
-(``windows``); each carries only the standard-library modules the FMU's code imports (``modules``). The
-other platforms (macOS, Linux of another CPU) carry none: their binaries use the importing machine's
-CPython."""
+"""A CPython inside each FMU (``--bundle-python``; docs/fmus.md, "A CPython inside the FMU"): the building one's
+for Linux of its CPU (``linux``), the official embeddable one for x86-64 Windows (``windows``), each with only the
+standard-library modules the FMU's code imports (``modules``); other platforms use the importing machine's."""
 
 from __future__ import annotations
 
