@@ -47,8 +47,7 @@ def _names(text: str) -> list[str]:
 
 @dataclass(frozen=True)
 class _Option:
-    """A command-line option: its flags, its help (its ``{fields}`` filled by each command from the
-    owners of the values) and the rest of ``add_argument``'s keywords."""
+    """A command-line option: its flags, its help (``{fields}`` filled from the values' owners), ``add_argument``'s keywords."""
 
     flags: tuple
     help: str
@@ -71,7 +70,8 @@ _OPTIONS = {
     "bundle_python": _option("--bundle-python", nargs="?", const=True, default=False, metavar="3.X", help="each FMU "
                              "carries a CPython for Linux and Windows, so the importing machine needs none: "
                              "Linux's is the building CPython's, Windows' the official embeddable CPython 3.X "
-                             "(default: the building CPython's minor, {building}); without it the FMUs use the "
+                             f"(default: the building CPython's minor, {sys.version_info.major}."
+                             f"{sys.version_info.minor}); without it the FMUs use the "
                              "importing machine's CPython 3.9 or newer"),
     "interface": _option("--interface", choices=INTERFACES, help="co-simulation: the FMUs stepped at the "
                          "communication step{stepped}; model-exchange: the three FMUs as one ODE{integrated} "
@@ -129,8 +129,8 @@ _OPTIONS = {
 
 
 def _add(parser: argparse.ArgumentParser, *names: str, flags: tuple = (), **fields) -> None:
-    """Add the options ``names`` of ``_OPTIONS`` (under ``flags`` if given), their help's fields filled in;
-    ``default`` is the scenario's unless given."""
+    """Add the options ``names`` of ``_OPTIONS`` (under ``flags`` if given), their help's fields filled in
+    (``default``: the scenario's unless given)."""
     for name in names:
         option = _OPTIONS[name]
         keywords = {"dest": name, **option.keywords} if option.flags[0].startswith("-") else option.keywords
@@ -147,13 +147,11 @@ def _add_fmus(parser: argparse.ArgumentParser, use: str, command: str = "", flag
 
 
 def _add_scenario(parser: argparse.ArgumentParser) -> None:
-    """The scenario argument, its default ``load_scenario``'s."""
     _add(parser, "scenario", names=", ".join(scenario_names()))
     parser.set_defaults(scenario=_default(load_scenario, "name_or_path"))
 
 
 def _default(function, parameter: str):
-    """The default of a function's parameter: the owner of an option's default."""
     return inspect.signature(function).parameters[parameter].default
 
 
@@ -170,11 +168,7 @@ def _fmi2_only(command: str) -> str:
 
 def _build_options(parser: argparse.ArgumentParser) -> None:
     _add_fmus(parser, "built there", flags=("--out", "--fmu-dir"))
-    _add_bundle(parser)
-
-
-def _add_bundle(parser: argparse.ArgumentParser) -> None:
-    _add(parser, "bundle_python", building=f"{sys.version_info.major}.{sys.version_info.minor}")
+    _add(parser, "bundle_python")
 
 
 def _run_options(parser: argparse.ArgumentParser) -> None:
@@ -223,7 +217,7 @@ def _export_options(parser: argparse.ArgumentParser, command: str) -> None:
         _add(parser, "interface", stepped=" by the importing tool's master", integrated=", integrated by the "
              "importing tool", default=_default(export_ssp, "interface"))
     _add_fmus(parser, _USED_IF_CURRENT, command)
-    _add_bundle(parser)
+    _add(parser, "bundle_python")
 
 
 def _crosscheck_options(parser: argparse.ArgumentParser) -> None:
@@ -345,11 +339,7 @@ def _run(args) -> int:
         raise ScenarioError(f"{_flag(given[0])} is a {owners} setting; allowed with --interface {interface}: {allowed}")
     scenario = load_scenario(args.scenario)
     coupling, note, hint = _error_controlled_coupling(args, interface, scenario)
-    scenario = scenario.with_simulation(
-        step_size=args.step_size, stop_time=args.stop_time, order=args.order, output_interval=args.output_interval,
-        coupling=coupling, tolerance=args.tolerance, method=args.method, h_min=args.h_min, h_max=args.h_max,
-        input_derivatives=args.input_derivatives,
-    )
+    scenario = scenario.with_simulation(**{**{name: getattr(args, name) for name in _SETTINGS}, "coupling": coupling})
     folder, version = _fmus(args)
     if note:
         print(note, file=sys.stderr)
@@ -362,7 +352,7 @@ def _run(args) -> int:
 
 @dataclass(frozen=True)
 class _Command:
-    """A command: what it does (its help), the function that runs it and the one that adds its options."""
+    """A command: its help, the function that runs it and the one that adds its options."""
 
     help: str
     run: Callable
