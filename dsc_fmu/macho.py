@@ -296,7 +296,7 @@ def read_slices(data: bytes) -> list[Slice]:
     Raises
     ------
     ValueError
-        For data that is no 64-bit Mach-O or universal file, or is truncated or garbled.
+        For data that is no 64-bit Mach-O or universal file, or truncated or garbled.
     """
     (magic,) = _unpack(">I", data, 0, "the magic number")
     if magic != FAT_MAGIC:

@@ -195,8 +195,7 @@ class Simulation:
     output_interval : float, optional
         Recording interval in s. Default 0.01.
     bound : float, optional
-        A run whose measurements or voltages exceed this in magnitude (SI units) counts as diverged.
-        Default 1e6.
+        A run whose measurements or voltages exceed it in magnitude (SI units) diverged. Default 1e6.
     coupling : Coupling or {"hold", "linear"}, optional
         How the exchanged signals vary over a step. Default "hold".
     tolerance : float, optional
@@ -356,8 +355,7 @@ class Scenario:
         Raises
         ------
         ScenarioError
-            For an unknown setting, one out of its range, or a reference speed that is not positive
-            over the run (Assumption 2).
+            For an unknown setting, one out of its range, or a reference speed not positive over the run.
         """
         changed = {k: v for k, v in settings.items() if v is not None}
         if not changed:  # checked already, where it entered (``load_scenario`` or an earlier replacement)
@@ -456,8 +454,8 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
     Raises
     ------
     ScenarioError
-        For a file that is missing or not TOML, an unknown key, a value out of its range, or a
-        reference speed that is not positive over the run (Assumption 2).
+        For a file missing or not TOML, an unknown key, a value out of its range, or a reference speed
+        not positive over the run (Assumption 2).
     """
     path = _resolve(name_or_path)
     where = str(path)

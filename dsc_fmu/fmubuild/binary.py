@@ -113,13 +113,12 @@ class PythonRuntime:
     version : str
         Its version, major and minor (``"3.11"``): its candidates come first among the system's.
     library : str
-        The shared library of the Python that built the binary, or "" if it has none (or runs on
-        another platform).
+        The shared library of the Python that built the binary, or "" (none, or another platform).
     home : str
         That Python's home (``sys.base_prefix``), or "".
     system_name : str, optional
-        The file name of the system's CPython libraries with ``%d`` for the minor version. Default "":
-        ``libpython3.%d.so.1.0`` on Linux, ``libpython3.%d.dylib`` on macOS, ``python3%d.dll`` on Windows.
+        The file name of the system's CPython libraries, ``%d`` for the minor version. Default "": the
+        platform's (``libpython3.%d.so.1.0``, ``libpython3.%d.dylib``, ``python3%d.dll``).
     """
 
     version: str
