@@ -133,7 +133,7 @@ def dimensions(slave) -> tuple:
     tuple of int
         ``(continuous states, event indicators)``.
     """
-    return len(slave.STATES), len(slave.INDICATORS)
+    return len(slave.model.STATES), len(slave.model.INDICATORS)
 
 
 def _code(table: dict, value) -> int:
@@ -154,9 +154,9 @@ def variables(slave) -> list:
     list of tuple of int
         ``(value reference, type, causality, variability, state)`` of every variable, as the codes of ``TYPES``,
         ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other), and 1 for a continuous state of
-        model exchange (the variable of an entry of ``slave.STATES``), else 0.
+        model exchange (the variable of an entry of ``slave.model.STATES``), else 0.
     """
-    states = {s.variable.name for s in slave.STATES}
+    states = {s.variable.name for s in slave.model.STATES}
     return [
         (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability),
          int(v.name in states))

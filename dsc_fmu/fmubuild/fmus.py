@@ -46,9 +46,10 @@ DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
 # The licences of what a carried runtime holds (CPython's, a library's), by name and platform (FMI 3.0's
 # place for licences).
 LICENCE_FILE = "documentation/licenses/{name}-{platform}.txt"
-# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the glue's
+# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the slave's
 # module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
-_FMU_MODULES = ("__init__.py", "slave_core.py", "jacobian.py", "slave_models.py", "glue.py", "native_bridge.py")
+_FMU_MODULES = ("__init__.py", "model.py", "robot_models.py", "controller_model.py", "slave.py", "directional.py",
+                "native_bridge.py")
 _VERSION_MODULE = {2: "fmi2.py", 3: "fmi3.py"}
 # The FMI library each FMU carries, under its build's private package.
 _LIBRARY = {2: "pythonfmu", 3: "pythonfmu3"}
@@ -165,7 +166,7 @@ def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
 @contextmanager
 def _slave_class_named(class_name: str):
     """pythonfmu3's builder finds the slave class by searching the script's text for a class statement
-    naming ``Fmi3Slave``; ours derive from it through the glue: give it the class the registry names."""
+    naming ``Fmi3Slave``; ours derive from it through ``Fmi3ModelSlave``: give it the class the registry names."""
     from pythonfmu3 import builder
 
     find = builder.get_class_name

@@ -1,0 +1,143 @@
+"""What a slave holds: the interface of one FMU's model, free of FMI (docs/fmus.md, "The Python slave").
+
+Bundled into every FMU; imports only the standard library and ``models``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..models.rk4 import rk4_integrate, substeps
+
+__all__ = ["Model"]
+
+
+class Model:
+    """One FMU's variables and equations; ``fmu.slave.ModelSlave`` holds one and does the FMI part.
+
+    A model keeps its parameters ``p`` (set by the slave, which calls ``parameters_changed`` after
+    each change) and what it derives from them (``constants``); the slave keeps the inputs, the
+    state and the time and hands them to the equations. Every equation takes its math from the
+    namespace ``math``: the module, or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u`` for
+    directional derivatives (docs/model.md §5.13).
+
+    The tables (``models.parameters``, ``models.states``): ``PARAMETERS``, ``INPUTS``, ``OUTPUTS``,
+    ``STATES`` (the entries of the state vector), ``LOCALS`` (the states' variables that are not
+    outputs), ``INDICATORS`` (event indicators), and ``FMU_STATE``: the model's own attributes saved
+    in the FMU state beside the slave's, each with the function that copies it (also out of JSON).
+
+    What the controller adds has a hook here that does nothing for the other models: waiting for
+    valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
+    guard: ``before_step``, ``after_step``, ``event``), its own integrator (``substep_count``,
+    ``integrate``) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
+    warning for the slave to log; None logs nothing.
+    """
+
+    description = ""
+    PARAMETERS: tuple = ()
+    INPUTS: tuple = ()
+    OUTPUTS: tuple = ()
+    STATES: tuple = ()
+    LOCALS: tuple = ()
+    INDICATORS: tuple = ()
+    FMU_STATE: dict = {}
+
+    def __init__(self):
+        self.p = {v.name: v.start for v in self.PARAMETERS}
+        self._constants = None
+
+    @property
+    def constants(self):
+        """``derive(p)``, computed once per change of the parameters."""
+        if self._constants is None:
+            self._constants = self.derive(self.p)
+        return self._constants
+
+    def parameters_changed(self) -> None:
+        """Forget ``constants``: called by the slave after every change of ``p``."""
+        self._constants = None
+
+    def derive(self, p: dict):
+        """What the equations need from the parameters ``p``, precomputed: ``p`` itself by default."""
+        return p
+
+    def initial_state(self, u: list | None, math=math) -> list:
+        """The state before the first step, from the parameters and the inputs ``u``.
+
+        Parameters
+        ----------
+        u : list of float or None
+            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The state vector, in the order of ``STATES``.
+        """
+        raise NotImplementedError
+
+    def rates(self, t: float, x: list, u: list, math=math) -> list:
+        """``x_dot`` at time ``t`` (s), state ``x`` and inputs ``u``, free of side effects."""
+        raise NotImplementedError
+
+    def outputs(self, t: float, x: list, u: list | None, math=math) -> list:
+        """The outputs in the order of ``OUTPUTS`` at ``t``, ``x`` and ``u`` (None: waiting)."""
+        raise NotImplementedError
+
+    def indicators(self, x: list, u: list) -> list:
+        """The event indicators in the order of ``INDICATORS``: none by default."""
+        return []
+
+    def substep_count(self, step_size: float) -> int:
+        """The sub-steps ``integrate`` takes over ``step_size`` (s): RK4's, of at most ``max_step`` (§5.11)."""
+        return substeps(step_size, self.p["max_step"])
+
+    def integrate(self, t: float, x: list, step_size: float, inputs) -> list:
+        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``.
+
+        Parameters
+        ----------
+        t : float
+            The start time, in s.
+        x : list of float
+            The state at ``t``.
+        step_size : float
+            The communication step, in s.
+        inputs : callable
+            ``inputs(t)``: the inputs at a time within the step.
+
+        Returns
+        -------
+        list of float
+            The state at ``t + step_size``.
+        """
+        rates = self.rates
+        return rk4_integrate(lambda t, x: rates(t, x, inputs(t)), t, x, step_size, self.p["max_step"])
+
+    def may_wait(self, started: bool) -> bool:
+        """Whether refused inputs make the model wait (steps taken, state and outputs at rest) instead of
+        discarding steps: never by default."""
+        return False
+
+    def waited(self, t: float, rejected: dict) -> str | None:
+        """A step from ``t`` waited for valid inputs (``rejected``: variable -> why refused)."""
+        return None
+
+    def before_step(self, t: float, started: bool, rejected: dict) -> str | None:
+        """A step from ``t`` begins (not waiting)."""
+        return None
+
+    def after_step(self) -> str | None:
+        """The step begun by ``before_step`` ended, taken or discarded."""
+        return None
+
+    def event(self, t: float, u: list) -> str | None:
+        """Model exchange, event mode at ``t``: choose the switches held until the next event."""
+        return None
+
+    def discrete_outputs(self, slave) -> list:
+        """``(name, description, boolean, getter)`` of each integer or Boolean output, registered after
+        the tables; a getter may read the ``slave`` (its state, inputs, ``waiting``). None by default."""
+        return []
