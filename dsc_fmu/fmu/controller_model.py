@@ -34,9 +34,12 @@ class DSCControllerModel(Model):
 
     The 20 states ``xc`` are integrated with RK4 (``discretization`` = rk4) or one explicit Euler step
     per communication step (euler). Before the first step the filters are x2f = x2bar, x3f = x3bar of
-    the inputs (docs/model.md §5.2). The beta guard (§5.6) is counted (``beta_guard_count``), shown
-    (``beta_guard_active``) and logged at the first step of each run of steps in which it acts; in
-    model exchange the switches are held between events (``held``, §5.13).
+    the inputs (docs/model.md §5.2). The outputs are the voltages (26), the surfaces (10), (12), beta
+    (13), the estimates and their norms; the event indicators ``[cos((thetar - theta) / 2), beta -
+    beta_min]`` change sign at the wrap and the guard. The beta guard (§5.6) is counted
+    (``beta_guard_count``: steps in which an evaluation was guarded; in model exchange, events at which
+    it engages), shown (``beta_guard_active``) and logged at the first step of each run of such steps;
+    in model exchange the switches are held between events (``held``, §5.13).
 
     With ``start_on`` = valid_inputs, a controller that has not started and whose only refused values
     are inputs waits instead of discarding its steps: u = 0, S11 = S12 = S13 = 0, beta = 1, estimates
@@ -65,7 +68,6 @@ class DSCControllerModel(Model):
         return gains(p)
 
     def initial_state(self, u, math=math):
-        """The initial estimates, the filters started from ``u`` (docs/model.md §5.2; None: not started)."""
         if u is None:
             return initial_controller_state(self.p)
         return start_filters(self.constants, initial_controller_state(self.p), u, math)
@@ -74,7 +76,6 @@ class DSCControllerModel(Model):
         return control_law(self.constants, x, u, self.held, math).derivative
 
     def outputs(self, t, x, u, math=math):
-        """Voltages (26), surfaces (10), (12), beta (13), estimates and their norms; u = 0 while waiting."""
         W1_hat, W2_hat = x[W1_SLICE], x[W2_SLICE]
         estimates = [x[0], x[1], weight_norm(W1_hat, math), weight_norm(W2_hat, math), *W1_hat, *W2_hat]
         if u is None:
@@ -83,14 +84,12 @@ class DSCControllerModel(Model):
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
     def indicators(self, x, u):
-        """``[cos((thetar - theta) / 2), beta - beta_min]``: the wrap and the guard (docs/model.md §5.13)."""
         return event_indicators(self.constants, u)
 
     def substep_count(self, step_size):
         return 1 if self.p["discretization"] == EULER else super().substep_count(step_size)
 
     def integrate(self, t, x, step_size, inputs):
-        """RK4 or one explicit Euler step, as ``discretization`` says; notes the first evaluation guarded."""
         c, held = self.constants, self.held
 
         def derivatives(t, x):
@@ -121,7 +120,6 @@ class DSCControllerModel(Model):
         return None
 
     def after_step(self):
-        """Count a step in which the guard acted; warn at the first of a run of such steps."""
         seen, guarded_before = self._guard_seen, self._guarded_last_step
         self._guarded_last_step = seen is not None
         if seen is None:
@@ -133,7 +131,6 @@ class DSCControllerModel(Model):
         return f"beta = {beta:.6g} < beta_min = {self.p['beta_min']:g} at t = {t:.6g} s: {_GUARD}"
 
     def event(self, t, u):
-        """Hold the switches of ``u`` until the next event; count and warn of an engaging guard."""
         held = switches(self.constants, u)
         engages = held.guarded and not (self.held and self.held.guarded)
         self.held = held

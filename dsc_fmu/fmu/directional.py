@@ -50,9 +50,23 @@ class Roles:
         self._resolved = {}
 
     def resolve(self, references: list, model_exchange: bool, unknown: bool) -> list:
-        """The ``(role, index)`` of each value reference as an unknown (else a known) of the interface.
+        """The ``(role, index)`` of each value reference as an unknown or a known.
 
         Remembered for the last 64 lists (an importer asks with the same lists again).
+
+        Parameters
+        ----------
+        references : list of int
+            Value references.
+        model_exchange : bool
+            Whether the instance is one of model exchange (else co-simulation).
+        unknown : bool
+            Whether they are unknowns (else knowns).
+
+        Returns
+        -------
+        list of tuple
+            ``(role, index)``: one of ``DERIVATIVE``, ``OUTPUT``, ``STATE``, ``INPUT`` and the position in its table.
 
         Raises
         ------
@@ -82,9 +96,22 @@ class Roles:
 
 
 def directional(forward, rows: list, columns: list, seed: list) -> list:
-    """``J seed``: the tangents of the unknowns ``rows`` along ``seed`` on the knowns ``columns``, in one pass.
+    """``J seed``: the derivatives of the unknowns along ``seed`` on the knowns, in one forward pass.
 
-    ``forward(rows, direction)`` evaluates the unknowns on duals seeded by ``direction`` (role -> {index: seed}).
+    Parameters
+    ----------
+    forward : callable
+        ``forward(rows, direction)``: the tangents of the unknowns ``rows`` on duals seeded by ``direction``
+        (role -> {index: seed}).
+    rows, columns : list of tuple
+        The unknowns and the knowns, as ``Roles.resolve`` gives them.
+    seed : list of float
+        One entry per known.
+
+    Returns
+    -------
+    list of float
+        One entry per unknown.
 
     Raises
     ------
@@ -100,6 +127,20 @@ def directional(forward, rows: list, columns: list, seed: list) -> list:
 
 def adjoint(forward, rows: list, columns: list, seed: list) -> list:
     """``seed^T J``, J as in ``directional``: one forward pass per distinct known.
+
+    Parameters
+    ----------
+    forward : callable
+        As in ``directional``.
+    rows, columns : list of tuple
+        The unknowns and the knowns, as ``Roles.resolve`` gives them.
+    seed : list of float
+        One entry per unknown.
+
+    Returns
+    -------
+    list of float
+        One entry per known.
 
     Raises
     ------
@@ -117,8 +158,20 @@ def adjoint(forward, rows: list, columns: list, seed: list) -> list:
 
 
 def seeded(values: list, seeds: dict) -> list:
-    """``values`` with a dual for each entry that ``seeds`` (index -> seed) gives a nonzero seed; only
-    those become duals, so that what does not depend on them is computed on floats."""
+    """Some values as duals: only those seeded, so that what does not depend on them is computed on floats.
+
+    Parameters
+    ----------
+    values : list of float
+        The values (not changed).
+    seeds : dict
+        Index -> seed.
+
+    Returns
+    -------
+    list
+        ``values`` with a ``Dual`` for each entry of nonzero seed.
+    """
     if not seeds:
         return values
     values = list(values)

@@ -58,11 +58,22 @@ class Model:
         self._constants = None
 
     def derive(self, p: dict):
-        """What the equations need from the parameters ``p``, precomputed: ``p`` itself by default."""
+        """What the equations need from the parameters, precomputed once per change (``constants``).
+
+        Parameters
+        ----------
+        p : dict
+            The parameter values by name.
+
+        Returns
+        -------
+        object
+            ``p`` itself by default.
+        """
         return p
 
     def initial_state(self, u: list | None, math=math) -> list:
-        """The state before the first step, from the parameters and the inputs ``u``.
+        """The state before the first step, from the parameters and the inputs.
 
         Parameters
         ----------
@@ -79,23 +90,81 @@ class Model:
         raise NotImplementedError
 
     def rates(self, t: float, x: list, u: list, math=math) -> list:
-        """``x_dot`` at time ``t`` (s), state ``x`` and inputs ``u``, free of side effects."""
+        """The state's time derivative, free of side effects.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state, in the order of ``STATES``.
+        u : list of float
+            The inputs, in the order of ``INPUTS``.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
         raise NotImplementedError
 
     def outputs(self, t: float, x: list, u: list | None, math=math) -> list:
-        """The outputs in the order of ``OUTPUTS`` at ``t``, ``x`` and ``u`` (None: waiting)."""
+        """The Real outputs.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state, in the order of ``STATES``.
+        u : list of float or None
+            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The outputs in the order of ``OUTPUTS``, in their units.
+        """
         raise NotImplementedError
 
     def indicators(self, x: list, u: list) -> list:
-        """The event indicators in the order of ``INDICATORS``: none by default."""
+        """The event indicators of model exchange.
+
+        Parameters
+        ----------
+        x : list of float
+            A state.
+        u : list of float
+            The inputs.
+
+        Returns
+        -------
+        list of float
+            One value per entry of ``INDICATORS``: none by default.
+        """
         return []
 
     def substep_count(self, step_size: float) -> int:
-        """The sub-steps ``integrate`` takes over ``step_size`` (s): RK4's, of at most ``max_step`` (§5.11)."""
+        """How many sub-steps ``integrate`` takes over a step; the slave discards a step of more than ``MAX_SUBSTEPS``.
+
+        Parameters
+        ----------
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        int
+            RK4's sub-steps no longer than ``max_step`` by default (docs/model.md §5.11).
+        """
         return substeps(step_size, self.p["max_step"])
 
     def integrate(self, t: float, x: list, step_size: float, inputs) -> list:
-        """The state after ``step_size`` from ``x`` at ``t``: RK4 in sub-steps of at most ``max_step``.
+        """The state after a step: RK4 in sub-steps of at most ``max_step`` by default.
 
         Parameters
         ----------
@@ -117,27 +186,97 @@ class Model:
         return rk4_integrate(lambda t, x: rates(t, x, inputs(t)), t, x, step_size, self.p["max_step"])
 
     def may_wait(self, started: bool) -> bool:
-        """Whether refused inputs make the model wait (steps taken, state and outputs at rest) instead of
-        discarding steps: never by default."""
+        """Whether refused inputs make the model wait instead of discarding steps.
+
+        While it waits, its steps are taken without integrating, and its state and outputs are those of
+        ``initial_state`` and ``outputs`` with ``u`` None.
+
+        Parameters
+        ----------
+        started : bool
+            Whether the state has left ``initial_state`` (a step was taken).
+
+        Returns
+        -------
+        bool
+            Never by default.
+        """
         return False
 
     def waited(self, t: float, rejected: dict) -> str | None:
-        """A step from ``t`` waited for valid inputs (``rejected``: variable -> why refused)."""
+        """A step waited for valid inputs.
+
+        Parameters
+        ----------
+        t : float
+            The step's start, in s.
+        rejected : dict
+            Why each refused variable was refused, by name.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
         return None
 
     def before_step(self, t: float, started: bool, rejected: dict) -> str | None:
-        """A step from ``t`` begins (not waiting)."""
+        """A step begins (the model does not wait).
+
+        Parameters
+        ----------
+        t : float
+            The step's start, in s.
+        started : bool
+            Whether a step was taken before.
+        rejected : dict
+            Why each refused variable was refused, by name (then the step is discarded).
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
         return None
 
     def after_step(self) -> str | None:
-        """The step begun by ``before_step`` ended, taken or discarded."""
+        """The step that ``before_step`` began ended, taken or discarded.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
         return None
 
     def event(self, t: float, u: list) -> str | None:
-        """Model exchange, event mode at ``t``: choose the switches held until the next event."""
+        """Model exchange, event mode: choose the switches held until the next event.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        u : list of float
+            The inputs.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
         return None
 
     def discrete_outputs(self, slave) -> list:
-        """``(name, description, boolean, getter)`` of each integer or Boolean output, registered after
-        the tables; a getter may read the ``slave`` (its state, inputs, ``waiting``). None by default."""
+        """The integer and Boolean outputs, registered after those of the tables.
+
+        Parameters
+        ----------
+        slave : fmu.slave.ModelSlave
+            The slave, which the getters may read (its ``state``, ``u``, ``current_state``, ``waiting``).
+
+        Returns
+        -------
+        list of tuple
+            ``(name, description, boolean, getter)`` of each: none by default.
+        """
         return []

@@ -220,32 +220,70 @@ class ModelSlave:
             self._stale()
 
     def waiting(self) -> bool:
-        """Whether the model waits for valid inputs: it may wait and the only values refused are inputs."""
+        """Whether the model waits for valid inputs.
+
+        Returns
+        -------
+        bool
+            True while it ``may_wait`` and the only values refused are inputs.
+        """
         return (bool(self.rejected) and self.model.may_wait(self.state is not None)
                 and all(name in self._input_index for name in self.rejected))
 
     def current_state(self) -> list:
-        """The state, in the order of ``model.STATES``; before the first step the model's ``initial_state``."""
+        """The state, also before the first step.
+
+        Returns
+        -------
+        list of float
+            The state, in the order of ``model.STATES``; before the first step the model's ``initial_state``
+            of the current parameters and inputs.
+        """
         if self.state is not None:
             return self.state
         return self.model.initial_state(None if self.waiting() else self.u)
 
     def output_values(self) -> list:
-        """The outputs in the order of ``model.OUTPUTS``, computed once per change of what they depend on."""
+        """The Real outputs, computed once per change of what they depend on.
+
+        Returns
+        -------
+        list of float
+            In the order of ``model.OUTPUTS``.
+        """
         if self._cache is None:
             self._cache = self.model.outputs(self.time, self.current_state(), None if self.waiting() else self.u)
         return self._cache
 
     def inputs(self, t: float) -> list:
-        """The inputs at ``t`` within the current step: held, or on the line of ``coupling`` (docs/model.md §5.10)."""
+        """The inputs within the current step: held, or on the line of ``coupling`` (docs/model.md §5.10).
+
+        Parameters
+        ----------
+        t : float
+            A time within the step, in s.
+
+        Returns
+        -------
+        list of float
+            In the order of ``model.INPUTS``.
+        """
         if self._slope is None:
             return self.u
         dt = t - self._stamp
         return [value + dt * slope for value, slope in zip(self.u, self._slope)]
 
     def set_input_derivatives(self, refs: list, orders: list, values: list) -> None:
-        """Take first derivatives of Real inputs, in their units per s, for the next step only
-        (fmi2SetRealInputDerivatives).
+        """Take first derivatives of Real inputs for the next step only (fmi2SetRealInputDerivatives).
+
+        Parameters
+        ----------
+        refs : sequence of int
+            The inputs' value references.
+        orders : sequence of int
+            The derivatives' orders: 1 only.
+        values : sequence of float
+            The derivatives, in the inputs' units per s.
 
         Raises
         ------
@@ -270,7 +308,15 @@ class ModelSlave:
 
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
-        """Start at ``start_time`` in s (fmi2SetupExperiment, fmi3EnterInitializationMode)."""
+        """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode).
+
+        Parameters
+        ----------
+        start_time : float
+            The start time, in s.
+        stop_time, tolerance : float or None, optional
+            FMI 2.0's stop time and tolerance; unused.
+        """
         self.time = start_time
         self._stale()
 
@@ -279,7 +325,14 @@ class ModelSlave:
         self._stale()
 
     def do_step(self, current_time: float, step_size: float) -> bool:
-        """Take the communication step from ``current_time`` of ``step_size`` (s) (fmi2DoStep, fmi3DoStep).
+        """Take the communication step (fmi2DoStep, fmi3DoStep): what one step does is written here.
+
+        Parameters
+        ----------
+        current_time : float
+            The communication point the step starts from, in s.
+        step_size : float
+            The communication step, in s.
 
         Returns
         -------
@@ -350,7 +403,15 @@ class ModelSlave:
     # --- model exchange -----------------------------------------------------------------------------------
 
     def set_point(self, t: float | None, x: list | None) -> None:
-        """Take the time ``t`` (s) and the continuous states ``x`` (copied) that an importer set, each unless None."""
+        """Take the time and the continuous states that a model-exchange importer set.
+
+        Parameters
+        ----------
+        t : float or None
+            The time in s, unless None.
+        x : list of float or None
+            The continuous states (copied), unless None.
+        """
         if t is not None:
             self.time = t
         if x is not None:
@@ -358,18 +419,36 @@ class ModelSlave:
         self._stale()
 
     def set_state(self, index: int, value: float) -> None:
-        """Set entry ``index`` of the state vector as ``set_point`` sets them all (fmi2SetReal or fmi3SetFloat64 of
-        a state, where the binary allows it)."""
+        """Set one continuous state as ``set_point`` sets them all (fmi2SetReal, fmi3SetFloat64 where the binary allows).
+
+        Parameters
+        ----------
+        index : int
+            The state's position in ``model.STATES``.
+        value : float
+            Its new value, in its unit.
+        """
         state = list(self.current_state())
         state[index] = float(value)
         self.set_point(None, state)
 
     def get_continuous_states(self) -> list:
-        """A copy of the state, in the order of ``model.STATES``."""
+        """The continuous states.
+
+        Returns
+        -------
+        list of float
+            A copy of the state, in the order of ``model.STATES``.
+        """
         return list(self.current_state())
 
     def get_derivatives(self) -> list:
         """The state's time derivative at the current time, inputs and state.
+
+        Returns
+        -------
+        list of float
+            In the order of ``model.STATES``.
 
         Raises
         ------
@@ -381,16 +460,27 @@ class ModelSlave:
         return self.model.rates(self.time, self.current_state(), self.u)
 
     def get_event_indicators(self) -> list:
-        """The event indicators at the current state and inputs, in the order of ``model.INDICATORS``."""
+        """The event indicators at the current state and inputs.
+
+        Returns
+        -------
+        list of float
+            In the order of ``model.INDICATORS``.
+        """
         return self.model.indicators(self.current_state(), self.u)
 
     def get_nominals(self) -> list:
-        """The nominal magnitudes of the continuous states, in the order of ``model.STATES``."""
+        """The nominal magnitudes of the continuous states.
+
+        Returns
+        -------
+        list of float
+            In the order of ``model.STATES``, in their units.
+        """
         return [s.nominal for s in self.model.STATES]
 
     def start_continuous_time(self) -> None:
-        """End initialization in model exchange: the state no longer follows the inputs; the switches are
-        chosen for the first continuous stretch."""
+        """End initialization in model exchange: the state no longer follows the inputs, the switches are chosen."""
         if self.state is None:
             self.state = self.model.initial_state(self.u)
         self.update_discrete_states()
@@ -453,7 +543,16 @@ class ModelSlave:
         return directional(lambda rows, direction: self._forward(rows, direction, model_exchange), rows, columns, seed)
 
     def adjoint_derivative(self, unknowns: list, knowns: list, seed: list, model_exchange: bool) -> list:
-        """``seed^T J`` (fmi3GetAdjointDerivative), J as in ``directional_derivative``, ``seed`` one entry per unknown.
+        """``seed^T J`` (fmi3GetAdjointDerivative), J as in ``directional_derivative``: one forward pass per known.
+
+        Parameters
+        ----------
+        unknowns, knowns : list of int
+            The value references of the unknowns and of the knowns.
+        seed : list of float
+            One entry per unknown.
+        model_exchange : bool
+            Whether the instance is one of model exchange.
 
         Returns
         -------
