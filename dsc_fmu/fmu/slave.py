@@ -241,7 +241,7 @@ class ModelSlave:
         """
         if self.state is not None:
             return self.state
-        return self.model.initial_state(None if self.waiting() else self.u)
+        return self.model.initial_state(None if self.rejected and self.waiting() else self.u)
 
     def output_values(self) -> list:
         """The Real outputs, computed once per change of what they depend on.
@@ -252,7 +252,8 @@ class ModelSlave:
             In the order of ``model.OUTPUTS``.
         """
         if self._cache is None:
-            self._cache = self.model.outputs(self.time, self.current_state(), None if self.waiting() else self.u)
+            u = None if self.rejected and self.waiting() else self.u
+            self._cache = self.model.outputs(self.time, self.current_state(), u)
         return self._cache
 
     def inputs(self, t: float) -> list:
