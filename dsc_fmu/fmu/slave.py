@@ -343,40 +343,33 @@ class ModelSlave:
             and then the state is unchanged.
         """
         model = self.model
-        if self.waiting():
+        if self.rejected and self.waiting():
             self._warn(model.waited(current_time, self.rejected))
             self._stepped(current_time + step_size)
             return True
         self._warn(model.before_step(current_time, self.state is not None, self.rejected))
-        taken = self._integrate(current_time, step_size)
-        self._warn(model.after_step())
-        return taken
-
-    def _integrate(self, current_time: float, step_size: float) -> bool:
-        model, discard = self.model, self.library.status.discard
-        if self.rejected:
-            self.log(f"{self.instance_name}: no step while values are refused: {'; '.join(self.rejected.values())}; "
-                     "the step is discarded", discard)
-            return False
         n = model.substep_count(step_size)
-        if n > MAX_SUBSTEPS:
-            self.log(f"{self.instance_name}: the step of {step_size} s from t = {current_time} s needs {n} sub-steps "
-                     f"of at most max_step = {model.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step; the "
-                     "step is discarded", discard)
-            return False
-        stamp = self._ramp(current_time, step_size)
-        try:
-            new = model.integrate(current_time, self.current_state(), step_size, self.inputs)
-        finally:
-            self._slope = None
-        if not all(math.isfinite(value) for value in new):
-            self.log(f"{self.instance_name}: state not finite after the step from t = {current_time} s of {step_size} "
-                     "s; the step is discarded", discard)
-            return False
-        self.state = new
-        self.history = [stamp, list(self.u)]
-        self._stepped(current_time + step_size)
-        return True
+        if self.rejected:
+            why = f"no step while values are refused: {'; '.join(self.rejected.values())}"
+        elif n > MAX_SUBSTEPS:
+            why = (f"the step of {step_size} s from t = {current_time} s needs {n} sub-steps of at most max_step = "
+                   f"{model.p['max_step']} s; allowed: at most {MAX_SUBSTEPS} per step")
+        else:
+            stamp = self._ramp(current_time, step_size)
+            try:
+                new = model.integrate(current_time, self.current_state(), step_size, self.inputs)
+            finally:
+                self._slope = None
+            finite = all(map(math.isfinite, new))
+            why = None if finite else f"state not finite after the step from t = {current_time} s of {step_size} s"
+        if why is None:
+            self.state = new
+            self.history = [stamp, list(self.u)]
+            self._stepped(current_time + step_size)
+        else:
+            self.log(f"{self.instance_name}: {why}; the step is discarded", self.library.status.discard)
+        self._warn(model.after_step())
+        return why is None
 
     def _ramp(self, current_time: float, step_size: float) -> float:
         """Set the line of the inputs over the step and return the time the inputs set belong to: the step's end
