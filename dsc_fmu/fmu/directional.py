@@ -11,7 +11,8 @@ import math
 
 from ..models.dual import Dual
 
-__all__ = ["Roles", "directional", "adjoint", "seeded", "DERIVATIVE", "OUTPUT", "STATE", "INPUT"]
+# ``directional``, ``adjoint`` and ``seeded`` serve ``slave.ModelSlave`` only.
+__all__ = ["Roles", "DERIVATIVE", "OUTPUT", "STATE", "INPUT"]
 
 # The roles of a Real variable: unknowns (state derivatives, outputs), knowns (states, inputs).
 DERIVATIVE, OUTPUT, STATE, INPUT = "derivative", "output", "state", "input"
@@ -96,28 +97,9 @@ class Roles:
 
 
 def directional(forward, rows: list, columns: list, seed: list) -> list:
-    """``J seed``: the derivatives of the unknowns along ``seed`` on the knowns, in one forward pass.
-
-    Parameters
-    ----------
-    forward : callable
-        ``forward(rows, direction)``: the tangents of the unknowns ``rows`` on duals seeded by ``direction``
-        (role -> {index: seed}).
-    rows, columns : list of tuple
-        The unknowns and the knowns, as ``Roles.resolve`` gives them.
-    seed : list of float
-        One entry per known.
-
-    Returns
-    -------
-    list of float
-        One entry per unknown.
-
-    Raises
-    ------
-    ValueError
-        Unless ``seed`` has one entry per known.
-    """
+    """``J seed`` for the unknowns ``rows`` and knowns ``columns`` of ``Roles.resolve``, in one forward pass:
+    ``forward(rows, direction)`` gives the tangents of the unknowns on duals seeded by ``direction`` (role ->
+    {index: seed}). ValueError unless ``seed`` has one entry per known."""
     _check_count(seed, columns, "knowns")
     direction = {STATE: {}, INPUT: {}}
     for (role, index), value in zip(columns, seed):
@@ -126,27 +108,8 @@ def directional(forward, rows: list, columns: list, seed: list) -> list:
 
 
 def adjoint(forward, rows: list, columns: list, seed: list) -> list:
-    """``seed^T J``, J as in ``directional``: one forward pass per distinct known.
-
-    Parameters
-    ----------
-    forward : callable
-        As in ``directional``.
-    rows, columns : list of tuple
-        The unknowns and the knowns, as ``Roles.resolve`` gives them.
-    seed : list of float
-        One entry per unknown.
-
-    Returns
-    -------
-    list of float
-        One entry per known.
-
-    Raises
-    ------
-    ValueError
-        Unless ``seed`` has one entry per unknown.
-    """
+    """``seed^T J``, J as in ``directional``: one forward pass per distinct known. ValueError unless ``seed`` has
+    one entry per unknown."""
     _check_count(seed, rows, "unknowns")
     weights = [float(value) for value in seed]
     found = {}
@@ -158,20 +121,8 @@ def adjoint(forward, rows: list, columns: list, seed: list) -> list:
 
 
 def seeded(values: list, seeds: dict) -> list:
-    """Some values as duals: only those seeded, so that what does not depend on them is computed on floats.
-
-    Parameters
-    ----------
-    values : list of float
-        The values (not changed).
-    seeds : dict
-        Index -> seed.
-
-    Returns
-    -------
-    list
-        ``values`` with a ``Dual`` for each entry of nonzero seed.
-    """
+    """``values`` with a ``Dual`` for each entry of nonzero seed (``seeds``: index -> seed); only those become
+    duals, so that what does not depend on them is computed on floats."""
     if not seeds:
         return values
     values = list(values)

@@ -134,48 +134,40 @@ class ModelSlave:
 
     def _register_tables(self) -> None:
         model, library = self.model, self.library
+        causality, variability = library.causality, library.variability
         for v in model.PARAMETERS:
-            self._register(v, "parameter", getter=lambda n=v.name: model.p[n],
-                           setter=lambda value, v=v: self._set_parameter(v, value))
+            self.register_variable((library.integer if v.integer else library.float)(
+                v.name, causality=causality.parameter, variability=variability.tunable if v.tunable else variability.fixed,
+                initial=library.parameter_initial, description=v.description, getter=lambda n=v.name: model.p[n],
+                setter=lambda value, v=v: self._set_parameter(v, value),
+            ))
         for index, v in enumerate(model.INPUTS):
-            self._register(v, "input", getter=lambda i=index: self.u[i],
-                           setter=lambda value, i=index, v=v: self._set_input(i, v, value))
-        positions = {s.variable.name: i for i, s in enumerate(model.STATES)}
-        for index, v in enumerate(model.OUTPUTS):
-            self._register(v, "output", getter=lambda i=index: self.output_values()[i],
-                           setter=self._state_setter(positions.get(v.name)))
-        for v in model.LOCALS:
-            self._register(v, "local", getter=lambda i=positions[v.name]: self.current_state()[i],
-                           setter=self._state_setter(positions[v.name]))
-        for index, s in enumerate(model.STATES):
-            self._register(s.derivative, "local", getter=lambda i=index: self.get_derivatives()[i])
-        for index, v in enumerate(model.INDICATORS):
-            self._register(v, "local", getter=lambda i=index: self.get_event_indicators()[i])
-        for name, description, boolean, getter in model.discrete_outputs(self):
-            self.register_variable((library.boolean if boolean else library.integer)(
-                name, causality=library.causality.output, variability=library.variability.discrete,
-                initial=library.initial.calculated, description=description, getter=getter, setter=_ignore,
+            self.register_variable(library.float(
+                v.name, causality=causality.input, variability=variability.continuous, description=v.description,
+                getter=lambda i=index: self.u[i], setter=lambda value, i=index, v=v: self._set_input(i, v, value),
             ))
 
-    def _register(self, v, causality: str, getter, setter=None) -> None:
-        """Register ``v`` of a table as a variable of ``causality``; an output or local with a ``setter`` is a state."""
-        library = self.library
-        if causality == "parameter":
-            variability = library.variability.tunable if v.tunable else library.variability.fixed
-            self.register_variable((library.integer if v.integer else library.float)(
-                v.name, causality=library.causality.parameter, variability=variability,
-                initial=library.parameter_initial, description=v.description, getter=getter, setter=setter,
-            ))
-        elif causality == "input":
+        def calculated(v, kind, getter, setter=None):
+            """Register ``v``, computed by ``getter``; an output or local with a ``setter`` is a continuous state."""
             self.register_variable(library.float(
-                v.name, causality=library.causality.input, variability=library.variability.continuous,
-                description=v.description, getter=getter, setter=setter,
+                v.name, causality=kind, variability=variability.continuous, initial=library.initial.calculated,
+                description=v.description, getter=getter, setter=setter or _ignore,
             ))
-        else:
-            self.register_variable(library.float(
-                v.name, causality=library.causality[causality], variability=library.variability.continuous,
-                initial=library.initial.calculated, description=v.description, getter=getter,
-                setter=setter or _ignore,
+
+        positions = {s.variable.name: i for i, s in enumerate(model.STATES)}
+        for index, v in enumerate(model.OUTPUTS):
+            calculated(v, causality.output, lambda i=index: self.output_values()[i], self._state_setter(positions.get(v.name)))
+        for v in model.LOCALS:
+            calculated(v, causality.local, lambda i=positions[v.name]: self.current_state()[i],
+                       self._state_setter(positions[v.name]))
+        for index, s in enumerate(model.STATES):
+            calculated(s.derivative, causality.local, lambda i=index: self.get_derivatives()[i])
+        for index, v in enumerate(model.INDICATORS):
+            calculated(v, causality.local, lambda i=index: self.get_event_indicators()[i])
+        for name, description, boolean, getter in model.discrete_outputs(self):
+            self.register_variable((library.boolean if boolean else library.integer)(
+                name, causality=causality.output, variability=variability.discrete,
+                initial=library.initial.calculated, description=description, getter=getter, setter=_ignore,
             ))
 
     def _state_setter(self, index):
