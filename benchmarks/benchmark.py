@@ -12,7 +12,7 @@ controller's ``discretization = euler``; the plant and the reference with ``max_
 RK4 step evaluates four times) and beside the same step with the default RK4 at 1 ms; and one column of
 the Jacobian of the state derivatives
 (fmi2GetDirectionalDerivative with one known, the mean over the states and inputs) against one
-derivative evaluation (``benchmarks/jacobian.py`` measures the same in this process).
+derivative evaluation (``benchmarks/directional_derivatives.py`` measures the same in this process).
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
 """
 

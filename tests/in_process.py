@@ -11,11 +11,13 @@ from pathlib import Path
 
 import pytest
 
+import dsc_fmu
 from dsc_fmu.registry import FMUS
 
 __all__ = ["Discarded", "InProcess", "SOURCES", "slave_class"]
 
-SOURCES = Path(__file__).resolve().parents[1] / "fmu_sources"
+# The scripts beside the package imported (a tree's own, also for benchmarks run on another tree's package).
+SOURCES = Path(dsc_fmu.__file__).resolve().parents[1] / "fmu_sources"
 # The FMI library's getters and setters by type, for each FMI version.
 ACCESS = {
     2: {"Real": ("get_real", "set_real"), "Integer": ("get_integer", "set_integer"), "Boolean": ("get_boolean", None)},

@@ -106,7 +106,7 @@ def test_a_public_import_of_the_fmi_library_fails_the_build(patched_mobile_robot
     """Every bundled import of pythonfmu must be one the build can make private; any other form would
     load whatever pythonfmu the importing process has."""
     with pytest.raises(BinaryBuildError, match=r"imports pythonfmu by its public name \(import pythonfmu\)"):
-        patched_mobile_robot("from dsc_fmu.fmu.fmi2 import DscSlave", "\nimport pythonfmu\n", "public")
+        patched_mobile_robot("from dsc_fmu.fmu.fmi2 import Fmi2ModelSlave", "\nimport pythonfmu\n", "public")
 
 
 def test_an_fmu_loaded_in_this_process_does_not_hide_its_sources_from_the_next_build(tmp_path):

@@ -6,7 +6,7 @@ arguments the C layer checks before Python sees them (the FMI 3.0 counts, NULL a
 count, value references of no Real variable), the lists it hands to the slave and the answer it copies
 out, and a failure of the slave: one error message and fmiError, the instance in the standard's error
 state, never a crash. Where the values matter, a recording stand-in takes the place of the slave's
-``directional_derivative`` and ``adjoint_derivative`` (``SlaveCore``), so that these are tests of the C
+``directional_derivative`` and ``adjoint_derivative`` (``ModelSlave``), so that these are tests of the C
 layer alone; the derivatives themselves are checked against finite differences elsewhere.
 """
 
@@ -38,7 +38,7 @@ def plant(fmu_paths, fmu3_paths, tmp_path_factory):
 
 
 class Recorder:
-    """Stands in for ``SlaveCore.directional_derivative`` / ``adjoint_derivative``: records each call's
+    """Stands in for ``ModelSlave.directional_derivative`` / ``adjoint_derivative``: records each call's
     arguments and answers ``answer(unknowns, knowns, seed)``."""
 
     def __init__(self, answer):
@@ -54,22 +54,22 @@ class Recorder:
         return partials
 
 
-def slave_core(folder: Path):
-    """The class ``SlaveCore`` that the binary of the extracted FMU in ``folder`` loaded into this process."""
+def model_slave(folder: Path):
+    """The class ``ModelSlave`` that the binary of the extracted FMU in ``folder`` loaded into this process."""
     resources = (folder / "resources").resolve()
     for name, module in list(sys.modules.items()):
         file = getattr(module, "__file__", None)
-        if name.endswith(".fmu.slave_core") and file and resources in Path(file).resolve().parents:
-            return module.SlaveCore
-    raise AssertionError(f"no slave_core module of {folder} is loaded")
+        if name.endswith(".fmu.slave") and file and resources in Path(file).resolve().parents:
+            return module.ModelSlave
+    raise AssertionError(f"no slave module of {folder} is loaded")
 
 
 def stand_in(monkeypatch, folder: Path, answer) -> Recorder:
     """Both partial-derivative methods of the FMU in ``folder`` replaced by one ``Recorder``."""
     recorder = Recorder(answer)
-    core = slave_core(folder)
+    slave = model_slave(folder)
     for method in ("directional_derivative", "adjoint_derivative"):
-        monkeypatch.setattr(core, method, recorder.method(), raising=False)
+        monkeypatch.setattr(slave, method, recorder.method(), raising=False)
     return recorder
 
 

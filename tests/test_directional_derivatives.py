@@ -72,13 +72,13 @@ def _slave(name: str, version: int, saved: dict, model_exchange: bool, inputs: d
 
 
 def _unknowns(inst: InProcess, model_exchange: bool) -> list:
-    derivatives = [s.derivative.name for s in inst.slave.STATES] if model_exchange else []
-    return derivatives + [v.name for v in inst.slave.OUTPUTS]
+    derivatives = [s.derivative.name for s in inst.slave.model.STATES] if model_exchange else []
+    return derivatives + [v.name for v in inst.slave.model.OUTPUTS]
 
 
 def _knowns(inst: InProcess, model_exchange: bool) -> list:
-    states = [s.variable.name for s in inst.slave.STATES] if model_exchange else []
-    return states + [v.name for v in inst.slave.INPUTS]
+    states = [s.variable.name for s in inst.slave.model.STATES] if model_exchange else []
+    return states + [v.name for v in inst.slave.model.INPUTS]
 
 
 def _jacobian(inst: InProcess, unknowns: list, knowns: list, model_exchange: bool) -> list:
@@ -200,7 +200,7 @@ def _rates_complex_step(inst: InProcess) -> list:
         for j in range(len(values)):
             saved = values[j]
             values[j] = complex(saved, COMPLEX_STEP)
-            columns.append([complex(r).imag / COMPLEX_STEP for r in slave.rates(slave.time, x, u, CMATH)])
+            columns.append([complex(r).imag / COMPLEX_STEP for r in slave.model.rates(slave.time, x, u, CMATH)])
             values[j] = saved
     return [list(row) for row in zip(*columns)]
 
@@ -209,7 +209,7 @@ def _rates_complex_step(inst: InProcess) -> list:
 def test_model_exchange_derivatives_equal_the_complex_step(after_5s, name, point):
     """With the switches held, the right-hand side is analytic: the complex step is exact to rounding."""
     inst = _at(after_5s, 2, name, point, True)
-    unknowns = [s.derivative.name for s in inst.slave.STATES]
+    unknowns = [s.derivative.name for s in inst.slave.model.STATES]
     knowns = _knowns(inst, True)
     expected = _rates_complex_step(inst)
     _assert_close(_jacobian(inst, unknowns, knowns, True), expected, unknowns, knowns, relative=1e-12)
@@ -220,7 +220,7 @@ def test_model_exchange_holds_the_wrap_across_pi(after_5s):
     saved = after_5s[2]["DSCController"]
     inst = _slave("DSCController", 2, saved, True, _heading_inputs(saved, math.pi + 1e-2),
                   held_at=_heading_inputs(saved, math.pi - 1e-2))
-    assert inst.slave.held == Switches(0, False)
+    assert inst.slave.model.held == Switches(0, False)
     unknowns, knowns = _unknowns(inst, True), _knowns(inst, True)
     _assert_differences(inst, _jacobian(inst, unknowns, knowns, True), unknowns, knowns)
 

@@ -160,7 +160,7 @@ def test_fmi3_bundled_modules_carry_a_name_unique_to_the_build(fmu3_paths, name)
         build_id = json.loads(archive.read(BUILD_ID_FILE))
     assert module.endswith(digest) and "fmi3" in module
     package = f"resources/dsc_fmu_{name.lower()}_{digest}/"
-    assert {f"{package}fmu/fmi3.py", f"{package}fmu/glue.py", f"{package}fmu/slave_core.py",
+    assert {f"{package}fmu/fmi3.py", f"{package}fmu/slave.py", f"{package}fmu/controller_model.py",
             f"{package}models/controller.py"} <= set(files)
     assert f"{package}fmu/fmi2.py" not in files  # an FMI 3.0 FMU never needs pythonfmu
     assert not any(f.startswith("resources/dsc_fmu/") or f.startswith("resources/pythonfmu/") for f in files)

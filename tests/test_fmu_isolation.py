@@ -175,7 +175,7 @@ def test_blocker_refuses_and_records_what_would_otherwise_import(tmp_path, modul
 def test_isolation_check_catches_an_fmu_that_imports_numpy(tmp_path, patched_mobile_robot):
     """A MobileRobot whose slave script tries ``import numpy`` (and copes without it) still runs,
     but the isolation run records the attempt, and only that: the check above fails for it."""
-    leaky = patched_mobile_robot("from dsc_fmu.fmu.fmi2 import DscSlave",
+    leaky = patched_mobile_robot("from dsc_fmu.fmu.fmi2 import Fmi2ModelSlave",
                                  "\ntry:\n    import numpy\nexcept ImportError:\n    numpy = None\n", "leaky")
 
     config = dict(mode="run", fmu=str(leaky), workdir=str(tmp_path / "unzipped"), instance="leaky",

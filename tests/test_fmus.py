@@ -558,7 +558,7 @@ RAISING = """
 def test_an_exception_in_the_model_discards_the_step_and_the_state_api_rolls_back(patched_mobile_robot, tmp_path):
     """A Python exception inside a step is fmi2Discard with the exception in the log, never
     fmi2Fatal; the instance answers afterwards and fmi2SetFMUstate brings it back exactly."""
-    path = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', RAISING, "raising")
+    path = patched_mobile_robot('    """A ``MobileRobotModel`` in the FMI 2.0 slave (pythonfmu)."""\n', RAISING, "raising")
     plant = Instance(read_model_description(str(path)), extract(str(path), unzipdir=tmp_path / "u"), "raising")
     plant.initialize()
     plant.set(("u1", "u2"), (6.0, 5.0))
@@ -597,7 +597,7 @@ def test_an_integer_beyond_32_bits_is_an_error_and_a_long_message_arrives_whole(
     """A getter's integer that an fmi2Integer cannot hold is fmi2Error with one line naming it (not a value
     cut to 32 bits); an exception's message of 5,000 characters reaches the logger whole, its '%' doubled
     for the logger's format."""
-    path = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', WIDE, "wide")
+    path = patched_mobile_robot('    """A ``MobileRobotModel`` in the FMI 2.0 slave (pythonfmu)."""\n', WIDE, "wide")
     plant = Instance(read_model_description(str(path)), extract(str(path), unzipdir=tmp_path / "u"), "wide")
     plant.initialize()
     plant.set(("u1",), (123.0,))
@@ -672,7 +672,7 @@ def test_bundled_package_names_are_unique_per_fmu_and_build(fmu_paths):
             script = archive.read(f"resources/{module}.py").decode()
         assert module == f"{Path(FMUS[name].script).stem}_{digest[:12]}"
         package = f"dsc_fmu_{name.lower()}_{digest[:12]}"
-        assert {f"resources/{package}/fmu/glue.py", f"resources/{package}/fmu/fmi2.py"} <= set(files)
+        assert {f"resources/{package}/fmu/slave.py", f"resources/{package}/fmu/fmi2.py"} <= set(files)
         assert f"resources/{package}/fmu/fmi3.py" not in files  # an FMI 2.0 FMU never needs pythonfmu3
         assert f"resources/{package}/models/plant.py" in files
         assert "from dsc_fmu." not in script and f"from {package}." in script
@@ -684,8 +684,8 @@ def test_bundled_package_names_are_unique_per_fmu_and_build(fmu_paths):
 def test_two_builds_with_different_sources_coexist_in_one_process(fmu_paths, fmu_unzipped, md, tmp_path,
                                                                  patched_mobile_robot):
     """A second MobileRobot built from changed sources: own names, own code, both run side by side."""
-    shifted = "\n    def outputs(self, x):\n        x_, *rest = super().outputs(x)\n        return [x_ + 1000.0, *rest]\n"
-    variant = patched_mobile_robot('    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n', shifted, "variant")
+    shifted = "\n    def output_values(self):\n        x_, *rest = super().output_values()\n        return [x_ + 1000.0, *rest]\n"
+    variant = patched_mobile_robot('    """A ``MobileRobotModel`` in the FMI 2.0 slave (pythonfmu)."""\n', shifted, "variant")
 
     original = fmu_paths["MobileRobot"]
     ids = fmu_build_id(original), fmu_build_id(variant)

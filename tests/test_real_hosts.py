@@ -318,7 +318,7 @@ def test_a_ctrl_c_inside_the_model_code_reaches_the_host_as_its_own(patched_mobi
     not that the model failed, and the host's Python gets the KeyboardInterrupt once the call
     returns, not a failure of the FMU."""
     interrupting = patched_mobile_robot(
-        '    """``MobileRobotModel`` on the FMI 2.0 glue (pythonfmu)."""\n',
+        '    """A ``MobileRobotModel`` in the FMI 2.0 slave (pythonfmu)."""\n',
         "\n    def do_step(self, current_time, step_size):\n        if current_time >= 0.05:\n"
         "            raise KeyboardInterrupt\n        return super().do_step(current_time, step_size)\n",
         "interrupting")

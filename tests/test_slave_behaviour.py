@@ -80,7 +80,7 @@ def test_held_switches_of_model_exchange_round_trip_through_bytes(new):
     ctrl.set(CONTROLLER_IN, M_PAPER)  # no event: the guard's switch stays held
     other = new("DSCController")
     other.set_state(_through_bytes(ctrl, ctrl.get_state()))
-    assert other.slave.held == ctrl.slave.held and other.slave.held.guarded
+    assert other.slave.model.held == ctrl.slave.model.held and other.slave.model.held.guarded
     assert other.slave.get_derivatives() == ctrl.slave.get_derivatives()
     assert other.outputs() == ctrl.outputs()
 

@@ -6,9 +6,8 @@ users of the build's private package (``acquire`` imports it by its location; th
 ``release`` forgets its every module), creates the slave through ``instantiate``, reads the variable
 table and the model's sizes once (``variables``, ``dimensions``) to guard every get and set by value
 reference, type, causality, variability and whether it is a continuous state, forwards the slave's
-log queue (``drain_log``), turns FMU states into bytes and back (``state_to_bytes``,
-``state_from_bytes``) with a checksum and the identity of the build that made them, and asks the slave
-for products with its Jacobian (``directional_derivative``, ``adjoint_derivative``).
+log queue (``drain_log``) and turns FMU states into bytes and back (``state_to_bytes``,
+``state_from_bytes``) with a checksum and the identity of the build that made them.
 """
 
 import hashlib
@@ -17,10 +16,8 @@ import json
 import os
 import sys
 
-__all__ = [
-    "acquire", "release", "instantiate", "variables", "dimensions", "drain_log", "state_to_bytes", "state_from_bytes",
-    "TYPE_NAMES", "TYPES", "CAUSALITIES", "VARIABILITIES",
-]
+# The binary calls the functions by name; the build imports the codes.
+__all__ = ["TYPE_NAMES", "TYPES", "CAUSALITIES", "VARIABILITIES"]
 
 # Codes and names the binary uses too: the build passes them to native/slave.h (binary._contract). The
 # type names of each FMI version by code: Real, Integer, Boolean, then String.
@@ -50,16 +47,8 @@ def _load(name: str, path: str):
 
 
 def acquire(resources: str) -> None:
-    """Count one more slave of this FMU build in this process.
-
-    The build's package is imported from ``resources`` by its location if this process has not got it.
-    The binary calls this, and ``release``, holding the import lock.
-
-    Parameters
-    ----------
-    resources : str
-        The resources folder of the extracted FMU.
-    """
+    """Count one more slave of this FMU build; import the build's package from ``resources`` if this process has
+    not got it (the binary holds the import lock)."""
     global _users
     if PACKAGE not in sys.modules:
         _load(PACKAGE, os.path.join(resources, PACKAGE, "__init__.py"))
@@ -73,11 +62,8 @@ def _inside(path: str, folders) -> bool:
 
 
 def release() -> None:
-    """Count one slave of this FMU build less.
-
-    With the last, this build's modules leave ``sys.modules`` and the import system's caches of every
-    folder it was loaded from: the process is as before the first.
-    """
+    """Count one slave less; with the last, this build's modules leave ``sys.modules`` and the import caches
+    of every folder it was loaded from: the process is as before the first."""
     global _users
     _users -= 1
     if _users > 0:
@@ -96,44 +82,14 @@ def _slave_module(name: str, resources: str):
 
 
 def instantiate(slave_module: str, class_name: str, instance_name: str, resources: str, visible: bool):
-    """Create a slave of the FMU.
-
-    Parameters
-    ----------
-    slave_module : str
-        The slave script's name in the FMU's resources, without ``.py``.
-    class_name : str
-        The slave class in that script.
-    instance_name : str
-        The instance name the importer gave.
-    resources : str
-        The resources folder of the extracted FMU.
-    visible : bool
-        Whether the importer asked for a visible instance.
-
-    Returns
-    -------
-    object
-        The new slave (a pythonfmu ``Fmi2Slave`` or ``Fmi3Slave``).
-    """
+    """A new slave: class ``class_name`` of the script ``slave_module`` in ``resources``."""
     cls = getattr(_slave_module(slave_module, resources), class_name)
     return cls(instance_name=instance_name, resources=resources, visible=visible)
 
 
 def dimensions(slave) -> tuple:
-    """Sizes of the slave's model for model exchange.
-
-    Parameters
-    ----------
-    slave : object
-        A slave made by ``instantiate``.
-
-    Returns
-    -------
-    tuple of int
-        ``(continuous states, event indicators)``.
-    """
-    return len(slave.STATES), len(slave.INDICATORS)
+    """``(continuous states, event indicators)`` of the slave's model, for model exchange."""
+    return len(slave.model.STATES), len(slave.model.INDICATORS)
 
 
 def _code(table: dict, value) -> int:
@@ -142,21 +98,10 @@ def _code(table: dict, value) -> int:
 
 
 def variables(slave) -> list:
-    """The variable table that guards every get and set of the binary.
-
-    Parameters
-    ----------
-    slave : object
-        A slave made by ``instantiate``.
-
-    Returns
-    -------
-    list of tuple of int
-        ``(value reference, type, causality, variability, state)`` of every variable, as the codes of ``TYPES``,
-        ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other), and 1 for a continuous state of
-        model exchange (the variable of an entry of ``slave.STATES``), else 0.
-    """
-    states = {s.variable.name for s in slave.STATES}
+    """``(value reference, type, causality, variability, state)`` of every variable as the codes of ``TYPES``,
+    ``CAUSALITIES`` and ``VARIABILITIES`` (``OTHER`` for any other); state is 1 for a continuous state (the
+    variable of an entry of ``slave.model.STATES``), else 0."""
+    states = {s.variable.name for s in slave.model.STATES}
     return [
         (vr, TYPES.get(type(v).__name__, OTHER), _code(CAUSALITIES, v.causality), _code(VARIABILITIES, v.variability),
          int(v.name in states))
@@ -165,18 +110,8 @@ def variables(slave) -> list:
 
 
 def drain_log(slave) -> list:
-    """Take the messages the slave queued since the last call, emptying its queue.
-
-    Parameters
-    ----------
-    slave : object
-        A slave made by ``instantiate``.
-
-    Returns
-    -------
-    list of tuple
-        ``(status, category, message)`` of every message: the FMI status as an int, two strings.
-    """
+    """``(status, category, message)`` of every message the slave queued since the last call (its queue emptied):
+    the FMI status as an int, two strings."""
     queue = slave.log_queue
     messages = [(int(getattr(m.status, "value", m.status)), str(m.category), str(m.msg)) for m in queue]
     del queue[:]
@@ -188,38 +123,14 @@ def _identity(slave) -> str:
 
 
 def state_to_bytes(slave, state) -> bytes:
-    """Serialize an FMU state of the slave.
-
-    Parameters
-    ----------
-    slave : object
-        The slave that made ``state``.
-    state : object
-        What the slave's ``_get_fmu_state`` returned (JSON-serializable).
-
-    Returns
-    -------
-    bytes
-        A header, a SHA-256 of the body, then the body: the slave's class and ``state`` in JSON.
-    """
+    """An FMU state of the slave (from its ``_get_fmu_state``, JSON-serializable) as bytes: a header, a SHA-256
+    of the body, then the body: the slave's class and ``state`` in JSON."""
     body = json.dumps([_identity(slave), state], allow_nan=True).encode("utf-8")
     return MAGIC + hashlib.sha256(body).digest() + body
 
 
 def state_from_bytes(slave, data: bytes):
-    """Deserialize an FMU state that ``state_to_bytes`` wrote for this build of this model.
-
-    Parameters
-    ----------
-    slave : object
-        The slave the state is for.
-    data : bytes
-        What ``state_to_bytes`` returned.
-
-    Returns
-    -------
-    object
-        The state, for the slave's ``_set_fmu_state``.
+    """The state that ``state_to_bytes`` wrote for this build of this model, for ``_set_fmu_state``.
 
     Raises
     ------

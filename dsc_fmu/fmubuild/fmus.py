@@ -45,8 +45,10 @@ DOCUMENTATION_FILE = "documentation/index.html"
 DEPENDENCIES_FILE = "documentation/externalDependencies.txt"
 # The licences of what a carried runtime holds, by name and platform (FMI 3.0's place for licences).
 LICENCE_FILE = "documentation/licenses/{name}-{platform}.txt"
-# What each FMU bundles from the package beside its slave script: ``models``, and ``fmu`` with the glue of its FMI version.
-_FMU_MODULES = ("__init__.py", "slave_core.py", "jacobian.py", "slave_models.py", "glue.py", "native_bridge.py")
+# What each FMU bundles from the package, beside its slave script: ``models`` and ``fmu`` with the slave's
+# module of its FMI version only (``fmi2`` on pythonfmu, ``fmi3`` on pythonfmu3).
+_FMU_MODULES = ("__init__.py", "model.py", "robot_models.py", "controller_model.py", "slave.py", "directional.py",
+                "native_bridge.py")
 _VERSION_MODULE = {2: "fmi2.py", 3: "fmi3.py"}
 # The FMI library each FMU carries, under its build's private package.
 _LIBRARY = {2: "pythonfmu", 3: "pythonfmu3"}
@@ -154,7 +156,8 @@ def _bytecode(name: str, data: bytes) -> tuple[str, bytes]:
 
 @contextmanager
 def _slave_class_named(class_name: str):
-    """Tell pythonfmu3's builder the slave class, which it looks for as a class statement naming ``Fmi3Slave``."""
+    """Give pythonfmu3's builder the slave class: it looks for a class statement naming ``Fmi3Slave``, and ours
+    derive from it through ``Fmi3ModelSlave``."""
     from pythonfmu3 import builder
 
     find = builder.get_class_name

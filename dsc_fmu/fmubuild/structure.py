@@ -11,8 +11,8 @@ from __future__ import annotations
 import itertools
 import random
 
-from ..fmu import slave_models
-from ..fmu.slave_core import SlaveCore
+from ..fmu.controller_model import DSCControllerModel
+from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..registry import FmuSpec
 
 __all__ = ["TIME", "continuous_dependencies", "initial_dependencies"]
@@ -20,30 +20,24 @@ __all__ = ["TIME", "continuous_dependencies", "initial_dependencies"]
 TIME = "time"
 _POINTS = 3
 _SEED = 20260917
+_MODELS = {"MobileRobot": MobileRobotModel, "ReferenceRobot": ReferenceRobotModel, "DSCController": DSCControllerModel}
 
 
-class _Bare(SlaveCore):
-    """A slave without an FMI library: the model code and nothing else."""
+class _Probe:
+    """A model with the values a slave would hand it: inputs ``u``, ``state`` and ``time``."""
 
-    instance_name = "structure"
-
-    def __init__(self):
-        self._init_core()
-
-    def _register(self, v, causality, getter, setter=None):
-        pass
-
-    def register_discrete_output(self, name, description, getter, boolean):
-        pass
+    def __init__(self, model):
+        self.model, self.p = model, model.p
+        self.u = [v.start for v in model.INPUTS]
+        self.state = None
+        self.time = 0.0
 
 
 def _models(spec: FmuSpec):
-    """A bare slave of ``spec``'s model for every combination of the parameters that choose between laws."""
-    model = getattr(slave_models, f"{spec.name}Model")
-    probe_class = type(f"{spec.name}Structure", (model, _Bare), {})
+    """A probe of ``spec``'s model for every combination of the parameters that choose between laws."""
     choosers = [v for v in spec.parameters if v.choices]
     for values in itertools.product(*(range(len(v.choices)) for v in choosers)):
-        probe = probe_class()
+        probe = _Probe(_MODELS[spec.name]())
         probe.p.update({v.name: value for v, value in zip(choosers, values)})
         yield probe
 
@@ -59,7 +53,7 @@ def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str,
     for probe in _models(spec):
         for _ in range(_POINTS):
             probe.p.update({v.name: (v.start or 1.0) * rng.uniform(0.5, 2.0) for v in spec.parameters if not v.integer})
-            probe._stale(parameters=True)
+            probe.model.parameters_changed()
             probe.u = [rng.uniform(0.5, 2.0) for _ in probe.u]
             probe.state = [rng.uniform(0.5, 2.0) for _ in spec.states]
             probe.time = rng.uniform(0.5, 2.0)
@@ -80,15 +74,15 @@ def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str,
 def _setter(attribute: str, key):
     def put(probe, value):
         getattr(probe, attribute)[key] = value
-        probe._stale(parameters=True)
+        probe.model.parameters_changed()
     return put
 
 
 def _continuous(probe) -> dict:
-    x = probe.state
-    values = dict(zip((v.name for v in probe.OUTPUTS), probe.outputs(x)))
-    values.update(zip((s.derivative.name for s in probe.STATES), probe.derivatives(probe.time, x)))
-    values.update(zip((v.name for v in probe.INDICATORS), probe.indicator_values(x)))
+    model, x = probe.model, probe.state
+    values = dict(zip((v.name for v in model.OUTPUTS), model.outputs(probe.time, x, probe.u)))
+    values.update(zip((s.derivative.name for s in model.STATES), model.rates(probe.time, x, probe.u)))
+    values.update(zip((v.name for v in model.INDICATORS), model.indicators(x, probe.u)))
     return values
 
 
@@ -113,11 +107,11 @@ def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
 
 
 def _initial(probe) -> dict:
-    probe.state = None
-    x = probe.current_state()
-    values = dict(zip((v.name for v in probe.OUTPUTS), probe.outputs(x)))
-    values.update(zip((s.variable.name for s in probe.STATES), x))
-    values.update(zip((s.derivative.name for s in probe.STATES), probe.derivatives(probe.time, x)))
+    model = probe.model
+    x = model.initial_state(probe.u)
+    values = dict(zip((v.name for v in model.OUTPUTS), model.outputs(probe.time, x, probe.u)))
+    values.update(zip((s.variable.name for s in model.STATES), x))
+    values.update(zip((s.derivative.name for s in model.STATES), model.rates(probe.time, x, probe.u)))
     return values
 
 

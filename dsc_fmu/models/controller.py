@@ -12,43 +12,15 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
-__all__ = [
-    "weight_norm",
-    "Gains",
-    "gains",
-    "ControlLaw",
-    "control_law",
-    "initial_controller_state",
-    "start_filters",
-    "wrap",
-    "alpha2",
-    "Switches",
-    "switches",
-    "event_indicators",
-    "W1_SLICE",
-    "W2_SLICE",
-]
+# The helpers of the law (weight_norm, wrap, alpha2, switches, event_indicators, initial_controller_state,
+# start_filters) serve the FMUs' models and the reference solution.
+__all__ = ["Gains", "gains", "ControlLaw", "control_law", "Switches", "W1_SLICE", "W2_SLICE"]
 
 
 def weight_norm(values, math=math) -> float:
-    """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27).
-
-    Its sum of squares is exactly rounded (``math.fsum``): every CPython gives the same bits (``sum``
-    of floats rounds differently from 3.12 on).
-
-    Parameters
-    ----------
-    values : iterable of float
-        The estimate's entries, ``W1_hat`` or ``W2_hat``.
-    math : namespace, optional
-        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
-        directional derivatives on duals.
-
-    Returns
-    -------
-    float
-        The norm.
-    """
+    """The Euclidean norm of a weight estimate (``W1_hat_norm``, ``W2_hat_norm``; eqs. 21, 27), its sum of
+    squares exactly rounded (``math.fsum``): every CPython gives the same bits (``sum`` of floats rounds
+    differently from 3.12 on)."""
     return math.sqrt(math.fsum(v * v for v in values))
 
 W1_SLICE = slice(4, 12)
@@ -166,64 +138,22 @@ class Switches(NamedTuple):
 
 
 def wrap(angle: float, math=math) -> float:
-    """``angle`` wrapped to (-pi, pi] (docs/model.md §5.4).
-
-    Parameters
-    ----------
-    angle : float
-        An angle, in rad.
-    math : namespace, optional
-        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
-        directional derivatives on duals.
-
-    Returns
-    -------
-    float
-        ``angle`` less the nearest multiple of 2 pi, in (-pi, pi] (-pi becomes pi).
-    """
+    """``angle`` (rad) less the nearest multiple of 2 pi, in (-pi, pi] (docs/model.md §5.4; -pi becomes pi)."""
     wrapped = math.remainder(angle, 2.0 * math.pi)
     return wrapped + 2.0 * math.pi if wrapped == -math.pi else wrapped
 
 
 def alpha2(S13: float, a: float, math=math) -> float:
-    """``integral_0^1 cos(-a + eta S13) d eta`` of (15) (step 1), free of cancellation near S13 = 0.
-
-    Equal to ``(sin(S13 - a) + sin(a)) / S13 = sinc(S13 / 2) cos(S13 / 2 - a)`` (docs/model.md §5.5).
-
-    Parameters
-    ----------
-    S13 : float
-        The transformed heading error of (12), in rad.
-    a : float
-        ``arctan(k1 S12 vr)`` of (12), in rad.
-    math : namespace, optional
-        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
-        directional derivatives on duals.
-
-    Returns
-    -------
-    float
-        alpha2 (dimensionless).
-    """
+    """``integral_0^1 cos(-a + eta S13) d eta`` of (15) = ``sinc(S13 / 2) cos(S13 / 2 - a)``, free of
+    cancellation near S13 = 0 (docs/model.md §5.5); ``a = arctan(k1 S12 vr)`` of (12)."""
     half = 0.5 * S13
     sinc = 1.0 - half * half / 6.0 if abs(half) < 1e-4 else math.sin(half) / half
     return sinc * math.cos(half - a)
 
 
 def initial_controller_state(p: dict) -> list:
-    """The controller state at the start, but for its filters (docs/model.md §5.1: estimates zero by default).
-
-    Parameters
-    ----------
-    p : dict
-        The DSCController FMU's parameter values by name (``a1_hat0``, ``a2_hat0``, ``W1_hat0_i``, ``W2_hat0_i``).
-
-    Returns
-    -------
-    list of float
-        ``xc`` with the estimates from ``p`` and the filter states zero (``start_filters`` sets them
-        from the first measurements).
-    """
+    """``xc`` at the start with the estimates from the parameters ``p`` (``a1_hat0``, ``a2_hat0``,
+    ``W1_hat0_i``, ``W2_hat0_i``; docs/model.md §5.1) and the filters zero (``start_filters`` sets them)."""
     return [
         p["a1_hat0"], p["a2_hat0"], 0.0, 0.0, *(p[f"W1_hat0_{i}"] for i in range(1, 9)),
         0.0, 0.0, *(p[f"W2_hat0_{i}"] for i in range(1, 7)),
@@ -244,40 +174,16 @@ def _surfaces(k1: float, m: list, math=math) -> tuple:
 
 
 def switches(g: Gains, m: list) -> Switches:
-    """The switches as the law chooses them at measurements ``m`` (docs/model.md §5.4, §5.6).
-
-    Parameters
-    ----------
-    g : Gains
-        The design parameters.
-    m : list of float
-        The measurements (14 entries, see the module).
-
-    Returns
-    -------
-    Switches
-        The wrap of ``thetar - theta`` and whether the beta guard acts.
-    """
+    """The switches as the law chooses them at measurements ``m``: the wrap of ``thetar - theta`` and whether
+    the beta guard acts (docs/model.md §5.4, §5.6)."""
     heading = m[10] - m[2]
     beta = _surfaces(g.k1, m)[4]
     return Switches(round((heading - wrap(heading)) / (2.0 * math.pi)), beta < g.beta_min)
 
 
 def event_indicators(g: Gains, m: list) -> list:
-    """The controller's event indicators: each changes sign exactly where a switch changes (docs/model.md §5.13).
-
-    Parameters
-    ----------
-    g : Gains
-        The design parameters.
-    m : list of float
-        The measurements (14 entries, see the module).
-
-    Returns
-    -------
-    list of float
-        ``[cos((thetar - theta) / 2), beta - beta_min]``, for the wrap and the guard of ``switches``.
-    """
+    """``[cos((thetar - theta) / 2), beta - beta_min]`` at measurements ``m``: each changes sign exactly where
+    a switch of ``switches`` changes (docs/model.md §5.13)."""
     return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min]
 
 
@@ -376,27 +282,9 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=
 
 
 def start_filters(g: Gains, xc: list, m: list, math=math) -> list:
-    """Start the filters: ``x2f(0) = x2bar(0)`` of (17), then ``x3f(0) = x3bar(0)`` of (23) (docs/model.md §5.2).
-
-    With ``x2f = x2bar`` the filter derivative ``x2f_dot`` is zero when ``x3bar`` is formed.
-
-    Parameters
-    ----------
-    g : Gains
-        The design parameters.
-    xc : list of float
-        The controller state (20 entries); its filter entries are replaced.
-    m : list of float
-        The measurements the filters start from (14 entries, see the module).
-    math : namespace, optional
-        Where the functions of ``math`` come from: the module (default), or ``dual.DUAL_MATH`` for
-        directional derivatives on duals.
-
-    Returns
-    -------
-    list of float
-        A new controller state.
-    """
+    """A new ``xc`` with its filters started from the measurements ``m``: ``x2f(0) = x2bar(0)`` of (17), then
+    ``x3f(0) = x3bar(0)`` of (23) (docs/model.md §5.2); with ``x2f = x2bar``, ``x2f_dot`` is zero when
+    ``x3bar`` is formed."""
     xc = list(xc)
     xc[2:4] = control_law(g, xc, m, math=math).x2bar
     xc[12:14] = control_law(g, xc, m, math=math).x3bar

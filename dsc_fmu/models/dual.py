@@ -11,7 +11,7 @@ takes and the tangent is that branch's. Standard library only: bundled into ever
 import math
 from types import SimpleNamespace
 
-__all__ = ["Dual", "DUAL_MATH", "tangent"]
+__all__ = ["Dual", "DUAL_MATH"]
 
 _new = object.__new__
 
@@ -147,18 +147,8 @@ def _value(x):
 
 
 def tangent(x) -> float:
-    """The tangent of ``x``: 0 for a float (a value that does not depend on the knowns).
-
-    Parameters
-    ----------
-    x : Dual or float
-        A result of a model function evaluated on duals.
-
-    Returns
-    -------
-    float
-        Its derivative along the seed.
-    """
+    """The tangent of a result ``x`` of a model function on duals: 0 for a float (a value that does not depend
+    on the knowns)."""
     return x.tangent if type(x) is Dual else 0.0
 
 

@@ -3,7 +3,7 @@
 import math
 from dataclasses import dataclass
 
-__all__ = ["PlantCoefficients", "plant_coefficients", "plant_derivatives", "theta_dot", "initial_plant_state"]
+__all__ = ["PlantCoefficients", "plant_coefficients", "plant_derivatives"]
 
 
 @dataclass(frozen=True)
@@ -91,36 +91,13 @@ def plant_coefficients(p: dict) -> PlantCoefficients:
 
 
 def theta_dot(k: PlantCoefficients, v1: float, v2: float) -> float:
-    """Heading rate from the wheel speeds, third row of (1).
-
-    Parameters
-    ----------
-    k : PlantCoefficients
-        The plant's constants.
-    v1, v2 : float
-        Angular velocities of the right and left wheel, in rad/s.
-
-    Returns
-    -------
-    float
-        ``theta_dot = r / (2 R) (v1 - v2)``, in rad/s.
-    """
+    """Heading rate ``r / (2 R) (v1 - v2)`` in rad/s from the wheel speeds in rad/s: the third row of (1)."""
     return 0.5 * k.r / k.R * (v1 - v2)
 
 
 def initial_plant_state(p: dict) -> list:
-    """The plant's state at t = 0 from its initial-state parameters (docs/model.md §5.1: at rest by default).
-
-    Parameters
-    ----------
-    p : dict
-        The MobileRobot FMU's parameter values by name (``x0``, ``y0``, ``theta0``, ``omega1_0``, ...).
-
-    Returns
-    -------
-    list of float
-        ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A.
-    """
+    """``[x, y, theta, v1, v2, i1, i2]`` at t = 0 from the parameters ``x0`` ... ``i2_0`` (docs/model.md §5.1:
+    at rest by default)."""
     return [p["x0"], p["y0"], p["theta0"], p["omega1_0"], p["omega2_0"], p["i1_0"], p["i2_0"]]
 
 

@@ -2,7 +2,7 @@
 
 import math
 
-__all__ = ["velocity", "min_speed", "reference_derivatives", "initial_reference_state"]
+__all__ = ["velocity", "min_speed", "reference_derivatives"]
 
 CONSTANT = 0
 FIGURE_EIGHT = 1
@@ -66,18 +66,7 @@ def min_speed(p: dict, t_end: float) -> float:
 
 
 def initial_reference_state(p: dict) -> list:
-    """The reference's state at t = 0.
-
-    Parameters
-    ----------
-    p : dict
-        The ReferenceRobot FMU's parameter values by name (``x0``, ``y0``, ``theta0``).
-
-    Returns
-    -------
-    list of float
-        ``[xr, yr, thetar]`` in m, m, rad.
-    """
+    """``[xr, yr, thetar]`` at t = 0 from the parameters ``x0``, ``y0``, ``theta0``."""
     return [p["x0"], p["y0"], p["theta0"]]
 
 

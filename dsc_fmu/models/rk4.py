@@ -2,27 +2,15 @@
 
 import math
 
-__all__ = ["MAX_SUBSTEPS", "substeps", "rk4_integrate", "euler_step"]
+__all__ = ["MAX_SUBSTEPS", "rk4_integrate"]
 
 # The most sub-steps one communication step may take: bounds the work of any single step.
 MAX_SUBSTEPS = 1_000_000
 
 
 def substeps(step_size: float, max_step: float) -> int:
-    """Number of equal sub-steps no longer than ``max_step`` that make up ``step_size``.
-
-    Parameters
-    ----------
-    step_size : float
-        The communication step, in s.
-    max_step : float
-        The longest sub-step, in s (the parameter ``max_step``).
-
-    Returns
-    -------
-    int
-        At least 1; a step a rounding error longer than a multiple of ``max_step`` takes no extra one.
-    """
+    """The number (at least 1) of equal sub-steps no longer than ``max_step`` that make up ``step_size``; a step a
+    rounding error longer than a multiple of ``max_step`` takes no extra one."""
     return max(1, math.ceil(step_size / max_step * (1.0 - 1e-12)))
 
 
@@ -65,22 +53,5 @@ def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> l
 
 
 def euler_step(f, t0: float, x: list, step_size: float) -> list:
-    """One explicit Euler step ``x + h f(t0, x)``: a controller sampled at the communication step.
-
-    Parameters
-    ----------
-    f : callable
-        ``f(t, x)``: the time derivative of the state ``x`` (list) at time ``t`` (s), a list.
-    t0 : float
-        The start time, in s.
-    x : list of float
-        The state at ``t0``.
-    step_size : float
-        The communication step ``h``, in s.
-
-    Returns
-    -------
-    list of float
-        The state at ``t0 + step_size``.
-    """
+    """One explicit Euler step ``x + h f(t0, x)``: a controller sampled at the communication step ``h``."""
     return [xi + step_size * di for xi, di in zip(x, f(t0, x))]

@@ -15,7 +15,6 @@ from .plant import plant_coefficients
 
 __all__ = [
     "ContinuousState", "PLANT_STATES", "REFERENCE_STATES", "CONTROLLER_STATES", "FILTER_STATES", "EVENT_INDICATORS",
-    "true_unknowns",
 ]
 
 # The unit of a quantity's time derivative, for the units of the states.
@@ -45,19 +44,8 @@ class ContinuousState:
 
 
 def true_unknowns(p: dict) -> tuple:
-    """The values the controller's estimates stand for, for the plant parameters ``p`` (docs/model.md §3).
-
-    Parameters
-    ----------
-    p : dict
-        The MobileRobot FMU's parameter values by name.
-
-    Returns
-    -------
-    tuple
-        ``(a1, a2, W1, W2)``: a1 = 1/r in 1/m, a2 = R/r, W1 of (22) (8 entries) and W2 of (27)
-        (6 entries) as tuples.
-    """
+    """``(a1, a2, W1, W2)`` that the controller's estimates stand for, for the plant parameters ``p``
+    (docs/model.md §3): a1 = 1/r in 1/m, a2 = R/r, W1 of (22) and W2 of (27) as tuples."""
     k = plant_coefficients(p)
     W1 = (k.c / k.nkt1, k.c / k.nkt2, k.d11 / k.nkt1, k.d22 / k.nkt2,
           k.m11 / k.nkt1, k.m12 / k.nkt1, k.m11 / k.nkt2, k.m12 / k.nkt2)

@@ -1,4 +1,4 @@
-"""Benchmark: what one Jacobian column costs against one evaluation of the model, in this process.
+"""Benchmark: what one directional derivative (a Jacobian column) costs against one evaluation of the model, in this process.
 
 The slave classes of ``fmu_sources`` (FMI 2.0), initialized and stepped 1 s along the paper's
 inputs, then, per FMU: a derivative evaluation (``get_derivatives``, as model exchange asks for it)
@@ -10,7 +10,7 @@ inputs). Both sides are the Python of the slave alone: the FMI layer adds the sa
 ``--against REV`` times it, in one run, for this tree and for the package at git revision REV, each in a
 process of its own, alternately for ``--rounds`` rounds, and prints the best of each side by side with
 their ratio (the float path's cost before and after a change).
-Run: ``python benchmarks/jacobian.py [--calls 2000] [--repeat 5] [--float-only | --against REV [--rounds 3]]``.
+Run: ``python benchmarks/directional_derivatives.py [--calls 2000] [--repeat 5] [--float-only | --against REV [--rounds 3]]``.
 """
 
 from __future__ import annotations
@@ -67,15 +67,15 @@ def _outputs(slave):
 def _costs(instance: InProcess, calls: int, repeat: int, float_only: bool) -> tuple:
     """Seconds per call: derivatives, one column of them, outputs, one column of them (None: none or skipped)."""
     slave = instance.slave
-    vr = instance.vr
-    derivatives = [vr[s.derivative.name] for s in slave.STATES]
-    outputs = [vr[v.name] for v in slave.OUTPUTS]
-    inputs = [vr[v.name] for v in slave.INPUTS]
-    knowns = [vr[s.variable.name] for s in slave.STATES] + inputs
     derivative = _per_call(slave.get_derivatives, calls, repeat)
     output = _per_call(lambda: _outputs(slave), calls, repeat)
     if float_only:
         return derivative, None, output, None
+    vr, model = instance.vr, slave.model
+    derivatives = [vr[s.derivative.name] for s in model.STATES]
+    outputs = [vr[v.name] for v in model.OUTPUTS]
+    inputs = [vr[v.name] for v in model.INPUTS]
+    knowns = [vr[s.variable.name] for s in model.STATES] + inputs
     column = _mean_column(slave, derivatives, knowns, True, calls, repeat)
     output_column = _mean_column(slave, outputs, inputs, False, calls, repeat) if inputs else None
     return derivative, column, output, output_column
@@ -83,11 +83,11 @@ def _costs(instance: InProcess, calls: int, repeat: int, float_only: bool) -> tu
 
 def _mean_column(slave, unknowns: list, knowns: list, model_exchange: bool, calls: int, repeat: int) -> float:
     """Seconds per column of the Jacobian of ``unknowns`` by ``knowns``, one seed per call, over all columns."""
-    def jacobian():
+    def columns():
         for known in knowns:
             slave.directional_derivative(unknowns, [known], [1.0], model_exchange)
 
-    return _per_call(jacobian, max(1, calls // len(knowns)), repeat) / len(knowns)
+    return _per_call(columns, max(1, calls // len(knowns)), repeat) / len(knowns)
 
 
 def _float_costs(calls: int, repeat: int) -> dict:

@@ -1,0 +1,282 @@
+"""What a slave holds: the interface of one FMU's model, free of FMI (docs/fmus.md, "The Python slave").
+
+Bundled into every FMU; imports only the standard library and ``models``.
+"""
+
+from __future__ import annotations
+
+import math
+
+from ..models.rk4 import rk4_integrate, substeps
+
+__all__ = ["Model"]
+
+
+class Model:
+    """One FMU's variables and equations; ``fmu.slave.ModelSlave`` holds one and does the FMI part.
+
+    A model keeps its parameters ``p`` (set by the slave, which calls ``parameters_changed`` after
+    each change) and what it derives from them (``constants``); the slave keeps the inputs, the
+    state and the time and hands them to the equations. Every equation takes its math from the
+    namespace ``math``: the module, or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u`` for
+    directional derivatives (docs/model.md §5.13).
+
+    The tables (``models.parameters``, ``models.states``): ``PARAMETERS``, ``INPUTS``, ``OUTPUTS``,
+    ``STATES`` (the entries of the state vector), ``LOCALS`` (the states' variables that are not
+    outputs), ``INDICATORS`` (event indicators), and ``FMU_STATE``: the model's own attributes saved
+    in the FMU state beside the slave's, each with the function that copies it (also out of JSON).
+
+    What the controller adds has a hook here that does nothing for the other models: waiting for
+    valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
+    guard: ``before_step``, ``after_step``, ``event``), its own integrator (``substep_count``,
+    ``integrate``) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
+    warning for the slave to log; None logs nothing.
+    """
+
+    description = ""
+    PARAMETERS: tuple = ()
+    INPUTS: tuple = ()
+    OUTPUTS: tuple = ()
+    STATES: tuple = ()
+    LOCALS: tuple = ()
+    INDICATORS: tuple = ()
+    FMU_STATE: dict = {}
+
+    def __init__(self):
+        self.p = {v.name: v.start for v in self.PARAMETERS}
+        self._constants = None
+
+    @property
+    def constants(self):
+        """``derive(p)``, computed once per change of the parameters."""
+        if self._constants is None:
+            self._constants = self.derive(self.p)
+        return self._constants
+
+    def parameters_changed(self) -> None:
+        """Forget ``constants``: called by the slave after every change of ``p``."""
+        self._constants = None
+
+    def derive(self, p: dict):
+        """What the equations need from the parameters, precomputed once per change (``constants``).
+
+        Parameters
+        ----------
+        p : dict
+            The parameter values by name.
+
+        Returns
+        -------
+        object
+            ``p`` itself by default.
+        """
+        return p
+
+    def initial_state(self, u: list | None, math=math) -> list:
+        """The state before the first step, from the parameters and the inputs.
+
+        Parameters
+        ----------
+        u : list of float or None
+            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The state vector, in the order of ``STATES``.
+        """
+        raise NotImplementedError
+
+    def rates(self, t: float, x: list, u: list, math=math) -> list:
+        """The state's time derivative, free of side effects.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state, in the order of ``STATES``.
+        u : list of float
+            The inputs, in the order of ``INPUTS``.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The time derivative of each entry of ``x``.
+        """
+        raise NotImplementedError
+
+    def outputs(self, t: float, x: list, u: list | None, math=math) -> list:
+        """The Real outputs.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        x : list of float
+            A state, in the order of ``STATES``.
+        u : list of float or None
+            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
+        math : namespace, optional
+            The ``math`` module or ``DUAL_MATH``.
+
+        Returns
+        -------
+        list of float
+            The outputs in the order of ``OUTPUTS``, in their units.
+        """
+        raise NotImplementedError
+
+    def indicators(self, x: list, u: list) -> list:
+        """The event indicators of model exchange.
+
+        Parameters
+        ----------
+        x : list of float
+            A state.
+        u : list of float
+            The inputs.
+
+        Returns
+        -------
+        list of float
+            One value per entry of ``INDICATORS``: none by default.
+        """
+        return []
+
+    def substep_count(self, step_size: float) -> int:
+        """How many sub-steps ``integrate`` takes over a step; the slave discards a step of more than ``MAX_SUBSTEPS``.
+
+        Parameters
+        ----------
+        step_size : float
+            The communication step, in s.
+
+        Returns
+        -------
+        int
+            RK4's sub-steps no longer than ``max_step`` by default (docs/model.md §5.11).
+        """
+        return substeps(step_size, self.p["max_step"])
+
+    def integrate(self, t: float, x: list, step_size: float, inputs) -> list:
+        """The state after a step: RK4 in sub-steps of at most ``max_step`` by default.
+
+        Parameters
+        ----------
+        t : float
+            The start time, in s.
+        x : list of float
+            The state at ``t``.
+        step_size : float
+            The communication step, in s.
+        inputs : callable
+            ``inputs(t)``: the inputs at a time within the step.
+
+        Returns
+        -------
+        list of float
+            The state at ``t + step_size``.
+        """
+        rates = self.rates
+        return rk4_integrate(lambda t, x: rates(t, x, inputs(t)), t, x, step_size, self.p["max_step"])
+
+    def may_wait(self, started: bool) -> bool:
+        """Whether refused inputs make the model wait instead of discarding steps.
+
+        While it waits, its steps are taken without integrating, and its state and outputs are those of
+        ``initial_state`` and ``outputs`` with ``u`` None.
+
+        Parameters
+        ----------
+        started : bool
+            Whether the state has left ``initial_state`` (a step was taken).
+
+        Returns
+        -------
+        bool
+            Never by default.
+        """
+        return False
+
+    def waited(self, t: float, rejected: dict) -> str | None:
+        """A step waited for valid inputs.
+
+        Parameters
+        ----------
+        t : float
+            The step's start, in s.
+        rejected : dict
+            Why each refused variable was refused, by name.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
+        return None
+
+    def before_step(self, t: float, started: bool, rejected: dict) -> str | None:
+        """A step begins (the model does not wait).
+
+        Parameters
+        ----------
+        t : float
+            The step's start, in s.
+        started : bool
+            Whether a step was taken before.
+        rejected : dict
+            Why each refused variable was refused, by name (then the step is discarded).
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
+        return None
+
+    def after_step(self) -> str | None:
+        """The step that ``before_step`` began ended, taken or discarded.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
+        return None
+
+    def event(self, t: float, u: list) -> str | None:
+        """Model exchange, event mode: choose the switches held until the next event.
+
+        Parameters
+        ----------
+        t : float
+            Time, in s.
+        u : list of float
+            The inputs.
+
+        Returns
+        -------
+        str or None
+            A warning to log.
+        """
+        return None
+
+    def discrete_outputs(self, slave) -> list:
+        """The integer and Boolean outputs, registered after those of the tables.
+
+        Parameters
+        ----------
+        slave : fmu.slave.ModelSlave
+            The slave, which the getters may read (its ``state``, ``u``, ``current_state``, ``waiting``).
+
+        Returns
+        -------
+        list of tuple
+            ``(name, description, boolean, getter)`` of each: none by default.
+        """
+        return []
