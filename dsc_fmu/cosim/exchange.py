@@ -39,7 +39,7 @@ from .loading import LoadedFmus
 from .loop import Exchange, Jacobi, Run
 from .wiring import Wiring
 
-__all__ = ["MODES", "EXCHANGES", "ExchangeRun", "StepThenTransfer", "cosimulate_exchange"]
+__all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
 
 
 @dataclass
@@ -64,7 +64,7 @@ class ExchangeRun:
     controller_before_inputs: np.ndarray | None = None
 
 
-class StepThenTransfer(Exchange):
+class _StepThenTransfer(Exchange):
     """The loop of libcosim and ``simulate_ssp``: parameters set before initialisation mode; before a step
     every FMU gets the values transferred last (0.0 before the first transfer, as SSP's connectors start);
     after it every output is read and transferred, and a row recorded."""
@@ -94,7 +94,7 @@ class StepThenTransfer(Exchange):
         self.transfer(run)
 
 
-class Libcosim(StepThenTransfer):
+class _Libcosim(_StepThenTransfer):
     """libcosim's ``fixed_step_algorithm``: N rounds of (set, read, transfer) in initialisation mode, then
     a transfer and a row after it."""
 
@@ -109,7 +109,7 @@ class Libcosim(StepThenTransfer):
         run.recorder.record(0.0)
 
 
-class SimulateSsp(StepThenTransfer):
+class _SimulateSsp(_StepThenTransfer):
     """``fmpy.ssp.simulate_ssp``: no stop time, time advanced by adding h while below the stop time, each
     row stamped with the start of its step."""
 
@@ -124,8 +124,8 @@ class SimulateSsp(StepThenTransfer):
         return points
 
 
-EXCHANGES = {"jacobi": Jacobi, "libcosim": Libcosim, "simulate_ssp": SimulateSsp}
-MODES = tuple(EXCHANGES)
+_EXCHANGES = {"jacobi": Jacobi, "libcosim": _Libcosim, "simulate_ssp": _SimulateSsp}
+MODES = tuple(_EXCHANGES)
 
 
 class _Trace:
@@ -173,13 +173,13 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
     CosimulationError
         Our Jacobi: a divergence, as for ``cosimulate``; any scheme: a failing FMI call.
     """
-    mode = one_of(EXCHANGES, mode, "mode")
+    mode = one_of(_EXCHANGES, mode, "mode")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     log = []
     with LoadedFmus(fmu_paths, None, log) as fmus:
         wiring = Wiring(fmus.by_name)
         trace = _Trace(wiring, before=mode == "jacobi")
-        run = Run(scenario, wiring, log, EXCHANGES[mode](), 1, trace=trace)
+        run = Run(scenario, wiring, log, _EXCHANGES[mode](), 1, trace=trace)
         run.execute(fmus.loaded)
     result = run.recorder.result()
     inputs = {name: np.array(rows, dtype=[("time", np.float64), *((s, np.float64) for s in wiring.feeds[name].inputs)])

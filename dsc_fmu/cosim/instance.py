@@ -20,8 +20,7 @@ from fmpy.model_description import ValidationError
 from ..errors import CosimulationError
 from ..platforms import library_path
 
-__all__ = ["LogMessage", "LoadedFmu", "Fmi2Fmu", "Fmi3Fmu", "load_fmu", "failed_call", "logging_callbacks",
-           "type_name"]
+__all__ = ["LogMessage", "load_fmu", "failed_call", "logging_callbacks", "type_name"]
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 

@@ -14,7 +14,7 @@ from .progress import Watch
 from .step_control import ControlledSteps, defect, next_step
 from .wiring import Recorder, Wiring
 
-__all__ = ["Exchange", "GaussSeidel", "Jacobi", "Run", "step_count"]
+__all__ = ["step_count"]
 
 
 def step_count(stop_time: float, step_size: float) -> int:

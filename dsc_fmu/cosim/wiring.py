@@ -11,7 +11,7 @@ from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE
 from . import signals
 from .instance import LoadedFmu, type_name
 
-__all__ = ["Feed", "Wiring", "Recorder", "check_values"]
+__all__ = ["check_values"]
 
 
 def check_values(values, names, at: float, bound: float) -> None:
