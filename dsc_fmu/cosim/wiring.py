@@ -11,28 +11,11 @@ from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE
 from . import signals
 from .instance import LoadedFmu, type_name
 
-__all__ = ["check_values"]
+__all__: list[str] = []  # the package's own: Feed, Wiring, Recorder
 
 
-def check_values(values, names, at: float, bound: float) -> None:
-    """Check that every value is finite and within ``bound`` in magnitude.
-
-    Parameters
-    ----------
-    values : sequence of float
-        The values.
-    names : sequence of str
-        Their names (``FMU.variable``), in the same order.
-    at : float
-        Simulated time in s, for the message.
-    bound : float
-        Largest magnitude allowed.
-
-    Raises
-    ------
-    CosimulationError
-        At the first value that is not finite or exceeds ``bound``, naming it.
-    """
+def _check(values, names, at: float, bound: float) -> None:
+    """At the first value that is not finite or beyond ``bound`` in magnitude, a CosimulationError naming it."""
     for name, value in zip(names, values):
         if not -bound <= value <= bound:
             reason = "is not finite" if not math.isfinite(value) else f"exceeds the bound {bound:g}"
@@ -59,10 +42,10 @@ class Feed:
         self.held: list[float] | None = None
 
     def read(self, at: float, bound: float | None) -> list[float]:
-        """The feeding outputs now, checked against ``bound`` (``check_values``; None: not checked)."""
+        """The feeding outputs now, checked against ``bound`` (None: not checked)."""
         values = [value for get, refs in self.sources for value in get(refs)]
         if bound is not None:
-            check_values(values, self.names, at, bound)
+            _check(values, self.names, at, bound)
         return values
 
     def set(self, values: list[float]) -> None:
