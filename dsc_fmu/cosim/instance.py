@@ -120,24 +120,13 @@ def type_name(variable) -> str:
 
 
 class LoadedFmu:
-    """One loaded FMU: its fmpy instance (``instance``), its variables by name and the calls the masters make.
+    """One loaded FMU (``load_fmu``): its fmpy instance (``instance``), its variables by name and the calls
+    the masters make.
 
     The calls that FMI 2.0 and 3.0 name differently are this interface's methods (``get_floats``,
     ``enter_initialization_mode``, ...), written out in ``Fmi2Fmu`` and ``Fmi3Fmu`` on fmpy's classes; the
     others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
-    fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``). ``load_fmu`` makes
-    the one of an FMU's version.
-
-    Parameters
-    ----------
-    name : str
-        The FMU's name, also its instance name.
-    workdir : pathlib.Path or None
-        Where its extraction folder is made; None: the system's temporary folder.
-    log : list of LogMessage
-        Where its messages go.
-    model_exchange : bool
-        Model exchange instead of co-simulation.
+    fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``).
     """
 
     fmi_version = 0

@@ -102,36 +102,17 @@ class Jacobi(Exchange):
 
 
 class Run:
-    """One run of the loop: its settings, the wired FMUs, the exchange policy, the recorder (a row every
-    ``every`` steps), where the run is (``at``: steps done, time), the last ``u``, its watch and where that
-    stopped it.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario, its settings checked.
-    wiring : Wiring
-        The loaded FMUs.
-    log : list of LogMessage
-        The FMUs' messages, for the message of a failing call.
-    exchange : Exchange
-        The policy.
-    every : int
-        Steps between two rows (a fixed-step run; an error-controlled one records every accepted step).
-    watch : progress.Watch, optional
-        Sees every row and may stop the run there.
-    controlled : bool, optional
-        Error-controlled steps (``step_control``, the scenario's ``tolerance``) instead of fixed ones.
-    trace : object, optional
-        Told ``stepped(t, end)`` when every FMU has stepped from ``t`` to ``end`` (``exchange`` records
-        what each FMU held over the step).
-    """
+    """One run of the loop: the scenario (settings checked), the wired FMUs, the ``exchange`` policy, a row
+    every ``every`` fixed steps (every accepted one if ``controlled``: ``step_control``), the ``log`` for the
+    message of a failing call, a ``watch`` that may stop the run at a row, a ``trace`` told ``stepped(t,
+    end)`` when every FMU has stepped (``exchange`` records what each FMU held); where the run is (``at``:
+    steps done, time), the last ``u``, and where the watch stopped it."""
 
     def __init__(self, scenario: Scenario, wiring: Wiring, log: list[LogMessage], exchange: Exchange, every: int,
                  watch: Watch | None = None, *, controlled: bool = False, trace=None):
         self.scenario, self.settings, self.wiring, self.log = scenario, scenario.simulation, wiring, log
         self.exchange, self.every, self.watch, self.trace = exchange, every, watch, trace
-        self.error_controlled = controlled
+        self.controlled = controlled
         self.bound = self.settings.bound
         self.reference, self.plant, self.controller = wiring.reference, wiring.plant, wiring.controller
         self.points = exchange.time_points(self.settings.step_size, self.settings.stop_time)
@@ -139,18 +120,12 @@ class Run:
         self.recorder = Recorder(wiring, self.n // every + 2)
         self.at = (0, 0.0)
         self.u = None
-        self.controlled: ControlledSteps | None = None
+        self.step_control: ControlledSteps | None = None
         self.stopped_at = None
 
     def execute(self, fmus: list[LoadedFmu]) -> None:
-        """Initialise the FMUs (in ``fmus``' order) and run; every FMU is terminated at the end.
-
-        Raises
-        ------
-        CosimulationError
-            A divergence, a failing FMI call (naming its FMU) or a tolerance that cannot be met; its
-            ``result`` holds the rows recorded, ``steps`` the steps done.
-        """
+        """Initialise the FMUs (in ``fmus``' order) and run, terminating them at the end; a CosimulationError
+        (a divergence, a failing call naming its FMU, a tolerance not met) holds the rows and steps done."""
         settings, exchange = self.settings, self.exchange
         try:
             for fmu in fmus:
@@ -162,8 +137,8 @@ class Run:
             for fmu in fmus:
                 fmu.call(fmu.instance.exitInitializationMode)
             exchange.start(self)
-            if self.error_controlled:
-                self.controlled = self._controlled()
+            if self.controlled:
+                self.step_control = self._controlled()
             else:
                 self._fixed()
         except CosimulationError as error:
@@ -185,10 +160,10 @@ class Run:
 
     def steps(self) -> int:
         """The communication steps taken (accepted ones, for an error-controlled run)."""
-        return self.n if self.controlled is None else len(self.controlled.times)
+        return self.n if self.step_control is None else len(self.step_control.times)
 
     def fmu_steps(self) -> int:
-        return 3 * self.n if self.controlled is None else self.controlled.fmu_steps
+        return 3 * self.n if self.step_control is None else self.step_control.fmu_steps
 
     def _fixed(self) -> None:
         """The steps of ``points``, a row every ``every`` and at the end; a watch that says stop at a row

@@ -193,7 +193,7 @@ class Cosimulator:
                   max(1, round(settings.output_interval / settings.step_size)), watch,
                   controlled=settings.tolerance is not None)
         run.execute(loaded)
-        controlled = run.controlled
+        controlled = run.step_control
         record = {"scenario": scenario.name, "interface": Interface.CO_SIMULATION, "step_size": settings.step_size,
                   "order": settings.order, "coupling": settings.coupling, "coupling_order": settings.coupling.order,
                   "stop_time": settings.stop_time, "output_interval": settings.output_interval,

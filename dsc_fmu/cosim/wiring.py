@@ -23,15 +23,8 @@ def _check(values, names, at: float, bound: float) -> None:
 
 
 class Feed:
-    """The Real inputs of one FMU and the outputs of the same names that feed them (``registry.CONNECTIONS``).
-
-    Parameters
-    ----------
-    end : LoadedFmu
-        The FMU whose inputs they are.
-    sources : list of (LoadedFmu, list of str)
-        The FMUs feeding it and their outputs, in the order of ``CONNECTIONS``.
-    """
+    """The Real inputs of the FMU ``end`` and the outputs of the same names that feed them: ``sources``, each
+    FMU with its outputs, in the order of ``registry.CONNECTIONS``."""
 
     def __init__(self, end: LoadedFmu, sources: list[tuple[LoadedFmu, list[str]]]):
         self.end = end
@@ -55,20 +48,8 @@ class Feed:
 
 
 class Wiring:
-    """The three loaded FMUs by role, each FMU's ``Feed`` and the value references of the recorded outputs.
-
-    Looked up once per load: a wrong FMU file fails here.
-
-    Parameters
-    ----------
-    fmus : dict of str to LoadedFmu
-        The loaded FMUs by name (``registry.ORDER``).
-
-    Raises
-    ------
-    CosimulationError
-        If an FMU lacks a variable that is exchanged or recorded.
-    """
+    """The three loaded FMUs (by name) by role, each FMU's ``Feed`` and the value references of the recorded
+    outputs, looked up once per load: a wrong FMU file (a variable missing) is a CosimulationError here."""
 
     def __init__(self, fmus: dict[str, LoadedFmu]):
         for fmu in fmus.values():  # each FMU has the outputs recorded from it: a wrong file fails here
@@ -105,15 +86,8 @@ class Wiring:
 
 
 class Recorder:
-    """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``.
-
-    Parameters
-    ----------
-    wiring : Wiring
-        The loaded FMUs and the value references of their recorded outputs.
-    rows : int
-        Rows to allocate; the table grows when a run records more.
-    """
+    """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``
+    (``rows`` allocated, more as needed)."""
 
     def __init__(self, wiring: Wiring, rows: int):
         self.columns = wiring.columns
