@@ -46,7 +46,7 @@ class Overrides(TypedDict, total=False):
         A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
         stay within ``[h_min, h_max]`` of the scenario.
     input_derivatives : bool, optional
-        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``) with the
+        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputDerivatives``) with the
         FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
     """
 
