@@ -67,7 +67,7 @@ class Model:
         self.md, self.log = read_model_description(str(path)), log
         self.version, self.fmu = self.loaded.fmi_version, self.loaded.instance
         self.refs = {name: v.valueReference for name, v in self.loaded.variables.items()}
-        self.nx = self.loaded.states
+        self.nx, self.nz = self.loaded.states, self.loaded.indicators
         self.loaded.enter_initialization(None, {})
 
     def set(self, values: dict):

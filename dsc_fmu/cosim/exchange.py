@@ -75,7 +75,7 @@ class _StepThenTransfer(Exchange):
         self.pending = None
 
     def transfer(self, run: Run) -> None:
-        self.pending = {end: feed.read(0.0, None) for end, feed in run.wiring.feeds.items()}
+        self.pending = {end: feed.read(run.at[1], None) for end, feed in run.wiring.feeds.items()}
 
     def push(self, run: Run) -> None:
         if self.pending is None:
