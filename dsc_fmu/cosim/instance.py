@@ -380,7 +380,8 @@ def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage],
     Returns
     -------
     LoadedFmu
-        Instantiated; closed again if a step fails (``close`` removes its folder).
+        Instantiated (``close`` frees it and removes its folder); its folder is removed if extracting
+        or instantiating it fails.
 
     Raises
     ------
