@@ -282,7 +282,7 @@ def paper_model_exchange(fmus: dict) -> dict:
     from dsc_fmu import load_scenario, simulate_model_exchange
 
     run = simulate_model_exchange(load_scenario("paper"), fmus, stop_time=EXCHANGE_STOP, tolerance=EXCHANGE_TOLERANCE)
-    return {"result": run.result, "steps": run.steps}
+    return {"result": run.result, "evaluations": run.evaluations}
 
 
 def fmpy_user(fmus: dict, library_folder: str = "") -> dict:

@@ -5,10 +5,10 @@ python-control systems, checked against finite differences of the FMUs' own valu
 import numpy as np
 import pytest
 
-from dsc_fmu.cosim.linear import closed_loop
+from dsc_fmu.cosim.linear import closed_loop_state_space
 from dsc_fmu.cosim.loading import LoadedFmus
-from dsc_fmu.cosim.master import Recorder, Wiring
-from dsc_fmu.cosim.model_exchange import _integrate, _Loop, _start, linearise_at, simulate_model_exchange
+from dsc_fmu.cosim.model_exchange import _integrate, _Ode, _start, linearise_at, simulate_model_exchange
+from dsc_fmu.cosim.wiring import Recorder, Wiring
 from dsc_fmu.registry import ORDER
 from dsc_fmu.scenario import Method, ScenarioError, load_scenario
 
@@ -20,10 +20,10 @@ def loaded_loop(fmu_paths, scenario, at: float, tmp_path):
     tmp_path.mkdir(parents=True, exist_ok=True)
     fmus = LoadedFmus(fmu_paths, tmp_path, [], model_exchange=True)
     wiring = Wiring(fmus.by_name)
-    loop = _Loop(wiring, scenario.simulation.bound)
-    _start(loop, scenario.with_simulation(stop_time=at))
-    _integrate(loop, Recorder(wiring, 2), np.array([0.0, at]), 1e-8, Method.DOP853)
-    return fmus, loop, loop.gather("getContinuousStates")
+    ode = _Ode(wiring, scenario.simulation.bound)
+    _start(ode, scenario.with_simulation(stop_time=at))
+    _integrate(ode, Recorder(wiring, 2), np.array([0.0, at]), 1e-8, Method.DOP853)
+    return fmus, ode, ode.states()
 
 
 def central_differences(f, y: np.ndarray) -> np.ndarray:
@@ -110,7 +110,7 @@ def test_the_closed_loop_at_20_s_as_a_python_control_system(fmu_paths, tmp_path)
     fmus, loaded, y = loaded_loop(fmu_paths, load_scenario("paper"), 20.0, tmp_path)
     with fmus:
         blocks = loaded.blocks()
-    np.testing.assert_allclose(loop.A, closed_loop(blocks).A, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(loop.A, closed_loop_state_space(blocks).A, rtol=1e-12, atol=1e-12)
 
 
 @pytest.mark.parametrize("which", ORDER)

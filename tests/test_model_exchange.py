@@ -9,7 +9,7 @@ import pytest
 from fmpy import extract, read_model_description, simulate_fmu
 from fmpy.fmi1 import FMICallException
 
-from dsc_fmu.cosim.instance import FMU2ModelNamed, FMU3ModelNamed, LogMessage, logging_callbacks
+from dsc_fmu.cosim.instance import load_fmu, logging_callbacks
 from dsc_fmu.cosim.model_exchange import simulate_model_exchange
 from dsc_fmu.cosim.reference_solution import reference_solution
 from dsc_fmu.models import parameters as P
@@ -57,37 +57,35 @@ def test_each_fmu_as_an_ode_agrees_with_its_co_simulation(fmu_paths, fmu3_paths,
 
 
 class Model:
-    """One model-exchange instance of an FMU through fmpy, with the FMI 2.0 names; ``log`` collects its
-    messages as ``LogMessage``s."""
+    """One model-exchange instance of an FMU as the masters load it (``instance.load_fmu``): ``loaded``, and
+    ``fmu`` its fmpy instance; ``log`` collects its messages as ``LogMessage``s."""
 
     def __init__(self, path, folder, name, log):
-        md = read_model_description(str(path))
-        self.version = 3 if md.fmiVersion.startswith("3") else 2
-        self.refs = {v.name: v.valueReference for v in md.modelVariables}
-        self.nx, self.nz = len(md.derivatives), md.numberOfEventIndicators
-        self.md, self.log = md, log
-        kind = FMU3ModelNamed if self.version == 3 else FMU2ModelNamed
-        self.fmu = kind(guid=md.guid, unzipDirectory=extract(str(path), unzipdir=folder),
-                        modelIdentifier=md.modelExchange.modelIdentifier, instanceName=name)
-        if self.version == 3:
-            self.fmu.instantiate(loggingOn=True, logMessage=lambda env, status, category, message: log.append(
-                LogMessage(name, str(status), message.decode())))
-        else:
-            self._callbacks = logging_callbacks(log)
-            self.fmu.instantiate(callbacks=self._callbacks, loggingOn=True)
-        self.fmu.setupExperiment(startTime=0.0)
-        self.fmu.enterInitializationMode()
+        self._callbacks = logging_callbacks(log)
+        folder.mkdir(parents=True, exist_ok=True)
+        self.loaded = load_fmu(name, path, folder, log, self._callbacks, model_exchange=True)
+        self.md, self.log = read_model_description(str(path)), log
+        self.version, self.fmu = self.loaded.fmi_version, self.loaded.instance
+        self.refs = {name: v.valueReference for name, v in self.loaded.variables.items()}
+        self.nx, self.nz = self.loaded.states, self.loaded.indicators
+        self.loaded.enter_initialization(None, {})
 
     def set(self, values: dict):
-        self.fmu.setReal([self.refs[n] for n in values], list(values.values()))
+        self.loaded.set_floats([self.refs[n] for n in values], list(values.values()))
 
     def get(self, names):
-        return dict(zip(names, self.fmu.getReal([self.refs[n] for n in names])))
+        return dict(zip(names, self.loaded.get_floats([self.refs[n] for n in names])))
 
     def vector(self, what: str, n: int | None = None):
         n = self.nx if n is None else n
         buffer = (ctypes.c_double * max(n, 1))()
         getattr(self.fmu, what)(buffer, n)
+        return list(buffer[:n])
+
+    def derivatives(self, n: int | None = None):
+        n = self.nx if n is None else n
+        buffer = (ctypes.c_double * max(n, 1))()
+        self.loaded.get_derivatives(buffer, n)
         return list(buffer[:n])
 
     def states(self, values):
@@ -96,24 +94,22 @@ class Model:
 
     def start(self):
         self.fmu.exitInitializationMode()
-        while self.fmu.newDiscreteStates()[0]:
-            pass
-        self.fmu.enterContinuousTimeMode()
+        self.settle()
 
     def event(self):
         self.fmu.enterEventMode()
-        while self.fmu.newDiscreteStates()[0]:
+        self.settle()
+
+    def settle(self):
+        while self.loaded.update_discrete_states()[0]:
             pass
         self.fmu.enterContinuousTimeMode()
 
     def close(self):
-        self.fmu.terminate()
-        self.free()
+        self.loaded.close()
 
     def free(self):
-        if self.fmu is not None:
-            self.fmu.freeInstance()
-            self.fmu = None
+        self.loaded.free()
 
 
 @pytest.fixture(params=(2, 3), ids=("fmi2", "fmi3"))
@@ -154,8 +150,7 @@ def test_the_declared_dependencies_are_the_ones_the_fmu_has(model, name):
         instance.states(x)
         if inputs:
             instance.set(dict(zip(inputs, u)))
-        return {**instance.get(outputs), **dict(zip((s.derivative.name for s in spec.states), instance.vector(
-            "getDerivatives")))}
+        return {**instance.get(outputs), **dict(zip((s.derivative.name for s in spec.states), instance.derivatives()))}
 
     base = evaluate(x, u)
     found = {unknown: set() for unknown in base}
@@ -198,7 +193,7 @@ def test_the_filters_follow_the_inputs_until_initialization_ends(model):
         instance.set(dict(zip(names, m)))
         expected = start_filters(g, initial_controller_state({v.name: v.start for v in P.CONTROLLER_PARAMETERS}), m)
         assert instance.vector("getContinuousStates") == pytest.approx(expected, rel=1e-15, abs=1e-15)
-        assert instance.vector("getDerivatives")[2:4] == [0.0, 0.0]  # x2f_dot(0) = 0
+        assert instance.derivatives()[2:4] == [0.0, 0.0]  # x2f_dot(0) = 0
     instance.fmu.exitInitializationMode()
     frozen = instance.vector("getContinuousStates")
     instance.set({"x": 9.0})
@@ -208,7 +203,7 @@ def test_the_filters_follow_the_inputs_until_initialization_ends(model):
 
 def _heading(instance: Model, theta: float) -> dict:
     instance.set({"theta": theta})
-    return {**instance.get(["S13", "wrap_indicator"]), "der(x2f1)": instance.vector("getDerivatives")[2]}
+    return {**instance.get(["S13", "wrap_indicator"]), "der(x2f1)": instance.derivatives()[2]}
 
 
 def test_the_wrap_is_held_between_events_and_jumps_at_one(model):
@@ -249,7 +244,7 @@ def test_the_beta_guard_changes_only_at_events(model):
     assert instance.fmu.getBoolean(refs[:1]) == [False]
     instance.event()
     assert instance.fmu.getBoolean(refs[:1]) == [True]
-    assert instance.fmu.getInteger(refs[1:]) == [1]
+    assert instance.loaded.get_integers(refs[1:]) == [1]
     instance.close()
 
 
@@ -264,11 +259,11 @@ def test_model_exchange_refuses_what_is_not_a_state_and_discards_refused_values(
     controller.set({"v_r": -1.0})  # refused (Assumption 2); the last valid value is kept
     controller.start()
     with pytest.raises(FMICallException, match="status 2"):
-        controller.vector("getDerivatives")
+        controller.derivatives()
     controller.set({"v_r": 1.0})
-    assert all(math.isfinite(v) for v in controller.vector("getDerivatives"))
+    assert all(math.isfinite(v) for v in controller.derivatives())
     with pytest.raises(FMICallException, match="status 3"):
-        controller.vector("getDerivatives", 19)
+        controller.derivatives(19)
     controller.free()
 
 
@@ -276,19 +271,18 @@ def test_an_fmu_state_restores_the_held_switches(model):
     """An FMU state taken before the guard engaged brings back the switches held then."""
     instance = model("DSCController")
     instance.start()
-    fmi3 = instance.version == 3
-    state = instance.fmu.getFMUState() if fmi3 else instance.fmu.getFMUstate()
+    state = instance.fmu.getFMUState()
     active = [instance.refs["beta_guard_active"]]
     ahead = {"x": 6.0, "y": 2.0, "theta": 0.3}  # beta < beta_min, S13 != 0: the guard changes h2
     instance.set(ahead)
-    unguarded = instance.vector("getDerivatives")
+    unguarded = instance.derivatives()
     instance.event()
-    guarded = instance.vector("getDerivatives")
+    guarded = instance.derivatives()
     assert instance.fmu.getBoolean(active) == [True] and guarded != unguarded
-    instance.fmu.setFMUState(state) if fmi3 else instance.fmu.setFMUstate(state)
+    instance.fmu.setFMUState(state)
     instance.set(ahead)
     assert instance.fmu.getBoolean(active) == [False]
-    assert instance.vector("getDerivatives") == unguarded
+    assert instance.derivatives() == unguarded
     instance.close()
 
 

@@ -29,7 +29,7 @@ def _ready(make, name: str, mode: str) -> Model:
     if inputs:
         instance.set(inputs)
     instance.fmu.exitInitializationMode()
-    while instance.fmu.newDiscreteStates()[0]:
+    while instance.loaded.update_discrete_states()[0]:
         pass
     if mode == "continuous":
         instance.fmu.enterContinuousTimeMode()
@@ -43,7 +43,7 @@ def _states(name: str) -> list[str]:
 def _evaluation(instance: Model) -> list[str]:
     """What the next evaluation gives, bit by bit: states, derivatives, event indicators, the outputs."""
     outputs = [v.name for v in FMUS[instance.fmu.instanceName].outputs]
-    values = [*instance.vector("getContinuousStates"), *instance.vector("getDerivatives"),
+    values = [*instance.vector("getContinuousStates"), *instance.derivatives(),
               *instance.vector("getEventIndicators", instance.nz), *instance.get(outputs).values()]
     return [value.hex() for value in values]
 
@@ -107,18 +107,18 @@ def test_a_finite_difference_jacobian_by_value_reference_is_the_one_by_the_state
     for instance in (by_reference, by_vector):
         instance.fmu.setTime(0.2)
     x = by_reference.vector("getContinuousStates")
-    base = by_reference.vector("getDerivatives")
+    base = by_reference.derivatives()
     columns = []
     for i, state in enumerate(_states(name)):
         d = 1.5e-8 * max(abs(x[i]), 1.0)
         by_reference.set({state: x[i] + d})
-        column = [(after - before) / d for after, before in zip(by_reference.vector("getDerivatives"), base)]
+        column = [(after - before) / d for after, before in zip(by_reference.derivatives(), base)]
         by_reference.set({state: x[i]})
         by_vector.states([*x[:i], x[i] + d, *x[i + 1:]])
-        expected = [(after - before) / d for after, before in zip(by_vector.vector("getDerivatives"), base)]
+        expected = [(after - before) / d for after, before in zip(by_vector.derivatives(), base)]
         by_vector.states(x)
         assert [v.hex() for v in column] == [v.hex() for v in expected], state
-        assert by_reference.vector("getDerivatives") == base
+        assert by_reference.derivatives() == base
         columns.append(column)
     assert any(any(column) for column in columns)
     by_reference.close()

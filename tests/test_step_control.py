@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from dsc_fmu.cli import main
-from dsc_fmu.cosim import master
+from dsc_fmu.cosim import loop
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator
 from dsc_fmu.cosim.reference_solution import output_times, reference_solution
 from dsc_fmu.scenario import ScenarioError, load_scenario
@@ -78,7 +78,7 @@ def test_steps_of_h_min_that_miss_the_tolerance_end_the_run_wherever_they_start(
 def _replay(simulator, scenario, sizes, monkeypatch):
     """``scenario`` run with exactly the step sizes ``sizes``, every one accepted (no rollback)."""
     following = iter(sizes[1:])
-    monkeypatch.setattr(master, "next_step", lambda *arguments: next(following, 1.0))
+    monkeypatch.setattr(loop, "next_step", lambda *arguments: next(following, 1.0))
     settings = dataclasses.replace(scenario.simulation, tolerance=1e9, step_size=sizes[0])
     run = simulator.run(dataclasses.replace(scenario, simulation=settings))
     monkeypatch.undo()

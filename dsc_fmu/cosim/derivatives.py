@@ -11,73 +11,57 @@ input derivatives.
 
 from __future__ import annotations
 
-__all__ = ["InputRamps"]
+from .instance import LoadedFmu
+from .loop import Exchange, Run
+
+__all__ = ["InputDerivatives"]
 
 
 def _slope(now: list, before: list, dt: float) -> list:
     return [(a - b) / dt for a, b in zip(now, before)]
 
 
-class InputRamps:
-    """The values of the last two exchanges, and the input derivatives set from them.
+def _set_slopes(fmu: LoadedFmu, refs: list[int], slopes: list[float]) -> None:
+    fmu.call(fmu.instance.setRealInputDerivatives, refs, [1] * len(refs), slopes)
+
+
+class InputDerivatives(Exchange):
+    """Our exchange with the slopes set before each step from the last two exchanges (the module's rule).
 
     Parameters
     ----------
-    plant : fmpy.fmi2.FMU2Slave
-        The plant's instance.
-    plant_u : list of int
-        Value references of its inputs ``u1, u2``.
-    controller : fmpy.fmi2.FMU2Slave
-        The controller's instance.
-    controller_in : list of int
-        Value references of its measured inputs.
     jacobi : bool
         Jacobi (the controller's slopes extrapolate) rather than Gauss-Seidel (they interpolate).
     """
 
-    def __init__(self, plant, plant_u: list, controller, controller_in: list, jacobi: bool):
-        self.plant, self.plant_u = plant, plant_u
-        self.controller, self.controller_in = controller, controller_in
+    def __init__(self, jacobi: bool):
         self.jacobi = jacobi
-        self.at = self.u = self.measured = None
-        self.before = None  # (time, u, measurements) of the exchange before the last
+        self.last = None  # (time, u, measurements) of the last exchange
+        self.before = None  # and of the one before it
 
-    def exchanged(self, at: float, u: list, measured: list) -> None:
-        """Note an exchange.
+    def _exchanged(self, at: float, u: list, measured: list) -> None:
+        if self.last is not None:
+            self.before = self.last
+        self.last = (at, list(u), list(measured))
 
-        Parameters
-        ----------
-        at : float
-            Its time in s.
-        u : list of float
-            The voltages set on the plant, in V.
-        measured : list of float
-            The measurements set on the controller.
-        """
-        if self.at is not None:
-            self.before = (self.at, self.u, self.measured)
-        self.at, self.u, self.measured = at, list(u), list(measured)
+    def start(self, run: Run) -> None:
+        super().start(run)
+        self._exchanged(0.0, run.u, run.wiring.measurements.held)
 
-    def before_plant(self) -> None:
-        """The plant's slope of ``u`` for the step from the last exchange (none at the first)."""
+    def step(self, run: Run, t: float, h: float, end: float) -> None:
+        wiring = run.wiring
+        at, u, measured_then = self.last
         if self.before is not None:
-            self.plant.setRealInputDerivatives(self.plant_u, [1] * len(self.plant_u),
-                                               _slope(self.u, self.before[1], self.at - self.before[0]))
-
-    def before_controller(self, step: float, measured_end: list) -> None:
-        """Set the controller's slopes for the step from the last exchange.
-
-        Parameters
-        ----------
-        step : float
-            The step's size in s.
-        measured_end : list of float
-            The measurements at the step's end (Gauss-Seidel interpolates towards them).
-        """
-        if self.jacobi:
-            if self.before is None:
-                return
-            slopes = _slope(self.measured, self.before[2], self.at - self.before[0])
-        else:
-            slopes = _slope(measured_end, self.measured, step)
-        self.controller.setRealInputDerivatives(self.controller_in, [1] * len(self.controller_in), slopes)
+            _set_slopes(run.plant, wiring.voltages.refs, _slope(u, self.before[1], at - self.before[0]))
+        run.reference.do_step(t, h)
+        run.plant.do_step(t, h)
+        measured = wiring.measurements.read(end, run.bound)
+        if not self.jacobi:
+            _set_slopes(run.controller, wiring.measurements.refs, _slope(measured, measured_then, h))
+        elif self.before is not None:
+            _set_slopes(run.controller, wiring.measurements.refs,
+                        _slope(measured_then, self.before[2], at - self.before[0]))
+        run.controller.do_step(t, h)
+        run.stepped(end)
+        run.u = wiring.exchange(end, run.bound, measured)
+        self._exchanged(end, run.u, measured)

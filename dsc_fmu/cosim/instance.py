@@ -1,5 +1,5 @@
-"""One FMU loaded for a master (FMI 2.0 or 3.0, co-simulation or model exchange, on fmpy): extracted,
-instantiated, its variables by name, its log messages collected."""
+"""One FMU loaded for a master on fmpy's own classes (FMI 2.0 or 3.0, co-simulation or model exchange):
+extracted, instantiated, its variables by name, its log messages collected, a failing call naming it."""
 
 from __future__ import annotations
 
@@ -20,7 +20,7 @@ from fmpy.model_description import ValidationError
 from ..errors import CosimulationError
 from ..platforms import library_path
 
-__all__ = ["LogMessage", "LoadedFmu", "failed_call", "logging_callbacks", "type_name"]
+__all__ = ["LogMessage", "load_fmu", "failed_call", "logging_callbacks", "type_name"]
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
@@ -44,6 +44,10 @@ class LogMessage:
     message: str
 
 
+def _status(status: int) -> str:
+    return _STATUS[status] if 0 <= status < len(_STATUS) else str(status)
+
+
 def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
     """FMI 2.0 callbacks whose logger appends every message to ``log``.
 
@@ -60,7 +64,7 @@ def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
 
     def logger(component, instance, status, category, message):
         text = [(b or b"").decode(errors="replace") for b in (instance, message)]
-        log.append(LogMessage(text[0], _STATUS[status] if 0 <= status < len(_STATUS) else str(status), text[1]))
+        log.append(LogMessage(text[0], _status(status), text[1]))
 
     callbacks = fmi2CallbackFunctions()
     callbacks.logger = fmi2CallbackLoggerTYPE(logger)
@@ -78,7 +82,7 @@ def failed_call(error: FMICallException, log: list[LogMessage], at: float) -> Co
     Parameters
     ----------
     error : fmpy.fmi1.FMICallException
-        The failing call, as a ``LoadedFmu``'s instance raises it (its ``fmu`` names the FMU).
+        The failing call, as a ``LoadedFmu`` raises it (its ``fmu`` names the FMU).
     log : list of LogMessage
         The run's log messages; the FMU's last three go into the message.
     at : float
@@ -94,72 +98,6 @@ def failed_call(error: FMICallException, log: list[LogMessage], at: float) -> Co
     failure = CosimulationError(f"{name} failed at t = {at:.6g} s: {error} Its last log messages: {messages}", at)
     failure.fmu = name
     return failure
-
-
-class _Named:
-    """An fmpy slave whose failing FMI calls name their FMU: the FMICallException gets ``fmu``."""
-
-    fmu = "an FMU"
-
-    def _call(self, fname: str, *args):
-        try:
-            return super()._call(fname, *args)
-        except FMICallException as error:
-            error.fmu = self.fmu
-            raise
-
-
-class FMU2SlaveNamed(_Named, FMU2Slave):
-    """fmpy's FMU2Slave, naming its FMU in a failing call (fmpy reads the FMI version from the class
-    name's start)."""
-
-
-class _Fmi2Names(_Named):
-    """An fmpy FMI 3.0 instance under the FMI 2.0 names the masters call: Real is Float64, Integer is
-    Int32; ``setupExperiment`` keeps the times that FMI 3.0 passes to ``enterInitializationMode``; a
-    failing call names its FMU."""
-
-    _experiment = (0.0, None)
-
-    def getReal(self, vr):
-        return self.getFloat64(vr)
-
-    def setReal(self, vr, values):
-        self.setFloat64(vr, values)
-
-    def getInteger(self, vr):
-        return self.getInt32(vr)
-
-    def setInteger(self, vr, values):
-        self.setInt32(vr, values)
-
-    def setupExperiment(self, startTime: float = 0.0, stopTime: float | None = None) -> None:
-        self._experiment = (startTime, stopTime)
-
-    def enterInitializationMode(self) -> None:
-        start, stop = self._experiment
-        super().enterInitializationMode(startTime=start, stopTime=stop)
-
-
-class FMU3SlaveNamed(_Fmi2Names, FMU3Slave):
-    """fmpy's FMU3Slave under the FMI 2.0 names (fmpy reads the FMI version from the class name's start)."""
-
-    def doStep(self, currentCommunicationPoint: float, communicationStepSize: float) -> None:
-        super().doStep(currentCommunicationPoint, communicationStepSize)
-
-
-class FMU2ModelNamed(_Named, FMU2Model):
-    """fmpy's FMU2Model (model exchange), naming its FMU in a failing call."""
-
-
-class FMU3ModelNamed(_Fmi2Names, FMU3Model):
-    """fmpy's FMU3Model under the FMI 2.0 names, model exchange's included."""
-
-    def getDerivatives(self, dx, nx):
-        self.getContinuousStateDerivatives(dx, nx)
-
-    def newDiscreteStates(self):
-        return self.updateDiscreteStates()
 
 
 _KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 2.0 names
@@ -181,66 +119,28 @@ def type_name(variable) -> str:
     return _KINDS.get(variable.type, variable.type)
 
 
-def _fmi3_logger(log: list[LogMessage], name: str):
-    """An FMI 3.0 logMessage callback appending to ``log`` as FMU ``name`` (FMI 3.0 passes no instance name)."""
-
-    def logger(environment, status, category, message):
-        text = (message or b"").decode(errors="replace")
-        log.append(LogMessage(name, _STATUS[status] if 0 <= status < len(_STATUS) else str(status), text))
-
-    return logger
-
-
-_CLASSES = {(2, False): FMU2SlaveNamed, (3, False): FMU3SlaveNamed, (2, True): FMU2ModelNamed,
-            (3, True): FMU3ModelNamed}
-
-
 class LoadedFmu:
-    """One loaded FMU: its instance and its variables by name.
+    """One loaded FMU (``load_fmu``): its fmpy instance (``instance``), its variables by name and the calls
+    the masters make.
 
-    FMI 2.0 or 3.0 (read from its model description), co-simulation or model exchange, on fmpy.
-
-    Parameters
-    ----------
-    name : str
-        The FMU's name, also its instance name.
-    workdir : pathlib.Path or None
-        Where its extraction folder is made; None: the system's temporary folder.
-    log : list of LogMessage, optional
-        Where an FMI 3.0 instance's messages go (FMI 2.0 ones go through the callbacks given).
-    model_exchange : bool, optional
-        Model exchange instead of co-simulation. Default False.
+    The calls that FMI 2.0 and 3.0 name differently are this interface's methods (``get_floats``,
+    ``enter_initialization_mode``, ...), written out in ``Fmi2Fmu`` and ``Fmi3Fmu`` on fmpy's classes; the
+    others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
+    fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``).
     """
 
-    def __init__(self, name: str, workdir: Path | None, log: list[LogMessage] | None = None, *,
-                 model_exchange: bool = False):
-        self.name = name
-        self.model_exchange = model_exchange
-        self.log = log if log is not None else []
+    fmi_version = 0
+    _CLASSES: dict = {}  # model_exchange -> fmpy's class
+
+    def __init__(self, name: str, workdir: Path | None, log: list[LogMessage], model_exchange: bool):
+        self.name, self.log, self.model_exchange = name, log, model_exchange
         self.initialised = False
-        self.slave = None
+        self.instance = None
         self.folder = os.path.abspath(tempfile.mkdtemp(prefix=f"dsc_fmu_{name}_", dir=workdir))  # a file URI needs it
 
-    def load(self, path: Path, callbacks) -> None:
-        """Read the model description, extract the FMU and instantiate it.
-
-        Parameters
-        ----------
-        path : pathlib.Path
-            The FMU file.
-        callbacks : fmpy.fmi2.fmi2CallbackFunctions
-            The logger and memory callbacks (``logging_callbacks``).
-
-        Raises
-        ------
-        CosimulationError
-            If the file is not a valid FMU or lacks the interface asked for.
-        """
+    def _read(self, path: Path, md) -> None:
+        """The model description's facts the masters use; the FMU extracted."""
         self.path = path
-        try:
-            md = read_model_description(str(path))
-        except (ValidationError, BadZipFile) as error:
-            raise CosimulationError(f"{path}: not a valid FMU for {self.name}: {error}", 0.0) from None
         extract(str(path), unzipdir=self.folder)
         interface = md.modelExchange if self.model_exchange else md.coSimulation
         if interface is None:
@@ -249,7 +149,6 @@ class LoadedFmu:
         self.guid, self.model_identifier = md.guid, interface.modelIdentifier
         self.states = len(md.derivatives)
         self.indicators = md.numberOfEventIndicators or 0
-        self.fmi_version = 3 if md.fmiVersion.startswith("3") else 2
         self.variables = {v.name: v for v in md.modelVariables}
         self.outputs = [v.name for v in md.modelVariables if v.causality == "output"]
         self.inputs = [v.name for v in md.modelVariables if v.causality == "input"]
@@ -258,169 +157,98 @@ class LoadedFmu:
         self.state_names = [d.variable.derivative.name for d in md.derivatives]
         self.state_refs = [d.variable.derivative.valueReference for d in md.derivatives]
         self.derivative_refs = [d.variable.valueReference for d in md.derivatives]
-        self.instantiate(callbacks)
 
-    def instantiate(self, callbacks) -> None:
-        """Instantiate the extracted FMU: a fresh instance, not yet used.
-
-        Parameters
-        ----------
-        callbacks : fmpy.fmi2.fmi2CallbackFunctions
-            The callbacks of an FMI 2.0 FMU; an FMI 3.0 FMU logs through its own callback instead,
-            into the same log.
-        """
-        kind = _CLASSES[self.fmi_version, self.model_exchange]
-        slave = kind(guid=self.guid, unzipDirectory=self.folder, modelIdentifier=self.model_identifier,
-                     instanceName=self.name,
-                     libraryPath=library_path(self.folder, self.fmi_version, self.model_identifier))
-        if self.fmi_version == 3:
-            slave.instantiate(loggingOn=True, logMessage=_fmi3_logger(self.log, self.name))
-        else:
-            slave.instantiate(callbacks=callbacks, loggingOn=True)
-        slave.fmu = self.name
-        self.slave = slave  # only an instantiated slave is freed
+    def instantiate(self, callbacks: fmi2CallbackFunctions) -> None:
+        """A fresh instance of the extracted FMU (an FMI 2.0 one logs through ``callbacks``)."""
+        instance = self._CLASSES[self.model_exchange](
+            guid=self.guid, unzipDirectory=self.folder, modelIdentifier=self.model_identifier, instanceName=self.name,
+            libraryPath=library_path(self.folder, self.fmi_version, self.model_identifier))
+        self.call(self._instantiate, instance, callbacks)
+        self.instance = instance  # only an instantiated instance is freed
         self.used = False
 
-    def renew(self, callbacks) -> None:
-        """Bring a used instance back to its state after instantiation.
+    def _instantiate(self, instance, callbacks) -> None:
+        raise NotImplementedError
 
-        fmiReset, or, if the reset fails, free the instance and instantiate it again from the same folder.
+    def call(self, function, *args):
+        """``function(*args)``, a method of ``instance``; a failing call names this FMU (``failed_call``)."""
+        try:
+            return function(*args)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
 
-        Parameters
-        ----------
-        callbacks : fmpy.fmi2.fmi2CallbackFunctions
-            For a new instance, as for ``instantiate``.
-        """
+    def renew(self, callbacks: fmi2CallbackFunctions) -> None:
+        """Back to its state after instantiation: fmiReset, else a new instance from the same folder."""
         if not self.used:
             return
         self.terminate()
         try:
-            self.slave.reset()
+            self.instance.reset()
             self.used = False
         except Exception:  # noqa: BLE001 - an instance that cannot be reset is replaced whatever the reason
             self.free()
             self.instantiate(callbacks)
 
     def variable(self, name: str):
-        """The model variable of a name.
-
-        Parameters
-        ----------
-        name : str
-            The variable's name.
-
-        Returns
-        -------
-        fmpy.model_description.ScalarVariable
-            The variable.
-
-        Raises
-        ------
-        CosimulationError
-            If this FMU has none (a wrong FMU file).
-        """
+        """The model variable of a name; CosimulationError if this FMU has none (a wrong FMU file)."""
         if name not in self.variables:
             raise CosimulationError(f"{self.path}: {self.name} has no variable {name!r}: not the FMU expected", 0.0)
         return self.variables[name]
 
     def refs(self, names) -> list[int]:
-        """Value references of named variables.
-
-        Parameters
-        ----------
-        names : iterable of str
-            The variables' names.
-
-        Returns
-        -------
-        list of int
-            Their value references, in order.
-        """
         return [self.variable(name).valueReference for name in names]
 
-    def initialise(self, stop_time: float, parameters: dict) -> None:
-        """Initialise: set up the experiment, set the parameters in initialisation mode and leave it.
-
-        Parameters
-        ----------
-        stop_time : float
-            The experiment runs on [0, stop_time], in s.
-        parameters : dict
-            Values of Real or Integer variables by name.
-        """
-        self.enter_initialization(stop_time, parameters)
-        self.slave.exitInitializationMode()
-
     def enter_initialization(self, stop_time: float | None, parameters: dict, *, set_first: bool = False) -> None:
-        """Set up the experiment, enter initialisation mode and set the parameters.
-
-        Parameters
-        ----------
-        stop_time : float or None
-            The experiment runs on [0, stop_time], in s; None: no stop time.
-        parameters : dict
-            Values of Real or Integer variables by name.
-        set_first : bool, optional
-            Set them before initialisation mode instead of in it, as some masters do. Default False.
-        """
+        """Set up the experiment on [0, ``stop_time``] s (None: no stop time), enter initialisation mode and
+        set the ``parameters`` (by name) in it, or before it with ``set_first`` as some masters do."""
         self.used = True
-        self.slave.setupExperiment(startTime=0.0, stopTime=stop_time)
         if set_first:
             self.set_values(parameters)
-        self.slave.enterInitializationMode()
+        self.enter_initialization_mode(stop_time)
         self.initialised = True
         if not set_first:
             self.set_values(parameters)
 
     def set_values(self, values: dict) -> None:
-        """Set Real and Integer variables by name.
-
-        Parameters
-        ----------
-        values : dict
-            Values by variable name (Integer variables get ``int`` of theirs).
-        """
+        """Set Real and Integer variables by name (Integer ones get ``int`` of theirs)."""
         integers = [name for name in values if type_name(self.variable(name)) == "Integer"]
         reals = [name for name in values if name not in integers]
         if integers:
-            self.slave.setInteger(self.refs(integers), [int(values[name]) for name in integers])
+            self.set_integers(self.refs(integers), [int(values[name]) for name in integers])
         if reals:
-            self.slave.setReal(self.refs(reals), [float(values[name]) for name in reals])
+            self.set_floats(self.refs(reals), [float(values[name]) for name in reals])
 
     def get_values(self, names) -> dict:
-        """Values of Real and Integer variables.
-
-        Parameters
-        ----------
-        names : iterable of str
-            The variables' names; those of other types are left out.
-
-        Returns
-        -------
-        dict
-            Values by name.
-        """
+        """The values of the Real and Integer variables among ``names``, by name."""
         values = {}
-        for kind, getter in (("Real", self.slave.getReal), ("Integer", self.slave.getInteger)):
+        for kind, getter in (("Real", self.get_floats), ("Integer", self.get_integers)):
             chosen = [name for name in names if type_name(self.variable(name)) == kind]
             if chosen:
                 values.update(zip(chosen, getter(self.refs(chosen))))
         return values
+
+    def do_step(self, t: float, step: float) -> None:
+        """fmi2DoStep / fmi3DoStep from ``t`` over ``step`` (s)."""
+        try:
+            self.instance.doStep(t, step)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
 
     def terminate(self) -> None:
         """Terminate the instance if initialised; an FMU in an error state may refuse, which is ignored."""
         if self.initialised:
             self.initialised = False
             try:
-                self.slave.terminate()
+                self.instance.terminate()
             except FMICallException:
                 pass  # freeing or resetting it still applies
 
     def free(self) -> None:
-        """Free the instance (and unload its library), if there is one."""
-        slave, self.slave = self.slave, None
-        if slave is not None:
-            slave.freeInstance()
+        instance, self.instance = self.instance, None
+        if instance is not None:
+            instance.freeInstance()
 
     def close(self) -> None:
         """Terminate (if initialised) and free the instance, then remove the extracted folder."""
@@ -429,3 +257,146 @@ class LoadedFmu:
             self.free()
         finally:
             shutil.rmtree(self.folder, ignore_errors=True)
+
+
+class Fmi2Fmu(LoadedFmu):
+    """An FMI 2.0 FMU on fmpy's ``FMU2Slave`` or ``FMU2Model``."""
+
+    fmi_version = 2
+    _CLASSES = {False: FMU2Slave, True: FMU2Model}
+
+    def _instantiate(self, instance, callbacks) -> None:
+        instance.instantiate(callbacks=callbacks, loggingOn=True)
+
+    def enter_initialization_mode(self, stop_time: float | None) -> None:
+        """fmi2SetupExperiment on [0, ``stop_time``] s, then fmi2EnterInitializationMode."""
+        self.call(self.instance.setupExperiment, None, 0.0, stop_time)
+        self.call(self.instance.enterInitializationMode)
+
+    def get_floats(self, refs: list[int]) -> list[float]:
+        """fmi2GetReal."""
+        try:
+            return self.instance.getReal(refs)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def set_floats(self, refs: list[int], values) -> None:
+        """fmi2SetReal."""
+        try:
+            self.instance.setReal(refs, values)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def get_integers(self, refs: list[int]) -> list[int]:
+        """fmi2GetInteger."""
+        return self.call(self.instance.getInteger, refs)
+
+    def set_integers(self, refs: list[int], values) -> None:
+        """fmi2SetInteger."""
+        self.call(self.instance.setInteger, refs, values)
+
+    def get_derivatives(self, buffer, n: int) -> None:
+        """fmi2GetDerivatives into ``buffer``."""
+        self.call(self.instance.getDerivatives, buffer, n)
+
+    def update_discrete_states(self) -> tuple[bool, bool]:
+        """fmi2NewDiscreteStates: whether it needs another call, whether a continuous state changed."""
+        needed, _, _, changed, _, _ = self.call(self.instance.newDiscreteStates)
+        return needed, changed
+
+
+class Fmi3Fmu(LoadedFmu):
+    """An FMI 3.0 FMU on fmpy's ``FMU3Slave`` or ``FMU3Model`` (its messages logged under its name: FMI 3.0's
+    logger gets no instance name)."""
+
+    fmi_version = 3
+    _CLASSES = {False: FMU3Slave, True: FMU3Model}
+
+    def _instantiate(self, instance, callbacks) -> None:
+        def logger(environment, status, category, message):
+            self.log.append(LogMessage(self.name, _status(status), (message or b"").decode(errors="replace")))
+
+        instance.instantiate(loggingOn=True, logMessage=logger)
+
+    def enter_initialization_mode(self, stop_time: float | None) -> None:
+        """fmi3EnterInitializationMode on [0, ``stop_time``] s."""
+        self.call(self.instance.enterInitializationMode, None, 0.0, stop_time)
+
+    def get_floats(self, refs: list[int]) -> list[float]:
+        """fmi3GetFloat64."""
+        try:
+            return self.instance.getFloat64(refs)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def set_floats(self, refs: list[int], values) -> None:
+        """fmi3SetFloat64."""
+        try:
+            self.instance.setFloat64(refs, values)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def get_integers(self, refs: list[int]) -> list[int]:
+        """fmi3GetInt32."""
+        return self.call(self.instance.getInt32, refs)
+
+    def set_integers(self, refs: list[int], values) -> None:
+        """fmi3SetInt32."""
+        self.call(self.instance.setInt32, refs, values)
+
+    def get_derivatives(self, buffer, n: int) -> None:
+        """fmi3GetContinuousStateDerivatives into ``buffer``."""
+        self.call(self.instance.getContinuousStateDerivatives, buffer, n)
+
+    def update_discrete_states(self) -> tuple[bool, bool]:
+        """fmi3UpdateDiscreteStates: whether it needs another call, whether a continuous state changed."""
+        needed, _, _, changed, _, _ = self.call(self.instance.updateDiscreteStates)
+        return needed, changed
+
+
+def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage], callbacks: fmi2CallbackFunctions,
+             model_exchange: bool = False) -> LoadedFmu:
+    """Read an FMU's model description, extract and instantiate it as ``Fmi2Fmu`` or ``Fmi3Fmu``.
+
+    Parameters
+    ----------
+    name : str
+        The FMU's name, also its instance name.
+    path : pathlib.Path
+        The FMU file.
+    workdir : pathlib.Path or None
+        Where its extraction folder is made; None: the system's temporary folder.
+    log : list of LogMessage
+        Where its messages go.
+    callbacks : fmpy.fmi2.fmi2CallbackFunctions
+        An FMI 2.0 FMU's logger and memory callbacks (``logging_callbacks`` of ``log``).
+    model_exchange : bool, optional
+        Model exchange instead of co-simulation. Default False.
+
+    Returns
+    -------
+    LoadedFmu
+        Instantiated (``close`` frees it and removes its folder); its folder is removed if extracting
+        or instantiating it fails.
+
+    Raises
+    ------
+    CosimulationError
+        If the file is not a valid FMU or lacks the interface asked for.
+    """
+    try:
+        md = read_model_description(str(path))
+    except (ValidationError, BadZipFile) as error:
+        raise CosimulationError(f"{path}: not a valid FMU for {name}: {error}", 0.0) from None
+    fmu = (Fmi3Fmu if md.fmiVersion.startswith("3") else Fmi2Fmu)(name, workdir, log, model_exchange)
+    try:
+        fmu._read(path, md)
+        fmu.instantiate(callbacks)
+    except BaseException:
+        fmu.close()
+        raise
+    return fmu

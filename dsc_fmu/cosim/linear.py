@@ -16,7 +16,7 @@ from .instance import LoadedFmu
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Blocks", "fmu_blocks", "loop_jacobian", "closed_loop"]
+__all__ = ["Blocks", "fmu_blocks", "loop_jacobian", "closed_loop_state_space"]
 
 
 @dataclass(frozen=True)
@@ -60,7 +60,7 @@ def _columns(fmu: LoadedFmu, unknowns: list[int], knowns: list[int]) -> np.ndarr
     for j in range(len(knowns)):
         seed = [0.0] * len(knowns)
         seed[j] = 1.0
-        jacobian[:, j] = fmu.slave.getDirectionalDerivative(unknowns, knowns, seed)
+        jacobian[:, j] = fmu.call(fmu.instance.getDirectionalDerivative, unknowns, knowns, seed)
     return jacobian
 
 
@@ -135,7 +135,7 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
     return jacobian
 
 
-def closed_loop(blocks: dict) -> control.StateSpace:
+def closed_loop_state_space(blocks: dict) -> control.StateSpace:
     """The closed loop linearised, as a python-control system.
 
     Its state is the three FMUs' in model exchange's order (named ``<FMU>.<state>``), its matrix the

@@ -7,13 +7,13 @@ from pathlib import Path
 
 from ..identity import fmu_build_id
 from ..registry import ORDER, fmu_files
-from .instance import LoadedFmu, LogMessage, logging_callbacks
+from .instance import LoadedFmu, LogMessage, load_fmu, logging_callbacks
 
 __all__ = ["LoadedFmus"]
 
 
 class LoadedFmus:
-    """The three FMUs of ``registry.ORDER`` loaded (``LoadedFmu``), their messages going to one log.
+    """The three FMUs of ``registry.ORDER`` loaded (``instance.load_fmu``), their messages going to one log.
 
     If one cannot be loaded, those loaded before it are closed and the error raised. ``close`` (or
     leaving the ``with`` block) terminates and frees every instance and removes the extracted folders.
@@ -43,8 +43,7 @@ class LoadedFmus:
         self.loaded: list[LoadedFmu] = []
         try:
             for name in ORDER:
-                self.loaded.append(LoadedFmu(name, workdir, log, model_exchange=model_exchange))
-                self.loaded[-1].load(self.paths[name], self.callbacks)
+                self.loaded.append(load_fmu(name, self.paths[name], workdir, log, self.callbacks, model_exchange))
         except BaseException:
             self.close()
             raise
@@ -58,13 +57,7 @@ class LoadedFmus:
 
     @property
     def records(self) -> dict:
-        """Each FMU's ``path`` and ``build_id`` (``identity.fmu_build_id``), by name.
-
-        Returns
-        -------
-        dict
-            A new dict of new dicts, for a result to keep.
-        """
+        """Each FMU's ``path`` and ``build_id`` (``identity.fmu_build_id``), by name, as new dicts."""
         return {name: {"path": str(path), "build_id": fmu_build_id(path)} for name, path in self.paths.items()}
 
     def renew(self) -> None:

@@ -1,5 +1,5 @@
-"""The co-simulation master: the three FMUs (FMI 2.0 or 3.0) on fmpy, a fixed or error-controlled communication
-step, Gauss-Seidel or Jacobi."""
+"""Our co-simulation master: the three FMUs (FMI 2.0 or 3.0) on fmpy, a fixed or error-controlled communication
+step, Gauss-Seidel or Jacobi (the loop and its policies: ``loop``, ``derivatives``)."""
 
 from __future__ import annotations
 
@@ -11,22 +11,17 @@ from pathlib import Path
 from typing import TypedDict, Unpack
 
 import numpy as np
-from fmpy.fmi1 import FMICallException
 
 from ..errors import CosimulationError
-from ..registry import CONTROLLER, PLANT, REFERENCE
 from ..scenario import Coupling, Interface, Order, Scenario, ScenarioError
-from . import signals
-from .instance import LoadedFmu, LogMessage, failed_call, type_name
-from .derivatives import InputRamps
+from .derivatives import InputDerivatives
+from .instance import LoadedFmu, LogMessage
 from .loading import LoadedFmus
+from .loop import Exchange, GaussSeidel, Jacobi, Run, step_count
 from .progress import Watch
-from .step_control import ControlledSteps, defect, next_step
+from .wiring import Wiring
 
-__all__ = [
-    "CosimulationError", "CosimulationResult", "Cosimulator", "LogMessage", "Overrides", "Recorder", "Wiring",
-    "check_values", "cosimulate", "step_count",
-]
+__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate", "step_count"]
 
 
 class Overrides(TypedDict, total=False):
@@ -51,7 +46,7 @@ class Overrides(TypedDict, total=False):
         A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
         stay within ``[h_min, h_max]`` of the scenario.
     input_derivatives : bool, optional
-        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputRamps``) with the
+        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputDerivatives``) with the
         FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
     """
 
@@ -73,8 +68,7 @@ class CosimulationResult:
     result : numpy.ndarray
         The recorded rows, dtype ``signals.DTYPE``, ``time`` in s first.
     steps : int
-        Communication steps (the accepted ones of an error-controlled run; derivative evaluations
-        for model exchange).
+        Communication steps (the accepted ones of an error-controlled run).
     wall_time : float
         s, from loading the FMUs to freeing them (a ``Cosimulator`` run: this run only).
     settings : dict
@@ -105,27 +99,6 @@ class CosimulationResult:
     rejected: int = 0
     step_sizes: np.ndarray | None = None
     stopped_at: float | None = None
-
-
-def step_count(stop_time: float, step_size: float) -> int:
-    """Number of communication steps to reach ``stop_time``.
-
-    Parameters
-    ----------
-    stop_time : float
-        s.
-    step_size : float
-        Communication step in s.
-
-    Returns
-    -------
-    int
-        ``ceil(stop_time / step_size)``, at least 1; a ratio within 1e-9 (relative) of a whole number
-        counts as that number.
-    """
-    ratio = stop_time / step_size
-    nearest = round(ratio)
-    return max(1, nearest if abs(ratio - nearest) <= 1e-9 * ratio else math.ceil(ratio))
 
 
 class Cosimulator:
@@ -215,299 +188,31 @@ class Cosimulator:
         self._fmus.renew()
         self.runs += 1
         self.log.clear()
-        run = _Run(scenario, self._wiring, self.log, watch)
+        settings = scenario.simulation
+        run = Run(scenario, self._wiring, self.log, _exchange(settings),
+                  max(1, round(settings.output_interval / settings.step_size)), watch,
+                  controlled=settings.tolerance is not None)
         run.execute(loaded)
+        controlled = run.step_control
+        record = {"scenario": scenario.name, "interface": Interface.CO_SIMULATION, "step_size": settings.step_size,
+                  "order": settings.order, "coupling": settings.coupling, "coupling_order": settings.coupling.order,
+                  "stop_time": settings.stop_time, "output_interval": settings.output_interval,
+                  "tolerance": settings.tolerance, "input_derivatives": settings.input_derivatives}
+        if controlled is not None:
+            sizes = controlled.sizes or [math.nan]
+            record.update(h_min=settings.h_min, h_max=settings.h_max, step_min=min(sizes), step_max=max(sizes))
         return CosimulationResult(
             result=run.recorder.result(),
             steps=run.steps(),
             wall_time=clock.perf_counter() - started,
-            settings=run.settings_record(),
+            settings=record,
             log=list(self.log),
             fmus={name: dict(entry) for name, entry in self.fmus.items()},
             fmu_steps=run.fmu_steps(),
-            rejected=0 if run.controlled is None else run.controlled.rejected,
-            step_sizes=None if run.controlled is None else run.controlled.table(),
+            rejected=0 if controlled is None else controlled.rejected,
+            step_sizes=None if controlled is None else controlled.table(),
             stopped_at=run.stopped_at,
         )
-
-
-class Wiring:
-    """The three loaded FMUs by role and the value references of the exchange and the recording.
-
-    Looked up once per load: a wrong FMU file fails here.
-
-    Parameters
-    ----------
-    fmus : dict of str to LoadedFmu
-        The loaded FMUs by name (``registry.REFERENCE``, ``registry.PLANT``, ``registry.CONTROLLER``).
-
-    Raises
-    ------
-    CosimulationError
-        If an FMU lacks a variable that is exchanged or recorded.
-    """
-
-    def __init__(self, fmus: dict[str, LoadedFmu]):
-        for fmu in fmus.values():  # each FMU has the outputs recorded from it: a wrong file fails here
-            fmu.refs(signals.RECORDED[fmu.name])
-        self.fmus = fmus
-        reference, plant, controller = fmus[REFERENCE], fmus[PLANT], fmus[CONTROLLER]
-        measured_plant = [name for name in controller.inputs if name in plant.outputs]
-        measured_reference = [name for name in controller.inputs if name not in plant.outputs]
-        self.plant_out, self.reference_out = plant.refs(measured_plant), reference.refs(measured_reference)
-        self.controller_in = controller.refs(measured_plant + measured_reference)
-        self.controller_u, self.plant_u = controller.refs(["u1", "u2"]), plant.refs(["u1", "u2"])
-        self.checked = [f"{PLANT}.{s}" for s in measured_plant] + [f"{REFERENCE}.{s}" for s in measured_reference]
-        self.u_names = (f"{CONTROLLER}.u1", f"{CONTROLLER}.u2")
-        self.plant, self.reference, self.controller = plant, reference, controller
-        self.columns = ["time", *(name for names in signals.RECORDED.values() for name in names)]
-        self.readers, offset = [], 1  # (FMU, kind, value references, table columns) of every recorded output
-        for name, names in signals.RECORDED.items():
-            fmu = fmus[name]
-            for kind in ("Real", "Integer"):
-                chosen = [i for i, output in enumerate(names) if type_name(fmu.variable(output)) == kind]
-                self.readers.append((fmu, kind, fmu.refs([names[i] for i in chosen]), [offset + i for i in chosen]))
-            offset += len(names)
-
-
-    def measure(self, at: float, bound: float) -> list:
-        """The controller's measurements: the plant's and the reference's outputs, checked.
-
-        Parameters
-        ----------
-        at : float
-            Simulated time in s, for the message of a divergence.
-        bound : float
-            Largest magnitude allowed (``Simulation.bound``).
-
-        Returns
-        -------
-        list of float
-            The measurements, in the order of ``controller_in``.
-
-        Raises
-        ------
-        CosimulationError
-            At the first measurement that is not finite or beyond ``bound``.
-        """
-        measured = self.plant.slave.getReal(self.plant_out) + self.reference.slave.getReal(self.reference_out)
-        check_values(measured, self.checked, at, bound)
-        return measured
-
-    def pass_u(self, at: float, bound: float) -> list:
-        """The controller's ``u``, checked, set on the plant.
-
-        Parameters
-        ----------
-        at : float
-            Simulated time in s, for the message of a divergence.
-        bound : float
-            Largest magnitude allowed in V (``Simulation.bound``).
-
-        Returns
-        -------
-        list of float
-            ``[u1, u2]`` in V.
-
-        Raises
-        ------
-        CosimulationError
-            If a voltage is not finite or beyond ``bound``.
-        """
-        u = self.controller.slave.getReal(self.controller_u)
-        check_values(u, self.u_names, at, bound)
-        self.plant.slave.setReal(self.plant_u, u)
-        return u
-
-
-class _Run:
-    """One run: its scenario and settings (validated where they entered), the FMUs by role, the
-    recorder, the voltages of the last exchange, the master's input ramps, the error-controlled
-    steps, where the run is (for the message of a failure), its watch and where that stopped it."""
-
-    def __init__(self, scenario: Scenario, wiring: Wiring, log: list[LogMessage], watch: Watch | None = None):
-        self.scenario, self.settings, self.wiring, self.log = scenario, scenario.simulation, wiring, log
-        fmus = wiring.fmus
-        self.reference, self.plant, self.controller = (fmus[name].slave for name in (REFERENCE, PLANT, CONTROLLER))
-        settings = self.settings
-        self.n = step_count(settings.stop_time, settings.step_size)
-        self.every = max(1, round(settings.output_interval / settings.step_size))
-        self.recorder = Recorder(wiring, self.n // self.every + 1 + (self.n % self.every != 0))
-        self.at = (0, 0.0)
-        self.u = None
-        self.ramps = self._input_ramps() if settings.input_derivatives else None
-        self.controlled = None
-        self.watch = watch
-        self.stopped_at = None
-
-    def execute(self, fmus: list[LoadedFmu]) -> None:
-        """Initialise the FMUs (in ``fmus``' order) and run; every FMU is terminated at the end."""
-        settings = self.settings
-        try:
-            for fmu in fmus:
-                fmu.initialise(settings.stop_time,
-                               self.scenario.parameters(fmu.name, slopes_from_master=settings.input_derivatives))
-            if settings.tolerance is None:
-                self._steps()
-            else:
-                self.controlled = self._controlled()
-        except CosimulationError as error:
-            error.result, error.steps = self.recorder.result(), self.at[0]
-            raise
-        except FMICallException as error:
-            raise self._failure(error) from None
-        finally:
-            for fmu in reversed(fmus):
-                fmu.terminate()
-
-    def steps(self) -> int:
-        """The communication steps taken (accepted ones, for an error-controlled run)."""
-        return self.n if self.controlled is None else len(self.controlled.times)
-
-    def fmu_steps(self) -> int:
-        return 3 * self.n if self.controlled is None else self.controlled.fmu_steps
-
-    def settings_record(self) -> dict:
-        """The settings the run used: for an error-controlled run also the allowed step range and the
-        range of the steps it took."""
-        settings = self.settings
-        record = {"scenario": self.scenario.name, "interface": Interface.CO_SIMULATION,
-                  "step_size": settings.step_size, "order": settings.order, "coupling": settings.coupling,
-                  "coupling_order": settings.coupling.order, "stop_time": settings.stop_time,
-                  "output_interval": settings.output_interval, "tolerance": settings.tolerance,
-                  "input_derivatives": settings.input_derivatives}
-        if self.controlled is not None:
-            sizes = self.controlled.sizes or [math.nan]
-            record.update(h_min=settings.h_min, h_max=settings.h_max, step_min=min(sizes), step_max=max(sizes))
-        return record
-
-    def _steps(self) -> None:
-        """The exchanges and steps of a fixed-step run, as ``cosimulate`` describes them; ``at`` follows
-        (steps completed, time) for the messages of a failure. A watch that says stop at a row ends
-        the run there (``n`` becomes the steps taken)."""
-        h, stop, n, every = self.settings.step_size, self.settings.stop_time, self.n, self.every
-        self._start()
-        for k in range(n):
-            t = k * h
-            self.at = (k, t)
-            end = stop if k == n - 1 else (k + 1) * h
-            self._advance(t, end - t if k == n - 1 else h, end)
-            if (k + 1) % every == 0 or k == n - 1:
-                self.recorder.record(end)
-                if self._stops(end, k + 1, k == n - 1):
-                    self.n = k + 1
-                    return
-
-    def _stops(self, at: float, steps: int, last: bool) -> bool:
-        """Whether the watch stops the run at the row just recorded at ``at`` (noted in ``stopped_at``);
-        the ``last`` row is shown to the watch but ends the run anyway."""
-        if self.watch is None or self.watch(at, steps) or last:
-            return False
-        self.stopped_at = at
-        return True
-
-    def _start(self) -> None:
-        """The measurements at t = 0 (checked), the exchange there and its row."""
-        wiring = self.wiring
-        measurements = wiring.measure(0.0, self.settings.bound)
-        self._exchange(0.0, measurements, True)
-        self.recorder.record(0.0)
-
-    def _advance(self, t: float, step: float, end: float) -> list:
-        """One communication step of ``step`` from ``t`` and the exchange at its ``end``: the reference
-        and the plant step, then (Gauss-Seidel) the controller's inputs are set from their new outputs,
-        the controller steps, and its ``u`` goes to the plant. Returns the measurements at ``end``."""
-        wiring, ramps = self.wiring, self.ramps
-        jacobi = not self.settings.order.sequential
-        if ramps is not None:
-            ramps.before_plant()
-        self.reference.doStep(t, step)
-        self.plant.doStep(t, step)
-        measured = wiring.measure(end, self.settings.bound)
-        if ramps is not None:
-            ramps.before_controller(step, measured)
-        elif not jacobi:
-            self.controller.setReal(wiring.controller_in, measured)
-        self.controller.doStep(t, step)
-        self.at = (self.at[0] + 1, end)
-        self._exchange(end, measured, jacobi or ramps is not None)
-        return measured
-
-    def _input_ramps(self) -> InputRamps:
-        """The master's input derivatives for the linear coupling (FMI 2.0 FMUs: ``_check_interfaces``)."""
-        wiring = self.wiring
-        return InputRamps(self.plant, wiring.plant_u, self.controller, wiring.controller_in,
-                          not self.settings.order.sequential)
-
-    def _controlled(self) -> ControlledSteps:
-        """An error-controlled run (``step_control``): each step's position error estimated from the
-        defect of ``u`` at its end; a step that misses the tolerance is taken again, smaller, from the
-        FMU states saved before it."""
-        settings = self.settings
-        tolerance, order, gain = settings.tolerance, settings.coupling.order, settings.error_gain
-        h_min, h_max, stop = settings.h_min, settings.h_max, settings.stop_time
-        slaves = [self.reference, self.plant, self.controller]
-        done = ControlledSteps()
-        self._start()
-        u, u_before, h_before = self.u, None, None
-        t, h = 0.0, min(h_max, max(h_min, settings.step_size))
-        while t < stop:
-            h = min(h, stop - t)
-            end = stop if stop - t - h < h_min * (1 - 1e-9) else t + h  # no last step shorter than h_min
-            taken = end - t
-            smallest = taken <= h_min * (1 + 1e-9)  # end - t rounds: h_min may come out a little larger
-            self.at = (len(done.times), t)
-            saved = [slave.getFMUState() for slave in slaves]
-            try:
-                try:
-                    self._advance(t, taken, end)
-                    error = gain * defect(u, self.u, u_before if order == 2 else None, taken, h_before)
-                except (CosimulationError, FMICallException):
-                    if smallest:
-                        raise
-                    error = math.inf  # a step that diverges or that an FMU discards is too long
-                done.fmu_steps += 3
-                if error <= tolerance:
-                    done.times.append(t)
-                    done.sizes.append(taken)
-                    done.errors.append(error)
-                    t, u, u_before, h_before = end, self.u, u, taken
-                    self.recorder.record(t)
-                    if self._stops(t, len(done.times), t >= stop):
-                        break
-                elif smallest:
-                    raise CosimulationError(
-                        f"the error-controlled step cannot meet the tolerance {tolerance:g} m at t = {t:.6g} s: the "
-                        f"estimated error of a step of h_min = {h_min:g} s is {error:.3g} m; allowed: a smaller "
-                        f"h_min or a larger tolerance{' (or the linear coupling)' if order == 1 else ''}", t)
-                else:
-                    done.rejected += 1
-                    for slave, state in zip(slaves, saved):
-                        slave.setFMUState(state)
-            finally:
-                for slave, state in zip(slaves, saved):
-                    slave.freeFMUState(state)
-            h = next_step(taken, error, tolerance, order, h_min, h_max)
-        return done
-
-    def _exchange(self, at: float, measurements: list, set_inputs: bool) -> None:
-        """The exchange at a communication point: the controller's inputs (if ``set_inputs``), then
-        its ``u`` (checked) to the plant."""
-        wiring = self.wiring
-        if set_inputs:
-            self.controller.setReal(wiring.controller_in, measurements)
-        u = wiring.pass_u(at, self.settings.bound)
-        self.u = u
-        if self.ramps is not None:
-            self.ramps.exchanged(at, u, measurements)
-
-    def _failure(self, error: FMICallException) -> CosimulationError:
-        """The CosimulationError of a failing FMI call: the FMU that the call named, the time and that
-        FMU's last log messages."""
-        k, t = self.at
-        failure = failed_call(error, self.log, t)
-        failure.result, failure.steps = self.recorder.result(), k
-        return failure
 
 
 def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
@@ -518,79 +223,11 @@ def _check_interfaces(scenario: Scenario, fmus: list[LoadedFmu]) -> None:
                             "parameters (input_derivatives = false)")
 
 
-def check_values(values, names, at: float, bound: float) -> None:
-    """Check that every value is finite and within ``bound`` in magnitude.
-
-    Parameters
-    ----------
-    values : sequence of float
-        The values.
-    names : sequence of str
-        Their names (``FMU.variable``), in the same order.
-    at : float
-        Simulated time in s, for the message.
-    bound : float
-        Largest magnitude allowed.
-
-    Raises
-    ------
-    CosimulationError
-        At the first value that is not finite or exceeds ``bound``, naming it.
-    """
-    for name, value in zip(names, values):
-        if not -bound <= value <= bound:
-            reason = "is not finite" if not math.isfinite(value) else f"exceeds the bound {bound:g}"
-            raise CosimulationError(f"diverged at t = {at:.6g} s: {name} = {value:.6g} {reason}", at, name, value)
-
-
-class Recorder:
-    """The rows of one run: ``time`` and every output of ``signals.RECORDED``, read at each ``record``.
-
-    Parameters
-    ----------
-    wiring : Wiring
-        The loaded FMUs and the value references of their recorded outputs.
-    rows : int
-        Rows to allocate; an error-controlled run grows the table as it needs.
-    """
-
-    def __init__(self, wiring: Wiring, rows: int):
-        self.columns = wiring.columns
-        self.table = np.full((rows, len(self.columns)), np.nan)
-        self.rows = 0
-        self.readers = [((fmu.slave.getReal if kind == "Real" else fmu.slave.getInteger), refs, cols)
-                        for fmu, kind, refs, cols in wiring.readers if refs]
-
-    def record(self, at: float) -> None:
-        """Read a row: every recorded output now, stamped with ``at``.
-
-        Parameters
-        ----------
-        at : float
-            The row's time in s.
-        """
-        if self.rows == len(self.table):  # an error-controlled run: as many rows as accepted steps
-            self.table = np.concatenate([self.table, np.full_like(self.table, np.nan)])
-        table, row = self.table, self.rows
-        table[row, 0] = at
-        for get, refs, cols in self.readers:
-            table[row, cols] = get(refs)
-        self.rows = row + 1
-
-    @property
-    def last_time(self) -> float:
-        """The time in s of the last row recorded."""
-        return float(self.table[self.rows - 1, 0])
-
-    def result(self) -> np.ndarray:
-        """The rows recorded so far, with the tracking errors.
-
-        Returns
-        -------
-        numpy.ndarray
-            dtype ``signals.DTYPE``.
-        """
-        return _result(self.table[: self.rows], self.columns)
+def _exchange(settings) -> Exchange:
+    """The policy of our master for the settings: Gauss-Seidel or Jacobi, with input derivatives or without."""
+    if settings.input_derivatives:
+        return InputDerivatives(jacobi=not settings.order.sequential)
+    return GaussSeidel() if settings.order.sequential else Jacobi()
 
 
 def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path | None = None,
@@ -645,11 +282,3 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path 
     run.wall_time = clock.perf_counter() - started
     return run
 
-
-def _result(table: np.ndarray, columns: list[str]) -> np.ndarray:
-    """``table`` (columns named by ``columns``) as a ``signals.DTYPE`` array with the tracking errors."""
-    result = np.zeros(len(table), dtype=signals.DTYPE)
-    for index, name in enumerate(columns):
-        result[name] = table[:, index]
-    signals.add_tracking_errors(result)
-    return result

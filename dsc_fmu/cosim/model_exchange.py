@@ -6,6 +6,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time as clock
+from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -17,16 +18,16 @@ from ..models.parameters import DEFAULT_TOLERANCE
 from ..registry import ORDER
 from ..scenario import Interface, Method, Scenario, ScenarioError
 from .instance import LogMessage, failed_call
-from .linear import closed_loop, fmu_blocks, loop_jacobian
+from .linear import closed_loop_state_space, fmu_blocks, loop_jacobian
 from .loading import LoadedFmus
-from .master import CosimulationResult, Wiring, Recorder
 from .progress import Watch
 from .reference_solution import output_times
+from .wiring import Recorder, Wiring
 
 if TYPE_CHECKING:
     import control
 
-__all__ = ["METHOD", "DEFAULT_TOLERANCE", "simulate_model_exchange", "linearise_at"]
+__all__ = ["METHOD", "DEFAULT_TOLERANCE", "ModelExchangeResult", "simulate_model_exchange", "linearise_at"]
 
 METHOD = Method.DOP853
 """The default integrator: SciPy's explicit Runge-Kutta of order 8 (Hairer and Wanner's DOP853), as the
@@ -35,31 +36,57 @@ monolithic reference solution uses; ``Method`` names the others."""
 _PAST_EVENT = 1e-9  # s: an event is handled this far past the root the solver found, on the step's interpolant
 
 
-class _Loop:
+@dataclass
+class ModelExchangeResult:
+    """A finished model-exchange run.
+
+    Parameters
+    ----------
+    result : numpy.ndarray
+        A row at every output time, dtype ``signals.DTYPE`` (the columns of co-simulation).
+    evaluations : int
+        Derivative evaluations the solver asked for.
+    wall_time : float
+        s, from loading the FMUs to freeing them.
+    settings : dict
+        The scenario's name, the interface, the method, the tolerance, the events handled and the
+        Jacobians evaluated (from the FMUs' directional derivatives).
+    log : list of LogMessage, optional
+        The FMUs' log messages.
+    fmus : dict, optional
+        Each FMU's ``path`` and ``build_id``, by name.
+    stopped_at : float, optional
+        The time in s at which the watch stopped the run (its last row); None if it reached its stop time.
+    """
+
+    result: np.ndarray
+    evaluations: int
+    wall_time: float
+    settings: dict
+    log: list[LogMessage] = field(default_factory=list)
+    fmus: dict = field(default_factory=dict)
+    stopped_at: float | None = None
+
+
+class _Ode:
     """The loaded FMUs as one ODE: the state vector is the reference's, the plant's and the controller's
-    continuous states in that order; each evaluation sets the time and states, passes outputs to inputs
-    in dependency order (reference and plant, then the controller, then the plant's voltages) and reads
-    the derivatives or the event indicators. A watch sees every derivative evaluation; when it says
-    stop, ``stop_at`` holds that evaluation's time, where ``stop_event`` then ends the integration."""
+    continuous states in that order; each evaluation sets the time and states, exchanges outputs to inputs
+    (``Wiring.exchange``) and reads the derivatives or the event indicators. A watch sees every
+    derivative evaluation; when it says stop, ``stop_at`` holds that evaluation's time, where
+    ``stop_event`` then ends the integration."""
 
     def __init__(self, wiring: Wiring, bound: float, watch: Watch | None = None):
         self.wiring, self.bound, self.watch = wiring, bound, watch
         self.stop_at = None
-        self.models = [wiring.fmus[name].slave for name in ORDER]
-        self.sizes = [wiring.fmus[name].states for name in ORDER]
+        self.fmus = wiring.in_order()
+        self.sizes = [fmu.states for fmu in self.fmus]
         self.offsets = np.cumsum([0, *self.sizes])
         self.buffers = [(ctypes.c_double * n)() for n in self.sizes]
         self.indicators = (ctypes.c_double * wiring.controller.indicators)()
         self.evaluated = None
         self.at = 0.0
         self.evaluations = 0
-        self.jacobians = 0
-
-    def exchange(self) -> None:
-        """Outputs to inputs at the current time and states (checked against the bound)."""
-        wiring = self.wiring
-        wiring.controller.slave.setReal(wiring.controller_in, wiring.measure(self.at, self.bound))
-        wiring.pass_u(self.at, self.bound)
+        self.jacobian_evaluations = 0
 
     def load(self, t: float, y: np.ndarray) -> None:
         """The FMUs at time ``t`` and states ``y``, their inputs exchanged (once per distinct point)."""
@@ -67,31 +94,33 @@ class _Loop:
         if key == self.evaluated:
             return
         self.at = t
-        for model, buffer, start, n in zip(self.models, self.buffers, self.offsets, self.sizes):
-            model.setTime(t)
+        for fmu, buffer, start, n in zip(self.fmus, self.buffers, self.offsets, self.sizes):
+            fmu.call(fmu.instance.setTime, t)
             buffer[:] = y[start:start + n]
-            model.setContinuousStates(buffer, n)
-        self.exchange()
+            fmu.call(fmu.instance.setContinuousStates, buffer, n)
+        self.wiring.exchange(t, self.bound)
         self.evaluated = key
 
-    def gather(self, method: str) -> np.ndarray:
-        """One vector of every FMU (``method``: getContinuousStates, getDerivatives, ...), joined in order."""
-        for model, buffer, n in zip(self.models, self.buffers, self.sizes):
-            getattr(model, method)(buffer, n)
+    def gather(self, read) -> np.ndarray:
+        """One vector of every FMU (``read(fmu, buffer, n)``), joined in order."""
+        for fmu, buffer, n in zip(self.fmus, self.buffers, self.sizes):
+            read(fmu, buffer, n)
         return np.concatenate([np.frombuffer(buffer) for buffer in self.buffers])
+
+    def states(self) -> np.ndarray:
+        return self.gather(lambda fmu, buffer, n: fmu.call(fmu.instance.getContinuousStates, buffer, n))
 
     def derivatives(self, t: float, y: np.ndarray) -> np.ndarray:
         self.evaluations += 1
         if self.watch is not None and self.stop_at is None and not self.watch(t, self.evaluations):
             self.stop_at = t
         self.load(t, y)
-        return self.gather("getDerivatives")
+        return self.gather(lambda fmu, buffer, n: fmu.get_derivatives(buffer, n))
 
     def blocks(self) -> dict:
         """The three FMUs linearised at the loaded point (``linear.fmu_blocks``), by name: each with the
         inputs and outputs the loop connects."""
-        fmus = self.wiring.fmus
-        reference, plant, controller = (fmus[name] for name in ORDER)
+        reference, plant, controller = self.fmus
         measured = controller.real_inputs
         return {reference.name: fmu_blocks(reference, [], [n for n in measured if n in reference.real_outputs]),
                 plant.name: fmu_blocks(plant, plant.real_inputs, [n for n in measured if n in plant.real_outputs]),
@@ -100,7 +129,7 @@ class _Loop:
     def jacobian(self, t: float, y: np.ndarray) -> np.ndarray:
         """The loop's Jacobian at ``t``, ``y`` from the three FMUs' directional derivatives (``linear``)."""
         self.load(t, y)
-        self.jacobians += 1
+        self.jacobian_evaluations += 1
         return loop_jacobian(*self.blocks().values())
 
     def stop_event(self):
@@ -115,10 +144,11 @@ class _Loop:
 
     def indicator(self, index: int):
         """The solver's event function of the controller's event indicator ``index``."""
+        controller = self.wiring.controller
 
         def event(t: float, y: np.ndarray) -> float:
             self.load(t, y)
-            self.wiring.controller.slave.getEventIndicators(self.indicators, len(self.indicators))
+            controller.call(controller.instance.getEventIndicators, self.indicators, len(self.indicators))
             return self.indicators[index]
 
         event.terminal = True
@@ -126,63 +156,63 @@ class _Loop:
 
     def event(self) -> bool:
         """Event mode at the loaded point; whether a state changed there (``iterate``)."""
-        for model in self.models:
-            model.enterEventMode()
+        for fmu in self.fmus:
+            fmu.call(fmu.instance.enterEventMode)
         return self.iterate()
 
     def iterate(self) -> bool:
         """In event mode: every FMU updates its discrete states until none needs more, then all enter
         continuous-time mode; whether an FMU changed the value of a continuous state."""
         changed = False
-        for model in self.models:
-            while True:
-                needed, _, _, values_changed, _, _ = model.newDiscreteStates()
+        for fmu in self.fmus:
+            needed = True
+            while needed:
+                needed, values_changed = fmu.update_discrete_states()
                 changed = changed or values_changed
-                if not needed:
-                    break
-            model.enterContinuousTimeMode()
+            fmu.call(fmu.instance.enterContinuousTimeMode)
         self.evaluated = None
         return changed
 
 
-def _start(loop: _Loop, scenario: Scenario) -> None:
+def _start(ode: _Ode, scenario: Scenario) -> None:
     """Initialization: parameters, the exchange at t = 0 (the controller's filters start from it), the
     first event iteration, continuous-time mode."""
-    fmus, stop = loop.wiring.fmus, scenario.simulation.stop_time
-    for name in ORDER:
-        fmus[name].enter_initialization(stop, scenario.parameters(name))
-    loop.exchange()
-    for model in loop.models:
-        model.exitInitializationMode()
-    loop.iterate()
+    stop = scenario.simulation.stop_time
+    for fmu in ode.fmus:
+        fmu.enter_initialization(stop, scenario.parameters(fmu.name))
+    ode.wiring.exchange(ode.at, ode.bound)
+    for fmu in ode.fmus:
+        fmu.call(fmu.instance.exitInitializationMode)
+    ode.iterate()
 
 
-def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: float, method: Method) -> int:
+def _integrate(ode: _Ode, recorder: Recorder, times: np.ndarray, tolerance: float, method: Method) -> int:
     """Integrate from the FMUs' states at 0 to ``times[-1]``, recording a row at each of ``times``;
     stop at every event, handle it just past the root and go on, until the end or the watch's stop.
     Returns the events handled. An implicit ``method`` gets the loop's Jacobian from the FMUs."""
-    y = loop.gather("getContinuousStates")
-    atol = tolerance * loop.gather("getNominalsOfContinuousStates")
-    events = [*(loop.indicator(i) for i in range(len(loop.indicators))), loop.stop_event()]
+    y = ode.states()
+    atol = tolerance * ode.gather(lambda fmu, buffer, n: fmu.call(fmu.instance.getNominalsOfContinuousStates,
+                                                                  buffer, n))
+    events = [*(ode.indicator(i) for i in range(len(ode.indicators))), ode.stop_event()]
     t, stop, handled = 0.0, times[-1], 0
-    loop.load(t, y)
+    ode.load(t, y)
     recorder.record(t)
     pending = times[1:]
     while t < stop:
-        jacobian = {"jac": loop.jacobian} if method.implicit else {}
-        solution = solve_ivp(loop.derivatives, (t, stop), y, method=method.value, rtol=tolerance, atol=atol,
-                             events=events, t_eval=pending, dense_output=True, **jacobian)
+        solver_options = {"jac": ode.jacobian} if method.implicit else {}
+        solution = solve_ivp(ode.derivatives, (t, stop), y, method=method.value, rtol=tolerance, atol=atol,
+                             events=events, t_eval=pending, dense_output=True, **solver_options)
         if solution.status < 0:
             raise CosimulationError(f"the solver failed at t = {solution.t[-1]:.6g} s: {solution.message}",
                                     float(solution.t[-1]))
         for k, at in enumerate(solution.t):
-            loop.load(at, solution.y[:, k])
+            ode.load(at, solution.y[:, k])
             recorder.record(at)
         pending = pending[len(solution.t):]
         if len(solution.t_events[-1]):  # stopped by the watch: a last row where the solver ended
             at = float(solution.t_events[-1][0])
             if at > recorder.last_time:
-                loop.load(at, solution.y_events[-1][0])
+                ode.load(at, solution.y_events[-1][0])
                 recorder.record(at)
             break
         if solution.status == 0:
@@ -190,13 +220,13 @@ def _integrate(loop: _Loop, recorder: Recorder, times: np.ndarray, tolerance: fl
         found = min(float(ts[0]) for ts in solution.t_events[:-1] if len(ts))
         t = min(found + _PAST_EVENT, stop)
         for at in pending[pending <= t]:  # output times between the root and where the event is handled
-            loop.load(at, solution.sol(at))
+            ode.load(at, solution.sol(at))
             recorder.record(at)
         pending = pending[pending > t]
         y = solution.sol(t)
-        loop.load(t, y)
-        if loop.event():
-            y = loop.gather("getContinuousStates")
+        ode.load(t, y)
+        if ode.event():
+            y = ode.states()
         handled += 1
     return handled
 
@@ -213,7 +243,7 @@ def _tolerance(scenario: Scenario, tolerance: float | None) -> float:
 def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: float | None = None,
                             output_interval: float | None = None, tolerance: float | None = None,
                             method: Method | str | None = None, workdir=None, watch: Watch | None = None
-                            ) -> CosimulationResult:
+                            ) -> ModelExchangeResult:
     """Simulate ``scenario`` through the model-exchange interface of the FMUs in ``fmu_paths`` (by name).
 
     Parameters
@@ -240,11 +270,8 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
 
     Returns
     -------
-    CosimulationResult
-        ``result`` has a row at every output time (the same columns as co-simulation); ``steps`` counts
-        the derivative evaluations, ``settings`` names the interface, the method, the tolerance and the
-        Jacobians evaluated; ``stopped_at``
-        is where the watch stopped the run (its last row), else None.
+    ModelExchangeResult
+        A row at every output time (the columns of co-simulation), the derivative evaluations, the settings.
 
     Raises
     ------
@@ -262,18 +289,18 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     with LoadedFmus(fmu_paths, workdir, log, model_exchange=True) as fmus:
         wiring = Wiring(fmus.by_name)
         recorder = Recorder(wiring, len(times))
-        loop = _Loop(wiring, settings.bound, watch)
+        ode = _Ode(wiring, settings.bound, watch)
         try:
-            _start(loop, scenario)
-            events = _integrate(loop, recorder, times, rtol, settings.method)
+            _start(ode, scenario)
+            events = _integrate(ode, recorder, times, rtol, settings.method)
         except FMICallException as error:
-            raise failed_call(error, log, loop.at) from None
+            raise failed_call(error, log, ode.at) from None
     result = recorder.result()
-    return CosimulationResult(
-        result=result, steps=loop.evaluations, wall_time=clock.perf_counter() - started,
+    return ModelExchangeResult(
+        result=result, evaluations=ode.evaluations, wall_time=clock.perf_counter() - started,
         settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": settings.method,
                   "tolerance": rtol, "stop_time": settings.stop_time, "output_interval": settings.output_interval,
-                  "events": events, "jacobians": loop.jacobians},
+                  "events": events, "jacobians": ode.jacobian_evaluations},
         log=list(log), fmus=fmus.records,
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )
@@ -296,7 +323,7 @@ def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str
         When, in s (> 0).
     which : str, optional
         An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop
-        connects. Default None: the closed loop (``linear.closed_loop``).
+        connects. Default None: the closed loop (``linear.closed_loop_state_space``).
     tolerance : float, optional
         The solver's relative tolerance, as for ``simulate_model_exchange``.
     method : {"DOP853", "Radau", "BDF"} or Method, optional
@@ -323,11 +350,11 @@ def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str
     log: list[LogMessage] = []
     with LoadedFmus(fmu_paths, workdir, log, model_exchange=True) as fmus:
         wiring = Wiring(fmus.by_name)
-        loop = _Loop(wiring, scenario.simulation.bound)
+        ode = _Ode(wiring, scenario.simulation.bound)
         try:
-            _start(loop, scenario)
-            _integrate(loop, Recorder(wiring, 2), np.array([0.0, at_time]), rtol, scenario.simulation.method)
-            blocks = loop.blocks()
+            _start(ode, scenario)
+            _integrate(ode, Recorder(wiring, 2), np.array([0.0, at_time]), rtol, scenario.simulation.method)
+            blocks = ode.blocks()
         except FMICallException as error:
-            raise failed_call(error, log, loop.at) from None
-    return closed_loop(blocks) if which is None else blocks[which].state_space()
+            raise failed_call(error, log, ode.at) from None
+    return closed_loop_state_space(blocks) if which is None else blocks[which].state_space()

@@ -9,17 +9,18 @@ from fmpy.util import write_csv
 
 from . import signals
 from .master import CosimulationResult
+from .model_exchange import ModelExchangeResult
 from ..scenario import Interface, Scenario
 
 __all__ = ["write_results", "summary", "format_summary"]
 
 
-def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
+def summary(run: CosimulationResult | ModelExchangeResult, scenario: Scenario, metrics: dict) -> dict:
     """What ``summary.json`` holds.
 
     Parameters
     ----------
-    run : CosimulationResult
+    run : CosimulationResult or ModelExchangeResult
         The run.
     scenario : Scenario
         Its scenario.
@@ -38,9 +39,7 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
         "scenario_source": scenario.source,
         "settings": {
             **{key: value for key, value in run.settings.items() if key != "scenario"},
-            "steps": run.steps,
-            "steps_rejected": run.rejected,
-            "fmu_steps": run.fmu_steps,
+            **_counts(run),
             "wall_time_s": run.wall_time,
             "stopped_at": run.stopped_at,
         },
@@ -50,7 +49,15 @@ def summary(run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict:
     }
 
 
-def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenario, metrics: dict) -> dict[str, Path]:
+def _counts(run: CosimulationResult | ModelExchangeResult) -> dict:
+    """The run's cost in one layout for both interfaces: for model exchange ``steps`` are its evaluations."""
+    if isinstance(run, ModelExchangeResult):
+        return {"steps": run.evaluations, "steps_rejected": 0, "fmu_steps": 0}
+    return {"steps": run.steps, "steps_rejected": run.rejected, "fmu_steps": run.fmu_steps}
+
+
+def write_results(out_dir: Path | str, run: CosimulationResult | ModelExchangeResult, scenario: Scenario,
+                  metrics: dict) -> dict[str, Path]:
     """Write a run's ``results.csv``, ``summary.json`` and, if error-controlled, ``step_sizes.csv``.
 
     ``results.csv`` is in fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``;
@@ -60,7 +67,7 @@ def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenar
     ----------
     out_dir : pathlib.Path or str
         The folder, created if missing.
-    run : CosimulationResult
+    run : CosimulationResult or ModelExchangeResult
         The run.
     scenario : Scenario
         Its scenario.
@@ -76,7 +83,7 @@ def write_results(out_dir: Path | str, run: CosimulationResult, scenario: Scenar
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "results.csv", "summary": out_dir / "summary.json"}
     write_csv(paths["csv"], run.result)
-    if run.step_sizes is not None:
+    if getattr(run, "step_sizes", None) is not None:
         paths["step_sizes"] = out_dir / "step_sizes.csv"
         write_csv(paths["step_sizes"], run.step_sizes)
     paths["summary"].write_text(json.dumps(summary(run, scenario, metrics), indent=2) + "\n")
@@ -101,12 +108,12 @@ def _cosimulation(run: CosimulationResult, guarded: int) -> tuple[list[str], str
     return how, f"acted in {guarded} steps"
 
 
-def _model_exchange(run: CosimulationResult, guarded: int) -> tuple[list[str], str]:
+def _model_exchange(run: ModelExchangeResult, guarded: int) -> tuple[list[str], str]:
     """The lines on how a model-exchange run went, and what its beta guard did (``guarded`` times)."""
     s = run.settings
     how = [f"scenario {s['scenario']}: model exchange, {s['method']} at relative tolerance {s['tolerance']:g}, "
            f"stop {s['stop_time']:g} s, output every {s['output_interval']:g} s",
-           f"  {run.steps} derivative evaluations{_jacobians(s)} and {s['events']} events in {run.wall_time:.2f} s "
+           f"  {run.evaluations} derivative evaluations{_jacobians(s)} and {s['events']} events in {run.wall_time:.2f} s "
            "wall time"]
     return how, f"engaged {guarded} times"
 
@@ -120,12 +127,12 @@ def _jacobians(settings: dict) -> str:
 _HOW = {Interface.CO_SIMULATION: _cosimulation, Interface.MODEL_EXCHANGE: _model_exchange}
 
 
-def format_summary(run: CosimulationResult, metrics: dict) -> str:
+def format_summary(run: CosimulationResult | ModelExchangeResult, metrics: dict) -> str:
     """A short multi-line text of the run's settings, cost and metrics, for the command line.
 
     Parameters
     ----------
-    run : CosimulationResult
+    run : CosimulationResult or ModelExchangeResult
         The run; its ``settings["interface"]`` (``Interface``) says what it tells of how the run went.
     metrics : dict
         Its ``metrics.tracking_metrics``.

@@ -70,7 +70,7 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str | 
 
         paths["trajectory"] = plot_trajectory(run.result, out_dir / "trajectory.png")
         paths["signals"] = plot_signals(run.result, out_dir / "signals.png")
-        if run.step_sizes is not None:
+        if getattr(run, "step_sizes", None) is not None:
             paths["step_size_figure"] = plot_step_sizes(run.step_sizes, scenario.simulation.tolerance,
                                                         out_dir / "step_sizes.png")
     return f"{format_summary(run, metrics)}\n  written: {', '.join(str(p) for p in paths.values())}"

@@ -1,18 +1,11 @@
-"""The error-controlled communication step: the coupling error of each step estimated from the defect
-of the exchanged voltages, and the next step size from it.
+"""The error-controlled communication step (docs/co-simulation.md, "Error-controlled step"): each step's
+coupling error estimated from the defect of the exchanged voltages, and the next step size from it.
 
-Over a step from ``t_k`` the plant sees ``u`` held (hold coupling) or extrapolated from the last two
-communication points (linear coupling). At ``t_k+1`` the controller's actual ``u_k+1`` is known; the
-defect ``E = max |u_k+1 - u_hat_k+1|`` between it and the value the coupling assumed (``u_k``, or the
-line through ``u_k-1`` and ``u_k`` at ``t_k+1``) is of order ``h`` (hold) or ``h^2`` (linear), the order
-of the deviation the coupling causes (``scenario.Coupling.order``). The position error that a defect
-``E`` leaves is estimated as ``error_gain * E``: ``error_gain`` (m/V, a scenario setting, default 0.02)
-is the loop's position deviation per volt of defect. Measured on the paper's scenario: 1.2-1.9 mm/V at
-fixed steps of 1-4 ms (both couplings, both orders), where the largest defect occurs only briefly, and
-10-24 mm/V with the step controlled, where every step's defect sits near the tolerance; the default
-covers the second (docs/co-simulation.md, "Error-controlled step"). For another scenario, compare a
-controlled run's deviation from the reference solution with its tolerance before relying on it. A
-step whose estimate misses the tolerance is taken again, smaller, from the FMU states saved before it.
+Over a step the plant sees ``u`` held (hold coupling) or extrapolated from the last two communication
+points (linear). The defect ``E = max |u_k+1 - u_hat_k+1|`` between the controller's actual ``u_k+1`` and
+what the coupling assumed is of order ``h`` (hold) or ``h^2`` (linear), ``scenario.Coupling.order``; the
+position error it leaves is estimated as ``error_gain * E`` (m/V, a scenario setting measured on the
+paper's scenario, see the docs).
 
 >>> defect((10.0, 20.0), (11.0, 20.5), None, 1e-3, 1e-3)
 1.0

@@ -35,27 +35,9 @@ from ..cosim.instance import type_name
 from ..registry import CONNECTIONS, ORDER, fmu_files
 from ..scenario import Scenario, ScenarioError
 
-__all__ = ["export_fmu", "EXPOSED_OUTPUTS", "parameter_name"]
+__all__ = ["export_fmu", "EXPOSED_OUTPUTS"]
 
 EXPOSED_OUTPUTS = tuple(name for fmu in ORDER for name in signals.RECORDED[fmu])
-
-
-def parameter_name(fmu: str, parameter: str) -> str:
-    """The container's name of a component's parameter.
-
-    Parameters
-    ----------
-    fmu : str
-        The component's name, one of ``registry.ORDER``.
-    parameter : str
-        The parameter's name in that FMU.
-
-    Returns
-    -------
-    str
-        ``<fmu>.<parameter>``, e.g. ``MobileRobot.x0``.
-    """
-    return f"{fmu}.{parameter}"
 
 
 def _literal(value, integer: bool) -> str:
@@ -115,7 +97,7 @@ def _exposed(scenario: Scenario, paths: dict, variables: dict, components: dict)
             kind = type_name(inner)
             integer = kind == "Integer"
             outer = ModelVariable(type=kind, variability=inner.variability, causality="parameter",
-                                  initial="exact", name=parameter_name(name, key), start=_literal(value, integer),
+                                  initial="exact", name=f"{name}.{key}", start=_literal(value, integer),
                                   description=inner.description)
             outer.unit = getattr(inner, "unit", None) if not integer else None
             model_variables.append(outer)
@@ -158,7 +140,7 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     """Write the scenario's closed loop as one FMI 2.0 co-simulation FMU (an fmpy container).
 
     Every parameter of the three FMUs is a parameter of the container named ``<FMU>.<parameter>``
-    (``parameter_name``) whose start value is the scenario's; its outputs are every output of
+    (``MobileRobot.x0``, say) whose start value is the scenario's; its outputs are every output of
     ``cosim.signals.RECORDED`` under its own name. It couples by Jacobi at a fixed internal step.
 
     Parameters

@@ -34,50 +34,21 @@ from ..identity import require_fmi2
 from ..registry import CONTROLLER, ORDER, fmu_files
 from ..scenario import Scenario, load_scenario
 
-__all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "FMI2_ONLY", "model_dir", "held_inputs"]
+__all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "FMI2_ONLY"]
 
 DEFAULT_STOP_TIME = 2.0
 FMI2_ONLY = "the FMI cross-check (modelica/fmi-cross-check) takes FMI 1.0 and 2.0 FMUs"
 TOOL = "dsc-fmu"
 
 
-def model_dir(out_dir: Path, model: str, platform: str = "linux64", version: str = __version__) -> Path:
-    """The cross-check folder of one FMU.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path
-        The root of the cross-check tree.
-    model : str
-        The FMU's model name, e.g. ``MobileRobot``.
-    platform : str, optional
-        The cross-check platform name. Default "linux64".
-    version : str, optional
-        The exporting tool's version. Default: this package's.
-
-    Returns
-    -------
-    pathlib.Path
-        ``out_dir/fmus/2.0/cs/<platform>/dsc-fmu/<version>/<model>``.
-    """
+def _model_dir(out_dir: Path, model: str, platform: str = "linux64", version: str = __version__) -> Path:
+    """``out_dir/fmus/2.0/cs/<platform>/dsc-fmu/<version>/<model>``: the cross-check folder of one FMU."""
     return Path(out_dir) / "fmus" / "2.0" / "cs" / platform / TOOL / version / model
 
 
-def held_inputs(inputs: np.ndarray, stop_time: float) -> np.ndarray:
-    """Inputs held over each step as sample-and-hold rows.
-
-    Parameters
-    ----------
-    inputs : numpy.ndarray
-        Structured array, one row per step: ``time`` (the step's start, s) and the inputs held over it.
-    stop_time : float
-        The end of the last step, in s.
-
-    Returns
-    -------
-    numpy.ndarray
-        Two rows per step, same dtype: ``(t_k, v_k)`` and ``(t_k+1, v_k)``.
-    """
+def _held_inputs(inputs: np.ndarray, stop_time: float) -> np.ndarray:
+    """The inputs held over each step (one row per step, ``time`` its start) as two rows a step,
+    ``(t_k, v_k)`` and ``(t_k+1, v_k)``."""
     starts = inputs["time"]
     ends = np.append(starts[1:], stop_time)
     rows = np.empty(2 * len(inputs), dtype=inputs.dtype)
@@ -125,7 +96,7 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
     Parameters
     ----------
     out_dir : pathlib.Path or str
-        The root of the cross-check tree; folders as ``model_dir``.
+        The root of the cross-check tree; ``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>``.
     fmu_paths : dict
         FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs (the
         fmi-cross-check repository's layout knows FMI 1.0 and 2.0 only).
@@ -160,7 +131,7 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
     run = cosimulate_exchange(scenario, fmu_paths, "jacobi")
     folders = {}
     for name in ORDER:
-        folder = model_dir(Path(out_dir), name, platform)
+        folder = _model_dir(Path(out_dir), name, platform)
         folder.mkdir(parents=True, exist_ok=True)
         shutil.copyfile(fmu_paths[name], folder / f"{name}.fmu")
         columns = ["time", *signals.RECORDED[name]]
@@ -171,7 +142,7 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
         _write_csv(folder / f"{name}_ref.csv", reference)
         has_inputs = name in run.inputs
         if has_inputs:
-            _write_csv(folder / f"{name}_in.csv", held_inputs(run.inputs[name], stop))
+            _write_csv(folder / f"{name}_in.csv", _held_inputs(run.inputs[name], stop))
         (folder / f"{name}_ref.opt").write_text(
             f"StartTime, 0.0\nStopTime, {stop!r}\nStepSize, {h!r}\nRelTol, 1e-6\n")
         (folder / "ReadMe.md").write_text(_readme(name, scenario, h, stop, has_inputs))

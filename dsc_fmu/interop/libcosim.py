@@ -54,7 +54,7 @@ from ..registry import ORDER
 from .libcosim_install import require_libcosimpy
 from .ssp import SSPError
 
-__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "held_value_index", "main"]
+__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "main"]
 
 NANO = 1_000_000_000
 
@@ -170,28 +170,9 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
     return result
 
 
-def held_value_index(times: np.ndarray, t: float, h: float) -> int:
-    """The row of a sample-and-hold table that holds over the step from ``t``.
-
-    Parameters
-    ----------
-    times : numpy.ndarray
-        The table's time stamps in s, non-decreasing, a time repeated where the value jumps.
-    t : float
-        The step's start, in s.
-    h : float
-        The step, in s: the stamps are compared with a tolerance of ``h * 1e-6``.
-
-    Returns
-    -------
-    int
-        The index of the last row stamped ``<= t`` (the value after a jump).
-
-    Raises
-    ------
-    SSPError
-        If the table starts after ``t``.
-    """
+def _held_row(times: np.ndarray, t: float, h: float) -> int:
+    """The row of a sample-and-hold table (stamps in s, non-decreasing, repeated where the value
+    jumps) that holds over the step from ``t``: the last stamped ``<= t`` within ``h * 1e-6``; SSPError if none."""
     row = int(np.searchsorted(times, t + h * 1e-6, side="right")) - 1
     if row < 0:
         raise SSPError(f"the input table starts at {times[0]!r} s, after {t!r} s")
@@ -219,7 +200,7 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
     inputs : numpy.ndarray or None, optional
         A table of Real inputs: structured array with ``time`` (s) and one column per input of the FMU,
         e.g. ``fmpy.util.read_csv`` of a cross-check ``<Model>_in.csv``. Read as sample-and-hold
-        (``held_value_index``): the values at ``t_0`` are set as initial values, those of every later
+        (sample-and-hold): the values at ``t_0`` are set as initial values, those of every later
         step with libcosim's override manipulator before the step. Default None: no inputs.
     instance_name : str, optional
         The FMU's instance name. Default "fmu".
@@ -269,7 +250,7 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
                 raise SSPError(f"{fmu_path}: input {name!r} is not a Real (only Real inputs are fed)")
         fed = [(name, described[name].reference) for name in names]
         times = np.asarray(inputs["time"], dtype=float)
-        row = inputs[held_value_index(times, 0.0, step_size)]
+        row = inputs[_held_row(times, 0.0, step_size)]
         for name, reference in fed:
             if not execution.real_initial_value(index, reference, float(row[name])):
                 raise SSPError(f"libcosim: cannot set the initial value of {name}")
@@ -279,7 +260,7 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
     references = [reference for _, reference in fed]
     for k in range(steps):
         if k > 0 and fed:
-            row = inputs[held_value_index(times, k * h / NANO, step_size)]
+            row = inputs[_held_row(times, k * h / NANO, step_size)]
             if not manipulator.slave_real_values(index, references, [float(row[n]) for n, _ in fed]):
                 raise SSPError(f"libcosim: cannot override the inputs at step {k}")
         if not execution.step():

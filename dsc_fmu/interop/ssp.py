@@ -33,7 +33,7 @@ from ..platforms import LINUX_AARCH64, host_platform
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Interface, Scenario, ScenarioError, one_of
 
-__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "build_ssd", "model_name", "validate_ssp",
+__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "model_name", "validate_ssp",
            "run_simulate_ssp", "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
@@ -135,29 +135,10 @@ def _connectors(name: str, variables: dict) -> list[tuple[str, str, str]]:
     return [(v.name, v.causality, v.type) for v in names]
 
 
-def build_ssd(scenario: Scenario, variables: dict[str, dict],
-              interface: Interface = Interface.CO_SIMULATION) -> tuple[bytes, dict]:
-    """The system structure description and the parameter sets of a scenario's closed loop.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The closed loop; its parameters go into one parameter set per component, its simulation
-        settings into the DefaultExperiment and the annotations.
-    variables : dict of str to dict
-        FMU name (``registry.ORDER``) -> variable name -> fmpy ``ModelVariable`` of its model
-        description.
-    interface : Interface, optional
-        How OMSimulator runs the FMUs: co-simulation (default) or model exchange. libcosim's
-        fixed-step annotation is written for both: it co-simulates either archive.
-
-    Returns
-    -------
-    ssd : bytes
-        ``SystemStructure.ssd``, not yet validated.
-    sets : dict of str to bytes
-        Archive path (``resources/<FMU>.ssv``) -> parameter set.
-    """
+def _build_ssd(scenario: Scenario, variables: dict[str, dict],
+               interface: Interface = Interface.CO_SIMULATION) -> tuple[bytes, dict]:
+    """The SSD (not yet validated) and the parameter sets (archive path -> XML) of a scenario's closed loop;
+    ``variables`` by FMU and name, ``interface`` for OMSimulator's annotation (libcosim's is written for both)."""
     root = etree.Element(f"{{{SSD}}}SystemStructureDescription", nsmap=SSD_NAMESPACES, version="1.0",
                          name=model_name(scenario.name), description=f"dsc-fmu, scenario {scenario.name}")
     system = etree.SubElement(root, f"{{{SSD}}}System", name=SYSTEM_NAME,
@@ -273,7 +254,7 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
         missing = [p for p in scenario.parameters(name) if p not in variables[name]]
         if missing:
             raise ScenarioError(f"{paths[name]}: {name} has no parameter {missing[0]!r}: not the FMU expected")
-    ssd, sets = build_ssd(scenario, variables, interface)
+    ssd, sets = _build_ssd(scenario, variables, interface)
     _check(ssd, "SystemStructureDescription.xsd", "SystemStructure.ssd")
     for source, xml in sets.items():
         _check(xml, "SystemStructureParameterValues.xsd", source)

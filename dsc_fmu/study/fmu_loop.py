@@ -22,9 +22,9 @@ __all__ = ["fmu_matrices"]
 def _settle(fmu: LoadedFmu) -> None:
     """In event mode: update the discrete states (the switches) until none needs more, then enter
     continuous-time mode."""
-    while fmu.slave.newDiscreteStates()[0]:
+    while fmu.update_discrete_states()[0]:
         pass
-    fmu.slave.enterContinuousTimeMode()
+    fmu.call(fmu.instance.enterContinuousTimeMode)
 
 
 def _at_point(fmu: LoadedFmu, scenario: Scenario, t: float, states, inputs: dict) -> LoadedFmu:
@@ -32,13 +32,13 @@ def _at_point(fmu: LoadedFmu, scenario: Scenario, t: float, states, inputs: dict
     continuous states and inputs set, its switches chosen there (an event iteration at the point)."""
     fmu.enter_initialization(None, scenario.parameters(fmu.name))
     fmu.set_values(inputs)
-    fmu.slave.exitInitializationMode()
+    fmu.call(fmu.instance.exitInitializationMode)
     _settle(fmu)
-    fmu.slave.setTime(t)
+    fmu.call(fmu.instance.setTime, t)
     values = (ctypes.c_double * len(states))(*states)
-    fmu.slave.setContinuousStates(values, len(states))
+    fmu.call(fmu.instance.setContinuousStates, values, len(states))
     fmu.set_values(inputs)
-    fmu.slave.enterEventMode()
+    fmu.call(fmu.instance.enterEventMode)
     _settle(fmu)
     return fmu
 
