@@ -300,7 +300,7 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
         result=result, evaluations=ode.evaluations, wall_time=clock.perf_counter() - started,
         settings={"scenario": scenario.name, "interface": Interface.MODEL_EXCHANGE, "method": settings.method,
                   "tolerance": rtol, "stop_time": settings.stop_time, "output_interval": settings.output_interval,
-                  "events": events, "jacobians": ode.jacobian_evaluations},
+                  "events": events, "jacobian_evaluations": ode.jacobian_evaluations},
         log=list(log), fmus=fmus.records,
         stopped_at=float(result["time"][-1]) if result["time"][-1] < settings.stop_time else None,
     )

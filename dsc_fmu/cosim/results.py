@@ -30,8 +30,8 @@ def summary(run: CosimulationResult | ModelExchangeResult, scenario: Scenario, m
     Returns
     -------
     dict
-        The scenario's name and source; the settings (the interface first; ``steps``, which for model
-        exchange counts derivative evaluations; ``stopped_at``, the time in s a stopped run ends at,
+        The scenario's name and source; the settings (the interface first; ``steps`` of a co-simulation,
+        ``evaluations`` of the derivatives in model exchange; ``stopped_at``, the time in s a stopped run ends at,
         else None); the metrics; the units of the CSV columns; the FMUs' build ids.
     """
     return {
@@ -50,9 +50,9 @@ def summary(run: CosimulationResult | ModelExchangeResult, scenario: Scenario, m
 
 
 def _counts(run: CosimulationResult | ModelExchangeResult) -> dict:
-    """The run's cost in one layout for both interfaces: for model exchange ``steps`` are its evaluations."""
+    """The run's cost: steps for co-simulation, derivative evaluations for model exchange."""
     if isinstance(run, ModelExchangeResult):
-        return {"steps": run.evaluations, "steps_rejected": 0, "fmu_steps": 0}
+        return {"evaluations": run.evaluations}
     return {"steps": run.steps, "steps_rejected": run.rejected, "fmu_steps": run.fmu_steps}
 
 
@@ -120,7 +120,7 @@ def _model_exchange(run: ModelExchangeResult, guarded: int) -> tuple[list[str], 
 
 def _jacobians(settings: dict) -> str:
     """", N Jacobians from the FMUs' directional derivatives" where an implicit method asked for some."""
-    count = settings.get("jacobians", 0)
+    count = settings.get("jacobian_evaluations", 0)
     return f", {count} Jacobians from the FMUs' directional derivatives" if count else ""
 
 
