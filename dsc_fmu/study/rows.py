@@ -13,14 +13,13 @@ import numpy as np
 from ..cosim.master import CosimulationError, Cosimulator
 from ..cosim.metrics import tracking_metrics
 from ..scenario import Scenario, Stability
-from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY
-from .cases import Case
-from .plan import Plan
+from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key
+from .cases import Case, apply
 
 __all__ = [
     "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
-    "DEVIATION_KEYS", "ROW_KEYS", "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
-    "error_grows", "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row",
+    "DEVIATION_KEYS", "ROW_KEYS", "row_keys", "Plan", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
+    "error_grows", "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row", "run_case",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -84,6 +83,48 @@ def _columns(result: np.ndarray, names) -> np.ndarray:
     for name in names:
         out[name] = result[name]
     return out
+
+
+class Plan(NamedTuple):
+    """A case of a sweep ready to run: the scenario it runs and its cache keys.
+
+    Parameters
+    ----------
+    case : Case
+        The case.
+    applied : Scenario
+        The case applied to the sweep's scenario (``cases.apply``).
+    key : str
+        The cache key of its row (``cache.case_key``).
+    reference_key : str
+        The cache key of its reference solution (``cache.reference_key``).
+    """
+
+    case: Case
+    applied: Scenario
+    key: str
+    reference_key: str
+
+    @classmethod
+    def of(cls, scenario: Scenario, case: Case, identities: dict) -> Plan:
+        """The plan of ``case`` on the sweep's ``scenario`` with FMUs of ``identities`` (``cache.fmu_identities``).
+
+        Parameters
+        ----------
+        scenario : Scenario
+            The sweep's scenario.
+        case : Case
+            The case.
+        identities : dict
+            The FMUs' identities by name.
+
+        Returns
+        -------
+        Plan
+            The case, applied, with its keys.
+        """
+        return cls(case, apply(scenario, case), case_key(scenario, case, identities),
+                   reference_key(scenario, case, identities))
 
 
 @dataclass(frozen=True, eq=False)
@@ -406,3 +447,27 @@ def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict
     row.update(wall_time_s=outcome.wall_time_s, steps=outcome.steps, steps_rejected=outcome.steps_rejected,
                fmu_steps=outcome.fmu_steps)
     return json.loads(json.dumps(row))  # exactly what the cache gives back
+
+
+def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
+    """Run one case in this process and return its row, as a sweep makes it.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    case : Case
+        The case to run on it.
+    cosimulator : Cosimulator
+        The loaded FMUs to run it with.
+    reference : numpy.ndarray or None
+        The reference solution of the case's physical scenario (``compute_reference``), or None to
+        leave the deviations NaN and judge the run as a settled one.
+
+    Returns
+    -------
+    dict
+        The row (``make_row``).
+    """
+    plan = Plan.of(scenario, case, fmu_identities(cosimulator.paths))
+    return make_row(plan, simulate(plan.applied, cosimulator), reference)
