@@ -1,4 +1,4 @@
-"""A sweep on a Dask cluster: a client of its scheduler, checked first, and the FMUs on every worker.
+"""A sweep on a Dask cluster: a client of its scheduler, checked first, and the sweep's FMUs on every worker.
 
 Workers need dsc-fmu installed with the Python version the FMUs were built with, and one thread each
 (``--nthreads 1``): every FMI call into a pythonfmu FMU takes the GIL, and a worker's Cosimulator
@@ -64,9 +64,8 @@ def connect(address: str, timeout: float) -> distributed.Client:
 
 
 class FmusOnWorkers(WorkerPlugin):
-    """Worker plugin: the FMU files written into a folder of each worker's local directory, held there
-    by ``place(paths, folder)`` (which loads them on first need), closed when the plugin is unregistered
-    or the worker closes.
+    """Worker plugin: the FMU files written into a folder of each worker's local directory and held there
+    by ``place(paths, folder)``, closed when the plugin is unregistered (the sweep ends) or the worker closes.
 
     Parameters
     ----------
@@ -82,32 +81,18 @@ class FmusOnWorkers(WorkerPlugin):
         self.name = "dsc-fmu-" + hashlib.sha256(b"".join(self.blobs.values())).hexdigest()[:16]
 
     def setup(self, worker) -> None:
-        """Write the FMU files into a folder of ``worker.local_directory`` and hold them with ``place``.
-
-        Parameters
-        ----------
-        worker : distributed.Worker
-            The worker.
-        """
         folder = Path(tempfile.mkdtemp(prefix="dsc_fmu_sweep_", dir=worker.local_directory))
         for name, data in self.blobs.items():
             (folder / f"{name}.fmu").write_bytes(data)
         self.fmus = self.place({name: folder / f"{name}.fmu" for name in self.blobs}, folder)
 
     def teardown(self, worker) -> None:
-        """Close what holds the FMUs: their Cosimulator and folder.
-
-        Parameters
-        ----------
-        worker : distributed.Worker
-            The worker.
-        """
         if self.fmus is not None:
             self.fmus.close()
 
 
 def on_worker(name: str, fn: Callable, applied):
-    """Dask task: ``fn`` computed with this worker's FMUs (those of the plugin ``name``).
+    """Dask task: ``fn`` computed with this worker's FMUs (``place.compute``).
 
     Parameters
     ----------

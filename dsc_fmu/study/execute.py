@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import multiprocessing
 import multiprocessing.util
 import os
@@ -18,6 +19,8 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Callable, NamedTuple
 
+import psutil
+
 from ..cosim.master import Cosimulator
 from ..cosim.progress import ProgressLine
 from ..scenario import Scenario
@@ -25,7 +28,7 @@ from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
 from .rows import Outcome, Plan, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["execute", "Workers", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep"]
+__all__ = ["execute", "Workers", "Execution", "WorkerLostWarning", "LOST_TWICE"]
 
 LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
@@ -37,20 +40,20 @@ class WorkerLostWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Execution:
-    """What a sweep's ``execute`` did; two executions add up (a sweep's grid and its refinement).
+    """What running cases did; two executions add up (a sweep's grid and its refinement).
 
     Parameters
     ----------
     rows : list of dict
         The rows (``rows.ROW_KEYS``), in the order of the cases.
     cached, ran : int, optional
-        How many of them came from the cache, and how many were run now.
+        How many came from the cache, and how many were run now.
     lost : tuple of str, optional
         The keys of the runs that did not finish: their rows carry the reason, they are not cached.
     unverified : tuple of CacheEntryError, optional
         The cache entries that did not verify and were recomputed.
     workers_lost, retried : int, optional
-        How many times the process pool lost a worker, and how many computations in flight were retried.
+        How many times the process pool lost a worker; how many computations in flight were retried.
     """
 
     rows: list
@@ -65,8 +68,7 @@ class Execution:
         return Execution(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
 
     def warn(self) -> None:
-        """Warn once per kind of problem: a CacheWarning for entries that did not verify, a
-        WorkerLostWarning for lost workers and runs that did not finish."""
+        """One CacheWarning if entries did not verify, one WorkerLostWarning if workers or runs were lost."""
         if self.unverified:
             count = len(self.unverified)
             what = "1 cache entry did not verify and was recomputed:" if count == 1 else \
@@ -85,20 +87,8 @@ class Execution:
 
 
 def prepare_sweep(out_dir: Path, runner: Runner) -> None:
-    """Check that a sweep can start: its scheduler (if any) answers, its folder is made and can be written in.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path
-        The sweep folder, created if missing (not if the scheduler cannot be reached).
-    runner : Runner
-        Where the runs go.
-
-    Raises
-    ------
-    SweepError
-        One line, if the scheduler cannot be reached or ``out_dir`` cannot be created or written in.
-    """
+    """SweepError (one line) unless the scheduler (if any) answers and ``out_dir`` is made and can be
+    written in; nothing is written if the scheduler cannot be reached."""
     if runner.scheduler is not None:
         check_scheduler(runner.scheduler, runner.scheduler_timeout)
     try:
@@ -121,22 +111,12 @@ def _folder_error(out_dir: Path, error: OSError) -> SweepError:
                       "allowed: a writable folder, or a path where one can be created")
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except (ProcessLookupError, OverflowError):
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
 def _remove_work(work_root: Path, folder: Path | None = None) -> None:
     """Remove ``folder`` and the work folders ``sweep-<pid>-*`` whose sweep process is gone (killed before
     it could clean up), and ``work_root`` itself if nothing else is left in it."""
     for found in work_root.glob("sweep-*"):
         match = _WORK_FOLDER.match(found.name)
-        if found == folder or match and found.is_dir() and not _alive(int(match[1])):
+        if found == folder or match and found.is_dir() and not psutil.pid_exists(int(match[1])):
             shutil.rmtree(found, ignore_errors=True)
     try:
         work_root.rmdir()
@@ -198,7 +178,7 @@ class _InProcess(Executor):
 
 
 class _Call(NamedTuple):
-    fn: Callable  # _Fmus.simulate or _Fmus.reference
+    fn: Callable  # _Fmus.simulate or _Fmus.reference, of the process it runs in
     key: str
     applied: Scenario
 
@@ -215,8 +195,8 @@ class Workers:
     runs in this process. A lost worker process (killed or crashed: the pool breaks) costs the
     computations in flight one retry on a new pool; a run lost twice is a row with the reason
     ``LOST_TWICE``. With ``runner.scheduler``, the executor of a Dask client (``Client.get_executor``),
-    with the FMUs on every worker (``cluster.FmusOnWorkers``); a run whose workers Dask lost too often is
-    a row with the reason. Leaving the ``with`` block stops what still runs (at once after an error or
+    the FMUs on every worker (``cluster.FmusOnWorkers``); a run whose workers Dask lost too often is a
+    row with the reason. Leaving the ``with`` block stops what still runs (at once after an error or
     Ctrl-C) and removes the work folder, and those of sweeps killed before they could.
 
     Parameters
@@ -242,7 +222,7 @@ class Workers:
     def __exit__(self, kind, *exc) -> None:
         try:
             if self._client is not None:
-                self._client.unregister_worker_plugin(self._plugin)
+                self._client.unregister_worker_plugin(self._task.args[0])
                 self._client.close()
             elif self._executor is not None:
                 if kind is not None:  # stop the workers now rather than after their current runs
@@ -263,9 +243,8 @@ class Workers:
             self._client = connect(self.runner.scheduler, self.runner.scheduler_timeout)
             plugin = FmusOnWorkers(self.fmu_paths, _Fmus)
             self._client.register_plugin(plugin)
-            self._plugin, self._lost, self._size = plugin.name, KilledWorker, None
-            self._executor = self._client.get_executor(pure=False)
-            self._submit = lambda call: self._executor.submit(on_worker, plugin.name, call.fn, call.applied)
+            self._executor, self._task = self._client.get_executor(pure=False), functools.partial(on_worker, plugin.name)
+            self._size, self._lost = None, KilledWorker
             return
         if self._work is None:
             try:
@@ -273,19 +252,19 @@ class Workers:
                 self._work = Path(tempfile.mkdtemp(prefix=f"sweep-{os.getpid()}-", dir=self.out_dir / ".work"))
             except OSError as error:
                 raise _folder_error(self.out_dir, error) from None
-        self._size = min((os.cpu_count() or 1) if self.runner.jobs is None else self.runner.jobs, runs)
+        self._size = max(1, min((os.cpu_count() or 1) if self.runner.jobs is None else self.runner.jobs, runs))
         self._lost = BrokenProcessPool
         if self._size <= 1:
             self._here, self._executor = _Fmus(self.fmu_paths, self._work / str(os.getpid())), _InProcess()
-            self._submit = lambda call: self._executor.submit(self._here.compute, call.fn, call.applied)
+            self._task = self._here.compute
         else:
             self._executor = ProcessPoolExecutor(self._size, mp_context=multiprocessing.get_context("spawn"),
                                                  initializer=_start_pool_worker,
                                                  initargs=(dict(self.fmu_paths), str(self._work)))
-            self._submit = lambda call: self._executor.submit(_on_pool_worker, call.fn, call.applied)
+            self._task = _on_pool_worker
 
     def _results(self, calls: list[_Call], runs: int):
-        """``(call, value)`` as the calls finish; ``_Lost`` as the value of a call whose workers were lost."""
+        """``(call, value)`` as the calls finish; ``_Lost`` the value of a call whose workers were lost."""
         if self._executor is None:
             self._start(runs)
         queue, in_flight, losses = deque(calls), {}, Counter()
@@ -294,7 +273,7 @@ class Workers:
                 broken = False
                 try:
                     while queue and (self._size is None or len(in_flight) < self._size):
-                        in_flight[self._submit(queue[0])] = queue[0]
+                        in_flight[self._executor.submit(self._task, queue[0].fn, queue[0].applied)] = queue[0]
                         queue.popleft()
                 except BrokenProcessPool:
                     broken = True
@@ -326,11 +305,10 @@ class Workers:
     def execute(self, scenario: Scenario, cases: list[Case], progress: bool = True) -> Execution:
         """Run every case not yet cached and return the rows of all.
 
-        Each finished run is cached at once (``cache``), so an interrupted sweep resumes where it
-        stopped. Reference solutions are computed once per physical case and cached too. Cache entries
-        that do not verify (damaged, edited, of an older layout) are recomputed, references included.
-        Under the "local" stability, a run whose reference solution failed is judged as a settled one
-        and not cached.
+        Each finished run is cached at once, so an interrupted sweep resumes where it stopped.
+        Reference solutions are computed once per physical case and cached too. Cache entries that do
+        not verify are recomputed, references included. Under the "local" stability, a run whose
+        reference solution failed is judged as a settled one and not cached.
 
         Parameters
         ----------
@@ -383,7 +361,8 @@ class Workers:
                     value = compute_reference(call.applied, self.fmu_paths)
                 if value.solution is None:
                     judged = "; they are judged as settled runs and not cached" if local else ""
-                    notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its runs{judged}")
+                    notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
+                                 f"runs{judged}")
                 else:
                     self.cache.store_reference(call.key, value.solution)
                 if remaining[call.key]:
@@ -435,9 +414,7 @@ def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> tuple:
 
 def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(),
             *, warn: bool = True) -> Execution:
-    """Run every case not yet cached in ``out_dir`` on workers of their own and return the rows of all.
-
-    ``prepare_sweep``, then ``Workers.execute``.
+    """Run every case not yet cached in ``out_dir`` and return the rows of all (``Workers.execute``).
 
     Parameters
     ----------

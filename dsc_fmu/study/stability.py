@@ -21,7 +21,7 @@ from .tracking import error_coordinates, error_measurements, error_outputs, erro
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
-    "error_measurements", "closed_loop", "jacobian", "operating_point", "SOURCES", "linearise", "sampled_pieces",
+    "error_measurements", "closed_loop_derivative", "jacobian", "operating_point", "SOURCES", "linearise", "sampled_pieces",
     "transition_matrix", "ramp_pieces", "linear_transition_matrix", "spectral_radius", "spectral_radius_curve",
     "predicted_boundary",
 ]
@@ -114,7 +114,7 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
     return scenario.reference["vr0"], scenario.reference["wr0"]
 
 
-def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
+def closed_loop_derivative(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
     """The derivative of the continuous closed loop in error coordinates.
 
     The plant (11), (7), (8) driven by u of (26), and the controller (15)-(27).
@@ -234,7 +234,7 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     T = scenario.simulation.stop_time if at_time is None else float(at_time)
-    f = lambda z: closed_loop(k, g, vr, wr, z)  # noqa: E731
+    f = lambda z: closed_loop_derivative(k, g, vr, wr, z)  # noqa: E731
     if state is None:
         xp0 = error_coordinates(initial_plant_state(scenario.plant), initial_reference_state(scenario.reference))
         xc0 = start_filters(g, initial_controller_state(scenario.controller), error_measurements(error_outputs(k, xp0), vr, wr))
@@ -301,7 +301,7 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
         from .fmu_loop import fmu_matrices  # fmpy only when the FMUs are asked for
 
         matrices = fmu_matrices(scenario, fmu_paths, z, T, workdir)
-    return LinearLoop(*matrices, operating_point=z, drift=float(np.max(np.abs(closed_loop(k, g, vr, wr, z)))),
+    return LinearLoop(*matrices, operating_point=z, drift=float(np.max(np.abs(closed_loop_derivative(k, g, vr, wr, z)))),
                       at_time=T, discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
 
 
