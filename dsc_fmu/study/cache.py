@@ -121,7 +121,8 @@ def _content(scenario: Scenario) -> dict:
 
 
 def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
-    """The key of the reference solution of ``case`` on ``scenario``, with FMUs of ``fmu_build_ids`` (``fmu_identities``)."""
+    """The key of the reference solution of ``case`` on ``scenario``, with FMUs of ``fmu_build_ids``
+    (``fmu_identities``)."""
     content = _content(apply(scenario, case))
     kind = content["simulation"]["reference"]
     content["simulation"] = {"stop_time": content["simulation"]["stop_time"]}

@@ -30,7 +30,7 @@ from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Order, Scenario, Sce
 
 __all__ = [
     "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
-    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler", "DEFAULT_TOLERANCES",
+    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "DEFAULT_TOLERANCES",
 ]
 
 SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
@@ -571,18 +571,6 @@ def check_scheduler(address: str, timeout: float) -> None:
 
     Run it before ``distributed.Client``: a client of an address that is wrong or closed stalls for
     its own timeout, then complains when collected.
-
-    Parameters
-    ----------
-    address : str
-        The scheduler's address (``parse_scheduler``).
-    timeout : float
-        How long to wait for the connection, in s.
-
-    Raises
-    ------
-    SweepError
-        One line, if the address is not one or its host does not accept the connection in time.
     """
     _, host, port = parse_scheduler(address)
     try:

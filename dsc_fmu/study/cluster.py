@@ -15,12 +15,11 @@ from pathlib import Path
 from typing import Callable
 
 import distributed
-from distributed import KilledWorker
 from distributed.diagnostics.plugin import WorkerPlugin
 
 from .cases import SweepError, check_scheduler
 
-__all__ = ["connect", "FmusOnWorkers", "on_worker", "KilledWorker"]
+__all__: list[str] = []  # what the sweep's executor (execute.Workers) uses; nothing for users
 
 
 async def _identity(address: str) -> dict:
@@ -31,24 +30,6 @@ async def _identity(address: str) -> dict:
 def connect(address: str, timeout: float) -> distributed.Client:
     """A client of the Dask scheduler at ``address``, checked first (a client of a server that is not a
     Dask scheduler would wait forever).
-
-    Parameters
-    ----------
-    address : str
-        The scheduler's address (``cases.parse_scheduler``).
-    timeout : float
-        How long to wait for the scheduler to answer, in s.
-
-    Returns
-    -------
-    distributed.Client
-        A client of it, not set as the default client.
-
-    Raises
-    ------
-    SweepError
-        One line, if ``address`` is not an address, cannot be reached, or does not answer as a Dask
-        scheduler within ``timeout``.
     """
     check_scheduler(address, timeout)
     try:
@@ -66,13 +47,6 @@ def connect(address: str, timeout: float) -> distributed.Client:
 class FmusOnWorkers(WorkerPlugin):
     """Worker plugin: the FMU files written into a folder of each worker's local directory and held there
     by ``place(paths, folder)``, closed when the plugin is unregistered (the sweep ends) or the worker closes.
-
-    Parameters
-    ----------
-    fmu_paths : dict
-        The FMU files by name, read here and shipped with the plugin.
-    place : callable
-        Makes what holds them on a worker: an object with ``compute(fn, applied)`` and ``close()``.
     """
 
     def __init__(self, fmu_paths: dict, place: Callable):
@@ -92,20 +66,5 @@ class FmusOnWorkers(WorkerPlugin):
 
 
 def on_worker(name: str, fn: Callable, applied):
-    """Dask task: ``fn`` computed with this worker's FMUs (``place.compute``).
-
-    Parameters
-    ----------
-    name : str
-        The ``FmusOnWorkers`` plugin's name.
-    fn : callable
-        What to compute, given the FMUs and ``applied``.
-    applied : Scenario
-        A case applied to its scenario.
-
-    Returns
-    -------
-    object
-        What ``fn`` returns.
-    """
+    """Dask task: ``fn`` computed with this worker's FMUs (``place.compute``)."""
     return distributed.get_worker().plugins[name].fmus.compute(fn, applied)

@@ -28,7 +28,7 @@ from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
 from .rows import Outcome, Plan, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["execute", "Workers", "Execution", "WorkerLostWarning", "LOST_TWICE"]
+__all__ = ["Workers", "Execution", "WorkerLostWarning", "LOST_TWICE"]
 
 LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
@@ -238,12 +238,15 @@ class Workers:
     def _start(self, runs: int) -> None:
         """The executor: of a Dask client, of ``min(jobs, runs)`` worker processes, or of this process."""
         if self.runner.scheduler is not None:
-            from .cluster import FmusOnWorkers, KilledWorker, connect, on_worker
+            from distributed import KilledWorker
+
+            from .cluster import FmusOnWorkers, connect, on_worker
 
             self._client = connect(self.runner.scheduler, self.runner.scheduler_timeout)
             plugin = FmusOnWorkers(self.fmu_paths, _Fmus)
             self._client.register_plugin(plugin)
-            self._executor, self._task = self._client.get_executor(pure=False), functools.partial(on_worker, plugin.name)
+            self._executor = self._client.get_executor(pure=False)
+            self._task = functools.partial(on_worker, plugin.name)
             self._size, self._lost = None, KilledWorker
             return
         if self._work is None:
@@ -414,34 +417,9 @@ def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> tuple:
 
 def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(),
             *, warn: bool = True) -> Execution:
-    """Run every case not yet cached in ``out_dir`` and return the rows of all (``Workers.execute``).
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    cases : list of Case
-        The cases to run on it (``build_cases``).
-    out_dir : pathlib.Path or str
-        The sweep folder: its cache, and the work folder while it runs.
-    fmu_paths : dict
-        The FMU files by name (``ensure_fmus``).
-    runner : Runner, optional
-        Where the runs go and whether a progress line shows. Default ``Runner()``: all cores.
-    warn : bool, optional
-        Issue ``Execution.warn`` before returning. Default True.
-
-    Returns
-    -------
-    Execution
-        The rows of all cases, in the order of ``cases``, and what was done.
-
-    Raises
-    ------
-    SweepError
-        One line, if the scheduler cannot be reached within ``runner.scheduler_timeout`` s (nothing is
-        written then) or ``out_dir`` cannot be a folder.
-    """
+    """Run every case not yet cached in ``out_dir`` and return the rows of all: ``prepare_sweep`` (SweepError
+    in one line if the scheduler cannot be reached or ``out_dir`` cannot be a folder), ``Workers.execute``,
+    then ``Execution.warn`` unless ``warn`` is False."""
     prepare_sweep(Path(out_dir), runner)
     with Workers(out_dir, fmu_paths, runner) as workers:
         done = workers.execute(scenario, cases)

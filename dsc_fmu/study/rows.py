@@ -13,13 +13,14 @@ import numpy as np
 from ..cosim.master import CosimulationError, Cosimulator
 from ..cosim.metrics import tracking_metrics
 from ..scenario import Scenario, Stability
-from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key
+from .cache import (
+    REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key,
+)
 from .cases import Case, apply
 
 __all__ = [
-    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
-    "DEVIATION_KEYS", "ROW_KEYS", "row_keys", "Plan", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
-    "error_grows", "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row", "run_case",
+    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS",
+    "row_keys", "Plan", "Outcome", "ReferenceOutcome", "simulate", "compute_reference", "make_row",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -280,19 +281,8 @@ def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
 
 
 def error_grows(trajectory: np.ndarray) -> bool:
-    """Whether the position error grows over the last third of the run (``SETTLED_DEFINITION``).
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y``, ``x_r``, ``y_r`` (m).
-
-    Returns
-    -------
-    bool
-        True if its maximum over the last sixth exceeds ``GROWTH_FACTOR`` times that over the sixth
-        before, plus ``GROWTH_SLACK`` (m).
-    """
+    """Whether the position error's maximum over the last sixth of the run exceeds ``GROWTH_FACTOR`` times
+    that over the sixth before plus ``GROWTH_SLACK`` (m) (``SETTLED_DEFINITION``)."""
     error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
     return _grows_at_end(trajectory["time"], error)
 
@@ -303,38 +293,14 @@ def _reference_at(trajectory: np.ndarray, reference: np.ndarray, names) -> dict:
 
 
 def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The run's distance from the reference solution at each of its times.
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y`` (m).
-    reference : numpy.ndarray
-        The reference solution, interpolated linearly at the run's times: ``time``, ``x``, ``y``.
-
-    Returns
-    -------
-    numpy.ndarray
-        The distance in m, one per row of ``trajectory``.
-    """
+    """The run's distance (m) from the reference solution, interpolated linearly, at each of its times."""
     at = _reference_at(trajectory, reference, ("x", "y"))
     return np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
 
 
 def seed_window(t: np.ndarray) -> np.ndarray | None:
-    """The rows over which the first steps seed the deviation (``LOCAL_DEFINITION``).
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        The run's times in s, from 0.
-
-    Returns
-    -------
-    numpy.ndarray or None
-        A mask of the rows in the first ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after
-        t = 0; None for a run no longer than that.
-    """
+    """The mask of the rows over which the first steps seed the deviation (``LOCAL_DEFINITION``): the first
+    ``SEED_TIME`` s, at least ``SEED_ROWS`` rows after t = 0; None for a run no longer than that."""
     if len(t) <= SEED_ROWS + 1:
         return None
     start = t <= max(SEED_TIME, t[SEED_ROWS])
@@ -342,22 +308,9 @@ def seed_window(t: np.ndarray) -> np.ndarray | None:
 
 
 def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
-    """Whether the sampled loop amplifies the coupling error about steady tracking (``LOCAL_DEFINITION``).
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y`` (m).
-    reference : numpy.ndarray
-        The reference solution: ``time``, ``x``, ``y``.
-
-    Returns
-    -------
-    bool
-        True if the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
-        maximum over the ``seed_window`` plus ``DEVIATION_SLACK`` (m); False for a run without a seed
-        window.
-    """
+    """Whether the sampled loop amplifies the coupling error about steady tracking (``LOCAL_DEFINITION``): the
+    position deviation ever exceeds ``DEVIATION_GROWTH`` times its maximum over the ``seed_window`` plus
+    ``DEVIATION_SLACK`` (m); False for a run without a seed window."""
     start = seed_window(trajectory["time"])
     if start is None:
         return False
@@ -366,36 +319,13 @@ def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
 
 
 def stability_definition(stability: str) -> str:
-    """What "stable" means for a scenario's ``[simulation] stability``.
-
-    Parameters
-    ----------
-    stability : Stability or {"settled", "local"}
-        The definition.
-
-    Returns
-    -------
-    str
-        ``SETTLED_DEFINITION`` or ``LOCAL_DEFINITION``.
-    """
+    """What "stable" means for a scenario's ``[simulation] stability``."""
     return LOCAL_DEFINITION if Stability(stability).from_start else SETTLED_DEFINITION
 
 
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
-    """Largest and RMS deviation of a run from the reference solution over all its rows.
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows (``cache.TRAJECTORY``).
-    reference : numpy.ndarray
-        The reference solution (``cache.REFERENCE_COLUMNS``), interpolated linearly at the run's times.
-
-    Returns
-    -------
-    dict
-        ``DEVIATION_KEYS``: position (m), wrapped heading (rad), voltage of both wheels (V).
-    """
+    """``DEVIATION_KEYS``: the largest and RMS deviation of a run from the reference solution over all its
+    rows, of position (m), wrapped heading (rad) and the voltage of both wheels (V)."""
     at = _reference_at(trajectory, reference, ("theta", "u1", "u2"))
     position = position_deviation(trajectory, reference)
     heading = np.abs(np.remainder(trajectory["theta"] - at["theta"] + np.pi, 2.0 * np.pi) - np.pi)
@@ -450,24 +380,7 @@ def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict
 
 
 def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
-    """Run one case in this process and return its row, as a sweep makes it.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    case : Case
-        The case to run on it.
-    cosimulator : Cosimulator
-        The loaded FMUs to run it with.
-    reference : numpy.ndarray or None
-        The reference solution of the case's physical scenario (``compute_reference``), or None to
-        leave the deviations NaN and judge the run as a settled one.
-
-    Returns
-    -------
-    dict
-        The row (``make_row``).
-    """
+    """The row of ``case`` run in this process with ``cosimulator``, as a sweep makes it; ``reference`` None
+    leaves the deviations NaN and judges the run as a settled one."""
     plan = Plan.of(scenario, case, fmu_identities(cosimulator.paths))
     return make_row(plan, simulate(plan.applied, cosimulator), reference)

@@ -16,7 +16,7 @@ from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, s
 from .cases import Grid, Runner, SweepError, apply
 from .cache import load_trajectory
 
-__all__ = ["run_sweep", "write_rows_csv", "boundary_notes", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
+__all__ = ["run_sweep", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
 
 # What sweep.json keeps of each error-controlled run.
 CONTROLLED_KEYS = ("order", "discretization", "coupling", "tolerance", "max_position_deviation_m", "steps",
@@ -40,24 +40,8 @@ RECOVERY_NOTE = (
 
 
 def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[str]:
-    """Why refined boundaries lie more than 20 % from their predictions.
-
-    Parameters
-    ----------
-    predictions : dict
-        Predicted boundaries in s, by series label.
-    boundaries : dict
-        Refined boundaries (``analysis.Boundary``), by series label.
-    stability : Stability or {"settled", "local"}
-        The definition the runs were judged by.
-
-    Returns
-    -------
-    list of str
-        ``TRANSIENT_NOTE`` if a boundary lies below its prediction (the start-up transient);
-        ``RECOVERY_NOTE`` if one lies above it under the "settled" definition (the adaptation damping
-        an oscillation that grows at first).
-    """
+    """Why refined boundaries lie more than 20 % from their predictions: ``TRANSIENT_NOTE`` if one lies below
+    (the start-up transient), ``RECOVERY_NOTE`` if one lies above under the "settled" definition."""
     ratios = [predicted / boundaries[label].h_stable for label, predicted in predictions.items()
               if label in boundaries and math.isfinite(predicted) and predicted > 0]
     return ([TRANSIENT_NOTE] if any(ratio > 1.2 for ratio in ratios) else []) + (
@@ -65,21 +49,8 @@ def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[
 
 
 def write_rows_csv(path: Path, rows: list[dict]) -> Path:
-    """Write ``sweep.csv``: one line per run, the keys of the rows as columns in their order.
-
-    Parameters
-    ----------
-    path : pathlib.Path
-        The file to write.
-    rows : list of dict
-        The rows (``rows.ROW_KEYS``).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``. Cells are empty where a row has no value, ``nan`` where a value does not apply,
-        ``True``/``False`` for flags.
-    """
+    """Write ``sweep.csv``: one line per run, the keys of the rows as columns in their order; cells empty
+    where a row has no value, ``nan`` where a value does not apply."""
     names = list(dict.fromkeys(name for row in rows for name in row))
     with open(path, "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=names, restval="")
