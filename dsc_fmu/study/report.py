@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .analysis import group_label, group_rows, overrides
 
-__all__ = ["FIGURE_CAPTIONS", "write_report", "format_report"]
+__all__ = ["FIGURE_CAPTIONS", "write_report"]
 
 FIGURE_CAPTIONS = {
     "deviation": "Deviation from the continuous reference solution against the communication step, "
