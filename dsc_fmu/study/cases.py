@@ -4,7 +4,7 @@ A sweep runs one co-simulation per ``Case``; a ``Grid`` says what it varies and 
 the full grid from it (the options of ``dsc-fmu sweep``: ``parse_set``, ``parse_perturb``), ``apply``
 turns a case into the scenario it runs. A ``Runner`` says where the runs go (local processes or a Dask
 scheduler, checked with ``parse_scheduler`` and ``check_scheduler``). Running them (cached, on a
-process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
+process pool or a Dask cluster) is ``dsc_fmu.study.execute.Workers``.
 
 >>> parse_set("controller.k4=0.5,1,2")
 ('controller.k4', (0.5, 1.0, 2.0))

@@ -222,8 +222,10 @@ class Workers:
     def __exit__(self, kind, *exc) -> None:
         try:
             if self._client is not None:
-                self._client.unregister_worker_plugin(self._task.args[0])
-                self._client.close()
+                try:
+                    self._client.unregister_worker_plugin(self._plugin)
+                finally:
+                    self._client.close()
             elif self._executor is not None:
                 if kind is not None:  # stop the workers now rather than after their current runs
                     for process in list((getattr(self._executor, "_processes", None) or {}).values()):
@@ -244,6 +246,7 @@ class Workers:
 
             self._client = connect(self.runner.scheduler, self.runner.scheduler_timeout)
             plugin = FmusOnWorkers(self.fmu_paths, _Fmus)
+            self._plugin = plugin.name
             self._client.register_plugin(plugin)
             self._executor = self._client.get_executor(pure=False)
             self._task = functools.partial(on_worker, plugin.name)
