@@ -29,7 +29,7 @@ from ..errors import DscFmuError
 from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Order, Scenario, ScenarioError, one_of
 
 __all__ = [
-    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
+    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "default_step_sizes", "apply",
     "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "DEFAULT_TOLERANCES",
 ]
 
@@ -338,40 +338,8 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
     Carlo sample, in that nesting (the step size outermost); then, for each of the ``tolerances``, an
     error-controlled run of every order x discretisation x combination x sample, starting from the
     scenario's step size, with the highest-order coupling of ``couplings`` (linear unless only the
-    hold is chosen). Sample ``i`` is the same plant at every step, order and ``sets`` combination.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario the cases apply to.
-    step_sizes : sequence of float, optional
-        Communication steps in s, each at most the stop time. Default ``default_step_sizes()``.
-    orders : sequence of str, optional
-        Coupling orders (``ORDERS``). Default: the scenario's.
-    discretizations : sequence of str, optional
-        Controller discretisations (``DISCRETIZATIONS``). Default: the scenario's.
-    sets : sequence of tuple, optional
-        ``(key, values)`` pairs (``parse_set``). Default none.
-    perturbations : sequence of Perturbation, optional
-        Plant parameters drawn per sample (``parse_perturb``). Default none.
-    samples : int or None, optional
-        Number of Monte Carlo samples; needs ``perturbations``. Default None (no sampling).
-    seed : int, optional
-        Seed of ``numpy.random.default_rng`` for the draws. Default 0.
-    couplings : sequence of str, optional
-        Couplings (``COUPLINGS``). Default: the scenario's.
-    tolerances : sequence of float, optional
-        Tolerances of the error-controlled runs in m. Default none.
-
-    Returns
-    -------
-    list of Case
-        The cases, fixed-step ones first.
-
-    Raises
-    ------
-    ScenarioError
-        One line naming what is not allowed, if a value or a case is not.
+    hold is chosen). Sample ``i`` is the same plant at every step, order and ``sets`` combination. The
+    parameters are ``Grid``'s (``Grid.cases``); ScenarioError (one line) for a value or a case not allowed.
     """
     steps = default_step_sizes() if step_sizes is None else list(dict.fromkeys(step_sizes))
     stop_time = scenario.simulation.stop_time

@@ -20,7 +20,7 @@ from .cases import Case, apply
 
 __all__ = [
     "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS",
-    "row_keys", "Plan", "Outcome", "ReferenceOutcome", "simulate", "compute_reference", "make_row",
+    "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -87,19 +87,8 @@ def _columns(result: np.ndarray, names) -> np.ndarray:
 
 
 class Plan(NamedTuple):
-    """A case of a sweep ready to run: the scenario it runs and its cache keys.
-
-    Parameters
-    ----------
-    case : Case
-        The case.
-    applied : Scenario
-        The case applied to the sweep's scenario (``cases.apply``).
-    key : str
-        The cache key of its row (``cache.case_key``).
-    reference_key : str
-        The cache key of its reference solution (``cache.reference_key``).
-    """
+    """A case of a sweep ready to run: the case, the scenario it runs (``cases.apply``), the cache keys of its
+    row and of its reference solution (``cache.case_key``, ``cache.reference_key``)."""
 
     case: Case
     applied: Scenario
@@ -108,22 +97,7 @@ class Plan(NamedTuple):
 
     @classmethod
     def of(cls, scenario: Scenario, case: Case, identities: dict) -> Plan:
-        """The plan of ``case`` on the sweep's ``scenario`` with FMUs of ``identities`` (``cache.fmu_identities``).
-
-        Parameters
-        ----------
-        scenario : Scenario
-            The sweep's scenario.
-        case : Case
-            The case.
-        identities : dict
-            The FMUs' identities by name.
-
-        Returns
-        -------
-        Plan
-            The case, applied, with its keys.
-        """
+        """The plan of ``case`` on the sweep's ``scenario``, with FMUs of ``identities`` (``cache.fmu_identities``)."""
         return cls(case, apply(scenario, case), case_key(scenario, case, identities),
                    reference_key(scenario, case, identities))
 
@@ -338,25 +312,9 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
 
 
 def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict:
-    """The row of a simulated case: its settings, deviations, metrics and stability.
-
-    Parameters
-    ----------
-    plan : Plan
-        The case, applied to its scenario, and its cache keys.
-    outcome : Outcome
-        What its run gave (``simulate``).
-    reference : numpy.ndarray or None
-        Its reference solution (``compute_reference``); None leaves the deviations NaN and judges
-        the run as a settled one.
-
-    Returns
-    -------
-    dict
-        ``row_keys(plan.case)``, JSON-serialisable, NaN where a value does not apply. Its ``stability``
-        is the definition its ``stable`` was judged by: the scenario's, or "settled" where "local" does
-        not apply (``LOCAL_DEFINITION``).
-    """
+    """The row of a simulated case (``row_keys(plan.case)``, JSON-serialisable, NaN where a value does not
+    apply): its settings, its deviations from ``reference`` (None: NaN, and judged as a settled run), its
+    metrics and stability, ``stability`` naming the definition ``stable`` was judged by."""
     case, applied = plan.case, plan.applied
     diverged = outcome.metrics is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome.metrics
