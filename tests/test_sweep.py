@@ -488,8 +488,10 @@ def test_the_dask_plugin_loads_the_fmus_once_per_worker_and_removes_them(short, 
     monkeypatch.setattr(sweep_dask.distributed, "get_worker", lambda: worker)
     plugin.setup(worker)
     folder = plugin.fmus.folder
-    assert folder.parent == tmp_path and sorted(p.name for p in folder.iterdir()) == sorted(f"{n}.fmu" for n in fmu_paths)
-    outcomes = [sweep_dask.on_worker(plugin.name, sweep_execute._Fmus.simulate, apply(short, Case(h))) for h in (0.01, 0.02)]
+    assert folder.parent == tmp_path
+    assert sorted(p.name for p in folder.iterdir()) == sorted(f"{name}.fmu" for name in fmu_paths)
+    outcomes = [sweep_dask.on_worker(plugin.name, sweep_execute._Fmus.simulate, apply(short, Case(h)))
+                for h in (0.01, 0.02)]
     assert all(outcome.metrics is not None for outcome in outcomes)
     assert plugin.fmus._cosimulator.runs == 2  # the same Cosimulator, reused
     plugin.teardown(worker)
