@@ -6,15 +6,17 @@ import re
 
 import matplotlib.image
 import matplotlib.pyplot as plt
+from matplotlib.colors import to_hex
+from matplotlib.figure import Figure
 import numpy as np
 import pytest
 
 from dsc_fmu.study.report import write_report
-from dsc_fmu.study.analysis import fit_orders, summarise
+from dsc_fmu.study.analysis import fit_orders, group_rows, summarise
 from dsc_fmu.study.figures import (
     plot_deviation, plot_paths, plot_spectral_radius, plot_tracking_and_cost, plot_work_precision,
 )
-from test_study import BOUNDARIES, STEPS, summary_of, synthetic_rows
+from test_study import BOUNDARIES, KNEE, STEPS, summary_of, synthetic_rows
 
 PNG = b"\x89PNG\r\n\x1a\n"
 REASON = "the linearisation neglects the saturation of u"
@@ -73,9 +75,35 @@ def test_plots_write_png_files_that_are_not_blank(figure_paths):
         assert len(np.unique(colours)) > 50, name  # lines, markers, text: not a blank canvas
 
 
-def test_deviation_plot_computes_its_fits_if_none_are_given(rows, tmp_path):
-    path = plot_deviation(rows, None, tmp_path / "deviation.png", with_voltage=False)
-    assert path.stat().st_size > 10_000
+def test_deviation_plot_computes_its_fits_if_none_are_given(rows, tmp_path, monkeypatch):
+    """Given no fits, the figure fits each series itself: its dashed line is the least-squares line of
+    log10 deviation against log10 h (numpy.polyfit) over the series' runs in its range, with that slope in
+    the legend; the range starts at the smallest step and stops where the next step would leave the line
+    (0.03 in log10), at or below the knee of the first-order data; a series of two runs has no fit."""
+    drawn = []
+    monkeypatch.setattr(Figure, "savefig", lambda figure, *args, **kwargs: drawn.append(figure))
+    plot_deviation(rows, None, tmp_path / "deviation.png", with_voltage=False)
+    [axes] = drawn[0].axes
+    legend = {text.get_text() for text in axes.get_legend().get_texts()}
+    dashed = {to_hex(line.get_color()): line for line in axes.get_lines()
+              if line.get_linestyle() == "--" and len(line.get_xdata()) == 50}
+    groups = group_rows(rows)
+    assert len(dashed) == sum(len(group) >= 3 for group in groups.values()) == 4
+    for index, (label, group) in enumerate(groups.items()):
+        if len(group) < 3:
+            assert f"{label}: no fit" in legend
+            continue
+        h, d = np.log10(dashed[to_hex(f"C{index}")].get_data())
+        steps = np.array([row["step_size"] for row in group])
+        deviations = np.array([row["max_position_deviation_m"] for row in group])
+        inside = (steps >= 10 ** h[0] * (1 - 1e-12)) & (steps <= 10 ** h[-1] * (1 + 1e-12))
+        slope, intercept = np.polyfit(np.log10(steps[inside]), np.log10(deviations[inside]), 1)
+        np.testing.assert_allclose(d, intercept + slope * h, rtol=0, atol=1e-12)
+        assert f"{label}: slope {slope:.2f}" in legend and abs(slope - 1) < 0.05
+        assert 10 ** h[0] == pytest.approx(steps[0]) and 10 ** h[-1] <= KNEE
+        wider = inside | (steps == steps[~inside][0])
+        x, y = np.log10(steps[wider]), np.log10(deviations[wider])
+        assert np.abs(y - np.polyval(np.polyfit(x, y, 1), x)).max() >= 0.03
 
 
 @pytest.fixture(scope="module")

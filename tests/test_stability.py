@@ -157,11 +157,11 @@ def test_continuous_closed_loop_poles_are_in_the_left_half_plane(loop):
 
 
 def test_pieces_assemble_the_jacobian_of_the_closed_loop(scenario, loop):
-    """The assembled [[Ap + Bp Dc Cp, Bp Cc], [Bc Cp, Ac]] is the finite-difference Jacobian of closed_loop,
+    """The assembled [[Ap + Bp Dc Cp, Bp Cc], [Bc Cp, Ac]] is the finite-difference Jacobian of closed_loop_derivative,
     and a second finite-difference step gives the same to 1e-5 (relative to the largest entry)."""
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     vr, wr = scenario.reference["vr0"], scenario.reference["wr0"]
-    J = st.jacobian(lambda z: st.closed_loop(k, g, vr, wr, z), loop.operating_point, 1e-5)
+    J = st.jacobian(lambda z: st.closed_loop_derivative(k, g, vr, wr, z), loop.operating_point, 1e-5)
     A = loop.closed_loop_matrix
     np.testing.assert_allclose(A, J, rtol=1e-5, atol=1e-5 * np.abs(A).max())
     other = st.linearise(scenario, rel=1e-5)

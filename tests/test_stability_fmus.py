@@ -98,7 +98,7 @@ def test_the_fmu_route_away_from_steady_tracking(scenario, loops, fmu_paths, tmp
     loop = st.LinearLoop(*fmu_matrices(scenario, fmu_paths, z, model.at_time, tmp_path))
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     vr, wr = scenario.reference["vr0"], scenario.reference["wr0"]
-    expected = st.jacobian(lambda v: st.closed_loop(k, g, vr, wr, v), z, 1e-6)
+    expected = st.jacobian(lambda v: st.closed_loop_derivative(k, g, vr, wr, v), z, 1e-6)
     assert_same(loop.closed_loop_matrix, expected)
 
 

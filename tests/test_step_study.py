@@ -10,7 +10,7 @@ from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import load_scenario
 from dsc_fmu.study.cases import Case, apply
 from dsc_fmu.study.rows import compute_reference
-from dsc_fmu.study.tasks import run_case
+from dsc_fmu.study.rows import run_case
 
 pytestmark = pytest.mark.slow
 

@@ -5,6 +5,7 @@ import json
 import math
 import re
 import time
+import types
 from pathlib import Path
 
 import numpy as np
@@ -12,8 +13,8 @@ import pytest
 
 from dsc_fmu.study import cache as sweep_cache
 from dsc_fmu.study import cluster as sweep_dask
+from dsc_fmu.study import execute as sweep_execute
 from dsc_fmu.study import rows as sweep_rows
-from dsc_fmu.study import tasks as sweep_tasks
 from dsc_fmu.cosim.master import CosimulationError, Cosimulator, cosimulate
 from dsc_fmu.files import atomic_write
 from dsc_fmu.models.parameters import DISCRETIZATIONS, PLANT_PARAMETERS
@@ -23,9 +24,7 @@ from dsc_fmu.study.cases import (
     Case, Perturbation, Runner, SweepError, apply, build_cases, default_step_sizes, parse_perturb, parse_set,
 )
 from dsc_fmu.study.execute import execute
-from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, row_keys
-from dsc_fmu.study.plan import Plan
-from dsc_fmu.study.tasks import run_case
+from dsc_fmu.study.rows import ROW_KEYS, SETTLED_DEFINITION, STABLE_POSITION_ERROR, Plan, row_keys, run_case
 
 ORDERS = ("gauss-seidel", "jacobi")
 MASS = next(v for v in PLANT_PARAMETERS if v.name == "mc")
@@ -56,8 +55,8 @@ def counted(monkeypatch):
         counts["reference"] += 1
         return reference(*args)
 
-    monkeypatch.setattr(sweep_tasks, "simulate", counting_simulate)
-    monkeypatch.setattr(sweep_tasks, "compute_reference", counting_reference)
+    monkeypatch.setattr(sweep_execute, "simulate", counting_simulate)
+    monkeypatch.setattr(sweep_execute, "compute_reference", counting_reference)
     return counts
 
 
@@ -376,14 +375,14 @@ def test_an_interrupted_sweep_cleans_up_and_resumes(short, fmu_paths, tmp_path, 
             raise KeyboardInterrupt
         return simulate(*args)
 
-    monkeypatch.setattr(sweep_tasks, "simulate", interrupted)
+    monkeypatch.setattr(sweep_execute, "simulate", interrupted)
     cases = [Case(0.01), Case(0.02), Case(0.05)]
     with pytest.raises(KeyboardInterrupt):
         execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert leftovers(tmp_path) == []
     assert len(list((tmp_path / "cache" / "runs").glob("*.json"))) == 1
     calls.clear()
-    monkeypatch.setattr(sweep_tasks, "simulate", lambda *args: calls.append(args) or simulate(*args))
+    monkeypatch.setattr(sweep_execute, "simulate", lambda *args: calls.append(args) or simulate(*args))
     rows = execute(short, cases, tmp_path, fmu_paths, Runner(jobs=1, progress=False)).rows
     assert len(calls) == 2 and [row["step_size"] for row in rows] == [0.01, 0.02, 0.05]
     assert leftovers(tmp_path) == []
@@ -393,7 +392,7 @@ def test_a_failing_sweep_cleans_up(short, fmu_paths, tmp_path, monkeypatch):
     def failing(*args):
         raise RuntimeError("boom")
 
-    monkeypatch.setattr(sweep_tasks, "simulate", failing)
+    monkeypatch.setattr(sweep_execute, "simulate", failing)
     with pytest.raises(RuntimeError, match="boom"):
         execute(short, [Case(0.01), Case(0.02)], tmp_path, fmu_paths, Runner(jobs=1, progress=False))
     assert leftovers(tmp_path) == []
@@ -457,7 +456,6 @@ def test_an_unreachable_scheduler_fails_fast_and_writes_nothing(short, fmu_paths
 
 
 def test_a_sweep_checks_its_folder_and_scheduler_once_for_all_its_executions(short, fmu_paths, tmp_path, monkeypatch):
-    from dsc_fmu.study import execute as sweep_execute
     from dsc_fmu.study.cases import Grid
     from dsc_fmu.study.sweep import run_sweep
     prepared, prepare = [], sweep_execute.prepare_sweep
@@ -482,16 +480,22 @@ def test_a_case_holds_its_order_and_coupling_as_their_types():
             Case(1e-3, **{key: value})
 
 
-def test_the_worker_cleanup_frees_the_cosimulator_and_its_folder(short, fmu_paths):
-    blobs = {name: path.read_bytes() for name, path in fmu_paths.items()}
-    outcome = sweep_dask._on_worker(blobs, sweep_tasks.Run("a", apply(short, Case(0.01))))
-    status = sweep_dask.worker_status()
-    assert outcome.metrics is not None and status["runs"] == 1
-    sweep_dask._on_worker(blobs, sweep_tasks.Run("b", apply(short, Case(0.02))))
-    assert sweep_dask.worker_status() == {**status, "runs": 2}  # the same Cosimulator, reused
-    sweep_dask.CosimulatorCleanup().teardown(worker=None)
-    assert sweep_dask.worker_status() == {"folder": None, "runs": 0}
-    assert not Path(status["folder"]).exists()
+def test_the_dask_plugin_loads_the_fmus_once_per_worker_and_removes_them(short, fmu_paths, tmp_path, monkeypatch):
+    """On a worker, the plugin writes the FMUs into its local directory; every run there uses one
+    Cosimulator; its teardown (the sweep's end, or the worker's) removes the folder."""
+    plugin = sweep_dask.FmusOnWorkers(fmu_paths, sweep_execute._Fmus)
+    worker = types.SimpleNamespace(local_directory=str(tmp_path), plugins={plugin.name: plugin})
+    monkeypatch.setattr(sweep_dask.distributed, "get_worker", lambda: worker)
+    plugin.setup(worker)
+    folder = plugin.fmus.folder
+    assert folder.parent == tmp_path
+    assert sorted(p.name for p in folder.iterdir()) == sorted(f"{name}.fmu" for name in fmu_paths)
+    outcomes = [sweep_dask.on_worker(plugin.name, sweep_execute._Fmus.simulate, apply(short, Case(h)))
+                for h in (0.01, 0.02)]
+    assert all(outcome.metrics is not None for outcome in outcomes)
+    assert plugin.fmus._cosimulator.runs == 2  # the same Cosimulator, reused
+    plugin.teardown(worker)
+    assert not folder.exists()
 
 
 @pytest.mark.slow
@@ -505,14 +509,9 @@ def test_a_dask_cluster_gives_the_rows_of_a_local_run(short, fmu_paths, tmp_path
                                   host="127.0.0.1", local_directory=str(scratch)) as cluster:
         remote = execute(scenario, cases, tmp_path / "remote", fmu_paths,
                          Runner(scheduler=cluster.scheduler_address, progress=False)).rows
-        with distributed.Client(cluster.scheduler_address, set_as_default=False) as client:
-            status = client.run(sweep_dask.worker_status)
+        assert not any(scratch.rglob("dsc_fmu_sweep_*"))  # removed from the workers when the sweep ends
     assert without_wall_time(remote) == without_wall_time(local)
     assert any(row["diverged"] for row in local) and not all(row["diverged"] for row in local)
-    assert sum(s["runs"] for s in status.values()) == len(cases)  # one Cosimulator per worker, reused
-    folders = [s["folder"] for s in status.values() if s["folder"]]
-    assert folders and all(str(scratch) in folder for folder in folders)
-    assert not any((scratch).rglob("dsc_fmu_sweep_*"))  # removed when the workers closed
     assert not (tmp_path / "remote" / ".work").exists()
 
 
@@ -640,7 +639,7 @@ def test_boundary_notes_say_why_a_prediction_is_off():
 
 def test_a_local_run_without_its_reference_is_judged_as_settled_and_not_cached(fmu_paths, tmp_path, monkeypatch):
     scenario = load_scenario("on_reference").with_simulation(stop_time=2.0)
-    monkeypatch.setattr(sweep_tasks, "compute_reference",
+    monkeypatch.setattr(sweep_execute, "compute_reference",
                         lambda applied, fmu_paths: sweep_rows.ReferenceOutcome(None, "solver gave up"))
     with pytest.warns(UserWarning, match=r"reference solution failed \(solver gave up\): deviations are NaN for its "
                                          r"runs; they are judged as settled runs and not cached"):

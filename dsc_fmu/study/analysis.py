@@ -12,8 +12,7 @@ import numpy as np
 
 __all__ = [
     "DEVIATION_QUANTITIES", "AGREEMENT_TOLERANCE", "OrderFit", "Boundary", "fit_order", "grid_bracket",
-    "refine_boundary", "overrides", "group_label", "group_rows", "fit_orders", "grid_brackets", "summarise",
-    "to_json", "write_summary_json",
+    "refine_boundary", "group_label", "fit_orders", "summarise",
 ]
 
 DEVIATION_QUANTITIES = ("max_position_deviation_m", "max_heading_deviation_rad", "max_u_deviation_V")
@@ -262,18 +261,7 @@ def refine_boundary(is_stable: Callable[[float], bool], h_stable: float, h_unsta
 
 
 def overrides(row: Mapping) -> dict:
-    """The parameter overrides of a sweep row.
-
-    Parameters
-    ----------
-    row : Mapping
-        One run's row (keys of ``study.rows.ROW_KEYS``).
-
-    Returns
-    -------
-    dict
-        The row's items whose key has a dot, like ``controller.k4``.
-    """
+    """The parameter overrides of a sweep row: its items whose key has a dot, like ``controller.k4``."""
     return {name: value for name, value in row.items() if "." in name}
 
 
@@ -308,18 +296,7 @@ def group_label(row: Mapping) -> str:
 
 
 def group_rows(rows: Sequence[Mapping]) -> dict[str, list[Mapping]]:
-    """The rows of a sweep by series.
-
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-
-    Returns
-    -------
-    dict of str to list of Mapping
-        ``group_label`` -> its rows sorted by step size; groups in order of first appearance.
-    """
+    """The rows of a sweep by ``group_label``, each series sorted by step size."""
     groups: dict[str, list[Mapping]] = {}
     for row in rows:
         groups.setdefault(group_label(row), []).append(row)
@@ -362,18 +339,7 @@ def fit_orders(rows: Sequence[Mapping], quantities: Sequence[str] = DEVIATION_QU
 
 
 def grid_brackets(rows: Sequence[Mapping]) -> dict[str, tuple[float, float] | None]:
-    """The grid's stability bracket of each series of a sweep.
-
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-
-    Returns
-    -------
-    dict of str to tuple of (float, float) or None
-        ``group_label`` -> ``grid_bracket`` of its rows' ``stable`` flags (s), or None.
-    """
+    """The grid's stability bracket of each series of a sweep."""
     return {label: grid_bracket([row["step_size"] for row in group], [row["stable"] for row in group])
             for label, group in group_rows(rows).items()}
 
@@ -495,19 +461,8 @@ def summarise(rows: Sequence[Mapping], *, stability_definition: str, settings: M
 
 
 def to_json(value):
-    """A value that ``json.dumps`` writes as strict JSON.
-
-    Parameters
-    ----------
-    value : object
-        Nested mappings, sequences, NumPy scalars and arrays, numbers, Paths and strings.
-
-    Returns
-    -------
-    object
-        ``value`` with mapping keys as strings, NumPy scalars and arrays as Python numbers and lists,
-        tuples as lists, Paths as strings, and NaN and infinities as None.
-    """
+    """``value`` as strict JSON takes it: keys as strings, NumPy values as Python's, tuples as lists, Paths as
+    strings, NaN and infinities as None."""
     if isinstance(value, Mapping):
         return {str(key): to_json(item) for key, item in value.items()}
     if isinstance(value, (list, tuple, np.ndarray)):
@@ -524,20 +479,7 @@ def to_json(value):
 
 
 def write_summary_json(out_dir: Path | str, summary: Mapping) -> Path:
-    """Write a sweep's summary to ``sweep.json``.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The directory, created if missing.
-    summary : Mapping
-        As from ``summarise``.
-
-    Returns
-    -------
-    pathlib.Path
-        ``out_dir/sweep.json``.
-    """
+    """Write a sweep's summary to ``sweep.json``."""
     path = Path(out_dir) / "sweep.json"
     path.parent.mkdir(parents=True, exist_ok=True)
     path.write_text(json.dumps(to_json(summary), indent=2, allow_nan=False) + "\n")

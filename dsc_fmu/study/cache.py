@@ -1,5 +1,5 @@
-"""The sweep's cache: keys of runs and reference solutions, and their entries, written atomically
-and verified whenever they are read.
+"""The sweep's cache: keys of runs and reference solutions, and their entries, written atomically and
+verified whenever they are read.
 
 Layout inside a sweep's output folder::
 
@@ -7,24 +7,25 @@ Layout inside a sweep's output folder::
     cache/runs/<key>.json         its record, written last (its presence marks the entry):
                                   {"row": the row (rows.ROW_KEYS), "trajectory_sha256": of the .npz file,
                                    "provenance": {...}, "checksum": ...}
-    cache/references/<key>.npz    a reference solution (``REFERENCE_COLUMNS`` on a 1 ms grid)
+    cache/references/<key>.npz    a reference solution (``REFERENCE_COLUMNS`` on a ``REFERENCE_GRID`` grid)
     cache/references/<key>.json   its record: {"reference_sha256": ..., "provenance": {...}, "checksum": ...}
 
 ``provenance`` says what wrote the entry: its key, dsc-fmu's version, the FMUs' identities (runs
-only), the Python, NumPy and SciPy versions and the time (``provenance``). ``checksum`` is the
-SHA-256 of the canonical JSON (sorted keys, no spaces, NaN as ``NaN``) of the record without it.
-An entry verifies if its record parses, has this layout, matches its checksum and its key, and its
-.npz matches its SHA-256 and holds exactly the expected columns, 1-D floats of one length, without
-pickles. An entry that exists but does not verify (damaged, edited, of an older layout) is a
-``CacheEntryError``; a sweep recomputes it and says so in one ``CacheWarning``. An .npz without its
-record is a write that was interrupted: a plain miss, overwritten.
+only), the Python, NumPy and SciPy versions and the time. ``checksum`` is the SHA-256 of the
+canonical JSON (sorted keys, no spaces, NaN as ``NaN``) of the record without it. An entry verifies
+if its record parses, has this layout, matches its checksum and its key, and its .npz matches its
+SHA-256 and holds exactly the expected columns, 1-D floats of one length, without pickles. An entry
+that exists but does not verify (damaged, edited, of an older layout) is a ``CacheEntryError``; a
+sweep recomputes it and says so in one ``CacheWarning``. An .npz without its record is a write that
+was interrupted: a plain miss, overwritten.
 
-A run's key is the SHA-256 of everything that determines its row: the scenario's content after the
-case is applied (parameter values and every simulation setting, the stability definition included,
-so another ``--stability`` runs the cases again; not its file or name), the case, the FMUs' build
-ids, the key of its reference solution and ``ROW_VERSION``. A reference's key leaves out what the monolithic ODE does not see (the
-step, order, output interval, bound and the controller's discretisation) and adds the reference
-grid, the solver settings and a hash of the Python code the reference and the metrics run.
+A run's key (``case_key``) is the SHA-256 of everything that determines its row: the scenario's
+content after the case is applied (parameter values and every simulation setting, the stability
+definition included, so another ``--stability`` runs the cases again; not its file or name), the
+case, the FMUs' identities, the key of its reference solution and ``ROW_VERSION``. A reference's key
+(``reference_key``) leaves out what the monolithic ODE does not see (the step, order, output
+interval, bound and the controller's discretisation) and adds the reference grid, the solver
+settings and a hash of the Python code the reference and the metrics run.
 """
 
 from __future__ import annotations
@@ -44,16 +45,15 @@ from pathlib import Path
 import numpy as np
 
 from .. import __version__
-from ..identity import fmu_build_id
 from ..files import atomic_write
+from ..identity import fmu_build_id
 from ..registry import fmu_files
 from ..scenario import TABLES, Reference, Scenario
 from .cases import Case, SweepError, apply
 
 __all__ = [
-    "ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "fmu_identities", "scenario_content", "case_key",
-    "reference_key", "provenance", "CacheWarning", "CacheEntryError", "SweepCache", "TRAJECTORY",
-    "REFERENCE_COLUMNS", "load_trajectory", "load_reference",
+    "ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "TRAJECTORY", "REFERENCE_COLUMNS", "CacheWarning",
+    "CacheEntryError", "load_trajectory", "load_reference",
 ]
 
 ROW_VERSION = 5  # bump when the definition of a row changes
@@ -88,13 +88,12 @@ class CacheEntryError(SweepError):
 
 
 def _digest(data) -> str:
-    """SHA-256 (hex) of ``data`` as canonical JSON (sorted keys, shortest exact float repr)."""
-    text = json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False)
-    return hashlib.sha256(text.encode()).hexdigest()
+    """SHA-256 of ``data`` as canonical JSON (sorted keys, shortest exact float repr)."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()).hexdigest()
 
 
 def _checksum(record: dict) -> str:
-    """SHA-256 (hex) of ``record`` as canonical JSON, NaN and infinities written as Python's json does."""
+    """SHA-256 of ``record`` as canonical JSON, NaN and infinities written as Python's json does."""
     return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
 
 
@@ -111,59 +110,20 @@ def _code_hash() -> str:
 
 
 def fmu_identities(fmu_paths: dict) -> dict[str, str]:
-    """What identifies each FMU: its build id, or the SHA-256 of its file if it has none.
-
-    Parameters
-    ----------
-    fmu_paths : dict
-        The FMU files by name.
-
-    Returns
-    -------
-    dict
-        By name, sorted: ``identity.fmu_build_id``, or ``"sha256:<hex>"``.
-    """
+    """By FMU name, sorted: its build id (``identity.fmu_build_id``), or ``"sha256:<hex>"`` of its file."""
     return {name: fmu_build_id(path) or "sha256:" + hashlib.sha256(path.read_bytes()).hexdigest()
             for name, path in sorted(fmu_files(fmu_paths).items())}
 
 
-def scenario_content(scenario: Scenario) -> dict:
-    """What of a scenario determines a run: every parameter value and the simulation settings.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario, a case applied to it.
-
-    Returns
-    -------
-    dict
-        ``"simulation"`` (its settings) and each of ``TABLES`` (its values); not its name or file.
-    """
+def _content(scenario: Scenario) -> dict:
+    """What of a scenario determines a run: its simulation settings and parameter values, not its name or file."""
     return {"simulation": dataclasses.asdict(scenario.simulation), **{t: getattr(scenario, t) for t in TABLES}}
 
 
 def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
-    """Key of the reference solution of a case applied to a scenario.
-
-    Independent of the step, the order and the discretisation; through model exchange, it depends on
-    the FMUs' build ids too.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    case : Case
-        The case.
-    fmu_build_ids : dict
-        The FMUs' identities by name (``fmu_identities``).
-
-    Returns
-    -------
-    str
-        SHA-256 (hex) of its content, the reference grid, the solver settings and the code.
-    """
-    content = scenario_content(apply(scenario, case))
+    """The key of the reference solution of ``case`` on ``scenario``, with FMUs of ``fmu_build_ids``
+    (``fmu_identities``)."""
+    content = _content(apply(scenario, case))
     kind = content["simulation"]["reference"]
     content["simulation"] = {"stop_time": content["simulation"]["stop_time"]}
     content["controller"] = {k: v for k, v in content["controller"].items() if k != "discretization"}
@@ -174,25 +134,9 @@ def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
 
 
 def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
-    """Key of the row of a case run on a scenario with given FMUs.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    case : Case
-        The case.
-    fmu_build_ids : dict
-        The FMUs' identities by name (``fmu_identities``).
-
-    Returns
-    -------
-    str
-        SHA-256 (hex) of the applied scenario's content, the case, the FMUs, the reference key and
-        ``ROW_VERSION``.
-    """
+    """The key of the row of ``case`` on ``scenario``, run with FMUs of ``fmu_build_ids`` (``fmu_identities``)."""
     return _digest({
-        "scenario": scenario_content(apply(scenario, case)),
+        "scenario": _content(apply(scenario, case)),
         "case": dataclasses.asdict(case),
         "fmus": dict(sorted(fmu_build_ids.items())),
         "reference": reference_key(scenario, case, fmu_build_ids),
@@ -200,54 +144,40 @@ def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     })
 
 
-def provenance(key: str, fmus: dict | None = None) -> dict:
-    """What writes a cache entry now.
-
-    Parameters
-    ----------
-    key : str
-        The entry's key.
-    fmus : dict or None, optional
-        The FMUs' identities by name, for a run; None for a reference solution.
-
-    Returns
-    -------
-    dict
-        The key, dsc-fmu's version, the Python, NumPy and SciPy versions, the time (UTC, ISO 8601) and
-        for a run the FMUs' identities.
-    """
+def _provenance(key: str, fmus: dict | None = None) -> dict:
     written = {"key": key, "dsc_fmu": __version__, "python": platform.python_version(), "numpy": np.__version__,
                "scipy": version("scipy"), "written": datetime.now(timezone.utc).isoformat(timespec="seconds")}
     return written if fmus is None else {**written, "fmus": dict(sorted(fmus.items()))}
 
 
-def _npz(array: np.ndarray, columns: tuple) -> bytes:
+def _write_entry(folder: Path, key: str, array: np.ndarray, columns: tuple, leading: dict, sha256_field: str,
+                 written_by: dict) -> None:
+    """``array`` to ``folder/<key>.npz``, then its record to ``folder/<key>.json``."""
     if array.dtype.names != columns:
         raise ValueError(f"columns {array.dtype.names} are not allowed here; allowed: {columns}")
     buffer = io.BytesIO()
     np.savez_compressed(buffer, **{name: array[name] for name in columns})
-    return buffer.getvalue()
-
-
-def _write_entry(folder: Path, key: str, array: np.ndarray, columns: tuple, leading: dict, sha256_field: str,
-                 written_by: dict) -> None:
-    """Write ``array`` to ``folder/<key>.npz``, then its record to ``folder/<key>.json``: ``leading``,
-    the .npz file's SHA-256 as ``sha256_field``, the provenance ``written_by`` and the checksum."""
-    data = _npz(array, columns)
+    data = buffer.getvalue()
     record = {**leading, sha256_field: hashlib.sha256(data).hexdigest(), "provenance": written_by}
     record["checksum"] = _checksum(record)
     atomic_write(folder / f"{key}.npz", data)
     atomic_write(folder / f"{key}.json", json.dumps(record, indent=1).encode())
 
 
-def _read_record(path: Path, key: str, fields: tuple) -> dict | None:
-    """The record in ``path`` (without its checksum), verified; None if there is no such file."""
+def _read_bytes(path: Path) -> bytes | None:
     try:
-        text = path.read_bytes()
+        return path.read_bytes()
     except FileNotFoundError:
         return None
     except OSError as error:
         raise CacheEntryError(path, f"cannot be read ({error.strerror or type(error).__name__})") from None
+
+
+def _read_record(path: Path, key: str, fields: tuple) -> dict | None:
+    """The record in ``path`` (without its checksum), verified; None if there is no such file."""
+    text = _read_bytes(path)
+    if text is None:
+        return None
     try:
         record = json.loads(text)
     except (ValueError, RecursionError):
@@ -263,13 +193,10 @@ def _read_record(path: Path, key: str, fields: tuple) -> dict | None:
 
 def _read_npz(path: Path, sha256, columns: tuple) -> np.ndarray:
     """The structured array in ``path`` if the file's SHA-256 is ``sha256`` and it holds exactly
-    ``columns``, 1-D floats of one length (no pickles); CacheEntryError otherwise."""
-    try:
-        data = path.read_bytes()
-    except FileNotFoundError:
-        raise CacheEntryError(path, "missing") from None
-    except OSError as error:
-        raise CacheEntryError(path, f"cannot be read ({error.strerror or type(error).__name__})") from None
+    ``columns``, 1-D floats of one length (no pickles)."""
+    data = _read_bytes(path)
+    if data is None:
+        raise CacheEntryError(path, "missing")
     if hashlib.sha256(data).hexdigest() != sha256:
         raise CacheEntryError(path, "does not match the SHA-256 in its record (damaged or replaced)")
     try:
@@ -289,15 +216,8 @@ def _read_npz(path: Path, sha256, columns: tuple) -> np.ndarray:
 
 
 class SweepCache:
-    """The cache of a sweep's output folder; every read verifies the entry.
-
-    A read gives None if there is no entry, CacheEntryError if it does not verify.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The sweep folder; its ``cache`` folder is created on the first write.
-    """
+    """The cache of the sweep folder ``out_dir``: a read gives None if there is no entry, and raises
+    CacheEntryError if it does not verify."""
 
     def __init__(self, out_dir: Path | str):
         self.root = Path(out_dir) / "cache"
@@ -311,102 +231,31 @@ class SweepCache:
         return record
 
     def row(self, key: str) -> dict | None:
-        """The cached row of a run, its trajectory verified too.
-
-        Parameters
-        ----------
-        key : str
-            The run's key (``case_key``).
-
-        Returns
-        -------
-        dict or None
-            The row, or None if there is no entry.
-
-        Raises
-        ------
-        CacheEntryError
-            If the entry does not verify.
-        """
+        """The row of the run ``key`` (``case_key``), its trajectory verified too."""
         record = self._run_record(key)
-        if record is None:
-            return None
-        _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
-        return record["row"]
-
-    def store_run(self, key: str, row: dict, trajectory: np.ndarray, fmus: dict) -> None:
-        """Cache a run: its trajectory, then its record.
-
-        Parameters
-        ----------
-        key : str
-            The run's key (``case_key``).
-        row : dict
-            Its row (``rows.ROW_KEYS``).
-        trajectory : numpy.ndarray
-            Its ``TRAJECTORY`` columns.
-        fmus : dict
-            The FMUs' identities by name (``fmu_identities``).
-        """
-        _write_entry(self.runs, key, trajectory, TRAJECTORY, {"row": row}, "trajectory_sha256", provenance(key, fmus))
+        if record is not None:
+            _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
+        return record and record["row"]
 
     def trajectory(self, key: str) -> np.ndarray:
-        """The trajectory of a cached run.
-
-        Parameters
-        ----------
-        key : str
-            The run's key (``case_key``).
-
-        Returns
-        -------
-        numpy.ndarray
-            Its ``TRAJECTORY`` columns, ``time`` (s) first.
-
-        Raises
-        ------
-        CacheEntryError
-            If no run of this key is cached or its entry does not verify.
-        """
+        """The ``TRAJECTORY`` of the run ``key``; CacheEntryError if it is not cached."""
         record = self._run_record(key)
         if record is None:
             raise CacheEntryError(self.runs / f"{key}.json", "missing: no run of this key is cached")
         return _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
 
+    def store_run(self, key: str, row: dict, trajectory: np.ndarray, fmus: dict) -> None:
+        """Cache the run ``key``: its ``TRAJECTORY``, then its record (``fmus``: ``fmu_identities``)."""
+        _write_entry(self.runs, key, trajectory, TRAJECTORY, {"row": row}, "trajectory_sha256", _provenance(key, fmus))
+
     def reference(self, key: str) -> np.ndarray | None:
-        """A cached reference solution.
-
-        Parameters
-        ----------
-        key : str
-            Its key (``reference_key``).
-
-        Returns
-        -------
-        numpy.ndarray or None
-            Its ``REFERENCE_COLUMNS``, or None if there is no entry.
-
-        Raises
-        ------
-        CacheEntryError
-            If the entry does not verify.
-        """
+        """The reference solution ``key`` (``reference_key``)."""
         record = _read_record(self.references / f"{key}.json", key, _REFERENCE_FIELDS)
-        if record is None:
-            return None
-        return _read_npz(self.references / f"{key}.npz", record["reference_sha256"], REFERENCE_COLUMNS)
+        return record and _read_npz(self.references / f"{key}.npz", record["reference_sha256"], REFERENCE_COLUMNS)
 
     def store_reference(self, key: str, reference: np.ndarray) -> None:
-        """Cache a reference solution: the array, then its record.
-
-        Parameters
-        ----------
-        key : str
-            Its key (``reference_key``).
-        reference : numpy.ndarray
-            Its ``REFERENCE_COLUMNS``.
-        """
-        _write_entry(self.references, key, reference, REFERENCE_COLUMNS, {}, "reference_sha256", provenance(key))
+        """Cache the reference solution ``key``: its ``REFERENCE_COLUMNS``, then its record."""
+        _write_entry(self.references, key, reference, REFERENCE_COLUMNS, {}, "reference_sha256", _provenance(key))
 
 
 def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
@@ -429,8 +278,7 @@ def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
     CacheEntryError
         One line, if the run is not cached or its entry does not verify.
     """
-    key = row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key
-    return SweepCache(out_dir).trajectory(key)
+    return SweepCache(out_dir).trajectory(row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key)
 
 
 def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | None:
@@ -453,5 +301,4 @@ def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | 
     CacheEntryError
         One line, if the entry does not verify.
     """
-    key = row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key
-    return SweepCache(out_dir).reference(key)
+    return SweepCache(out_dir).reference(row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key)

@@ -4,7 +4,7 @@ A sweep runs one co-simulation per ``Case``; a ``Grid`` says what it varies and 
 the full grid from it (the options of ``dsc-fmu sweep``: ``parse_set``, ``parse_perturb``), ``apply``
 turns a case into the scenario it runs. A ``Runner`` says where the runs go (local processes or a Dask
 scheduler, checked with ``parse_scheduler`` and ``check_scheduler``). Running them (cached, on a
-process pool or a Dask cluster) is ``dsc_fmu.study.execute.execute``.
+process pool or a Dask cluster) is ``dsc_fmu.study.execute.Workers``.
 
 >>> parse_set("controller.k4=0.5,1,2")
 ('controller.k4', (0.5, 1.0, 2.0))
@@ -29,8 +29,8 @@ from ..errors import DscFmuError
 from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Order, Scenario, ScenarioError, one_of
 
 __all__ = [
-    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "build_cases", "default_step_sizes", "apply",
-    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "check_scheduler", "DEFAULT_TOLERANCES",
+    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "default_step_sizes", "apply",
+    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "DEFAULT_TOLERANCES",
 ]
 
 SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
@@ -338,40 +338,8 @@ def build_cases(scenario: Scenario, step_sizes=None, orders=None, discretization
     Carlo sample, in that nesting (the step size outermost); then, for each of the ``tolerances``, an
     error-controlled run of every order x discretisation x combination x sample, starting from the
     scenario's step size, with the highest-order coupling of ``couplings`` (linear unless only the
-    hold is chosen). Sample ``i`` is the same plant at every step, order and ``sets`` combination.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario the cases apply to.
-    step_sizes : sequence of float, optional
-        Communication steps in s, each at most the stop time. Default ``default_step_sizes()``.
-    orders : sequence of str, optional
-        Coupling orders (``ORDERS``). Default: the scenario's.
-    discretizations : sequence of str, optional
-        Controller discretisations (``DISCRETIZATIONS``). Default: the scenario's.
-    sets : sequence of tuple, optional
-        ``(key, values)`` pairs (``parse_set``). Default none.
-    perturbations : sequence of Perturbation, optional
-        Plant parameters drawn per sample (``parse_perturb``). Default none.
-    samples : int or None, optional
-        Number of Monte Carlo samples; needs ``perturbations``. Default None (no sampling).
-    seed : int, optional
-        Seed of ``numpy.random.default_rng`` for the draws. Default 0.
-    couplings : sequence of str, optional
-        Couplings (``COUPLINGS``). Default: the scenario's.
-    tolerances : sequence of float, optional
-        Tolerances of the error-controlled runs in m. Default none.
-
-    Returns
-    -------
-    list of Case
-        The cases, fixed-step ones first.
-
-    Raises
-    ------
-    ScenarioError
-        One line naming what is not allowed, if a value or a case is not.
+    hold is chosen). Sample ``i`` is the same plant at every step, order and ``sets`` combination. The
+    parameters are ``Grid``'s (``Grid.cases``); ScenarioError (one line) for a value or a case not allowed.
     """
     steps = default_step_sizes() if step_sizes is None else list(dict.fromkeys(step_sizes))
     stop_time = scenario.simulation.stop_time
@@ -571,18 +539,6 @@ def check_scheduler(address: str, timeout: float) -> None:
 
     Run it before ``distributed.Client``: a client of an address that is wrong or closed stalls for
     its own timeout, then complains when collected.
-
-    Parameters
-    ----------
-    address : str
-        The scheduler's address (``parse_scheduler``).
-    timeout : float
-        How long to wait for the connection, in s.
-
-    Raises
-    ------
-    SweepError
-        One line, if the address is not one or its host does not accept the connection in time.
     """
     _, host, port = parse_scheduler(address)
     try:

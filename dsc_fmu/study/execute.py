@@ -1,28 +1,36 @@
-"""Running a sweep's cases, cached: in this process, on a process pool or on a Dask cluster."""
+"""Running a sweep's cases, cached, through a ``concurrent.futures`` executor: a process pool or a Dask cluster."""
 
 from __future__ import annotations
 
+import functools
+import multiprocessing
+import multiprocessing.util
 import os
 import re
 import shutil
+import signal
 import tempfile
+import threading
 import warnings
-from collections import Counter, defaultdict
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections import Counter, defaultdict, deque
+from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import dataclass, fields
 from pathlib import Path
+from typing import Callable, NamedTuple
 
+import psutil
+
+from ..cosim.master import Cosimulator
 from ..cosim.progress import ProgressLine
 from ..scenario import Scenario
 from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
-from .places import LOST_TWICE, Losses, Pool, in_process
-from .plan import Plan
-from .rows import Outcome, ReferenceOutcome, make_row
-from .tasks import ReferenceSolution, Run, Task
+from .rows import Outcome, Plan, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE", "prepare_sweep"]
+__all__ = ["Workers", "Execution", "WorkerLostWarning", "LOST_TWICE"]
 
+LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
 
 
@@ -32,24 +40,20 @@ class WorkerLostWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Execution:
-    """What ``execute`` did; two executions add up (a sweep's grid and its refinement).
+    """What running cases did; two executions add up (a sweep's grid and its refinement).
 
     Parameters
     ----------
     rows : list of dict
         The rows (``rows.ROW_KEYS``), in the order of the cases.
-    cached : int, optional
-        How many of them came from the cache.
-    ran : int, optional
-        How many were run now.
+    cached, ran : int, optional
+        How many came from the cache, and how many were run now.
     lost : tuple of str, optional
         The keys of the runs that did not finish: their rows carry the reason, they are not cached.
     unverified : tuple of CacheEntryError, optional
         The cache entries that did not verify and were recomputed.
-    workers_lost : int, optional
-        How many times the process pool lost a worker.
-    retried : int, optional
-        How many computations in flight were retried on a new pool.
+    workers_lost, retried : int, optional
+        How many times the process pool lost a worker; how many computations in flight were retried.
     """
 
     rows: list
@@ -61,17 +65,10 @@ class Execution:
     retried: int = 0
 
     def __add__(self, other: Execution) -> Execution:
-        """Two executions as one (a sweep's grid and its refinement): rows one after the other, counts added."""
-        return Execution(self.rows + other.rows, self.cached + other.cached, self.ran + other.ran,
-                         self.lost + other.lost, self.unverified + other.unverified,
-                         self.workers_lost + other.workers_lost, self.retried + other.retried)
+        return Execution(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
 
     def warn(self) -> None:
-        """Warn of what went wrong, one line per kind of problem.
-
-        One CacheWarning if cache entries did not verify, one WorkerLostWarning if a worker was lost
-        or runs did not finish; nothing if all went well.
-        """
+        """One CacheWarning if entries did not verify, one WorkerLostWarning if workers or runs were lost."""
         if self.unverified:
             count = len(self.unverified)
             what = "1 cache entry did not verify and was recomputed:" if count == 1 else \
@@ -90,22 +87,8 @@ class Execution:
 
 
 def prepare_sweep(out_dir: Path, runner: Runner) -> None:
-    """Check that a sweep can start: its scheduler (if any) answers, its folder is made and can be written in.
-
-    Nothing is written if the scheduler cannot be reached.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path
-        The sweep folder, created if missing.
-    runner : Runner
-        Where the runs go; with a scheduler, that it accepts a connection within ``runner.scheduler_timeout``.
-
-    Raises
-    ------
-    SweepError
-        One line, if the scheduler cannot be reached or ``out_dir`` cannot be created or written in.
-    """
+    """SweepError (one line) unless the scheduler (if any) answers and ``out_dir`` is made and can be
+    written in; nothing is written if the scheduler cannot be reached."""
     if runner.scheduler is not None:
         check_scheduler(runner.scheduler, runner.scheduler_timeout)
     try:
@@ -128,248 +111,321 @@ def _folder_error(out_dir: Path, error: OSError) -> SweepError:
                       "allowed: a writable folder, or a path where one can be created")
 
 
-def _alive(pid: int) -> bool:
-    try:
-        os.kill(pid, 0)
-    except (ProcessLookupError, OverflowError):
-        return False
-    except PermissionError:  # another user's process
-        return True
-    return True
-
-
-def _remove_stale_work(work_root: Path) -> None:
-    """Remove the work folders ``sweep-<pid>-*`` in ``work_root`` whose sweep process is gone (killed
-    before it could clean up), and ``work_root`` itself if nothing else is left in it."""
-    for folder in work_root.glob("sweep-*"):
-        match = _WORK_FOLDER.match(folder.name)
-        if match and folder.is_dir() and not _alive(int(match[1])):
-            shutil.rmtree(folder, ignore_errors=True)
+def _remove_work(work_root: Path, folder: Path | None = None) -> None:
+    """Remove ``folder`` and the work folders ``sweep-<pid>-*`` whose sweep process is gone (killed before
+    it could clean up), and ``work_root`` itself if nothing else is left in it."""
+    for found in work_root.glob("sweep-*"):
+        match = _WORK_FOLDER.match(found.name)
+        if found == folder or match and found.is_dir() and not psutil.pid_exists(int(match[1])):
+            shutil.rmtree(found, ignore_errors=True)
     try:
         work_root.rmdir()
     except OSError:
         pass
 
 
-@dataclass(frozen=True)
-class _Found:
-    """What the cache holds for a sweep's plans.
+class _Fmus:
+    """A process's FMU files and their Cosimulator, made in ``folder`` on first need; one computation at a time."""
 
-    ``rows``: the cached rows by key; ``todo``: the plans to run, by key; ``references``: the cached
-    reference solutions those need, by reference key; ``missing``: the reference solutions to compute
-    (reference key: applied scenario), those the runs need and are not cached and every one cached but
-    not verifying; ``unverified``: the entries that did not verify.
-    """
+    def __init__(self, paths: dict, folder: Path):
+        self.paths, self.folder, self.lock, self._cosimulator = paths, folder, threading.Lock(), None
 
-    rows: dict
-    todo: dict
-    references: dict
-    missing: dict
-    unverified: tuple
+    def compute(self, fn: Callable, applied: Scenario):
+        with self.lock:
+            return fn(self, applied)
 
-    @property
-    def work(self) -> bool:
-        return bool(self.todo or self.missing)
+    def simulate(self, applied: Scenario) -> Outcome:
+        if self._cosimulator is None:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            self._cosimulator = Cosimulator(self.paths, self.folder)
+        return simulate(applied, self._cosimulator)
+
+    def reference(self, applied: Scenario) -> ReferenceOutcome:
+        return compute_reference(applied, self.paths)
+
+    def close(self) -> None:
+        try:
+            if self._cosimulator is not None:
+                self._cosimulator.close()
+        finally:
+            shutil.rmtree(self.folder, ignore_errors=True)
 
 
-def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(), *,
-            warn: bool = True, prepared: bool = False) -> Execution:
-    """Run every case not yet cached in ``out_dir`` and return the rows of all.
+_POOL_WORKER: dict = {}
 
-    Locally (no ``runner.scheduler``), ``runner.jobs`` worker processes each load the FMUs once (into
-    ``out_dir/.work``, removed at the end whatever happens; the work folders of sweeps killed before
-    they could remove theirs are removed at the start). A worker process lost (killed or crashed)
-    costs the runs in flight one retry on a new pool; a run lost twice is a row with the reason
-    ``LOST_TWICE``, not cached. With a scheduler the runs go to that Dask cluster instead. Each
-    finished run is cached at once (``cache``), so an interrupted sweep resumes where it stopped;
-    cached cases are not run again. Reference solutions are computed once per physical case and
-    cached too. Cache entries that do not verify (damaged, edited, of an older layout) are
-    recomputed, references included.
+
+def _start_pool_worker(fmu_paths: dict, work: str) -> None:
+    """Pool initializer: this worker's FMUs, loaded on first need into ``work/<pid>``."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle: it stops the pool
+    _POOL_WORKER["fmus"] = fmus = _Fmus(fmu_paths, Path(work) / str(os.getpid()))
+    multiprocessing.util.Finalize(None, fmus.close, exitpriority=10)  # workers exit without atexit
+
+
+def _on_pool_worker(fn: Callable, applied: Scenario):
+    return _POOL_WORKER["fmus"].compute(fn, applied)
+
+
+class _InProcess(Executor):
+    """Runs each call when it is submitted, in this process."""
+
+    def submit(self, fn, /, *args):
+        future = Future()
+        try:
+            future.set_result(fn(*args))
+        except Exception as error:
+            future.set_exception(error)
+        return future
+
+
+class _Call(NamedTuple):
+    fn: Callable  # _Fmus.simulate or _Fmus.reference, of the process it runs in
+    key: str
+    applied: Scenario
+
+
+class _Lost(NamedTuple):
+    reason: str
+
+
+class Workers:
+    """Where a sweep's computations run, from the first that needs them until the sweep ends.
+
+    Locally, ``min(runner.jobs, runs)`` processes of a ``ProcessPoolExecutor`` (spawned), each loading
+    the FMUs once into a folder of its own in ``out_dir/.work``, given one computation at a time; one
+    runs in this process. A lost worker process (killed or crashed: the pool breaks) costs the
+    computations in flight one retry on a new pool; a run lost twice is a row with the reason
+    ``LOST_TWICE``. With ``runner.scheduler``, the executor of a Dask client (``Client.get_executor``),
+    the FMUs on every worker (``cluster.FmusOnWorkers``); a run whose workers Dask lost too often is a
+    row with the reason. Leaving the ``with`` block stops what still runs (at once after an error or
+    Ctrl-C) and removes the work folder, and those of sweeps killed before they could.
 
     Parameters
     ----------
-    scenario : Scenario
-        The sweep's scenario.
-    cases : list of Case
-        The cases to run on it (``build_cases``).
     out_dir : pathlib.Path or str
-        The sweep folder: its cache, and the work folder while it runs.
+        The sweep folder: its cache, and the work folder.
     fmu_paths : dict
         The FMU files by name (``ensure_fmus``).
     runner : Runner, optional
-        Where the runs go and whether a progress line shows on a terminal. Default ``Runner()``: all cores.
-    warn : bool, optional
-        Issue ``Execution.warn`` (one line per kind of problem) before returning. Default True.
-    prepared : bool, optional
-        ``prepare_sweep`` checked ``out_dir`` and the runner's scheduler already (``run_sweep`` does,
-        once for all its executions). Default False: checked here, before anything runs.
-
-    Returns
-    -------
-    Execution
-        The rows of all cases, in the order of ``cases``, and what was done.
-
-    Raises
-    ------
-    SweepError
-        One line, if the scheduler cannot be reached within ``runner.scheduler_timeout`` s (nothing
-        is written then) or ``out_dir`` cannot be a folder (``prepare_sweep``).
+        Where the runs go and whether a progress line shows. Default ``Runner()``: all cores.
     """
-    out_dir, cache = Path(out_dir), SweepCache(out_dir)
-    identities = fmu_identities(fmu_paths)
-    plans = [Plan.of(scenario, case, identities) for case in cases]
-    found = _look_up(cache, plans, scenario.name)
-    if not prepared:
-        prepare_sweep(out_dir, runner)
-    _remove_stale_work(out_dir / ".work")
-    rows, lost, losses = dict(found.rows), (), Losses()
-    if found.work:
-        tasks = [ReferenceSolution(key, applied) for key, applied in found.missing.items()]
-        runs = sorted(found.todo.values(), key=lambda plan: -plan.applied.simulation.stop_time
-                      / plan.applied.simulation.step_size)
-        tasks += [Run(plan.key, plan.applied) for plan in runs]  # the longest first, for an even load
-        with _results(tasks, out_dir, fmu_paths, runner) as (results, losses):
-            collector = _collect(scenario, found, cache, identities, results, runner.progress)
-        rows.update(collector.rows)
-        lost = tuple(collector.lost)
-    keys = [plan.key for plan in plans]
-    execution = Execution([rows[key] for key in keys], cached=sum(key in found.rows for key in keys),
-                          ran=sum(key not in found.rows for key in keys), lost=lost, unverified=found.unverified,
-                          workers_lost=losses.workers_lost, retried=losses.retried)
-    if warn:
-        execution.warn()
-    return execution
+
+    def __init__(self, out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner()):
+        self.out_dir, self.fmu_paths, self.runner = Path(out_dir), fmu_paths, runner
+        self.cache, self.identities = SweepCache(out_dir), fmu_identities(fmu_paths)
+        self.workers_lost = self.retried = 0
+        self._executor = self._client = self._work = self._here = None
+
+    def __enter__(self) -> Workers:
+        _remove_work(self.out_dir / ".work")
+        return self
+
+    def __exit__(self, kind, *exc) -> None:
+        try:
+            if self._client is not None:
+                try:
+                    self._client.unregister_worker_plugin(self._plugin)
+                finally:
+                    self._client.close()
+            elif self._executor is not None:
+                if kind is not None:  # stop the workers now rather than after their current runs
+                    for process in list((getattr(self._executor, "_processes", None) or {}).values()):
+                        process.terminate()
+                self._executor.shutdown(wait=True, cancel_futures=True)
+        finally:
+            if self._here is not None:
+                self._here.close()
+            if self._work is not None:
+                _remove_work(self._work.parent, self._work)
+
+    def _start(self, runs: int) -> None:
+        """The executor: of a Dask client, of ``min(jobs, runs)`` worker processes, or of this process."""
+        if self.runner.scheduler is not None:
+            from distributed import KilledWorker
+
+            from .cluster import FmusOnWorkers, connect, on_worker
+
+            self._client = connect(self.runner.scheduler, self.runner.scheduler_timeout)
+            plugin = FmusOnWorkers(self.fmu_paths, _Fmus)
+            self._plugin = plugin.name
+            self._client.register_plugin(plugin)
+            self._executor = self._client.get_executor(pure=False)
+            self._task = functools.partial(on_worker, plugin.name)
+            self._size, self._lost = None, KilledWorker
+            return
+        if self._work is None:
+            try:
+                (self.out_dir / ".work").mkdir(exist_ok=True)
+                self._work = Path(tempfile.mkdtemp(prefix=f"sweep-{os.getpid()}-", dir=self.out_dir / ".work"))
+            except OSError as error:
+                raise _folder_error(self.out_dir, error) from None
+        self._size = max(1, min((os.cpu_count() or 1) if self.runner.jobs is None else self.runner.jobs, runs))
+        self._lost = BrokenProcessPool
+        if self._size <= 1:
+            self._here, self._executor = _Fmus(self.fmu_paths, self._work / str(os.getpid())), _InProcess()
+            self._task = self._here.compute
+        else:
+            self._executor = ProcessPoolExecutor(self._size, mp_context=multiprocessing.get_context("spawn"),
+                                                 initializer=_start_pool_worker,
+                                                 initargs=(dict(self.fmu_paths), str(self._work)))
+            self._task = _on_pool_worker
+
+    def _results(self, calls: list[_Call], runs: int):
+        """``(call, value)`` as the calls finish; ``_Lost`` the value of a call whose workers were lost."""
+        if self._executor is None:
+            self._start(runs)
+        queue, in_flight, losses = deque(calls), {}, Counter()
+        try:
+            while queue or in_flight:
+                broken = False
+                try:
+                    while queue and (self._size is None or len(in_flight) < self._size):
+                        in_flight[self._executor.submit(self._task, queue[0].fn, queue[0].applied)] = queue[0]
+                        queue.popleft()
+                except BrokenProcessPool:
+                    broken = True
+                done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
+                if any(isinstance(future.exception(), BrokenProcessPool) for future in done):
+                    broken, (done, _) = True, wait(in_flight)  # a broken pool fails every call in flight
+                retry = []
+                for future in done:
+                    call, error = in_flight.pop(future), future.exception()
+                    losses[call.key] += isinstance(error, self._lost)
+                    if isinstance(error, BrokenProcessPool) and losses[call.key] == 1:
+                        retry.append(call)
+                    elif isinstance(error, self._lost):
+                        yield call, _Lost(LOST_TWICE if isinstance(error, BrokenProcessPool) else
+                                          f"Dask worker lost {error.allowed_failures + 1} times while running it "
+                                          "(killed or crashed)")
+                    else:
+                        yield call, future.result()
+                queue.extendleft(reversed(retry))
+                self.retried += len(retry)
+                if broken:
+                    self.workers_lost += 1
+                    self._executor.shutdown(wait=True, cancel_futures=True)
+                    self._start(runs)
+        finally:
+            for future in in_flight:
+                future.cancel()
+
+    def execute(self, scenario: Scenario, cases: list[Case], progress: bool = True) -> Execution:
+        """Run every case not yet cached and return the rows of all.
+
+        Each finished run is cached at once, so an interrupted sweep resumes where it stopped.
+        Reference solutions are computed once per physical case and cached too. Cache entries that do
+        not verify are recomputed, references included. Under the "local" stability, a run whose
+        reference solution failed is judged as a settled one and not cached.
+
+        Parameters
+        ----------
+        scenario : Scenario
+            The sweep's scenario.
+        cases : list of Case
+            The cases to run on it (``build_cases``).
+        progress : bool, optional
+            Count the finished runs on a progress line (if ``runner.progress``). Default True.
+
+        Returns
+        -------
+        Execution
+            The rows of all cases, in the order of ``cases``, and what was done.
+        """
+        plans = [Plan.of(scenario, case, self.identities) for case in cases]
+        rows, todo, references, missing, unverified = _look_up(self.cache, plans, scenario.name)
+        lost, notes, before = [], [], (self.workers_lost, self.retried)
+        waiting, remaining = defaultdict(list), Counter(plan.reference_key for plan in todo.values())
+        local = scenario.simulation.stability.from_start
+
+        def finish(plan: Plan, outcome: Outcome) -> None:
+            reference = references[plan.reference_key]
+            rows[plan.key] = make_row(plan, outcome, reference)
+            if outcome.lost:
+                lost.append(plan.key)
+            elif reference is not None or not local:  # judged without its reference: not for keeps
+                self.cache.store_run(plan.key, rows[plan.key], outcome.trajectory, self.identities)
+            bar.update()
+            remaining[plan.reference_key] -= 1
+            if not remaining[plan.reference_key]:
+                references.pop(plan.reference_key)  # no run left that needs it
+
+        runs = sorted(todo.values(), key=lambda plan: -plan.applied.simulation.stop_time
+                      / plan.applied.simulation.step_size)  # the longest first, for an even load
+        calls = [_Call(_Fmus.reference, key, applied) for key, applied in missing.items()]
+        calls += [_Call(_Fmus.simulate, plan.key, plan.applied) for plan in runs]
+        with ProgressLine(len(todo), f"sweep {scenario.name}", "runs",
+                          quiet=not (progress and self.runner.progress)) as bar:
+            for call, value in self._results(calls, len(runs)) if calls else ():
+                if call.fn is _Fmus.simulate:
+                    plan = todo[call.key]
+                    outcome = Outcome.of_lost(value.reason) if isinstance(value, _Lost) else value
+                    if plan.reference_key in references:
+                        finish(plan, outcome)
+                    else:
+                        waiting[plan.reference_key].append((plan, outcome))
+                    continue
+                if isinstance(value, _Lost):
+                    value = compute_reference(call.applied, self.fmu_paths)
+                if value.solution is None:
+                    judged = "; they are judged as settled runs and not cached" if local else ""
+                    notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
+                                 f"runs{judged}")
+                else:
+                    self.cache.store_reference(call.key, value.solution)
+                if remaining[call.key]:
+                    references[call.key] = value.solution
+                for plan, outcome in waiting.pop(call.key, []):
+                    finish(plan, outcome)
+        for note in notes:
+            warnings.warn(note, stacklevel=3)
+        keys = [plan.key for plan in plans]
+        ran = sum(key in todo for key in keys)
+        return Execution([rows[key] for key in keys], len(keys) - ran, ran, tuple(lost), unverified,
+                         self.workers_lost - before[0], self.retried - before[1])
 
 
 def _read(read, key: str) -> tuple:
-    """``read(key)`` from the cache (None: not cached) and the CacheEntryError of an entry that does
-    not verify (then it counts as not cached), else None."""
+    """``read(key)`` from the cache (None: not cached), and the CacheEntryError of an entry that does not verify."""
     try:
         return read(key), None
     except CacheEntryError as error:
         return None, error
 
 
-def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> _Found:
-    """What ``cache`` holds for ``plans`` (the rows named for the scenario ``name``) and what is left to compute."""
+def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> tuple:
+    """What ``cache`` holds for ``plans``: the cached rows (named for the scenario ``name``) and the plans
+    to run, by key; the cached references they need and those to compute (every one not verifying
+    included), by reference key; the entries that did not verify."""
     rows, todo, unverified = {}, {}, []
     for plan in plans:
-        if plan.key in rows or plan.key in todo:
-            continue
-        cached, error = _read(cache.row, plan.key)
-        unverified += [error] if error else []
-        if cached is not None:
-            rows[plan.key] = {**cached, "scenario": name}
-        else:
-            todo[plan.key] = plan
+        if plan.key not in rows and plan.key not in todo:
+            cached, error = _read(cache.row, plan.key)
+            unverified += [error] if error else []
+            if cached is not None:
+                rows[plan.key] = {**cached, "scenario": name}
+            else:
+                todo[plan.key] = plan
     needed, first = {plan.reference_key for plan in todo.values()}, {}
     for plan in plans:
         first.setdefault(plan.reference_key, plan.applied)
     references, missing = {}, {}
-    for ref_key, applied in first.items():
-        reference, error = _read(cache.reference, ref_key)
+    for key, applied in first.items():
+        reference, error = _read(cache.reference, key)
         unverified += [error] if error else []
-        if reference is not None and ref_key in needed:
-            references[ref_key] = reference
-        elif error or ref_key in needed:
-            missing[ref_key] = applied
-    return _Found(rows, todo, references, missing, tuple(unverified))
+        if reference is not None and key in needed:
+            references[key] = reference
+        elif error or key in needed:
+            missing[key] = applied
+    return rows, todo, references, missing, tuple(unverified)
 
 
-@contextmanager
-def _results(tasks: list[Task], out_dir: Path, fmu_paths: dict, runner: Runner):
-    """The results of ``tasks`` as ``(task, value)`` as they finish, from this process, a process pool
-    or a Dask cluster, and what running them lost (``places.Losses``); on leaving, stop what still runs and
-    remove the work folder."""
-    if runner.scheduler is not None:
-        from .cluster import connect, run_on_cluster
-
-        client = connect(runner.scheduler, runner.scheduler_timeout)
-        results = run_on_cluster(client, tasks, fmu_paths)
-        try:
-            yield results, Losses()
-        finally:
-            try:
-                results.close()  # cancels the cluster's remaining tasks
-            finally:
-                client.close()
-        return
-    try:
-        (out_dir / ".work").mkdir(exist_ok=True)
-        work = Path(tempfile.mkdtemp(prefix=f"sweep-{os.getpid()}-", dir=out_dir / ".work"))
-    except OSError as error:
-        raise _folder_error(out_dir, error) from None
-    try:
-        jobs = (os.cpu_count() or 1) if runner.jobs is None else runner.jobs
-        workers = min(jobs, sum(task.needs_simulator for task in tasks))
-        losses = Losses() if workers <= 1 else Pool(fmu_paths, work, workers)
-        results = in_process(tasks, fmu_paths, work) if workers <= 1 else losses.run(tasks)
-        try:
-            yield results, losses
-        finally:
-            results.close()  # stops the pool (at once if it did not finish) or frees this process's Cosimulator
-    finally:
-        shutil.rmtree(work, ignore_errors=True)
-        try:
-            work.parent.rmdir()  # .work itself, unless another sweep is using it
-        except OSError:
-            pass
-
-
-class _Collector:
-    """The rows (by key) of the runs of ``found.todo`` as their outcomes and reference solutions come in
-    (``Task.hand_over``), each cached as soon as both are in, except the runs that did not finish
-    (their keys are kept in ``lost``) and, under the "local" stability, those whose reference solution
-    failed (judged as settled runs for now); what a failed reference solution means is kept in
-    ``warnings``, for after the progress line."""
-
-    def __init__(self, scenario: Scenario, found: _Found, cache: SweepCache, identities: dict, bar: ProgressLine):
-        self.rows, self.lost, self.warnings, self._waiting = {}, [], [], defaultdict(list)
-        self._remaining = Counter(plan.reference_key for plan in found.todo.values())
-        self._local = scenario.simulation.stability.from_start
-        self._todo, self._references = found.todo, dict(found.references)
-        self._cache, self._identities, self._bar = cache, identities, bar
-
-    def take_reference(self, ref_key: str, value: ReferenceOutcome) -> None:
-        if value.solution is None:
-            judged = "; they are judged as settled runs and not cached" if self._local else ""
-            self.warnings.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
-                                 f"runs{judged}")
-        else:
-            self._cache.store_reference(ref_key, value.solution)
-        if self._remaining[ref_key]:
-            self._references[ref_key] = value.solution
-        for key, outcome in self._waiting.pop(ref_key, []):
-            self._finish(key, outcome)
-
-    def take_run(self, key: str, outcome: Outcome) -> None:
-        ref_key = self._todo[key].reference_key
-        if ref_key in self._references:
-            self._finish(key, outcome)
-        else:
-            self._waiting[ref_key].append((key, outcome))
-
-    def _finish(self, key: str, outcome: Outcome) -> None:
-        plan = self._todo[key]
-        reference = self._references[plan.reference_key]
-        self.rows[key] = make_row(plan, outcome, reference)
-        if outcome.lost:
-            self.lost.append(key)
-        elif reference is not None or not self._local:  # judged without its reference: not for keeps
-            self._cache.store_run(key, self.rows[key], outcome.trajectory, self._identities)
-        self._bar.update()
-        self._remaining[plan.reference_key] -= 1
-        if not self._remaining[plan.reference_key]:
-            self._references.pop(plan.reference_key)  # no run left that needs it
-
-
-def _collect(scenario: Scenario, found: _Found, cache: SweepCache, identities: dict, results,
-             progress: bool) -> _Collector:
-    """The rows (by key) and the lost runs of ``found.todo`` from ``results`` (``_Collector``)."""
-    with ProgressLine(len(found.todo), f"sweep {scenario.name}", "runs", quiet=not progress) as bar:
-        collector = _Collector(scenario, found, cache, identities, bar)
-        for task, value in results:
-            task.hand_over(value, collector)
-    for message in collector.warnings:
-        warnings.warn(message, stacklevel=4)  # the caller of execute's caller
-    return collector
+def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(),
+            *, warn: bool = True) -> Execution:
+    """Run every case not yet cached in ``out_dir`` and return the rows of all: ``prepare_sweep`` (SweepError
+    in one line if the scheduler cannot be reached or ``out_dir`` cannot be a folder), ``Workers.execute``,
+    then ``Execution.warn`` unless ``warn`` is False."""
+    prepare_sweep(Path(out_dir), runner)
+    with Workers(out_dir, fmu_paths, runner) as workers:
+        done = workers.execute(scenario, cases)
+    if warn:
+        done.warn()
+    return done

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from .analysis import group_label, group_rows, overrides
 
-__all__ = ["FIGURE_CAPTIONS", "write_report", "format_report"]
+__all__ = ["FIGURE_CAPTIONS", "write_report"]
 
 FIGURE_CAPTIONS = {
     "deviation": "Deviation from the continuous reference solution against the communication step, "
@@ -183,27 +183,7 @@ def _figures(out_dir: Path, figures: Mapping[str, Path | str]) -> list[str]:
 
 def format_report(out_dir: Path | str, summary: Mapping, rows: Sequence[Mapping],
                   figures: Mapping[str, Path | str]) -> str:
-    """The Markdown text of a sweep's report.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The report's directory: figure paths are linked relative to it.
-    summary : Mapping
-        As from ``study.summarise``, optionally with ``error_controlled`` (the sweep's error-controlled
-        runs); its ``notes`` give the reasons for any disagreement between predicted and measured
-        boundaries.
-    rows : sequence of Mapping
-        The sweep's rows, one per fixed-step run (keys of ``study.rows.ROW_KEYS``).
-    figures : Mapping of str to pathlib.Path or str
-        Name -> image path (absolute or relative to ``out_dir``); a name of ``FIGURE_CAPTIONS`` gets
-        its caption. A missing or empty file is reported as not written.
-
-    Returns
-    -------
-    str
-        The Markdown, without a final newline.
-    """
+    """The Markdown text of a sweep's report."""
     counts = summary["counts"]
     settings = [f"- {name}: {_setting(value)}" for name, value in summary.get("settings", {}).items()]
     return "\n".join([

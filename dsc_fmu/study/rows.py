@@ -13,14 +13,14 @@ import numpy as np
 from ..cosim.master import CosimulationError, Cosimulator
 from ..cosim.metrics import tracking_metrics
 from ..scenario import Scenario, Stability
-from .cache import REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY
-from .cases import Case
-from .plan import Plan
+from .cache import (
+    REFERENCE_COLUMNS, REFERENCE_GRID, REFERENCE_SETTINGS, TRAJECTORY, case_key, fmu_identities, reference_key,
+)
+from .cases import Case, apply
 
 __all__ = [
-    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "stability_definition", "METRIC_KEYS",
-    "DEVIATION_KEYS", "ROW_KEYS", "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
-    "error_grows", "position_deviation", "seed_window", "deviation_grows", "deviations", "make_row",
+    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS",
+    "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
 ]
 
 STABLE_POSITION_ERROR = 0.5  # m
@@ -84,6 +84,22 @@ def _columns(result: np.ndarray, names) -> np.ndarray:
     for name in names:
         out[name] = result[name]
     return out
+
+
+class Plan(NamedTuple):
+    """A case of a sweep ready to run: the case, the scenario it runs (``cases.apply``), the cache keys of its
+    row and of its reference solution (``cache.case_key``, ``cache.reference_key``)."""
+
+    case: Case
+    applied: Scenario
+    key: str
+    reference_key: str
+
+    @classmethod
+    def of(cls, scenario: Scenario, case: Case, identities: dict) -> Plan:
+        """The plan of ``case`` on the sweep's ``scenario``, with FMUs of ``identities`` (``cache.fmu_identities``)."""
+        return cls(case, apply(scenario, case), case_key(scenario, case, identities),
+                   reference_key(scenario, case, identities))
 
 
 @dataclass(frozen=True, eq=False)
@@ -239,19 +255,8 @@ def _grows_at_end(t: np.ndarray, values: np.ndarray) -> bool:
 
 
 def error_grows(trajectory: np.ndarray) -> bool:
-    """Whether the position error grows over the last third of the run (``SETTLED_DEFINITION``).
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y``, ``x_r``, ``y_r`` (m).
-
-    Returns
-    -------
-    bool
-        True if its maximum over the last sixth exceeds ``GROWTH_FACTOR`` times that over the sixth
-        before, plus ``GROWTH_SLACK`` (m).
-    """
+    """Whether the position error's maximum over the last sixth of the run exceeds ``GROWTH_FACTOR`` times
+    that over the sixth before plus ``GROWTH_SLACK`` (m) (``SETTLED_DEFINITION``)."""
     error = np.hypot(trajectory["x_r"] - trajectory["x"], trajectory["y_r"] - trajectory["y"])
     return _grows_at_end(trajectory["time"], error)
 
@@ -262,38 +267,14 @@ def _reference_at(trajectory: np.ndarray, reference: np.ndarray, names) -> dict:
 
 
 def position_deviation(trajectory: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """The run's distance from the reference solution at each of its times.
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y`` (m).
-    reference : numpy.ndarray
-        The reference solution, interpolated linearly at the run's times: ``time``, ``x``, ``y``.
-
-    Returns
-    -------
-    numpy.ndarray
-        The distance in m, one per row of ``trajectory``.
-    """
+    """The run's distance (m) from the reference solution, interpolated linearly, at each of its times."""
     at = _reference_at(trajectory, reference, ("x", "y"))
     return np.hypot(trajectory["x"] - at["x"], trajectory["y"] - at["y"])
 
 
 def seed_window(t: np.ndarray) -> np.ndarray | None:
-    """The rows over which the first steps seed the deviation (``LOCAL_DEFINITION``).
-
-    Parameters
-    ----------
-    t : numpy.ndarray
-        The run's times in s, from 0.
-
-    Returns
-    -------
-    numpy.ndarray or None
-        A mask of the rows in the first ``SEED_TIME`` s, at least the first ``SEED_ROWS`` rows after
-        t = 0; None for a run no longer than that.
-    """
+    """The mask of the rows over which the first steps seed the deviation (``LOCAL_DEFINITION``): the first
+    ``SEED_TIME`` s, at least ``SEED_ROWS`` rows after t = 0; None for a run no longer than that."""
     if len(t) <= SEED_ROWS + 1:
         return None
     start = t <= max(SEED_TIME, t[SEED_ROWS])
@@ -301,22 +282,9 @@ def seed_window(t: np.ndarray) -> np.ndarray | None:
 
 
 def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
-    """Whether the sampled loop amplifies the coupling error about steady tracking (``LOCAL_DEFINITION``).
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows: ``time`` (s), ``x``, ``y`` (m).
-    reference : numpy.ndarray
-        The reference solution: ``time``, ``x``, ``y``.
-
-    Returns
-    -------
-    bool
-        True if the position deviation from ``reference`` ever exceeds ``DEVIATION_GROWTH`` times its
-        maximum over the ``seed_window`` plus ``DEVIATION_SLACK`` (m); False for a run without a seed
-        window.
-    """
+    """Whether the sampled loop amplifies the coupling error about steady tracking (``LOCAL_DEFINITION``): the
+    position deviation ever exceeds ``DEVIATION_GROWTH`` times its maximum over the ``seed_window`` plus
+    ``DEVIATION_SLACK`` (m); False for a run without a seed window."""
     start = seed_window(trajectory["time"])
     if start is None:
         return False
@@ -325,36 +293,13 @@ def deviation_grows(trajectory: np.ndarray, reference: np.ndarray) -> bool:
 
 
 def stability_definition(stability: str) -> str:
-    """What "stable" means for a scenario's ``[simulation] stability``.
-
-    Parameters
-    ----------
-    stability : Stability or {"settled", "local"}
-        The definition.
-
-    Returns
-    -------
-    str
-        ``SETTLED_DEFINITION`` or ``LOCAL_DEFINITION``.
-    """
+    """What "stable" means for a scenario's ``[simulation] stability``."""
     return LOCAL_DEFINITION if Stability(stability).from_start else SETTLED_DEFINITION
 
 
 def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
-    """Largest and RMS deviation of a run from the reference solution over all its rows.
-
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The run's rows (``cache.TRAJECTORY``).
-    reference : numpy.ndarray
-        The reference solution (``cache.REFERENCE_COLUMNS``), interpolated linearly at the run's times.
-
-    Returns
-    -------
-    dict
-        ``DEVIATION_KEYS``: position (m), wrapped heading (rad), voltage of both wheels (V).
-    """
+    """``DEVIATION_KEYS``: the largest and RMS deviation of a run from the reference solution over all its
+    rows, of position (m), wrapped heading (rad) and the voltage of both wheels (V)."""
     at = _reference_at(trajectory, reference, ("theta", "u1", "u2"))
     position = position_deviation(trajectory, reference)
     heading = np.abs(np.remainder(trajectory["theta"] - at["theta"] + np.pi, 2.0 * np.pi) - np.pi)
@@ -367,25 +312,9 @@ def deviations(trajectory: np.ndarray, reference: np.ndarray) -> dict:
 
 
 def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict:
-    """The row of a simulated case: its settings, deviations, metrics and stability.
-
-    Parameters
-    ----------
-    plan : Plan
-        The case, applied to its scenario, and its cache keys.
-    outcome : Outcome
-        What its run gave (``simulate``).
-    reference : numpy.ndarray or None
-        Its reference solution (``compute_reference``); None leaves the deviations NaN and judges
-        the run as a settled one.
-
-    Returns
-    -------
-    dict
-        ``row_keys(plan.case)``, JSON-serialisable, NaN where a value does not apply. Its ``stability``
-        is the definition its ``stable`` was judged by: the scenario's, or "settled" where "local" does
-        not apply (``LOCAL_DEFINITION``).
-    """
+    """The row of a simulated case (``row_keys(plan.case)``, JSON-serialisable, NaN where a value does not
+    apply): its settings, its deviations from ``reference`` (None: NaN, and judged as a settled run), its
+    metrics and stability, ``stability`` naming the definition ``stable`` was judged by."""
     case, applied = plan.case, plan.applied
     diverged = outcome.metrics is None
     metrics = dict.fromkeys(METRIC_KEYS, math.nan) if diverged else outcome.metrics
@@ -406,3 +335,10 @@ def make_row(plan: Plan, outcome: Outcome, reference: np.ndarray | None) -> dict
     row.update(wall_time_s=outcome.wall_time_s, steps=outcome.steps, steps_rejected=outcome.steps_rejected,
                fmu_steps=outcome.fmu_steps)
     return json.loads(json.dumps(row))  # exactly what the cache gives back
+
+
+def run_case(scenario: Scenario, case: Case, cosimulator: Cosimulator, reference: np.ndarray | None) -> dict:
+    """The row of ``case`` run in this process with ``cosimulator``, as a sweep makes it; ``reference`` None
+    leaves the deviations NaN and judges the run as a settled one."""
+    plan = Plan.of(scenario, case, fmu_identities(cosimulator.paths))
+    return make_row(plan, simulate(plan.applied, cosimulator), reference)

@@ -21,8 +21,8 @@ from .tracking import error_coordinates, error_measurements, error_outputs, erro
 
 __all__ = [
     "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
-    "error_measurements", "closed_loop", "jacobian", "operating_point", "SOURCES", "linearise", "sampled_pieces",
-    "transition_matrix", "ramp_pieces", "linear_transition_matrix", "spectral_radius", "spectral_radius_curve",
+    "error_measurements", "closed_loop_derivative", "operating_point", "SOURCES", "linearise",
+    "transition_matrix", "linear_transition_matrix", "spectral_radius",
     "predicted_boundary",
 ]
 
@@ -114,7 +114,7 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
     return scenario.reference["vr0"], scenario.reference["wr0"]
 
 
-def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
+def closed_loop_derivative(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
     """The derivative of the continuous closed loop in error coordinates.
 
     The plant (11), (7), (8) driven by u of (26), and the controller (15)-(27).
@@ -143,22 +143,7 @@ def closed_loop(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.n
 
 
 def jacobian(f, x, rel: float = 1e-6) -> np.ndarray:
-    """The central finite-difference Jacobian of a function.
-
-    Parameters
-    ----------
-    f : callable
-        ``f(x)`` -> array_like of m entries, for x of n entries.
-    x : array_like
-        The point, n entries.
-    rel : float, optional
-        Relative step: entry j is perturbed by ``rel * max(1, |x_j|)``. Default 1e-6.
-
-    Returns
-    -------
-    numpy.ndarray
-        The Jacobian, shape (m, n).
-    """
+    """The central finite-difference Jacobian (m, n) of ``f`` at ``x``, entry j perturbed by ``rel * max(1, |x_j|)``."""
     x = np.asarray(x, float)
     columns = []
     for j in range(x.size):
@@ -234,7 +219,7 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     T = scenario.simulation.stop_time if at_time is None else float(at_time)
-    f = lambda z: closed_loop(k, g, vr, wr, z)  # noqa: E731
+    f = lambda z: closed_loop_derivative(k, g, vr, wr, z)  # noqa: E731
     if state is None:
         xp0 = error_coordinates(initial_plant_state(scenario.plant), initial_reference_state(scenario.reference))
         xc0 = start_filters(g, initial_controller_state(scenario.controller), error_measurements(error_outputs(k, xp0), vr, wr))
@@ -301,8 +286,9 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
         from .fmu_loop import fmu_matrices  # fmpy only when the FMUs are asked for
 
         matrices = fmu_matrices(scenario, fmu_paths, z, T, workdir)
-    return LinearLoop(*matrices, operating_point=z, drift=float(np.max(np.abs(closed_loop(k, g, vr, wr, z)))),
-                      at_time=T, discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
+    drift = float(np.max(np.abs(closed_loop_derivative(k, g, vr, wr, z))))
+    return LinearLoop(*matrices, operating_point=z, drift=drift, at_time=T,
+                      discretization=DISCRETIZATIONS[int(scenario.controller["discretization"])])
 
 
 def _model_matrices(k: PlantCoefficients, g: Gains, vr: float, wr: float, z, rel: float) -> tuple:
@@ -329,25 +315,6 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
     The plant by zero-order hold (``control.c2d``, exact with u held); the controller by zero-order hold
     for "rk4" (its RK4 sub-steps are nearly exact with y held) or by one explicit Euler step for "euler"
     (``Phi_c = I + h Ac``, ``Gamma_c = h Bc``).
-
-    Parameters
-    ----------
-    loop : LinearLoop
-        The linearised loop.
-    h : float
-        The communication step, in s.
-    discretization : {"rk4", "euler"}
-        The controller's discretization.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(Phi_p, Gamma_p, Phi_c, Gamma_c)``.
-
-    Raises
-    ------
-    ValueError
-        If ``discretization`` is not one of the allowed names.
     """
     one_of(DISCRETIZATIONS, discretization, "discretization")
     plant = control.c2d(loop.plant, h, method="zoh")
@@ -410,20 +377,6 @@ def ramp_pieces(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.
 
     For ``x' = A x + B w`` with ``w(s) = w0 + (s / h) d``: ``x(h) = Phi x(0) + G0 w0 + G1 d``, from the
     exponential of ``[[A, B, 0], [0, 0, I/h], [0, 0, 0]] h``.
-
-    Parameters
-    ----------
-    A : numpy.ndarray
-        The system matrix, shape (n, n).
-    B : numpy.ndarray
-        The input matrix, shape (n, m).
-    h : float
-        The step, in s.
-
-    Returns
-    -------
-    tuple of numpy.ndarray
-        ``(Phi, G0, G1)``, shapes (n, n), (n, m), (n, m).
     """
     n, m = B.shape
     F = np.zeros((n + 2 * m, n + 2 * m))
@@ -525,32 +478,7 @@ def spectral_radius(loop: LinearLoop, h: float, order: str, discretization: str 
 
 def spectral_radius_curve(loop: LinearLoop, steps, order: str, discretization: str | None = None,
                           coupling: str = "hold") -> np.ndarray:
-    """The spectral radius at each of several communication steps, for plotting against h.
-
-    Parameters
-    ----------
-    loop : LinearLoop
-        The linearised loop.
-    steps : array_like
-        Communication steps h, in s.
-    order : {"gauss-seidel", "jacobi"}
-        The coupling order (``scenario.ORDERS``).
-    discretization : {"rk4", "euler"} or None, optional
-        The controller's discretization. Default None: the loop's.
-    coupling : {"hold", "linear"}, optional
-        The coupling (``scenario.COUPLINGS``). Default "hold".
-
-    Returns
-    -------
-    numpy.ndarray
-        ``spectral_radius`` at each step, shaped like ``steps`` flattened.
-
-    Raises
-    ------
-    ValueError
-        If ``coupling`` or ``order`` is not one of the allowed names, or ``discretization`` with the
-        hold coupling.
-    """
+    """The spectral radius at each of several communication steps, for plotting against h."""
     return np.array([spectral_radius(loop, h, order, discretization, coupling) for h in np.asarray(steps, float)])
 
 

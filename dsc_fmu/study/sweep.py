@@ -16,7 +16,7 @@ from .analysis import fit_orders, grid_brackets, group_label, refine_boundary, s
 from .cases import Grid, Runner, SweepError, apply
 from .cache import load_trajectory
 
-__all__ = ["run_sweep", "write_rows_csv", "boundary_notes", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
+__all__ = ["run_sweep", "TRANSIENT_NOTE", "RECOVERY_NOTE", "CONTROLLED_KEYS"]
 
 # What sweep.json keeps of each error-controlled run.
 CONTROLLED_KEYS = ("order", "discretization", "coupling", "tolerance", "max_position_deviation_m", "steps",
@@ -40,24 +40,8 @@ RECOVERY_NOTE = (
 
 
 def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[str]:
-    """Why refined boundaries lie more than 20 % from their predictions.
-
-    Parameters
-    ----------
-    predictions : dict
-        Predicted boundaries in s, by series label.
-    boundaries : dict
-        Refined boundaries (``analysis.Boundary``), by series label.
-    stability : Stability or {"settled", "local"}
-        The definition the runs were judged by.
-
-    Returns
-    -------
-    list of str
-        ``TRANSIENT_NOTE`` if a boundary lies below its prediction (the start-up transient);
-        ``RECOVERY_NOTE`` if one lies above it under the "settled" definition (the adaptation damping
-        an oscillation that grows at first).
-    """
+    """Why refined boundaries lie more than 20 % from their predictions: ``TRANSIENT_NOTE`` if one lies below
+    (the start-up transient), ``RECOVERY_NOTE`` if one lies above under the "settled" definition."""
     ratios = [predicted / boundaries[label].h_stable for label, predicted in predictions.items()
               if label in boundaries and math.isfinite(predicted) and predicted > 0]
     return ([TRANSIENT_NOTE] if any(ratio > 1.2 for ratio in ratios) else []) + (
@@ -65,21 +49,8 @@ def boundary_notes(predictions: dict, boundaries: dict, stability: str) -> list[
 
 
 def write_rows_csv(path: Path, rows: list[dict]) -> Path:
-    """Write ``sweep.csv``: one line per run, the keys of the rows as columns in their order.
-
-    Parameters
-    ----------
-    path : pathlib.Path
-        The file to write.
-    rows : list of dict
-        The rows (``rows.ROW_KEYS``).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``. Cells are empty where a row has no value, ``nan`` where a value does not apply,
-        ``True``/``False`` for flags.
-    """
+    """Write ``sweep.csv``: one line per run, the keys of the rows as columns in their order; cells empty
+    where a row has no value, ``nan`` where a value does not apply."""
     names = list(dict.fromkeys(name for row in rows for name in row))
     with open(path, "w", newline="") as file:
         writer = csv.DictWriter(file, fieldnames=names, restval="")
@@ -130,7 +101,7 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
               fmu_dir: Path | str | None = None, fmi_version: int | None = None, refine: bool = True) -> str:
     """Run a step-size study of a scenario and write its results, figures and report.
 
-    Every case of ``grid`` runs (``execute``); each fixed-step series' stability boundary is refined
+    Every case of ``grid`` runs (``execute.Workers``); each fixed-step series' stability boundary is refined
     by bisection between its last stable and first unstable grid step to 2 % (with ``refine``); the
     linearised prediction (of each series' coupling) is added for the nominal series of a
     constant-velocity scenario. Every run, fixed-step and error-controlled, is a point of the
@@ -175,18 +146,17 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     out_dir = Path(out_dir)
     cases = grid.cases(scenario)
     fmu_dir, fmi_version = resolve_fmu_dir(fmu_dir, fmi_version)
-    from .execute import execute, prepare_sweep
+    from .execute import Workers, prepare_sweep
     from .rows import stability_definition
 
-    prepare_sweep(out_dir, runner)  # once for the whole sweep, before the FMUs are built
+    prepare_sweep(out_dir, runner)  # before the FMUs are built
     fmu_paths = ensure_fmus(fmu_dir, fmi_version)
-    on_grid = execute(scenario, cases, out_dir, fmu_paths, runner, warn=False, prepared=True)
-    all_rows = on_grid.rows
-    write_rows_csv(out_dir / "sweep.csv", all_rows)
-    rows = _fixed_step(all_rows)
-
-    boundaries, refining = _refined_boundaries(scenario, cases, all_rows, out_dir, fmu_paths, runner) if refine \
-        else ({}, [])
+    with Workers(out_dir, fmu_paths, runner) as workers:
+        on_grid = workers.execute(scenario, cases)
+        all_rows = on_grid.rows
+        write_rows_csv(out_dir / "sweep.csv", all_rows)
+        rows = _fixed_step(all_rows)
+        boundaries, refining = _refined_boundaries(scenario, cases, all_rows, workers) if refine else ({}, [])
     done = sum(refining, on_grid)
     done.warn()
 
@@ -216,20 +186,16 @@ def run_sweep(scenario: Scenario, out_dir: Path | str, grid: Grid = Grid(), runn
     ])
 
 
-def _refined_boundaries(scenario: Scenario, cases: list, all_rows: list[dict], out_dir: Path, fmu_paths: dict,
-                        runner: Runner) -> tuple[dict, list]:
+def _refined_boundaries(scenario: Scenario, cases: list, all_rows: list[dict], workers) -> tuple[dict, list]:
     """The stability boundary of each fixed-step series, bisected one run at a time between its last stable
-    and first unstable grid step (``analysis.refine_boundary``), and the ``Execution`` of each bisection."""
-    from .execute import execute
-
-    bisecting = dataclasses.replace(runner, jobs=1, progress=False)
+    and first unstable grid step (``analysis.refine_boundary``) on the sweep's ``workers``, and the
+    ``Execution`` of each bisection."""
     template = {group_label(row): case for row, case in zip(all_rows, cases) if case.tolerance is None}
     boundaries, executions = {}, []
     for label, bracket in grid_brackets(_fixed_step(all_rows)).items():
         if bracket is not None:
             def is_stable(h, case=template[label]):
-                run = [dataclasses.replace(case, step_size=h)]
-                executions.append(execute(scenario, run, out_dir, fmu_paths, bisecting, warn=False, prepared=True))
+                executions.append(workers.execute(scenario, [dataclasses.replace(case, step_size=h)], progress=False))
                 return executions[-1].rows[0]["stable"]
             boundaries[label] = refine_boundary(is_stable, *bracket)
     return boundaries, executions
