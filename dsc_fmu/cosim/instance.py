@@ -20,24 +20,14 @@ from fmpy.model_description import ValidationError
 from ..errors import CosimulationError
 from ..platforms import library_path
 
-__all__ = ["LogMessage", "load_fmu", "failed_call", "logging_callbacks", "type_name"]
+__all__: list[str] = []  # the package's own: LoadedFmu, load_fmu, failed_call, logging_callbacks, ...
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
 
 @dataclass(frozen=True)
 class LogMessage:
-    """One message an FMU sent to the logger callback.
-
-    Parameters
-    ----------
-    fmu : str
-        The FMU's instance name.
-    status : str
-        ``OK``, ``WARNING``, ``DISCARD``, ``ERROR``, ``FATAL`` or ``PENDING``.
-    message : str
-        The text.
-    """
+    """One message an FMU sent to the logger; ``status`` is ``OK``, ``WARNING``, ..., ``PENDING``."""
 
     fmu: str
     status: str
@@ -49,18 +39,7 @@ def _status(status: int) -> str:
 
 
 def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
-    """FMI 2.0 callbacks whose logger appends every message to ``log``.
-
-    Parameters
-    ----------
-    log : list of LogMessage
-        Where the messages go.
-
-    Returns
-    -------
-    fmpy.fmi2.fmi2CallbackFunctions
-        Keep it alive as long as an instance uses it.
-    """
+    """FMI 2.0 callbacks whose logger appends every message to ``log`` (keep them alive while an instance uses them)."""
 
     def logger(component, instance, status, category, message):
         text = [(b or b"").decode(errors="replace") for b in (instance, message)]
@@ -77,22 +56,8 @@ def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
 
 
 def failed_call(error: FMICallException, log: list[LogMessage], at: float) -> CosimulationError:
-    """The CosimulationError of a failing FMI call at ``at`` (s), naming the FMU that made it.
-
-    Parameters
-    ----------
-    error : fmpy.fmi1.FMICallException
-        The failing call, as a ``LoadedFmu`` raises it (its ``fmu`` names the FMU).
-    log : list of LogMessage
-        The run's log messages; the FMU's last three go into the message.
-    at : float
-        Time of the failure in s.
-
-    Returns
-    -------
-    CosimulationError
-        Its message names the FMU, the time and the FMU's last log messages; ``fmu`` is the FMU's name.
-    """
+    """The CosimulationError of a failing FMI call at ``at`` (s): it names the FMU (``fmu``), the time
+    and the FMU's last three log messages."""
     name = getattr(error, "fmu", "an FMU")
     messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
     failure = CosimulationError(f"{name} failed at t = {at:.6g} s: {error} Its last log messages: {messages}", at)
@@ -104,18 +69,7 @@ _KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 
 
 
 def type_name(variable) -> str:
-    """The FMI 2.0 type name of a model variable of either FMI version.
-
-    Parameters
-    ----------
-    variable : fmpy.model_description.ScalarVariable
-        The variable.
-
-    Returns
-    -------
-    str
-        ``Real``, ``Integer``, ...: FMI 3.0's ``Float64`` and ``Int32`` under their FMI 2.0 names.
-    """
+    """A variable's FMI 2.0 type name: FMI 3.0's ``Float64`` and ``Int32`` as ``Real`` and ``Integer``."""
     return _KINDS.get(variable.type, variable.type)
 
 
@@ -360,34 +314,8 @@ class Fmi3Fmu(LoadedFmu):
 
 def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage], callbacks: fmi2CallbackFunctions,
              model_exchange: bool = False) -> LoadedFmu:
-    """Read an FMU's model description, extract and instantiate it as ``Fmi2Fmu`` or ``Fmi3Fmu``.
-
-    Parameters
-    ----------
-    name : str
-        The FMU's name, also its instance name.
-    path : pathlib.Path
-        The FMU file.
-    workdir : pathlib.Path or None
-        Where its extraction folder is made; None: the system's temporary folder.
-    log : list of LogMessage
-        Where its messages go.
-    callbacks : fmpy.fmi2.fmi2CallbackFunctions
-        An FMI 2.0 FMU's logger and memory callbacks (``logging_callbacks`` of ``log``).
-    model_exchange : bool, optional
-        Model exchange instead of co-simulation. Default False.
-
-    Returns
-    -------
-    LoadedFmu
-        Instantiated (``close`` frees it and removes its folder); its folder is removed if extracting
-        or instantiating it fails.
-
-    Raises
-    ------
-    CosimulationError
-        If the file is not a valid FMU or lacks the interface asked for.
-    """
+    """Read an FMU's model description, extract and instantiate it (``Fmi2Fmu`` or ``Fmi3Fmu``); its folder
+    is removed if that fails. CosimulationError if the file is not a valid FMU or lacks the interface."""
     try:
         md = read_model_description(str(path))
     except (ValidationError, BadZipFile) as error:

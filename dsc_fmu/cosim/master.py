@@ -17,11 +17,11 @@ from ..scenario import Coupling, Interface, Order, Scenario, ScenarioError
 from .derivatives import InputDerivatives
 from .instance import LoadedFmu, LogMessage
 from .loading import LoadedFmus
-from .loop import Exchange, GaussSeidel, Jacobi, Run, step_count
+from .loop import Exchange, GaussSeidel, Jacobi, Run
 from .progress import Watch
 from .wiring import Wiring
 
-__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate", "step_count"]
+__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate"]
 
 
 class Overrides(TypedDict, total=False):

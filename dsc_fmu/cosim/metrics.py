@@ -4,28 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SETTLING_THRESHOLD", "tracking_metrics", "settling_time"]
+__all__ = ["SETTLING_THRESHOLD", "tracking_metrics"]
 
 SETTLING_THRESHOLD = 0.1  # m
 
 
 def settling_time(time: np.ndarray, error: np.ndarray, threshold: float) -> float | None:
-    """The first recorded time from which ``error`` stays below ``threshold``.
-
-    Parameters
-    ----------
-    time : numpy.ndarray
-        Row times in s.
-    error : numpy.ndarray
-        The error at each row (NaN counts as not below).
-    threshold : float
-        In the error's unit.
-
-    Returns
-    -------
-    float or None
-        The time in s from which every later row is below ``threshold``; None if the last row is not.
-    """
+    """The first row time (s) from which every ``error`` is below ``threshold`` (NaN is not); None if the last is not."""
     above = np.flatnonzero(~(np.asarray(error) < threshold))  # NaN counts as not settled
     if len(above) == 0:
         return float(time[0])

@@ -1,21 +1,7 @@
 """The closed loop as one FMI 2.0 co-simulation FMU: fmpy's container FMU around our three FMUs (FMI 2.0 or 3.0).
 
-fmpy's container (``fmpy.container_fmu``, a Rust shared library) couples its components like
-this (read from its source, ``native/container-fmu/container-fmu/src/lib.rs``):
-
-- at instantiation it sets the start values of the container's variables on the mapped
-  component variables (here: every parameter of the scenario, instantiated state);
-- ``fmi2ExitInitializationMode``: one transfer of every connection, in the order of the
-  configuration (get the source's output, set the destination's input), then exit on all;
-- every internal step of the fixed size ``fixedInternalStepSize``: all components
-  ``doStep(t, h)`` (sequentially, ``parallelDoStep`` False), then every connection transferred in
-  order, ``t += h``; an ``fmi2DoStep`` of the container of length H runs H / h internal steps.
-
-The connections are listed measurements first, then the controller's ``u1, u2``: the transfer
-sets the controller's new inputs before reading ``u``, so ``u_k = law(c_k, m_k)``, exactly our
-master's Jacobi at step h (``dsc_fmu.cosim.master``, ``order="jacobi"``). (With ``u`` first the
-container would behave as libcosim does, see ``dsc_fmu.cosim.exchange``.)
-"""
+The connections are listed measurements first, then the controller's ``u1, u2``, so the container couples as
+our master's Jacobi at its internal step (docs/other-tools.md, "How the other masters exchange")."""
 
 from __future__ import annotations
 

@@ -1,18 +1,8 @@
 """The closed loop as an SSP 1.0 archive, and runs of it with fmpy.ssp (libcosim's: ``interop.libcosim``).
 
-``export_ssp`` writes ``SystemStructure.ssd`` (three components, every connection, the scenario's
-parameters as one ``.ssv`` parameter set per component, the DefaultExperiment) and the three FMUs
-under ``resources/``. Two vendor annotations say how to run it: OMSimulator's on the system (a
-``oms:FixedStepMaster`` for co-simulation, a ``oms:VariableStepSolver`` for model exchange) and
-libcosim's ``osp:FixedStepAlgorithm`` on the DefaultExperiment. The SSD is named by an
-identifier (``model_name``), as OMSimulator requires. The SSD and the parameter sets are validated
-against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from the Modelica Association, BSD
-licence) before anything is written.
-
-``dsc_fmu.interop.libcosim.run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
-``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
-each does differently from ``dsc_fmu.cosim.master`` is in ``dsc_fmu.cosim.exchange``.
-"""
+The SSD and the parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from
+the Modelica Association, BSD licence) before anything is written; what the archive holds and how each tool
+runs it: docs/other-tools.md."""
 
 from __future__ import annotations
 
@@ -33,8 +23,7 @@ from ..platforms import LINUX_AARCH64, host_platform
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Interface, Scenario, ScenarioError, one_of
 
-__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "model_name", "validate_ssp",
-           "run_simulate_ssp", "SSPError"]
+__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "run_simulate_ssp", "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
                  ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
@@ -73,20 +62,8 @@ def _number(value: float) -> str:
 
 
 def model_name(scenario_name: str) -> str:
-    """The SSD's name for a scenario: an identifier OMSimulator accepts as its model's name.
-
-    Parameters
-    ----------
-    scenario_name : str
-        The scenario's name, any text.
-
-    Returns
-    -------
-    str
-        ``dsc_fmu_`` and the scenario's name, each character that is not an ASCII letter, digit or
-        underscore replaced by ``_``: ``model_name("paper")`` is ``"dsc_fmu_paper"``,
-        ``model_name("my run-2")`` is ``"dsc_fmu_my_run_2"``.
-    """
+    """The SSD's name for a scenario, an identifier OMSimulator accepts: ``dsc_fmu_`` and the name, each
+    character other than an ASCII letter, digit or underscore replaced by ``_`` (``my run-2``: ``dsc_fmu_my_run_2``)."""
     return _NOT_IDENT.sub("_", f"dsc_fmu_{scenario_name}")
 
 
@@ -180,18 +157,7 @@ def _check(xml: bytes, schema: str, what: str) -> None:
 
 
 def validate_ssp(ssp_file: Path | str) -> None:
-    """Validate the SSD and every parameter set of an archive against the SSP 1.0 schemas.
-
-    Parameters
-    ----------
-    ssp_file : pathlib.Path or str
-        The SSP archive.
-
-    Raises
-    ------
-    SSPError
-        If a file does not validate, with each problem's line and message.
-    """
+    """Validate an archive's SSD and parameter sets against the SSP 1.0 schemas; SSPError naming each problem's line."""
     with zipfile.ZipFile(ssp_file) as archive:
         _check(archive.read("SystemStructure.ssd"), "SystemStructureDescription.xsd", f"{ssp_file}: SystemStructure.ssd")
         for item in archive.namelist():
