@@ -78,13 +78,14 @@ class LoadedFmu:
     the masters make.
 
     The calls that FMI 2.0 and 3.0 name differently are this interface's methods (``get_floats``,
-    ``enter_initialization_mode``, ...), written out in ``Fmi2Fmu`` and ``Fmi3Fmu`` on fmpy's classes; the
-    others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
+    ``enter_initialization_mode``, ...) on fmpy's methods that ``Fmi2Fmu`` and ``Fmi3Fmu`` name (``_CALLS``);
+    the others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
     fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``).
     """
 
     fmi_version = 0
     _CLASSES: dict = {}  # model_exchange -> fmpy's class
+    _CALLS: tuple = ()  # fmpy's methods behind get_floats, set_floats, ..., update_discrete_states, in that order
 
     def __init__(self, name: str, workdir: Path | None, log: list[LogMessage], model_exchange: bool):
         self.name, self.log, self.model_exchange = name, log, model_exchange
@@ -119,6 +120,8 @@ class LoadedFmu:
             libraryPath=library_path(self.folder, self.fmi_version, self.model_identifier))
         self.call(self._instantiate, instance, callbacks)
         self.instance = instance  # only an instantiated instance is freed
+        (self._get_floats, self._set_floats, self._get_integers, self._set_integers, self._get_derivatives,
+         self._update_discrete_states) = (getattr(instance, name) for name in self._CALLS)
         self.used = False
 
     def _instantiate(self, instance, callbacks) -> None:
@@ -190,6 +193,34 @@ class LoadedFmu:
             error.fmu = self.name
             raise
 
+    def get_floats(self, refs: list[int]) -> list[float]:
+        try:
+            return self._get_floats(refs)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def set_floats(self, refs: list[int], values) -> None:
+        try:
+            self._set_floats(refs, values)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def get_integers(self, refs: list[int]) -> list[int]:
+        return self.call(self._get_integers, refs)
+
+    def set_integers(self, refs: list[int], values) -> None:
+        self.call(self._set_integers, refs, values)
+
+    def get_derivatives(self, buffer, n: int) -> None:
+        self.call(self._get_derivatives, buffer, n)
+
+    def update_discrete_states(self) -> tuple[bool, bool]:
+        """Whether the FMU needs another call, whether a continuous state changed."""
+        needed, _, _, changed, _, _ = self.call(self._update_discrete_states)
+        return needed, changed
+
     def terminate(self) -> None:
         """Terminate the instance if initialised; an FMU in an error state may refuse, which is ignored."""
         if self.initialised:
@@ -218,6 +249,8 @@ class Fmi2Fmu(LoadedFmu):
 
     fmi_version = 2
     _CLASSES = {False: FMU2Slave, True: FMU2Model}
+    # fmi2GetReal, fmi2SetReal, fmi2GetInteger, fmi2SetInteger, fmi2GetDerivatives, fmi2NewDiscreteStates
+    _CALLS = ("getReal", "setReal", "getInteger", "setInteger", "getDerivatives", "newDiscreteStates")
 
     def _instantiate(self, instance, callbacks) -> None:
         instance.instantiate(callbacks=callbacks, loggingOn=True)
@@ -227,39 +260,6 @@ class Fmi2Fmu(LoadedFmu):
         self.call(self.instance.setupExperiment, None, 0.0, stop_time)
         self.call(self.instance.enterInitializationMode)
 
-    def get_floats(self, refs: list[int]) -> list[float]:
-        """fmi2GetReal."""
-        try:
-            return self.instance.getReal(refs)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def set_floats(self, refs: list[int], values) -> None:
-        """fmi2SetReal."""
-        try:
-            self.instance.setReal(refs, values)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def get_integers(self, refs: list[int]) -> list[int]:
-        """fmi2GetInteger."""
-        return self.call(self.instance.getInteger, refs)
-
-    def set_integers(self, refs: list[int], values) -> None:
-        """fmi2SetInteger."""
-        self.call(self.instance.setInteger, refs, values)
-
-    def get_derivatives(self, buffer, n: int) -> None:
-        """fmi2GetDerivatives into ``buffer``."""
-        self.call(self.instance.getDerivatives, buffer, n)
-
-    def update_discrete_states(self) -> tuple[bool, bool]:
-        """fmi2NewDiscreteStates: whether it needs another call, whether a continuous state changed."""
-        needed, _, _, changed, _, _ = self.call(self.instance.newDiscreteStates)
-        return needed, changed
-
 
 class Fmi3Fmu(LoadedFmu):
     """An FMI 3.0 FMU on fmpy's ``FMU3Slave`` or ``FMU3Model`` (its messages logged under its name: FMI 3.0's
@@ -267,6 +267,10 @@ class Fmi3Fmu(LoadedFmu):
 
     fmi_version = 3
     _CLASSES = {False: FMU3Slave, True: FMU3Model}
+    # fmi3GetFloat64, fmi3SetFloat64, fmi3GetInt32, fmi3SetInt32, fmi3GetContinuousStateDerivatives,
+    # fmi3UpdateDiscreteStates
+    _CALLS = ("getFloat64", "setFloat64", "getInt32", "setInt32", "getContinuousStateDerivatives",
+              "updateDiscreteStates")
 
     def _instantiate(self, instance, callbacks) -> None:
         def logger(environment, status, category, message):
@@ -277,39 +281,6 @@ class Fmi3Fmu(LoadedFmu):
     def enter_initialization_mode(self, stop_time: float | None) -> None:
         """fmi3EnterInitializationMode on [0, ``stop_time``] s."""
         self.call(self.instance.enterInitializationMode, None, 0.0, stop_time)
-
-    def get_floats(self, refs: list[int]) -> list[float]:
-        """fmi3GetFloat64."""
-        try:
-            return self.instance.getFloat64(refs)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def set_floats(self, refs: list[int], values) -> None:
-        """fmi3SetFloat64."""
-        try:
-            self.instance.setFloat64(refs, values)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def get_integers(self, refs: list[int]) -> list[int]:
-        """fmi3GetInt32."""
-        return self.call(self.instance.getInt32, refs)
-
-    def set_integers(self, refs: list[int], values) -> None:
-        """fmi3SetInt32."""
-        self.call(self.instance.setInt32, refs, values)
-
-    def get_derivatives(self, buffer, n: int) -> None:
-        """fmi3GetContinuousStateDerivatives into ``buffer``."""
-        self.call(self.instance.getContinuousStateDerivatives, buffer, n)
-
-    def update_discrete_states(self) -> tuple[bool, bool]:
-        """fmi3UpdateDiscreteStates: whether it needs another call, whether a continuous state changed."""
-        needed, _, _, changed, _, _ = self.call(self.instance.updateDiscreteStates)
-        return needed, changed
 
 
 def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage], callbacks: fmi2CallbackFunctions,
