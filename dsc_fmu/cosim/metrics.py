@@ -32,11 +32,10 @@ def tracking_metrics(result: np.ndarray, stop_time: float) -> dict:
     Returns
     -------
     dict
-        JSON-serialisable. Over the window [2/3 stop_time, stop_time] (the rows recorded in it):
-        ``final_position_error_m``, ``rms_position_error_m`` and ``max_position_error_m`` (the
-        position error ``sqrt(xe^2 + ye^2)``, m), ``max_abs_thetae_rad``; the window's ends
-        ``window_start_s``, ``window_end_s``. Over the whole run: ``settling_time_0p1_s`` (from when the
-        position error stays below 0.1 m, None if never), ``max_abs_u_V`` (``max(|u1|, |u2|)``) and
+        JSON-serialisable. Over the rows in [2/3 stop_time, stop_time] (``window_start_s``, ``window_end_s``):
+        the position error ``sqrt(xe^2 + ye^2)``'s ``final_position_error_m``, ``rms_position_error_m`` and
+        ``max_position_error_m``, and ``max_abs_thetae_rad``. Over the whole run: ``settling_time_0p1_s``
+        (from when the position error stays below 0.1 m, None if never), ``max_abs_u_V`` and
         ``beta_guard_count`` (steps in which the controller's beta guard acted).
 
     Raises

@@ -50,8 +50,8 @@ def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
 def plot_signals(result: np.ndarray, path: Path | str) -> Path:
     """Fig. 2 against time (s): tracking errors, voltages, estimates and the weights' norms.
 
-    Panels: (a) xe, ye (m) and thetae (rad); (b) u1, u2 (V); (c) a1_hat (1/m) and a2_hat (1);
-    (d) the norms of W1_hat and W2_hat (1).
+    Panels: (a) xe, ye (m) and thetae (rad); (b) u1, u2 (V); (c) a1_hat (1/m) and a2_hat (1); (d) the
+    norms of W1_hat and W2_hat (1).
 
     Parameters
     ----------

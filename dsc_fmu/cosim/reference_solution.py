@@ -28,15 +28,13 @@ def output_times(stop_time: float, output_interval: float) -> np.ndarray:
 
     Parameters
     ----------
-    stop_time : float
-        s.
-    output_interval : float
-        s.
+    stop_time, output_interval : float
+        In s.
 
     Returns
     -------
     numpy.ndarray
-        The times in s; the last one is ``stop_time`` (an extra, shorter interval if it is not on the grid).
+        The times in s; the last is ``stop_time`` (after a shorter interval if it is not on the grid).
     """
     n = math.floor(stop_time / output_interval * (1.0 + 1e-12))
     times = np.arange(n + 1) * output_interval
@@ -95,8 +93,8 @@ def reference_solution(
     Returns
     -------
     numpy.ndarray
-        One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far
-        at which the beta guard acts (docs/model.md §5).
+        One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far at which
+        the beta guard acts (docs/model.md §5).
 
     Raises
     ------

@@ -125,9 +125,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
                stop_time: float | None = None) -> Path:
     """Write the scenario's closed loop as one FMI 2.0 co-simulation FMU (an fmpy container).
 
-    Every parameter of the three FMUs is a parameter of the container named ``<FMU>.<parameter>``
-    (``MobileRobot.x0``, say) whose start value is the scenario's; its outputs are every output of
-    ``cosim.signals.RECORDED`` under its own name. It couples by Jacobi at a fixed internal step.
+    It couples by Jacobi at a fixed internal step. Every parameter of the three FMUs is a parameter ``<FMU>.<parameter>`` (``MobileRobot.x0``, say) whose start
+    value is the scenario's; the outputs are those of ``cosim.signals.RECORDED`` under their own names.
 
     Parameters
     ----------
@@ -136,12 +135,9 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     out_file : pathlib.Path or str
         The FMU file to write.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0 or 3.0: the container, FMI
-        2.0 itself, runs either).
-    step_size : float or None, optional
-        The internal fixed step, in s. Default None: the scenario's.
-    stop_time : float or None, optional
-        The default experiment's stop time, in s. Default None: the scenario's.
+        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0 or 3.0).
+    step_size, stop_time : float or None, optional
+        The internal step and the default experiment's stop time, in s. Default None: the scenario's.
 
     Returns
     -------
@@ -151,8 +147,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     Raises
     ------
     ScenarioError
-        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario;
-        raised before anything is written.
+        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario; raised
+        before anything is written.
     FmuNotFoundError
         If one of the three FMUs is not given or not a file.
     """

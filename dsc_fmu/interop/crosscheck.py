@@ -76,18 +76,17 @@ def _readme(model: str, scenario: Scenario, h: float, stop: float, has_inputs: b
 def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario | None = None,
                      step_size: float | None = None, stop_time: float = DEFAULT_STOP_TIME,
                      platform: str = "linux64") -> dict[str, Path]:
-    """Write the cross-check folders of the three FMUs.
+    """Write the cross-check folders ``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>`` of the three FMUs.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str
-        The root of the cross-check tree; ``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>``.
+        The root of the cross-check tree.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs (the
-        fmi-cross-check repository's layout knows FMI 1.0 and 2.0 only).
+        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs.
     scenario : Scenario or None, optional
-        The closed loop to run. It must keep every parameter at its start value (the FMUs are replayed
-        with their defaults). Default None: the paper's scenario.
+        The closed loop to run, every parameter at its start value (the FMUs are replayed with their
+        defaults). Default None: the paper's scenario.
     step_size : float or None, optional
         The communication step, in s. Default None: the scenario's.
     stop_time : float, optional

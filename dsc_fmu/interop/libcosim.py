@@ -22,7 +22,7 @@ from ..registry import ORDER
 from .libcosim_install import require_libcosimpy
 from .ssp import SSPError
 
-__all__ = ["run_libcosim", "run_libcosim_fmu_in_own_process"]
+__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process"]
 
 NANO = 1_000_000_000
 
@@ -70,45 +70,41 @@ def _watch(execution, observer, index: int, names, where: str) -> list[tuple[str
     return watched
 
 
-def _observed(observer, watched, steps: int) -> tuple[np.ndarray, dict]:
-    """Times (s) and values of every watched variable: one sample after initialisation and one after
-    each of the ``steps`` steps, else SSPError."""
-    columns, stamps = {}, None
-    for name, index, reference, integer in watched:
+def _observed(observer, watched, steps: int, dtype) -> np.ndarray:
+    """A row of ``time`` (s) and every watched variable after initialisation and after each of the ``steps``
+    steps, else SSPError."""
+    result = np.zeros(steps + 1, dtype=dtype)
+    for k, (name, index, reference, integer) in enumerate(watched):
         t, step_numbers, values = _samples(observer, index, reference, steps + 16, integer)
         if not np.array_equal(step_numbers, np.arange(steps + 1)):
             raise SSPError(f"libcosim: {name} has samples of the steps {step_numbers[:3]}...; expected 0..{steps}")
-        stamps = t if stamps is None else stamps
-        columns[name] = values
-    return stamps / NANO, columns
+        if k == 0:
+            result["time"] = t / NANO
+        result[name] = values
+    return result
 
 
 def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
     """Co-simulate an SSP archive of the closed loop with libcosim's fixed-step algorithm.
 
-    The result is sampled as libcosim's time series observer records it: at t = 0 after
-    initialisation, then after every step.
-
     Parameters
     ----------
     ssp_file : pathlib.Path or str
         The archive, with the three components of ``registry.ORDER`` (``export_ssp``).
-    step_size : float
-        The communication step, in s (rounded to whole ns).
-    stop_time : float
-        The stop time, in s, rounded up to a whole number of steps.
+    step_size, stop_time : float
+        The communication step (rounded to whole ns) and the stop time (rounded up to a whole number of
+        steps), in s.
 
     Returns
     -------
     numpy.ndarray
-        One row per communication point (dtype ``cosim.signals.DTYPE``): ``time`` in s, every output of
-        ``cosim.signals.RECORDED`` and the tracking errors derived from them.
+        A row (dtype ``cosim.signals.DTYPE``) as libcosim's time series observer samples them: at t = 0 after
+        initialisation, then after every step.
 
     Raises
     ------
     SSPError
-        If the archive's components are not the three FMUs, a variable cannot be observed or libcosim
-        fails.
+        If the archive's components are not the three FMUs, a variable cannot be observed or libcosim fails.
     LibcosimUnavailableError
         If libcosimpy is not installed (the extra ``libcosim``).
     """
@@ -129,11 +125,7 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
         from libcosimpy._internal import get_last_error_message
 
         raise SSPError(f"libcosim failed: {get_last_error_message()}")
-    times, columns = _observed(observer, watched, steps)
-    result = np.zeros(len(times), dtype=signals.DTYPE)
-    result["time"] = times
-    for signal, values in columns.items():
-        result[signal] = values
+    result = _observed(observer, watched, steps, signals.DTYPE)
     signals.add_tracking_errors(result)
     return result
 
@@ -149,15 +141,37 @@ def _held_row(times: np.ndarray, t: float, h: float) -> int:
 
 def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                      inputs: np.ndarray | None = None, instance_name: str = "fmu") -> np.ndarray:
-    """Run one co-simulation FMU alone in libcosim at a fixed step (s, rounded to whole ns) to ``stop_time``
-    (s, rounded up to a whole number of steps), with its start values; a row of ``time`` and ``outputs`` after
-    initialisation, then after each step, stamped with its end.
+    """Run one co-simulation FMU alone in libcosim at a fixed step, with its start values.
 
-    ``inputs``: a table of Real inputs (``time`` in s and a column per input, e.g. ``fmpy.util.read_csv`` of a
-    cross-check ``<Model>_in.csv``), read sample-and-hold: the values at ``t_0`` set as initial values, later
-    ones by libcosim's override manipulator before each step. SSPError if libcosim cannot load the FMU, a name
-    is not a variable (or a column not a Real input) of it, the table starts after 0 or libcosim fails;
-    LibcosimUnavailableError without libcosimpy."""
+    Parameters
+    ----------
+    fmu_path : pathlib.Path or str
+        The FMU file.
+    step_size, stop_time : float
+        The communication step (rounded to whole ns) and the stop time (rounded up to a whole number of
+        steps), in s.
+    outputs : sequence of str
+        The names of the variables to record.
+    inputs : numpy.ndarray or None, optional
+        Real inputs: ``time`` (s) and a column per input (``fmpy.util.read_csv`` of a cross-check
+        ``<Model>_in.csv``), sample-and-hold: the values at ``t_0`` set as initial values, later ones by
+        libcosim's override manipulator before each step. Default None: no inputs.
+    instance_name : str, optional
+        The FMU's instance name. Default "fmu".
+
+    Returns
+    -------
+    numpy.ndarray
+        ``time`` (s) and ``outputs``: a row after initialisation, then one after each step, stamped with its end.
+
+    Raises
+    ------
+    SSPError
+        If libcosim cannot load the FMU, a name is not a variable (or a column not a Real input) of it, the
+        table starts after 0, or libcosim fails.
+    LibcosimUnavailableError
+        If libcosimpy is not installed (the extra ``libcosim``).
+    """
     require_libcosimpy("run_libcosim_fmu")
     from libcosimpy.CosimEnums import CosimVariableCausality, CosimVariableType
     from libcosimpy.CosimExecution import CosimExecution
@@ -208,33 +222,23 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
 
             raise SSPError(f"libcosim failed at step {k} (t = {k * h / NANO!r} s): {get_last_error_message()}")
 
-    times, columns = _observed(observer, watched, steps)
-    result = np.zeros(steps + 1, dtype=[("time", np.float64)] + [(n, np.float64) for n in outputs])
-    result["time"] = times
-    for name, values in columns.items():
-        result[name] = values
-    return result
+    return _observed(observer, watched, steps, [("time", np.float64)] + [(n, np.float64) for n in outputs])
 
 
 def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                                     inputs_csv: Path | str | None = None, timeout: float = 600) -> np.ndarray:
-    """Run one co-simulation FMU alone in libcosim, in a child process.
-
-    The child is ``python -m dsc_fmu.interop.libcosim`` (``main``), which calls ``run_libcosim_fmu``.
+    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.interop.libcosim``).
 
     Parameters
     ----------
     fmu_path : pathlib.Path or str
         The FMU file.
-    step_size : float
-        The communication step, in s.
-    stop_time : float
-        The stop time, in s, rounded up to a whole number of steps.
+    step_size, stop_time : float
+        The communication step and the stop time, in s.
     outputs : sequence of str
         The names of the variables to record.
     inputs_csv : pathlib.Path or str or None, optional
-        A CSV file of inputs in the cross-check format, read with ``fmpy.util.read_csv`` as
-        ``run_libcosim_fmu``'s ``inputs``. Default None: no inputs.
+        A CSV file of inputs in the cross-check format (``run_libcosim_fmu``'s ``inputs``). Default None.
     timeout : float, optional
         How long the child may run, in s. Default 600.
 
@@ -248,7 +252,7 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
     SSPError
         If the child fails, with the end of its error output.
     LibcosimUnavailableError
-        If libcosimpy is not installed (the extra ``libcosim``): checked before the child starts.
+        If libcosimpy is not installed: checked before the child starts.
     subprocess.TimeoutExpired
         If the child runs longer than ``timeout``.
     """

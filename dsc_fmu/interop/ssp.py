@@ -168,10 +168,9 @@ def validate_ssp(ssp_file: Path | str) -> None:
 def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
                interface: Interface | str = Interface.CO_SIMULATION, step_size: float | None = None,
                stop_time: float | None = None) -> Path:
-    """Write the scenario's closed loop as an SSP 1.0 archive.
+    """Write the scenario's closed loop as an SSP 1.0 archive, its model named ``model_name(scenario.name)``.
 
-    Only ``out_file`` is written, and only once everything has been checked. The archive's model is
-    named ``model_name(scenario.name)``.
+    Only ``out_file`` is written, and only once everything has been checked.
 
     Parameters
     ----------
@@ -182,14 +181,11 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
     fmu_paths : dict
         FMU name (``registry.ORDER``) -> path of each of the three FMUs.
     interface : {"co-simulation", "model-exchange"} or Interface, optional
-        What OMSimulator's annotation asks for. "co-simulation" (default): its fixed-step master at
-        the communication step. "model-exchange": CVode over the three FMUs at the scenario's
-        ``tolerance`` (``cosim.model_exchange.DEFAULT_TOLERANCE`` if it has none), at most one
-        ``output_interval`` per step. libcosim and fmpy co-simulate either archive.
-    step_size : float or None, optional
-        The communication step, in s. Default None: the scenario's.
-    stop_time : float or None, optional
-        The stop time, in s. Default None: the scenario's.
+        What OMSimulator's annotation asks for: its fixed-step master at the communication step (default), or
+        CVode over the three FMUs at the scenario's ``tolerance`` (``DEFAULT_TOLERANCE`` if it has none), at
+        most one ``output_interval`` per step. libcosim and fmpy co-simulate either archive.
+    step_size, stop_time : float or None, optional
+        The communication step and the stop time, in s. Default None: the scenario's.
 
     Returns
     -------
@@ -199,12 +195,12 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
     Raises
     ------
     ScenarioError
-        If ``interface`` is not one of ``Interface``'s, a simulation setting is bad or not finite, or
-        an FMU lacks a parameter of the scenario.
+        If ``interface`` is not one of ``Interface``'s, a simulation setting is bad or not finite, or an FMU
+        lacks a parameter of the scenario.
     FmuNotFoundError
-        If one of the three FMUs is not given or not a file (a FileNotFoundError).
+        If one of the three FMUs is not given or not a file.
     FmiVersionError
-        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why); nothing is written.
+        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why).
     SSPError
         If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
@@ -241,31 +237,27 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
 
 def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *,
                      start_on: str | None = "valid_inputs") -> np.ndarray:
-    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp``.
+    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp``, passing it the archive's parameters.
 
-    ``simulate_ssp`` ignores the archive's parameter bindings, so they are read from it and passed as
-    its ``parameter_set``. It starts every connection at 0 without an initial exchange, so the
-    controller's first step sees v_r = 0, which it refuses (Assumption 2) unless its ``start_on`` is
-    valid_inputs (docs/model.md §5.2).
+    ``simulate_ssp`` ignores the archive's parameter bindings and starts every connection at 0 without an
+    initial exchange, so the controller's first step sees v_r = 0, which it refuses (Assumption 2) unless its
+    ``start_on`` is valid_inputs (docs/model.md §5.2).
 
     Parameters
     ----------
     ssp_file : pathlib.Path or str
         The archive (``export_ssp``).
-    step_size : float
-        The communication step, in s.
-    stop_time : float
-        The stop time, in s.
+    step_size, stop_time : float
+        The communication step and the stop time, in s.
     start_on : {"valid_inputs", "first_use"} or None, optional
-        The controller's ``start_on`` (``models.parameters.START_ON``), overriding the archive's
-        value; None keeps it. Default "valid_inputs".
+        The controller's ``start_on`` (``models.parameters.START_ON``) instead of the archive's; None keeps
+        it. Default "valid_inputs".
 
     Returns
     -------
     numpy.ndarray
-        One row per step (dtype ``cosim.signals.DTYPE``, tracking errors derived), **stamped as
-        simulate_ssp stamps them**: each row holds the values after the step that *starts* at its
-        ``time`` (s).
+        One row per step (dtype ``cosim.signals.DTYPE``), **stamped as simulate_ssp stamps them**: each row
+        holds the values after the step that *starts* at its ``time`` (s).
 
     Raises
     ------
