@@ -124,9 +124,6 @@ class LoadedFmu:
          self._update_discrete_states) = (getattr(instance, name) for name in self._CALLS)
         self.used = False
 
-    def _instantiate(self, instance, callbacks) -> None:
-        raise NotImplementedError
-
     def call(self, function, *args):
         """``function(*args)``, a method of ``instance``; a failing call names this FMU (``failed_call``)."""
         try:

@@ -1,11 +1,9 @@
 """The error-controlled communication step (docs/co-simulation.md, "Error-controlled step"): each step's
 coupling error estimated from the defect of the exchanged voltages, and the next step size from it.
 
-Over a step the plant sees ``u`` held (hold coupling) or extrapolated from the last two communication
-points (linear). The defect ``E = max |u_k+1 - u_hat_k+1|`` between the controller's actual ``u_k+1`` and
-what the coupling assumed is of order ``h`` (hold) or ``h^2`` (linear), ``scenario.Coupling.order``; the
-position error it leaves is estimated as ``error_gain * E`` (m/V, a scenario setting measured on the
-paper's scenario, see the docs).
+The defect ``E = max |u_k+1 - u_hat_k+1|`` between the controller's ``u_k+1`` and what the coupling assumed
+(held, or on the line through the last two points) is of order ``h`` or ``h^2`` (``scenario.Coupling.order``);
+the position error it leaves is estimated as ``error_gain * E`` (m/V).
 
 >>> defect((10.0, 20.0), (11.0, 20.5), None, 1e-3, 1e-3)
 1.0
