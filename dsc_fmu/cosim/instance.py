@@ -121,7 +121,7 @@ class LoadedFmu:
         self.call(self._instantiate, instance, callbacks)
         self.instance = instance  # only an instantiated instance is freed
         (self._get_floats, self._set_floats, self._get_integers, self._set_integers, self._get_derivatives,
-         self._update_discrete_states) = (getattr(instance, name) for name in self._CALLS)
+         self._update_discrete_states) = (getattr(instance, name, None) for name in self._CALLS)  # None: not offered
         self.used = False
 
     def call(self, function, *args):
