@@ -34,8 +34,7 @@ class Overrides(TypedDict, total=False):
     order : Order or {"gauss-seidel", "jacobi"}, optional
         Coupling order.
     coupling : {"hold", "linear"} or Coupling, optional
-        How the FMUs vary their inputs over a step (their ``coupling`` parameters): held, or linear (the plant
-        extrapolates ``u``; the controller interpolates its inputs with Gauss-Seidel, extrapolates with Jacobi).
+        How the FMUs vary their inputs over a step (their ``coupling`` parameters; docs/co-simulation.md).
     tolerance : float, optional
         Error-controlled step (``step_control``): the estimated position error in m each step may add. A step
         that misses it is taken again, smaller, from the FMU states saved before it, within ``[h_min, h_max]``.
@@ -218,10 +217,8 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path 
                watch: Watch | None = None, **settings: Unpack[Overrides]) -> CosimulationResult:
     """Co-simulate a scenario with the three FMUs (FMI 2.0 or 3.0) on fmpy.
 
-    Communication points ``t_k = k h`` and a last, shorter step to ``stop_time``; at each the controller's
-    inputs are set from the plant's and the reference's outputs and its ``u`` goes to the plant (Gauss-Seidel:
-    the controller steps with their outputs at ``t_{k+1}``; Jacobi: all three from ``t_k``); a row at t = 0,
-    every ``round(output_interval / h)`` steps and at ``stop_time`` (docs/co-simulation.md). For many runs,
+    Communication points ``t_k = k h`` and a last, shorter step to ``stop_time``; a row at t = 0, every
+    ``round(output_interval / h)`` steps and at ``stop_time`` (docs/co-simulation.md). For many runs,
     ``Cosimulator`` loads the FMUs once and gives the same results.
 
     Parameters
