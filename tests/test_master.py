@@ -10,7 +10,8 @@ import pytest
 from fmpy.util import read_csv, write_csv
 
 from dsc_fmu.cosim import signals
-from dsc_fmu.cosim.master import CosimulationError, cosimulate, step_count
+from dsc_fmu.cosim.loop import step_count
+from dsc_fmu.cosim.master import CosimulationError, cosimulate
 from dsc_fmu.scenario import ScenarioError, load_scenario
 
 ORDERS = ("gauss-seidel", "jacobi")

@@ -14,7 +14,7 @@ from __future__ import annotations
 from .instance import LoadedFmu
 from .loop import Exchange, Run
 
-__all__ = ["InputDerivatives"]
+__all__: list[str] = []  # the package's own: InputDerivatives
 
 
 def _slope(now: list, before: list, dt: float) -> list:
@@ -26,13 +26,7 @@ def _set_slopes(fmu: LoadedFmu, refs: list[int], slopes: list[float]) -> None:
 
 
 class InputDerivatives(Exchange):
-    """Our exchange with the slopes set before each step from the last two exchanges (the module's rule).
-
-    Parameters
-    ----------
-    jacobi : bool
-        Jacobi (the controller's slopes extrapolate) rather than Gauss-Seidel (they interpolate).
-    """
+    """Our exchange with the slopes set before each step (the module's rule), Jacobi or Gauss-Seidel."""
 
     def __init__(self, jacobi: bool):
         self.jacobi = jacobi

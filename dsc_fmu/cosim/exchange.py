@@ -1,30 +1,6 @@
-"""Co-simulation with the exchange schemes of other masters, to compare their results with ours.
-
-``dsc_fmu.cosim.master`` reads the controller's ``u`` *after* setting its inputs at every communication
-point (direct feedthrough honoured). Other masters do not:
-
-- ``"jacobi"``: our master's Jacobi (``loop.Jacobi``), recorded at every step with what each FMU held.
-- ``"libcosim"``: libcosim's ``fixed_step_algorithm`` (OSP). Initialisation: parameters set, then in
-  initialisation mode N = 3 rounds of (set pending inputs, read outputs, transfer), then
-  ``fmi2ExitInitializationMode`` on all, one more read and transfer. Step k: every FMU gets the
-  values transferred last, all ``doStep(t_k, h)``, then every output is read and transferred.
-  So the controller's ``u`` that reaches the plant for the step from ``t_k`` (k >= 1) is read
-  right after the controller's step, before its inputs are updated: ``u_k = law(c_k, m_{k-1})``
-  instead of ours ``law(c_k, m_k)``: one extra step of delay on the feedthrough path. At t = 0
-  the initialisation rounds give ``u_0 = law(c_0, m_0)``, as ours.
-- ``"simulate_ssp"``: ``fmpy.ssp.simulate_ssp``: parameters set before initialisation, no
-  initial exchange (every connector starts at 0.0, so the controller's first step sees all-zero
-  measurements, v_r = 0 among them: it refuses the step, or with ``start_on`` = valid_inputs waits
-  it out with u = 0; the plant's first step gets u = 0), then the same step/transfer order as
-  libcosim, the FMUs stepped in the order of the SSD, the time advanced by repeated addition of h
-  while ``time < stop_time``.
-
-Rows: ``time`` and every output of ``signals.RECORDED`` at every communication point, as each
-master observes it: our Jacobi after the exchange at ``t_k``; libcosim and simulate_ssp after the
-step that ends at ``t_k`` (libcosim's time series observer; ``simulate_ssp`` stamps that row with
-``t_{k-1}``). The inputs each FMU held over each step are
-recorded too (``inputs``: name -> structured array, ``time`` = the step's start).
-"""
+"""Co-simulation with the exchange schemes of other masters, to compare their results with ours: our Jacobi
+recorded as an importer replaying one FMU sees it, libcosim's and ``fmpy.ssp.simulate_ssp``'s schedules
+(docs/other-tools.md, "How the other masters exchange")."""
 
 from __future__ import annotations
 
@@ -39,25 +15,15 @@ from .loading import LoadedFmus
 from .loop import Exchange, Jacobi, Run
 from .wiring import Wiring
 
-__all__ = ["MODES", "ExchangeRun", "cosimulate_exchange"]
+__all__: list[str] = []  # the package's own: MODES, ExchangeRun, cosimulate_exchange
 
 
 @dataclass
 class ExchangeRun:
-    """What a run under another master's exchange recorded.
-
-    Parameters
-    ----------
-    result : numpy.ndarray
-        A row at every communication point, dtype ``signals.DTYPE``.
-    inputs : dict of str to numpy.ndarray
-        For each FMU with inputs, the inputs it held over each step (``time``: the step's start, s).
-    controller_before_inputs : numpy.ndarray, optional
-        Jacobi only: the controller's recorded outputs at each communication point read right after
-        its step, before its inputs are updated (row 0: after the first exchange), which is what an
-        importer that replays it alone with its input file records (fmpy.simulate_fmu samples the
-        outputs after each doStep and sets the next inputs afterwards).
-    """
+    """What a run under another master's exchange recorded: the rows (dtype ``signals.DTYPE``), the inputs each
+    FMU held over each step (``time``: the step's start) and, Jacobi only, the controller's outputs read right
+    after its step, before its inputs are updated (row 0: after the first exchange), as an importer replaying it
+    alone records them."""
 
     result: np.ndarray
     inputs: dict
@@ -146,33 +112,8 @@ class _Trace:
 
 def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_size: float | None = None,
                         stop_time: float | None = None) -> ExchangeRun:
-    """Co-simulate a scenario with another master's exchange scheme (see the module), at fixed steps.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario.
-    fmu_paths : dict
-        The three FMU files by name.
-    mode : {"jacobi", "libcosim", "simulate_ssp"}
-        The scheme (``MODES``).
-    step_size, stop_time : float, optional
-        s; None: the scenario's.
-
-    Returns
-    -------
-    ExchangeRun
-        The rows as that master observes them, and the inputs each FMU held.
-
-    Raises
-    ------
-    ScenarioError
-        If ``mode`` is not one of ``MODES``.
-    FmuNotFoundError
-        If an FMU is not given or not a file.
-    CosimulationError
-        Our Jacobi: a divergence, as for ``cosimulate``; any scheme: a failing FMI call.
-    """
+    """Co-simulate a scenario at fixed steps with the exchange scheme ``mode`` (``MODES``; ScenarioError if not
+    one of them)."""
     mode = one_of(_EXCHANGES, mode, "mode")
     scenario = scenario.with_simulation(step_size=step_size, stop_time=stop_time)
     log = []

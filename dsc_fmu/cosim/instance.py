@@ -20,24 +20,14 @@ from fmpy.model_description import ValidationError
 from ..errors import CosimulationError
 from ..platforms import library_path
 
-__all__ = ["LogMessage", "load_fmu", "failed_call", "logging_callbacks", "type_name"]
+__all__: list[str] = []  # the package's own: LoadedFmu, load_fmu, failed_call, logging_callbacks, ...
 
 _STATUS = ("OK", "WARNING", "DISCARD", "ERROR", "FATAL", "PENDING")
 
 
 @dataclass(frozen=True)
 class LogMessage:
-    """One message an FMU sent to the logger callback.
-
-    Parameters
-    ----------
-    fmu : str
-        The FMU's instance name.
-    status : str
-        ``OK``, ``WARNING``, ``DISCARD``, ``ERROR``, ``FATAL`` or ``PENDING``.
-    message : str
-        The text.
-    """
+    """One message an FMU sent to the logger; ``status`` is ``OK``, ``WARNING``, ..., ``PENDING``."""
 
     fmu: str
     status: str
@@ -49,18 +39,7 @@ def _status(status: int) -> str:
 
 
 def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
-    """FMI 2.0 callbacks whose logger appends every message to ``log``.
-
-    Parameters
-    ----------
-    log : list of LogMessage
-        Where the messages go.
-
-    Returns
-    -------
-    fmpy.fmi2.fmi2CallbackFunctions
-        Keep it alive as long as an instance uses it.
-    """
+    """FMI 2.0 callbacks whose logger appends every message to ``log`` (keep them alive while an instance uses them)."""
 
     def logger(component, instance, status, category, message):
         text = [(b or b"").decode(errors="replace") for b in (instance, message)]
@@ -77,22 +56,8 @@ def logging_callbacks(log: list[LogMessage]) -> fmi2CallbackFunctions:
 
 
 def failed_call(error: FMICallException, log: list[LogMessage], at: float) -> CosimulationError:
-    """The CosimulationError of a failing FMI call at ``at`` (s), naming the FMU that made it.
-
-    Parameters
-    ----------
-    error : fmpy.fmi1.FMICallException
-        The failing call, as a ``LoadedFmu`` raises it (its ``fmu`` names the FMU).
-    log : list of LogMessage
-        The run's log messages; the FMU's last three go into the message.
-    at : float
-        Time of the failure in s.
-
-    Returns
-    -------
-    CosimulationError
-        Its message names the FMU, the time and the FMU's last log messages; ``fmu`` is the FMU's name.
-    """
+    """The CosimulationError of a failing FMI call at ``at`` (s): it names the FMU (``fmu``), the time
+    and the FMU's last three log messages."""
     name = getattr(error, "fmu", "an FMU")
     messages = "; ".join([f"[{m.status}] {m.message}" for m in log if m.fmu == name][-3:]) or "none"
     failure = CosimulationError(f"{name} failed at t = {at:.6g} s: {error} Its last log messages: {messages}", at)
@@ -104,18 +69,7 @@ _KINDS = {"Float64": "Real", "Int32": "Integer"}  # FMI 3.0 types under the FMI 
 
 
 def type_name(variable) -> str:
-    """The FMI 2.0 type name of a model variable of either FMI version.
-
-    Parameters
-    ----------
-    variable : fmpy.model_description.ScalarVariable
-        The variable.
-
-    Returns
-    -------
-    str
-        ``Real``, ``Integer``, ...: FMI 3.0's ``Float64`` and ``Int32`` under their FMI 2.0 names.
-    """
+    """A variable's FMI 2.0 type name: FMI 3.0's ``Float64`` and ``Int32`` as ``Real`` and ``Integer``."""
     return _KINDS.get(variable.type, variable.type)
 
 
@@ -124,13 +78,14 @@ class LoadedFmu:
     the masters make.
 
     The calls that FMI 2.0 and 3.0 name differently are this interface's methods (``get_floats``,
-    ``enter_initialization_mode``, ...), written out in ``Fmi2Fmu`` and ``Fmi3Fmu`` on fmpy's classes; the
-    others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
+    ``enter_initialization_mode``, ...) on fmpy's methods that ``Fmi2Fmu`` and ``Fmi3Fmu`` name (``_CALLS``);
+    the others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
     fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``).
     """
 
     fmi_version = 0
     _CLASSES: dict = {}  # model_exchange -> fmpy's class
+    _CALLS: tuple = ()  # fmpy's methods behind get_floats, set_floats, ..., update_discrete_states, in that order
 
     def __init__(self, name: str, workdir: Path | None, log: list[LogMessage], model_exchange: bool):
         self.name, self.log, self.model_exchange = name, log, model_exchange
@@ -165,10 +120,9 @@ class LoadedFmu:
             libraryPath=library_path(self.folder, self.fmi_version, self.model_identifier))
         self.call(self._instantiate, instance, callbacks)
         self.instance = instance  # only an instantiated instance is freed
+        (self._get_floats, self._set_floats, self._get_integers, self._set_integers, self._get_derivatives,
+         self._update_discrete_states) = (getattr(instance, name, None) for name in self._CALLS)  # None: not offered
         self.used = False
-
-    def _instantiate(self, instance, callbacks) -> None:
-        raise NotImplementedError
 
     def call(self, function, *args):
         """``function(*args)``, a method of ``instance``; a failing call names this FMU (``failed_call``)."""
@@ -236,6 +190,34 @@ class LoadedFmu:
             error.fmu = self.name
             raise
 
+    def get_floats(self, refs: list[int]) -> list[float]:
+        try:
+            return self._get_floats(refs)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def set_floats(self, refs: list[int], values) -> None:
+        try:
+            self._set_floats(refs, values)
+        except FMICallException as error:
+            error.fmu = self.name
+            raise
+
+    def get_integers(self, refs: list[int]) -> list[int]:
+        return self.call(self._get_integers, refs)
+
+    def set_integers(self, refs: list[int], values) -> None:
+        self.call(self._set_integers, refs, values)
+
+    def get_derivatives(self, buffer, n: int) -> None:
+        self.call(self._get_derivatives, buffer, n)
+
+    def update_discrete_states(self) -> tuple[bool, bool]:
+        """Whether the FMU needs another call, whether a continuous state changed."""
+        needed, _, _, changed, _, _ = self.call(self._update_discrete_states)
+        return needed, changed
+
     def terminate(self) -> None:
         """Terminate the instance if initialised; an FMU in an error state may refuse, which is ignored."""
         if self.initialised:
@@ -264,6 +246,8 @@ class Fmi2Fmu(LoadedFmu):
 
     fmi_version = 2
     _CLASSES = {False: FMU2Slave, True: FMU2Model}
+    # fmi2GetReal, fmi2SetReal, fmi2GetInteger, fmi2SetInteger, fmi2GetDerivatives, fmi2NewDiscreteStates
+    _CALLS = ("getReal", "setReal", "getInteger", "setInteger", "getDerivatives", "newDiscreteStates")
 
     def _instantiate(self, instance, callbacks) -> None:
         instance.instantiate(callbacks=callbacks, loggingOn=True)
@@ -273,39 +257,6 @@ class Fmi2Fmu(LoadedFmu):
         self.call(self.instance.setupExperiment, None, 0.0, stop_time)
         self.call(self.instance.enterInitializationMode)
 
-    def get_floats(self, refs: list[int]) -> list[float]:
-        """fmi2GetReal."""
-        try:
-            return self.instance.getReal(refs)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def set_floats(self, refs: list[int], values) -> None:
-        """fmi2SetReal."""
-        try:
-            self.instance.setReal(refs, values)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def get_integers(self, refs: list[int]) -> list[int]:
-        """fmi2GetInteger."""
-        return self.call(self.instance.getInteger, refs)
-
-    def set_integers(self, refs: list[int], values) -> None:
-        """fmi2SetInteger."""
-        self.call(self.instance.setInteger, refs, values)
-
-    def get_derivatives(self, buffer, n: int) -> None:
-        """fmi2GetDerivatives into ``buffer``."""
-        self.call(self.instance.getDerivatives, buffer, n)
-
-    def update_discrete_states(self) -> tuple[bool, bool]:
-        """fmi2NewDiscreteStates: whether it needs another call, whether a continuous state changed."""
-        needed, _, _, changed, _, _ = self.call(self.instance.newDiscreteStates)
-        return needed, changed
-
 
 class Fmi3Fmu(LoadedFmu):
     """An FMI 3.0 FMU on fmpy's ``FMU3Slave`` or ``FMU3Model`` (its messages logged under its name: FMI 3.0's
@@ -313,6 +264,10 @@ class Fmi3Fmu(LoadedFmu):
 
     fmi_version = 3
     _CLASSES = {False: FMU3Slave, True: FMU3Model}
+    # fmi3GetFloat64, fmi3SetFloat64, fmi3GetInt32, fmi3SetInt32, fmi3GetContinuousStateDerivatives,
+    # fmi3UpdateDiscreteStates
+    _CALLS = ("getFloat64", "setFloat64", "getInt32", "setInt32", "getContinuousStateDerivatives",
+              "updateDiscreteStates")
 
     def _instantiate(self, instance, callbacks) -> None:
         def logger(environment, status, category, message):
@@ -324,70 +279,11 @@ class Fmi3Fmu(LoadedFmu):
         """fmi3EnterInitializationMode on [0, ``stop_time``] s."""
         self.call(self.instance.enterInitializationMode, None, 0.0, stop_time)
 
-    def get_floats(self, refs: list[int]) -> list[float]:
-        """fmi3GetFloat64."""
-        try:
-            return self.instance.getFloat64(refs)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def set_floats(self, refs: list[int], values) -> None:
-        """fmi3SetFloat64."""
-        try:
-            self.instance.setFloat64(refs, values)
-        except FMICallException as error:
-            error.fmu = self.name
-            raise
-
-    def get_integers(self, refs: list[int]) -> list[int]:
-        """fmi3GetInt32."""
-        return self.call(self.instance.getInt32, refs)
-
-    def set_integers(self, refs: list[int], values) -> None:
-        """fmi3SetInt32."""
-        self.call(self.instance.setInt32, refs, values)
-
-    def get_derivatives(self, buffer, n: int) -> None:
-        """fmi3GetContinuousStateDerivatives into ``buffer``."""
-        self.call(self.instance.getContinuousStateDerivatives, buffer, n)
-
-    def update_discrete_states(self) -> tuple[bool, bool]:
-        """fmi3UpdateDiscreteStates: whether it needs another call, whether a continuous state changed."""
-        needed, _, _, changed, _, _ = self.call(self.instance.updateDiscreteStates)
-        return needed, changed
-
 
 def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage], callbacks: fmi2CallbackFunctions,
              model_exchange: bool = False) -> LoadedFmu:
-    """Read an FMU's model description, extract and instantiate it as ``Fmi2Fmu`` or ``Fmi3Fmu``.
-
-    Parameters
-    ----------
-    name : str
-        The FMU's name, also its instance name.
-    path : pathlib.Path
-        The FMU file.
-    workdir : pathlib.Path or None
-        Where its extraction folder is made; None: the system's temporary folder.
-    log : list of LogMessage
-        Where its messages go.
-    callbacks : fmpy.fmi2.fmi2CallbackFunctions
-        An FMI 2.0 FMU's logger and memory callbacks (``logging_callbacks`` of ``log``).
-    model_exchange : bool, optional
-        Model exchange instead of co-simulation. Default False.
-
-    Returns
-    -------
-    LoadedFmu
-        Instantiated (``close`` frees it and removes its folder); its folder is removed if extracting
-        or instantiating it fails.
-
-    Raises
-    ------
-    CosimulationError
-        If the file is not a valid FMU or lacks the interface asked for.
-    """
+    """Read an FMU's model description, extract and instantiate it (``Fmi2Fmu`` or ``Fmi3Fmu``); its folder
+    is removed if that fails. CosimulationError if the file is not a valid FMU or lacks the interface."""
     try:
         md = read_model_description(str(path))
     except (ValidationError, BadZipFile) as error:

@@ -16,20 +16,13 @@ from .instance import LoadedFmu
 if TYPE_CHECKING:
     import control
 
-__all__ = ["Blocks", "fmu_blocks", "loop_jacobian", "closed_loop_state_space"]
+__all__: list[str] = []  # the package's own: Blocks, fmu_blocks, loop_jacobian, closed_loop_state_space
 
 
 @dataclass(frozen=True)
 class Blocks:
-    """One FMU linearised: ``x' = A x + B u``, ``y = C x + D u`` in deviations from its current point.
-
-    Parameters
-    ----------
-    A, B, C, D : numpy.ndarray
-        Shapes (n, n), (n, m), (p, n), (p, m) for n continuous states, m inputs and p outputs.
-    states, inputs, outputs : tuple of str
-        The names of the states, inputs and outputs, in the matrices' order.
-    """
+    """One FMU linearised: ``x' = A x + B u``, ``y = C x + D u`` in deviations from its current point, with the
+    names of its states, inputs and outputs in the matrices' order."""
 
     A: np.ndarray
     B: np.ndarray
@@ -40,13 +33,7 @@ class Blocks:
     outputs: tuple
 
     def state_space(self) -> control.StateSpace:
-        """The FMU as a python-control system, its signals named.
-
-        Returns
-        -------
-        control.StateSpace
-            ``ss(A, B, C, D)`` with the names of ``states``, ``inputs`` and ``outputs``.
-        """
+        """The FMU as a python-control ``ss(A, B, C, D)``, its signals named."""
         import control
 
         return control.ss(self.A, self.B, self.C, self.D, states=list(self.states), inputs=list(self.inputs),
@@ -65,20 +52,8 @@ def _columns(fmu: LoadedFmu, unknowns: list[int], knowns: list[int]) -> np.ndarr
 
 
 def fmu_blocks(fmu: LoadedFmu, inputs: list[str] | None = None, outputs: list[str] | None = None) -> Blocks:
-    """One model-exchange FMU linearised at its current time, states and inputs.
-
-    Parameters
-    ----------
-    fmu : LoadedFmu
-        A loaded model-exchange FMU in event or continuous-time mode.
-    inputs, outputs : list of str, optional
-        The Real inputs and outputs to take, by name. Default: all of the FMU's.
-
-    Returns
-    -------
-    Blocks
-        Its ``A, B, C, D`` from the FMU's directional derivatives.
-    """
+    """A model-exchange FMU (in event or continuous-time mode) linearised at its current point from its
+    directional derivatives; ``inputs``, ``outputs``: the Real ones to take (default: all)."""
     inputs = list(fmu.real_inputs if inputs is None else inputs)
     outputs = list(fmu.real_outputs if outputs is None else outputs)
     n = len(fmu.state_refs)
@@ -89,29 +64,11 @@ def fmu_blocks(fmu: LoadedFmu, inputs: list[str] | None = None, outputs: list[st
 
 
 def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.ndarray:
-    """The Jacobian of the closed loop's ODE from its FMUs' blocks.
+    """The Jacobian ``d z' / d z`` of the closed loop's ODE, ``z = [reference; plant; controller]``.
 
-    The state is ``[reference; plant; controller]`` (model exchange's order); the controller measures the
-    plant's and the reference's outputs its inputs name, the plant's inputs are the controller's
-    outputs of the same names (``u1, u2``). The plant has no direct feedthrough, so there is no
-    algebraic loop: ``du/dz = Cc dxc/dz + Dc dm/dz`` with ``dm/dz`` from the plant's and the reference's C.
-
-    Parameters
-    ----------
-    reference, plant, controller : Blocks
-        The three FMUs linearised (``fmu_blocks``); the controller's inputs and the plant's inputs
-        name the outputs they are connected to.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``d z' / d z``, square of the loop's state count.
-
-    Raises
-    ------
-    ValueError
-        If the plant's D is not zero (an algebraic loop this assembly does not solve).
-    """
+    The controller measures the outputs its inputs name; the plant's inputs are the controller's outputs of the
+    same names. The plant has no direct feedthrough, so there is no algebraic loop: ``du/dz = Cc dxc/dz + Dc dm/dz``
+    with ``dm/dz`` from the plant's and the reference's C. ValueError if the plant's D is not zero."""
     if plant.D.any():
         raise ValueError("the plant's outputs depend on its inputs (D is not zero): the loop would be algebraic")
     nr, npl, nc = len(reference.states), len(plant.states), len(controller.states)
@@ -136,24 +93,9 @@ def loop_jacobian(reference: Blocks, plant: Blocks, controller: Blocks) -> np.nd
 
 
 def closed_loop_state_space(blocks: dict) -> control.StateSpace:
-    """The closed loop linearised, as a python-control system.
-
-    Its state is the three FMUs' in model exchange's order (named ``<FMU>.<state>``), its matrix the
-    loop's Jacobian (``loop_jacobian``); its inputs are disturbances added to the plant's inputs
-    (``d_u1``, ``d_u2``: voltages on top of the controller's), its outputs the plant's outputs the
-    controller measures.
-
-    Parameters
-    ----------
-    blocks : dict of str to Blocks
-        The reference's, the plant's and the controller's blocks in model exchange's order
-        (``registry.ORDER``), with the inputs and outputs the loop connects.
-
-    Returns
-    -------
-    control.StateSpace
-        ``ss(A, B, C, 0)`` of the loop.
-    """
+    """The closed loop linearised as a python-control ``ss(A, B, C, 0)`` from the three FMUs' ``blocks`` (by
+    name, in model exchange's order): states ``<FMU>.<state>``, A the loop's Jacobian, inputs disturbances
+    ``d_u1``, ``d_u2`` added to the plant's inputs, outputs the plant's outputs the controller measures."""
     import control
 
     reference, plant, controller = (blocks[name] for name in ORDER)

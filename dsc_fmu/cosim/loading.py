@@ -9,33 +9,14 @@ from ..identity import fmu_build_id
 from ..registry import ORDER, fmu_files
 from .instance import LoadedFmu, LogMessage, load_fmu, logging_callbacks
 
-__all__ = ["LoadedFmus"]
+__all__: list[str] = []  # the package's own: LoadedFmus
 
 
 class LoadedFmus:
     """The three FMUs of ``registry.ORDER`` loaded (``instance.load_fmu``), their messages going to one log.
 
-    If one cannot be loaded, those loaded before it are closed and the error raised. ``close`` (or
-    leaving the ``with`` block) terminates and frees every instance and removes the extracted folders.
-
-    Parameters
-    ----------
-    fmu_paths : dict
-        The three FMU files by name.
-    workdir : pathlib.Path or None
-        Where their extraction folders are made; None: the system's temporary folder.
-    log : list of LogMessage
-        Where the FMUs' messages go.
-    model_exchange : bool, optional
-        Model exchange instead of co-simulation. Default False.
-
-    Raises
-    ------
-    FmuNotFoundError
-        If an FMU is not given or not a file.
-    CosimulationError
-        If a file is not the FMU expected (not an FMU, or without the interface asked for).
-    """
+    If one cannot be loaded (FmuNotFoundError, CosimulationError), those loaded before it are closed. ``close`` (or
+    leaving the ``with`` block) terminates and frees every instance and removes the extracted folders."""
 
     def __init__(self, fmu_paths: dict, workdir: Path | None, log: list[LogMessage], *, model_exchange: bool = False):
         self.paths = fmu_files(fmu_paths)

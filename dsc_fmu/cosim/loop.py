@@ -14,25 +14,12 @@ from .progress import Watch
 from .step_control import ControlledSteps, defect, next_step
 from .wiring import Recorder, Wiring
 
-__all__ = ["step_count"]
+__all__: list[str] = []  # the package's own: Run, Exchange, GaussSeidel, Jacobi, step_count
 
 
 def step_count(stop_time: float, step_size: float) -> int:
-    """Number of communication steps to reach ``stop_time``.
-
-    Parameters
-    ----------
-    stop_time : float
-        s.
-    step_size : float
-        Communication step in s.
-
-    Returns
-    -------
-    int
-        ``ceil(stop_time / step_size)``, at least 1; a ratio within 1e-9 (relative) of a whole number
-        counts as that number.
-    """
+    """Communication steps to reach ``stop_time``: ``ceil(stop_time / step_size)``, at least 1; a ratio within
+    1e-9 (relative) of a whole number counts as that number."""
     ratio = stop_time / step_size
     nearest = round(ratio)
     return max(1, nearest if abs(ratio - nearest) <= 1e-9 * ratio else math.ceil(ratio))

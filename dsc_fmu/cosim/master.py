@@ -17,11 +17,11 @@ from ..scenario import Coupling, Interface, Order, Scenario, ScenarioError
 from .derivatives import InputDerivatives
 from .instance import LoadedFmu, LogMessage
 from .loading import LoadedFmus
-from .loop import Exchange, GaussSeidel, Jacobi, Run, step_count
+from .loop import Exchange, GaussSeidel, Jacobi, Run
 from .progress import Watch
 from .wiring import Wiring
 
-__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate", "step_count"]
+__all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate"]
 
 
 class Overrides(TypedDict, total=False):
@@ -29,25 +29,18 @@ class Overrides(TypedDict, total=False):
 
     Attributes
     ----------
-    step_size : float, optional
-        Communication step ``h`` in s (an error-controlled run's first step).
-    stop_time : float, optional
-        s.
+    step_size, stop_time, output_interval : float, optional
+        Communication step ``h`` (an error-controlled run's first), stop time and recording interval, in s.
     order : Order or {"gauss-seidel", "jacobi"}, optional
         Coupling order.
-    output_interval : float, optional
-        Recording interval in s.
     coupling : {"hold", "linear"} or Coupling, optional
-        How the FMUs vary their inputs over a step (their ``coupling`` parameters): held, or linear
-        (the plant extrapolates ``u``; the controller interpolates its inputs with Gauss-Seidel,
-        extrapolates them with Jacobi). The master's calls are the same.
+        How the FMUs vary their inputs over a step (their ``coupling`` parameters; docs/co-simulation.md).
     tolerance : float, optional
-        Error-controlled step (``step_control``): the estimated position error in m each step may add.
-        A step that misses it is taken again, smaller, from the FMU states saved before it; the steps
-        stay within ``[h_min, h_max]`` of the scenario.
+        Error-controlled step (``step_control``): the estimated position error in m each step may add. A step
+        that misses it is taken again, smaller, from the FMU states saved before it, within ``[h_min, h_max]``.
     input_derivatives : bool, optional
-        Linear coupling through ``fmi2SetRealInputDerivatives`` (``derivatives.InputDerivatives``) with the
-        FMUs' ``coupling`` at hold; FMI 2.0 FMUs, a fixed step.
+        Linear coupling through ``fmi2SetRealInputDerivatives`` with the FMUs' ``coupling`` at hold; FMI 2.0
+        FMUs, a fixed step.
     """
 
     step_size: float | None
@@ -77,16 +70,13 @@ class CosimulationResult:
         The FMUs' log messages.
     fmus : dict, optional
         Each FMU's ``path`` and ``build_id``, by name.
-    fmu_steps : int, optional
-        ``doStep`` calls of all FMUs.
-    rejected : int, optional
-        Error-controlled run: the steps taken again, smaller.
+    fmu_steps, rejected : int, optional
+        ``doStep`` calls of all FMUs; the steps an error-controlled run took again, smaller.
     step_sizes : numpy.ndarray, optional
-        Error-controlled run: every accepted step, ``time`` (its start, s), ``step_size`` (s) and
+        Error-controlled run: every accepted step's ``time`` (its start, s), ``step_size`` (s) and
         ``estimated_error`` (m).
     stopped_at : float, optional
-        The time in s at which the run's watch stopped it (its result ends there); None for a run
-        that reached its stop time.
+        The time in s at which the run's watch stopped it (its result ends there); None if it reached its stop time.
     """
 
     result: np.ndarray
@@ -104,17 +94,15 @@ class CosimulationResult:
 class Cosimulator:
     """The three FMUs loaded once (extracted and instantiated) for many runs.
 
-    ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances
-    are reset (``fmi2Reset`` / ``fmi3Reset``) instead of extracted again, and an instance that cannot
-    be reset is freed and instantiated anew. ``close`` (or leaving the ``with`` block) frees every
-    instance and removes the extracted folders. One Cosimulator serves one thread at a time; what a
-    run needs beyond the loaded FMUs and their wiring lives in that run's own object.
+    ``run`` co-simulates a scenario as ``cosimulate`` does, bit for bit; between runs the instances are reset
+    (``fmi2Reset`` / ``fmi3Reset``), or freed and instantiated anew if that fails. ``close`` (or leaving the
+    ``with`` block) frees every instance and removes the extracted folders. One Cosimulator serves one thread
+    at a time.
 
     Parameters
     ----------
     fmu_paths : dict
-        The three FMU files by name (``registry.ORDER``), each FMI 2.0 or 3.0 co-simulation (read
-        from its model description), with the same variable names; the runs are the same either way.
+        The three FMU files by name (``registry.ORDER``), each FMI 2.0 or 3.0 co-simulation.
     workdir : pathlib.Path, optional
         Where the FMUs are extracted; a temporary folder by default.
 
@@ -150,36 +138,31 @@ class Cosimulator:
 
     def run(self, scenario: Scenario, *, watch: Watch | None = None,
             **settings: Unpack[Overrides]) -> CosimulationResult:
-        """Co-simulate ``scenario`` as ``cosimulate`` does.
+        """Co-simulate ``scenario`` as ``cosimulate`` does, bit for bit.
 
         Parameters
         ----------
         scenario : Scenario
             The scenario.
         watch : progress.Watch, optional
-            Sees every recorded row and may stop the run there, as for ``cosimulate``.
+            Sees every recorded row and may stop the run there.
         **settings
-            Settings replacing the scenario's (``Overrides``), as for ``cosimulate``.
+            Settings replacing the scenario's (``Overrides``).
 
         Returns
         -------
         CosimulationResult
-            As ``cosimulate``'s, bit for bit; ``wall_time`` counts this run only (not loading the FMUs).
+            As ``cosimulate``'s; ``wall_time`` counts this run only (not loading the FMUs).
 
         Raises
         ------
-        ScenarioError
-            For a setting out of its range, or one the FMUs' FMI version lacks.
-        CosimulationError
-            For a run that diverges or an FMU that fails, as ``cosimulate``.
         RuntimeError
-            If this Cosimulator is closed.
+            If this Cosimulator is closed; otherwise as ``cosimulate``.
         """
         return self._run(scenario.with_simulation(**settings), watch)
 
     def _run(self, scenario: Scenario, watch: Watch | None = None) -> CosimulationResult:
-        """``run`` of a scenario whose settings are checked already: every instance is brought back to
-        its state after instantiation (``LoadedFmus.renew``) first."""
+        """``run`` of a scenario whose settings are checked already, the instances renewed first."""
         if not self._finalizer.alive:
             raise RuntimeError("this Cosimulator is closed")
         loaded = self._fmus.loaded
@@ -234,13 +217,9 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path 
                watch: Watch | None = None, **settings: Unpack[Overrides]) -> CosimulationResult:
     """Co-simulate a scenario with the three FMUs (FMI 2.0 or 3.0) on fmpy.
 
-    Communication points are ``t_k = k h`` for ``k < n = step_count(stop_time, h)`` and ``t_n = stop_time``
-    (a last, shorter step); at each one the controller's inputs are set from the plant's and the
-    reference's outputs and its ``u`` goes to the plant, then the FMUs step (Gauss-Seidel: reference
-    and plant first, the controller with their outputs at ``t_{k+1}``; Jacobi: all three from ``t_k``).
-    Rows are recorded at ``t = 0``, every ``round(output_interval / h)`` steps and at ``stop_time``
-    (an error-controlled run: at every accepted step). docs/co-simulation.md gives the details; for
-    many runs, load the FMUs once with ``Cosimulator``: its runs give the same results.
+    Communication points ``t_k = k h`` and a last, shorter step to ``stop_time``; a row at t = 0, every
+    ``round(output_interval / h)`` steps and at ``stop_time`` (docs/co-simulation.md). For many runs,
+    ``Cosimulator`` loads the FMUs once and gives the same results.
 
     Parameters
     ----------
@@ -251,29 +230,26 @@ def cosimulate(scenario: Scenario, fmu_paths: dict[str, Path], *, workdir: Path 
     workdir : pathlib.Path, optional
         Where the FMUs are extracted (temporary folders, removed at the end).
     watch : progress.Watch, optional
-        Called at every recorded row with its time (s) and the steps taken; when it returns False
-        the run ends at that row.
+        Called at every recorded row with its time (s) and the steps taken; when it returns False the run
+        ends at that row.
     **settings
-        Settings replacing the scenario's (``Overrides``): ``step_size``, ``stop_time``, ``order``,
-        ``output_interval``, ``coupling``, ``tolerance``, ``input_derivatives``.
+        Settings replacing the scenario's (``Overrides``).
 
     Returns
     -------
     CosimulationResult
-        The rows (dtype ``signals.DTYPE``: every output of ``signals.RECORDED``, then the tracking
-        errors), the steps, the settings used and the FMUs' log.
+        The rows (dtype ``signals.DTYPE``), the steps, the settings used and the FMUs' log.
 
     Raises
     ------
     ScenarioError
-        For a setting out of its range (a setting left as None is the scenario's, checked already),
-        or one the FMUs' FMI version lacks.
+        For a setting out of its range, or one the FMUs' FMI version lacks.
     FmuNotFoundError
         If an FMU is not given or not a file.
     CosimulationError
-        If a measurement or ``u`` is not finite or beyond ``scenario.simulation.bound`` after an
-        exchange, if an FMI call fails (naming the FMU, with its last log messages), or if a step of
-        ``h_min`` misses the tolerance.
+        If a measurement or ``u`` is not finite or beyond ``scenario.simulation.bound`` after an exchange, if
+        an FMI call fails (naming the FMU, with its last log messages), or if a step of ``h_min`` misses the
+        tolerance.
     """
     scenario = scenario.with_simulation(**settings)
     started = clock.perf_counter()

@@ -4,28 +4,13 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["SETTLING_THRESHOLD", "tracking_metrics", "settling_time"]
+__all__ = ["SETTLING_THRESHOLD", "tracking_metrics"]
 
 SETTLING_THRESHOLD = 0.1  # m
 
 
 def settling_time(time: np.ndarray, error: np.ndarray, threshold: float) -> float | None:
-    """The first recorded time from which ``error`` stays below ``threshold``.
-
-    Parameters
-    ----------
-    time : numpy.ndarray
-        Row times in s.
-    error : numpy.ndarray
-        The error at each row (NaN counts as not below).
-    threshold : float
-        In the error's unit.
-
-    Returns
-    -------
-    float or None
-        The time in s from which every later row is below ``threshold``; None if the last row is not.
-    """
+    """The first row time (s) from which every ``error`` is below ``threshold`` (NaN is not); None if the last is not."""
     above = np.flatnonzero(~(np.asarray(error) < threshold))  # NaN counts as not settled
     if len(above) == 0:
         return float(time[0])
@@ -47,11 +32,10 @@ def tracking_metrics(result: np.ndarray, stop_time: float) -> dict:
     Returns
     -------
     dict
-        JSON-serialisable. Over the window [2/3 stop_time, stop_time] (the rows recorded in it):
-        ``final_position_error_m``, ``rms_position_error_m`` and ``max_position_error_m`` (the
-        position error ``sqrt(xe^2 + ye^2)``, m), ``max_abs_thetae_rad``; the window's ends
-        ``window_start_s``, ``window_end_s``. Over the whole run: ``settling_time_0p1_s`` (from when the
-        position error stays below 0.1 m, None if never), ``max_abs_u_V`` (``max(|u1|, |u2|)``) and
+        JSON-serialisable. Over the rows in [2/3 stop_time, stop_time] (``window_start_s``, ``window_end_s``):
+        the position error ``sqrt(xe^2 + ye^2)``'s ``final_position_error_m``, ``rms_position_error_m`` and
+        ``max_position_error_m``, and ``max_abs_thetae_rad``. Over the whole run: ``settling_time_0p1_s``
+        (from when the position error stays below 0.1 m, None if never), ``max_abs_u_V`` and
         ``beta_guard_count`` (steps in which the controller's beta guard acted).
 
     Raises

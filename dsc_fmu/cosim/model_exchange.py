@@ -49,8 +49,8 @@ class ModelExchangeResult:
     wall_time : float
         s, from loading the FMUs to freeing them.
     settings : dict
-        The scenario's name, the interface, the method, the tolerance, the events handled and the
-        Jacobians evaluated (from the FMUs' directional derivatives).
+        The scenario's name, the interface, the method, the tolerance, the events handled and the Jacobians
+        evaluated (from the FMUs' directional derivatives).
     log : list of LogMessage, optional
         The FMUs' log messages.
     fmus : dict, optional
@@ -69,11 +69,10 @@ class ModelExchangeResult:
 
 
 class _Ode:
-    """The loaded FMUs as one ODE: the state vector is the reference's, the plant's and the controller's
-    continuous states in that order; each evaluation sets the time and states, exchanges outputs to inputs
-    (``Wiring.exchange``) and reads the derivatives or the event indicators. A watch sees every
-    derivative evaluation; when it says stop, ``stop_at`` holds that evaluation's time, where
-    ``stop_event`` then ends the integration."""
+    """The loaded FMUs as one ODE, its state the reference's, the plant's and the controller's continuous states
+    in that order; an evaluation sets the time and states, exchanges outputs to inputs and reads the derivatives
+    or event indicators. When the watch says stop, ``stop_at`` holds that evaluation's time, where
+    ``stop_event`` ends the integration."""
 
     def __init__(self, wiring: Wiring, bound: float, watch: Watch | None = None):
         self.wiring, self.bound, self.watch = wiring, bound, watch
@@ -249,24 +248,23 @@ def simulate_model_exchange(scenario: Scenario, fmu_paths: dict, *, stop_time: f
     Parameters
     ----------
     scenario : Scenario
-        The scenario; its parameters go to the FMUs, its ``stop_time``, ``output_interval`` and
-        ``bound`` apply.
+        The scenario; its parameters go to the FMUs, its ``stop_time``, ``output_interval`` and ``bound``
+        apply, its co-simulation settings (step, order, coupling) do not.
     fmu_paths : dict
         The three FMU files by name (FMI 2.0 or 3.0, each with ``ModelExchange``).
     stop_time, output_interval : float, optional
         s; None takes the scenario's.
     tolerance : float, optional
-        The solver's relative tolerance (each state's absolute tolerance is this times its nominal);
-        None takes the scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``. The scenario's co-simulation
-        settings (step, order, coupling) do not apply.
+        The solver's relative tolerance (each state's absolute one is this times its nominal); None takes the
+        scenario's ``tolerance``, or ``DEFAULT_TOLERANCE``.
     method : {"DOP853", "Radau", "BDF"} or Method, optional
-        SciPy's integrator; None takes the scenario's (``METHOD`` by default). The implicit ones get the
-        loop's Jacobian, assembled from the FMUs' directional derivatives (``linear``).
+        SciPy's integrator; None takes the scenario's (``METHOD`` by default). The implicit ones get the loop's
+        Jacobian, assembled from the FMUs' directional derivatives (``linear``).
     workdir : path, optional
         Where the FMUs are extracted (a temporary folder by default).
     watch : progress.Watch, optional
-        Called at every derivative evaluation with its time and the evaluations so far; when it
-        returns False the integration ends at that time, with a last row there.
+        Called at every derivative evaluation with its time and the evaluations so far; when it returns False
+        the integration ends at that time, with a last row there.
 
     Returns
     -------
@@ -322,8 +320,8 @@ def linearise_at(scenario: Scenario, fmu_paths: dict, at_time: float, which: str
     at_time : float
         When, in s (> 0).
     which : str, optional
-        An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop
-        connects. Default None: the closed loop (``linear.closed_loop_state_space``).
+        An FMU's name (``registry.ORDER``): that FMU alone, its inputs and outputs those the loop connects.
+        Default None: the closed loop (``linear.closed_loop_state_space``).
     tolerance : float, optional
         The solver's relative tolerance, as for ``simulate_model_exchange``.
     method : {"DOP853", "Radau", "BDF"} or Method, optional

@@ -8,22 +8,11 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-__all__ = ["new_figure", "plot_trajectory", "plot_signals", "plot_step_sizes"]
+__all__ = ["plot_trajectory", "plot_signals"]
 
 
 def new_figure(width: float, height: float) -> Figure:
-    """A figure on an Agg canvas, outside pyplot: no display, no global state, nothing to close.
-
-    Parameters
-    ----------
-    width, height : float
-        Size in inches.
-
-    Returns
-    -------
-    matplotlib.figure.Figure
-        The figure, with a constrained layout.
-    """
+    """A figure (inches, constrained layout) on an Agg canvas, outside pyplot: no display, no global state."""
     figure = Figure(figsize=(width, height), layout="constrained")
     FigureCanvasAgg(figure)
     return figure
@@ -61,8 +50,8 @@ def plot_trajectory(result: np.ndarray, path: Path | str) -> Path:
 def plot_signals(result: np.ndarray, path: Path | str) -> Path:
     """Fig. 2 against time (s): tracking errors, voltages, estimates and the weights' norms.
 
-    Panels: (a) xe, ye (m) and thetae (rad); (b) u1, u2 (V); (c) a1_hat (1/m) and a2_hat (1);
-    (d) the norms of W1_hat and W2_hat (1).
+    Panels: (a) xe, ye (m) and thetae (rad); (b) u1, u2 (V); (c) a1_hat (1/m) and a2_hat (1); (d) the
+    norms of W1_hat and W2_hat (1).
 
     Parameters
     ----------
@@ -101,22 +90,8 @@ def plot_signals(result: np.ndarray, path: Path | str) -> Path:
 
 
 def plot_step_sizes(step_sizes: np.ndarray, tolerance: float, path: Path | str) -> Path:
-    """An error-controlled run's step size and estimated error per step against time.
-
-    Parameters
-    ----------
-    step_sizes : numpy.ndarray
-        ``CosimulationResult.step_sizes``: ``time`` (s), ``step_size`` (s), ``estimated_error`` (m).
-    tolerance : float
-        The run's tolerance in m, marked.
-    path : pathlib.Path or str
-        The image to write (format from its suffix).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
-    """
+    """An error-controlled run's step size (s) and estimated error per step (m) against time, ``tolerance`` (m)
+    marked, written to ``path``."""
     figure = new_figure(8.0, 5.5)
     sizes, errors = figure.subplots(2, 1, sharex=True)
     sizes.semilogy(step_sizes["time"], step_sizes["step_size"], ".-", markersize=2, color="tab:blue")

@@ -1,11 +1,9 @@
 """Watching a run while it goes.
 
-A *watch* is any callable ``watch(time, steps) -> bool`` that a run calls at every row it records,
-with the simulated time (s) and the steps taken so far; returning False stops the run there (its
-result then ends at that row and says where it stopped). ``TerminalWatch`` is the command line's:
-a progress line on a terminal, and Ctrl-C as a request to stop at the next row. ``ProgressLine`` is
-that line, which a sweep shows too.
-"""
+A *watch* (``Watch``) is any callable ``watch(time, steps) -> bool`` that a run calls at every row it records,
+with the simulated time (s) and the steps so far; returning False stops the run there (its result then ends
+at that row and says where it stopped). ``TerminalWatch`` is the command line's; ``ProgressLine`` its line,
+which a sweep shows too."""
 
 from __future__ import annotations
 
@@ -16,7 +14,7 @@ import threading
 import time as clock
 from typing import Callable
 
-__all__ = ["Watch", "TerminalWatch", "ProgressLine"]
+__all__ = ["Watch"]
 
 Watch = Callable[[float, int], bool]
 
@@ -24,28 +22,11 @@ Watch = Callable[[float, int], bool]
 class TerminalWatch:
     """Progress of a run to ``stop_time`` (s) on standard error, and Ctrl-C as a request to stop it.
 
-    The line shows the simulated time, the steps, the speed (simulated s per wall s) and the time
-    left, updated in place from a second into the run; it is drawn only on a terminal and not with
-    ``quiet``, so pipes, logs and CI get no carriage returns. A run that, ``FORECAST_AFTER`` seconds
-    in, looks like taking more than ``LONG`` seconds more gets one line (on any stream, unless
-    ``quiet``) with the steps and the time it will take at that pace, and ``hint`` (how to get there
-    faster). Inside the ``with`` block (on the main thread), the first Ctrl-C stops the run at its next
-    recorded row (``interrupted`` is then True); a second one raises KeyboardInterrupt at once, as
-    Python does by default.
-
-    Parameters
-    ----------
-    stop_time : float
-        The run's stop time in s.
-    label : str, optional
-        The line's label (the scenario's name). Default "run".
-    quiet : bool, optional
-        No progress line and no forecast. Default False.
-    hint : str, optional
-        How to get there faster, added to the forecast.
-    stream : file-like, optional
-        Where to write; standard error by default.
-    """
+    The line (simulated time, steps, speed, time left) is drawn from ``SHOW_AFTER`` s into the run, only on a
+    terminal and not with ``quiet``. A run that ``FORECAST_AFTER`` s in looks like taking more than ``LONG`` s
+    more gets one line (on any stream, unless ``quiet``) with its steps and duration at that pace, and ``hint``.
+    Inside the ``with`` block (on the main thread) the first Ctrl-C stops the run at its next row
+    (``interrupted``); a second raises KeyboardInterrupt at once."""
 
     SHOW_AFTER = 1.0  # s of wall time before the line appears
     FORECAST_AFTER = 2.0  # s of wall time
@@ -104,29 +85,10 @@ class TerminalWatch:
 class ProgressLine:
     """One line on a terminal, rewritten in place: ``label: done/total unit, note, speed, time left``.
 
-    It is drawn only on a terminal and not with ``quiet`` (pipes, logs and CI get nothing), from
-    ``after`` seconds after it is made, at most every ``EVERY`` seconds, cut to the terminal's width
-    (80 columns if it does not say) less ``ROOM``, so that the "^C" a terminal echoes on Ctrl-C stays
-    on the line; closing it (or leaving its ``with`` block) clears it, "^C" included. The speed and the
-    time left are the average since it was made.
-
-    Parameters
-    ----------
-    total : float
-        What a finished job counts, in ``unit``.
-    label : str
-        What is going on: the scenario's name, say.
-    unit : str
-        The unit of ``total``: "s", "runs".
-    count : str, optional
-        How the count is written, a format of ``done`` and ``total``. Default "{done:.0f}/{total:g}".
-    after : float, optional
-        Seconds of wall time before the line first shows. Default 0.
-    quiet : bool, optional
-        Never draw. Default False.
-    stream : file-like, optional
-        Where to write; standard error by default.
-    """
+    Drawn only on a terminal and not with ``quiet``, from ``after`` s on, at most every ``EVERY`` s, cut to the
+    terminal's width (``COLUMNS`` if it does not say) less ``ROOM``, so that the "^C" a terminal echoes stays on
+    the line; closing it clears it, "^C" included. Speed and time left are the average since it was made;
+    ``count`` formats ``done`` and ``total``."""
 
     EVERY = 0.2  # s of wall time between two drawings
     COLUMNS = 80  # the width of a terminal that does not say
@@ -150,15 +112,7 @@ class ProgressLine:
         self.close()
 
     def update(self, advance: float = 1, note: str = "") -> None:
-        """Count ``advance`` more done and redraw the line with ``note`` after the count, if it is due.
-
-        Parameters
-        ----------
-        advance : float, optional
-            How much more is done, in ``unit``. Default 1.
-        note : str, optional
-            Shown after the count (the steps taken, say).
-        """
+        """Count ``advance`` (in ``unit``) more done and redraw the line, ``note`` after the count, if it is due."""
         self.done += advance
         if not self.shown:
             return
@@ -175,13 +129,7 @@ class ProgressLine:
         self._draw(", ".join(parts)[: self._columns() - self.ROOM])
 
     def write(self, line: str) -> None:
-        """Write ``line`` as a line of its own; the progress line comes back below it at its next update.
-
-        Parameters
-        ----------
-        line : str
-            The text, without its newline.
-        """
+        """Write ``line`` as a line of its own; the progress line comes back below it at its next update."""
         self.close()
         print(line, file=self.stream, flush=True)
         self._due = min(self._due, clock.monotonic())

@@ -16,16 +16,7 @@ from ..models.reference import initial_reference_state, reference_derivatives, v
 from .. import registry
 from ..scenario import Scenario
 
-__all__ = [
-    "PLANT_STATES",
-    "CONTROLLER_STATES",
-    "REFERENCE_STATES",
-    "output_times",
-    "measurements",
-    "closed_loop_derivatives",
-    "initial_closed_loop_state",
-    "reference_solution",
-]
+__all__ = ["output_times", "reference_solution"]
 
 PLANT_STATES = slice(0, 7)
 CONTROLLER_STATES = slice(7, 27)
@@ -37,15 +28,13 @@ def output_times(stop_time: float, output_interval: float) -> np.ndarray:
 
     Parameters
     ----------
-    stop_time : float
-        s.
-    output_interval : float
-        s.
+    stop_time, output_interval : float
+        In s.
 
     Returns
     -------
     numpy.ndarray
-        The times in s; the last one is ``stop_time`` (an extra, shorter interval if it is not on the grid).
+        The times in s; the last is ``stop_time`` (after a shorter interval if it is not on the grid).
     """
     n = math.floor(stop_time / output_interval * (1.0 + 1e-12))
     times = np.arange(n + 1) * output_interval
@@ -56,57 +45,16 @@ def output_times(stop_time: float, output_interval: float) -> np.ndarray:
 
 
 def measurements(k: PlantCoefficients, ref_params: dict, t: float, plant: list, reference: list) -> list:
-    """The controller's inputs ``m`` (models/controller.py) from the plant and reference states.
-
-    Parameters
-    ----------
-    k : PlantCoefficients
-        The plant's coefficients (``models.plant.plant_coefficients``).
-    ref_params : dict
-        The reference robot's parameters.
-    t : float
-        Time in s.
-    plant : list of float
-        Plant state ``x, y, theta`` (m, rad), wheel speeds ``omega1, omega2`` (rad/s), currents
-        ``i1, i2`` (A), eqs. (6)-(8).
-    reference : list of float
-        Reference state ``x_r, y_r, theta_r`` (m, rad), eq. (9).
-
-    Returns
-    -------
-    list of float
-        The controller's inputs in order, ``x, y, theta, theta_dot, omega1, omega2, i1, i2, x_r, y_r,
-        theta_r, v_r, omega_r, v_r_dot`` (SI units).
-    """
+    """The controller's inputs ``m`` (models/controller.py, SI units) from the plant's state (eqs. (6)-(8))
+    and the reference's (eq. (9)) at ``t`` (s)."""
     x, y, theta, v1, v2, i1, i2 = plant
     vr, wr, vr_dot = velocity(ref_params, t)
     return [x, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *reference, vr, wr, vr_dot]
 
 
 def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
-    """Time derivative of the 30 closed-loop states.
-
-    Plant (6)-(8) driven continuously by ``u`` of (26), controller (15)-(27) fed the current
-    measurements, reference robot (9).
-
-    Parameters
-    ----------
-    t : float
-        Time in s.
-    state : sequence of float
-        The 30 states: plant (``PLANT_STATES``), controller, reference.
-    k : PlantCoefficients
-        The plant's coefficients.
-    g : Gains
-        The controller's gains (``models.controller.gains``).
-    ref_params : dict
-        The reference robot's parameters.
-
-    Returns
-    -------
-    list of float
-        The 30 derivatives, in the states' order.
-    """
+    """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by ``u`` of (26),
+    controller (15)-(27) fed the current measurements, reference robot (9)."""
     state = list(state)
     plant, reference = state[PLANT_STATES], state[REFERENCE_STATES]
     law = control_law(g, state[CONTROLLER_STATES], measurements(k, ref_params, t, plant, reference))
@@ -118,19 +66,8 @@ def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref
 
 
 def initial_closed_loop_state(scenario: Scenario) -> list:
-    """The closed loop's state at t = 0 (docs/model.md §5).
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The scenario.
-
-    Returns
-    -------
-    list of float
-        The 30 states: plant at rest at its initial pose, estimates zero, filters started from the
-        t = 0 measurements, reference at its initial pose.
-    """
+    """The 30 states at t = 0 (docs/model.md §5): plant at rest at its initial pose, estimates zero,
+    filters started from the t = 0 measurements, reference at its initial pose."""
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     plant, reference = initial_plant_state(scenario.plant), initial_reference_state(scenario.reference)
     m0 = measurements(k, scenario.reference, 0.0, plant, reference)
@@ -156,8 +93,8 @@ def reference_solution(
     Returns
     -------
     numpy.ndarray
-        One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far
-        at which the beta guard acts (docs/model.md §5).
+        One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far at which
+        the beta guard acts (docs/model.md §5).
 
     Raises
     ------

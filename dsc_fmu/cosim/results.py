@@ -12,28 +12,12 @@ from .master import CosimulationResult
 from .model_exchange import ModelExchangeResult
 from ..scenario import Interface, Scenario
 
-__all__ = ["write_results", "summary", "format_summary"]
+__all__: list[str] = []  # the package's own: write_results, summary, format_summary
 
 
 def summary(run: CosimulationResult | ModelExchangeResult, scenario: Scenario, metrics: dict) -> dict:
-    """What ``summary.json`` holds.
-
-    Parameters
-    ----------
-    run : CosimulationResult or ModelExchangeResult
-        The run.
-    scenario : Scenario
-        Its scenario.
-    metrics : dict
-        Its ``metrics.tracking_metrics``.
-
-    Returns
-    -------
-    dict
-        The scenario's name and source; the settings (the interface first; ``steps`` of a co-simulation,
-        ``evaluations`` of the derivatives in model exchange; ``stopped_at``, the time in s a stopped run ends at,
-        else None); the metrics; the units of the CSV columns; the FMUs' build ids.
-    """
+    """What ``summary.json`` holds: the scenario's name and source, the settings (the interface first, the run's
+    cost, ``stopped_at`` in s or None), the metrics, the CSV columns' units and the FMUs' build ids."""
     return {
         "scenario": scenario.name,
         "scenario_source": scenario.source,
@@ -58,27 +42,9 @@ def _counts(run: CosimulationResult | ModelExchangeResult) -> dict:
 
 def write_results(out_dir: Path | str, run: CosimulationResult | ModelExchangeResult, scenario: Scenario,
                   metrics: dict) -> dict[str, Path]:
-    """Write a run's ``results.csv``, ``summary.json`` and, if error-controlled, ``step_sizes.csv``.
-
-    ``results.csv`` is in fmpy's CSV layout, ``time`` first, SI units as in ``signals.UNITS``;
-    ``step_sizes.csv`` has every accepted step's start time (s), size (s) and estimated error (m).
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The folder, created if missing.
-    run : CosimulationResult or ModelExchangeResult
-        The run.
-    scenario : Scenario
-        Its scenario.
-    metrics : dict
-        Its ``metrics.tracking_metrics``.
-
-    Returns
-    -------
-    dict of str to pathlib.Path
-        The files written, by kind: ``csv``, ``summary``, ``step_sizes``.
-    """
+    """Write ``results.csv`` (fmpy's CSV layout, SI units as in ``signals.UNITS``), ``summary.json`` and, if
+    error-controlled, ``step_sizes.csv`` (each accepted step's start and size in s, estimated error in m) into
+    ``out_dir``; the paths written by kind (``csv``, ``summary``, ``step_sizes``)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     paths = {"csv": out_dir / "results.csv", "summary": out_dir / "summary.json"}
@@ -128,20 +94,7 @@ _HOW = {Interface.CO_SIMULATION: _cosimulation, Interface.MODEL_EXCHANGE: _model
 
 
 def format_summary(run: CosimulationResult | ModelExchangeResult, metrics: dict) -> str:
-    """A short multi-line text of the run's settings, cost and metrics, for the command line.
-
-    Parameters
-    ----------
-    run : CosimulationResult or ModelExchangeResult
-        The run; its ``settings["interface"]`` (``Interface``) says what it tells of how the run went.
-    metrics : dict
-        Its ``metrics.tracking_metrics``.
-
-    Returns
-    -------
-    str
-        Lines without a trailing newline.
-    """
+    """A few lines (no trailing newline) of the run's settings, cost and metrics, for the command line."""
     s = run.settings
     how, guard = _HOW[s["interface"]](run, metrics["beta_guard_count"])
     if run.stopped_at is not None:

@@ -22,9 +22,9 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str | 
                  fmi_version: int | None = None) -> str:
     """Simulate a scenario through the FMUs and write its results, metrics and figures.
 
-    Writes ``results.csv`` and ``summary.json`` (``results.write_results``) and, with ``plots``,
-    ``trajectory.png`` (Fig. 1) and ``signals.png`` (Fig. 2); an error-controlled co-simulation adds
-    ``step_sizes.csv`` and ``step_sizes.png``. Nothing is written when the run fails.
+    Writes ``results.csv`` and ``summary.json`` and, with ``plots``, ``trajectory.png`` (Fig. 1) and
+    ``signals.png`` (Fig. 2); an error-controlled co-simulation adds ``step_sizes.csv`` and ``step_sizes.png``.
+    Nothing is written when the run fails.
 
     Parameters
     ----------
@@ -38,25 +38,24 @@ def run_scenario(scenario: Scenario, out_dir: Path | str, fmu_dir: Path | str | 
     plots : bool, optional
         Draw the figures. Default True.
     interface : {"co-simulation", "model-exchange"} or Interface, optional
-        Stepped by the master (``master.cosimulate``) or integrated as one ODE
-        (``model_exchange.simulate_model_exchange``). Default "co-simulation".
+        Stepped by the master (``cosimulate``) or integrated as one ODE (``simulate_model_exchange``).
+        Default "co-simulation".
     watch : progress.Watch, optional
-        Sees the run go and may stop it: what was simulated until then is written, its metrics over
-        that part.
+        Sees the run go and may stop it: what was simulated until then is written, its metrics over that part.
     fmi_version : {2, 3} or None, optional
         The FMI version of the FMUs. Default None: that of the FMUs in ``fmu_dir``, else 2.
 
     Returns
     -------
     str
-        The summary the command line prints (``results.format_summary``) and the files written.
+        The summary the command line prints and the files written.
 
     Raises
     ------
     ScenarioError
         If ``interface`` is not one of ``Interface``'s, or the scenario asks what the FMUs lack.
     FmiVersionError
-        If ``fmu_dir`` holds FMUs of another FMI version than ``fmi_version``; nothing is written.
+        If ``fmu_dir`` holds FMUs of another FMI version than ``fmi_version``.
     CosimulationError
         If the run diverges or an FMU fails.
     """

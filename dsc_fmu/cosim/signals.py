@@ -7,7 +7,7 @@ import numpy as np
 from ..models.controller import wrap
 from ..registry import CONTROLLER, FMUS, ORDER
 
-__all__ = ["RECORDED", "DERIVED", "COLUMNS", "UNITS", "DTYPE", "add_tracking_errors"]
+__all__ = ["RECORDED", "DERIVED", "COLUMNS", "UNITS", "DTYPE"]
 
 RECORDED = {
     name: (*(v.name for v in FMUS[name].outputs), *(("beta_guard_count",) if name == CONTROLLER else ()))
@@ -35,14 +35,8 @@ DTYPE = np.dtype([(name, np.float64) for name in COLUMNS])
 
 
 def add_tracking_errors(result: np.ndarray) -> None:
-    """Fill in the tracking errors of a result (docs/model.md §5).
-
-    Parameters
-    ----------
-    result : numpy.ndarray
-        Rows of dtype ``DTYPE`` with the recorded columns; ``xe = x_r - x``, ``ye = y_r - y`` (m),
-        ``thetae = wrap(theta_r - theta)`` (rad) and ``position_error = hypot(xe, ye)`` (m) are set in place.
-    """
+    """Set a result's tracking errors in place (docs/model.md §5): ``xe = x_r - x``, ``ye = y_r - y`` (m),
+    ``thetae = wrap(theta_r - theta)`` (rad), ``position_error = hypot(xe, ye)`` (m)."""
     result["xe"] = result["x_r"] - result["x"]
     result["ye"] = result["y_r"] - result["y"]
     result["thetae"] = [wrap(a) for a in result["theta_r"] - result["theta"]]

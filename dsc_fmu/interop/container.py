@@ -1,21 +1,7 @@
 """The closed loop as one FMI 2.0 co-simulation FMU: fmpy's container FMU around our three FMUs (FMI 2.0 or 3.0).
 
-fmpy's container (``fmpy.container_fmu``, a Rust shared library) couples its components like
-this (read from its source, ``native/container-fmu/container-fmu/src/lib.rs``):
-
-- at instantiation it sets the start values of the container's variables on the mapped
-  component variables (here: every parameter of the scenario, instantiated state);
-- ``fmi2ExitInitializationMode``: one transfer of every connection, in the order of the
-  configuration (get the source's output, set the destination's input), then exit on all;
-- every internal step of the fixed size ``fixedInternalStepSize``: all components
-  ``doStep(t, h)`` (sequentially, ``parallelDoStep`` False), then every connection transferred in
-  order, ``t += h``; an ``fmi2DoStep`` of the container of length H runs H / h internal steps.
-
-The connections are listed measurements first, then the controller's ``u1, u2``: the transfer
-sets the controller's new inputs before reading ``u``, so ``u_k = law(c_k, m_k)``, exactly our
-master's Jacobi at step h (``dsc_fmu.cosim.master``, ``order="jacobi"``). (With ``u`` first the
-container would behave as libcosim does, see ``dsc_fmu.cosim.exchange``.)
-"""
+The connections are listed measurements first, then the controller's ``u1, u2``, so the container couples as
+our master's Jacobi at its internal step (docs/other-tools.md, "How the other masters exchange")."""
 
 from __future__ import annotations
 
@@ -139,9 +125,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
                stop_time: float | None = None) -> Path:
     """Write the scenario's closed loop as one FMI 2.0 co-simulation FMU (an fmpy container).
 
-    Every parameter of the three FMUs is a parameter of the container named ``<FMU>.<parameter>``
-    (``MobileRobot.x0``, say) whose start value is the scenario's; its outputs are every output of
-    ``cosim.signals.RECORDED`` under its own name. It couples by Jacobi at a fixed internal step.
+    It couples by Jacobi at a fixed internal step. Every parameter of the three FMUs is a parameter ``<FMU>.<parameter>`` (``MobileRobot.x0``, say) whose start
+    value is the scenario's; the outputs are those of ``cosim.signals.RECORDED`` under their own names.
 
     Parameters
     ----------
@@ -150,12 +135,9 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     out_file : pathlib.Path or str
         The FMU file to write.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0 or 3.0: the container, FMI
-        2.0 itself, runs either).
-    step_size : float or None, optional
-        The internal fixed step, in s. Default None: the scenario's.
-    stop_time : float or None, optional
-        The default experiment's stop time, in s. Default None: the scenario's.
+        FMU name (``registry.ORDER``) -> path of each of the three FMUs (FMI 2.0 or 3.0).
+    step_size, stop_time : float or None, optional
+        The internal step and the default experiment's stop time, in s. Default None: the scenario's.
 
     Returns
     -------
@@ -165,8 +147,8 @@ def export_fmu(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *, ste
     Raises
     ------
     ScenarioError
-        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario;
-        raised before anything is written.
+        If a simulation setting is bad or not finite, or an FMU lacks a parameter of the scenario; raised
+        before anything is written.
     FmuNotFoundError
         If one of the three FMUs is not given or not a file.
     """

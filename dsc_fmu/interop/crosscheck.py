@@ -1,23 +1,8 @@
 """FMI cross-check artefacts for the three FMUs (the layout of the fmi-cross-check repository).
 
-``write_crosscheck(out_dir, fmu_paths)`` writes, for each FMU,
-``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>/`` with ``<Model>.fmu``, ``<Model>_ref.csv``
-(its outputs at every communication point), ``<Model>_in.csv`` (for models with inputs: the
-inputs it held over each step), ``<Model>_ref.opt`` (StartTime, StopTime, StepSize, RelTol) and
-``ReadMe.md``. The data come from one closed-loop run of the scenario (Jacobi, the same values as
-``dsc_fmu.cosim.master``, see ``dsc_fmu.cosim.exchange``), recording what each FMU saw: replaying an FMU alone
-at the same step with its input file reproduces its reference outputs.
-
-The input files are sample-and-hold: every step ``[t_k, t_k+1)`` is two rows, ``(t_k, v_k)`` and
-``(t_k+1, v_k)``, so a time appears twice where the value jumps (the cross-check rules' way of
-writing a discontinuity). A co-simulation importer that sets inputs at the communication points
-``t_k`` takes the value after the jump, ``v_k``; one that interpolates sees the held value.
-
-The controller's ``u1, u2`` (and S11, S12, S13, beta) depend on its inputs directly. An importer
-replaying it alone samples its outputs right after each ``doStep``, before it sets the inputs of
-the next point (fmpy.simulate_fmu does), so its ``_ref.csv`` holds those values: at ``t_k+1``
-the outputs with the inputs of ``t_k``. The closed loop itself used the outputs after the update.
-"""
+Per FMU, ``<Model>.fmu``, ``<Model>_ref.csv``, ``<Model>_in.csv`` (sample-and-hold), ``<Model>_ref.opt`` and
+``ReadMe.md`` from one closed-loop Jacobi run, recording what each FMU saw: replaying an FMU alone at the same
+step with its input file reproduces its reference (docs/other-tools.md, "How the other masters exchange")."""
 
 from __future__ import annotations
 
@@ -91,18 +76,17 @@ def _readme(model: str, scenario: Scenario, h: float, stop: float, has_inputs: b
 def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario | None = None,
                      step_size: float | None = None, stop_time: float = DEFAULT_STOP_TIME,
                      platform: str = "linux64") -> dict[str, Path]:
-    """Write the cross-check folders of the three FMUs.
+    """Write the cross-check folders ``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>`` of the three FMUs.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str
-        The root of the cross-check tree; ``fmus/2.0/cs/<platform>/dsc-fmu/<version>/<Model>``.
+        The root of the cross-check tree.
     fmu_paths : dict
-        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs (the
-        fmi-cross-check repository's layout knows FMI 1.0 and 2.0 only).
+        FMU name (``registry.ORDER``) -> path of each of the three FMI 2.0 co-simulation FMUs.
     scenario : Scenario or None, optional
-        The closed loop to run. It must keep every parameter at its start value (the FMUs are replayed
-        with their defaults). Default None: the paper's scenario.
+        The closed loop to run, every parameter at its start value (the FMUs are replayed with their
+        defaults). Default None: the paper's scenario.
     step_size : float or None, optional
         The communication step, in s. Default None: the scenario's.
     stop_time : float, optional

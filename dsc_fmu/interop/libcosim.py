@@ -1,41 +1,9 @@
 """Runs in libcosim (libcosimpy 0.0.6): an SSP archive of the closed loop (``run_libcosim``), or one FMU
 alone: the closed-loop container FMU, or a cross-check FMU replayed with its input file.
 
-``run_libcosim_fmu`` builds an execution of one FMU (``CosimExecution.from_step_size`` and a
-``CosimLocalSlave``), observes the chosen outputs with a buffered time series observer, and steps
-it ``execution.step()`` by ``execution.step()``, feeding its inputs (if any) from a table with
-libcosim's override manipulator. ``python -m dsc_fmu.interop.libcosim`` runs it in a process of its
-own and saves the result (``.npy``): libcosim and fmpy's container FMU loaded in one process
-sometimes abort at the process's exit (a double free while unloading), see docs/other-tools.md; so did,
-2 times in about 15, a process that ran the three pythonfmu FMUs one after another in libcosim
-("corrupted double-linked list" after the last run), while one FMU per process never did (30 runs).
-libcosimpy is the optional extra ``libcosim``: each of these functions checks first that it imports
-(``libcosim_install.require_libcosimpy``) and says in one line how to get it, or that it has no wheel here.
-
-When libcosim samples and when an override takes effect (libcosim's ``execution::step``: the
-manipulators' ``step_commencing(t_k)``, then the algorithm's step from ``t_k``, then the
-observers' ``step_complete`` at ``t_k+1``; checked by the replays of ``tests/test_crosscheck.py``:
-read this way, each cross-check FMU reproduces its reference to 4e-13 relative, while inputs fed
-one step late put the plant's speeds and currents 1e-2 off):
-
-- the time series observer takes one sample after initialisation, step number 0 at ``t_0``, then
-  one after every step, step number k + 1 at ``t_k+1 = (k + 1) h`` (integer nanoseconds): the
-  outputs read right after ``doStep(t_k, h)``, before anything is set for the next step, which is
-  the convention of ``fmpy.simulate_fmu`` and of the cross-check references;
-- an override set (``CosimManipulator.slave_real_values``) between two calls of ``step()`` at
-  current time ``t_k`` is applied by ``step_commencing(t_k)`` and so reaches the FMU *before* the
-  step from ``t_k`` (the value the FMU holds over ``[t_k, t_k+1)``); it stays until replaced or
-  reset. It is not applied during initialisation: the inputs at ``t_0`` are set as initial values
-  (``CosimExecution.real_initial_value``), so the sample at ``t_0`` already sees them, as in
-  ``fmpy.simulate_fmu`` (which sets the inputs before it leaves initialisation mode). Fed by an
-  override before the first step instead, the controller's sample at ``t_0`` has ``u = 0`` and,
-  its filters started from the inputs' start values, its whole run is off (tried).
-
-Time: libcosim counts in integer nanoseconds and hands the FMU ``t_k = k h`` converted to
-seconds, so ``t_k`` can differ in its last bits from a master's ``k * h`` in floating point (a few
-1e-17 s at h = 1 ms): FMUs that use ``t`` (the reference trajectory) then differ in the last bits
-too. ``stop_time`` is rounded up to a whole number of steps.
-"""
+``python -m dsc_fmu.interop.libcosim`` (``main``) runs one FMU in a process of its own and saves the result as
+``.npy`` (docs/other-tools.md: why libcosim runs get their own processes). When libcosim samples, when an
+override takes effect and how it counts time: docs/other-tools.md, "How the other masters exchange"."""
 
 from __future__ import annotations
 
@@ -54,7 +22,7 @@ from ..registry import ORDER
 from .libcosim_install import require_libcosimpy
 from .ssp import SSPError
 
-__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process", "main"]
+__all__ = ["run_libcosim", "run_libcosim_fmu", "run_libcosim_fmu_in_own_process"]
 
 NANO = 1_000_000_000
 
@@ -102,45 +70,41 @@ def _watch(execution, observer, index: int, names, where: str) -> list[tuple[str
     return watched
 
 
-def _observed(observer, watched, steps: int) -> tuple[np.ndarray, dict]:
-    """Times (s) and values of every watched variable: one sample after initialisation and one after
-    each of the ``steps`` steps, else SSPError."""
-    columns, stamps = {}, None
-    for name, index, reference, integer in watched:
+def _observed(observer, watched, steps: int, dtype) -> np.ndarray:
+    """A row of ``time`` (s) and every watched variable after initialisation and after each of the ``steps``
+    steps, else SSPError."""
+    result = np.zeros(steps + 1, dtype=dtype)
+    for k, (name, index, reference, integer) in enumerate(watched):
         t, step_numbers, values = _samples(observer, index, reference, steps + 16, integer)
         if not np.array_equal(step_numbers, np.arange(steps + 1)):
             raise SSPError(f"libcosim: {name} has samples of the steps {step_numbers[:3]}...; expected 0..{steps}")
-        stamps = t if stamps is None else stamps
-        columns[name] = values
-    return stamps / NANO, columns
+        if k == 0:
+            result["time"] = t / NANO
+        result[name] = values
+    return result
 
 
 def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np.ndarray:
     """Co-simulate an SSP archive of the closed loop with libcosim's fixed-step algorithm.
 
-    The result is sampled as libcosim's time series observer records it: at t = 0 after
-    initialisation, then after every step.
-
     Parameters
     ----------
     ssp_file : pathlib.Path or str
         The archive, with the three components of ``registry.ORDER`` (``export_ssp``).
-    step_size : float
-        The communication step, in s (rounded to whole ns).
-    stop_time : float
-        The stop time, in s, rounded up to a whole number of steps.
+    step_size, stop_time : float
+        The communication step (rounded to whole ns) and the stop time (rounded up to a whole number of
+        steps), in s.
 
     Returns
     -------
     numpy.ndarray
-        One row per communication point (dtype ``cosim.signals.DTYPE``): ``time`` in s, every output of
-        ``cosim.signals.RECORDED`` and the tracking errors derived from them.
+        A row (dtype ``cosim.signals.DTYPE``) as libcosim's time series observer samples them: at t = 0 after
+        initialisation, then after every step.
 
     Raises
     ------
     SSPError
-        If the archive's components are not the three FMUs, a variable cannot be observed or libcosim
-        fails.
+        If the archive's components are not the three FMUs, a variable cannot be observed or libcosim fails.
     LibcosimUnavailableError
         If libcosimpy is not installed (the extra ``libcosim``).
     """
@@ -161,11 +125,7 @@ def run_libcosim(ssp_file: Path | str, step_size: float, stop_time: float) -> np
         from libcosimpy._internal import get_last_error_message
 
         raise SSPError(f"libcosim failed: {get_last_error_message()}")
-    times, columns = _observed(observer, watched, steps)
-    result = np.zeros(len(times), dtype=signals.DTYPE)
-    result["time"] = times
-    for signal, values in columns.items():
-        result[signal] = values
+    result = _observed(observer, watched, steps, signals.DTYPE)
     signals.add_tracking_errors(result)
     return result
 
@@ -181,40 +141,34 @@ def _held_row(times: np.ndarray, t: float, h: float) -> int:
 
 def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                      inputs: np.ndarray | None = None, instance_name: str = "fmu") -> np.ndarray:
-    """Run one co-simulation FMU alone in libcosim at a fixed step.
-
-    The outputs are sampled as libcosim's time series observer samples them (see the module
-    docstring): row 0 at t = 0 after initialisation, then after each step, stamped with the step's
-    end. No parameter is set: the FMU runs with its start values.
+    """Run one co-simulation FMU alone in libcosim at a fixed step, with its start values.
 
     Parameters
     ----------
     fmu_path : pathlib.Path or str
         The FMU file.
-    step_size : float
-        The communication step, in s (rounded to whole ns).
-    stop_time : float
-        The stop time, in s, rounded up to a whole number of steps.
+    step_size, stop_time : float
+        The communication step (rounded to whole ns) and the stop time (rounded up to a whole number of
+        steps), in s.
     outputs : sequence of str
         The names of the variables to record.
     inputs : numpy.ndarray or None, optional
-        A table of Real inputs: structured array with ``time`` (s) and one column per input of the FMU,
-        e.g. ``fmpy.util.read_csv`` of a cross-check ``<Model>_in.csv``. Read as sample-and-hold
-        (sample-and-hold): the values at ``t_0`` are set as initial values, those of every later
-        step with libcosim's override manipulator before the step. Default None: no inputs.
+        Real inputs: ``time`` (s) and a column per input (``fmpy.util.read_csv`` of a cross-check
+        ``<Model>_in.csv``), sample-and-hold: the values at ``t_0`` set as initial values, later ones by
+        libcosim's override manipulator before each step. Default None: no inputs.
     instance_name : str, optional
         The FMU's instance name. Default "fmu".
 
     Returns
     -------
     numpy.ndarray
-        Structured array of float64, one row per communication point: ``time`` in s, then ``outputs``.
+        ``time`` (s) and ``outputs``: a row after initialisation, then one after each step, stamped with its end.
 
     Raises
     ------
     SSPError
-        If libcosim cannot load the FMU, a name of ``outputs`` is not a variable of it, a column of
-        ``inputs`` is not a Real input of it, the table starts after 0, or libcosim fails.
+        If libcosim cannot load the FMU, a name is not a variable (or a column not a Real input) of it, the
+        table starts after 0, or libcosim fails.
     LibcosimUnavailableError
         If libcosimpy is not installed (the extra ``libcosim``).
     """
@@ -268,33 +222,23 @@ def run_libcosim_fmu(fmu_path: Path | str, step_size: float, stop_time: float, o
 
             raise SSPError(f"libcosim failed at step {k} (t = {k * h / NANO!r} s): {get_last_error_message()}")
 
-    times, columns = _observed(observer, watched, steps)
-    result = np.zeros(steps + 1, dtype=[("time", np.float64)] + [(n, np.float64) for n in outputs])
-    result["time"] = times
-    for name, values in columns.items():
-        result[name] = values
-    return result
+    return _observed(observer, watched, steps, [("time", np.float64)] + [(n, np.float64) for n in outputs])
 
 
 def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop_time: float, outputs, *,
                                     inputs_csv: Path | str | None = None, timeout: float = 600) -> np.ndarray:
-    """Run one co-simulation FMU alone in libcosim, in a child process.
-
-    The child is ``python -m dsc_fmu.interop.libcosim`` (``main``), which calls ``run_libcosim_fmu``.
+    """``run_libcosim_fmu`` in a child process (``python -m dsc_fmu.interop.libcosim``).
 
     Parameters
     ----------
     fmu_path : pathlib.Path or str
         The FMU file.
-    step_size : float
-        The communication step, in s.
-    stop_time : float
-        The stop time, in s, rounded up to a whole number of steps.
+    step_size, stop_time : float
+        The communication step and the stop time, in s.
     outputs : sequence of str
         The names of the variables to record.
     inputs_csv : pathlib.Path or str or None, optional
-        A CSV file of inputs in the cross-check format, read with ``fmpy.util.read_csv`` as
-        ``run_libcosim_fmu``'s ``inputs``. Default None: no inputs.
+        A CSV file of inputs in the cross-check format (``run_libcosim_fmu``'s ``inputs``). Default None.
     timeout : float, optional
         How long the child may run, in s. Default 600.
 
@@ -308,7 +252,7 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
     SSPError
         If the child fails, with the end of its error output.
     LibcosimUnavailableError
-        If libcosimpy is not installed (the extra ``libcosim``): checked before the child starts.
+        If libcosimpy is not installed: checked before the child starts.
     subprocess.TimeoutExpired
         If the child runs longer than ``timeout``.
     """
@@ -327,22 +271,8 @@ def run_libcosim_fmu_in_own_process(fmu_path: Path | str, step_size: float, stop
 
 
 def main(argv=None) -> int:
-    """Run one FMU in libcosim from the command line and save the result as ``.npy``.
-
-    Usage: ``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``.
-    An error a user can fix (``DscFmuError``: libcosimpy missing, an FMU libcosim refuses) is printed as
-    one line, ``dsc-fmu: error: ...``, with exit code 1.
-
-    Parameters
-    ----------
-    argv : list of str or None, optional
-        The arguments. Default None: ``sys.argv[1:]``.
-
-    Returns
-    -------
-    int
-        The exit code: 0, or 1 after an error a user can fix.
-    """
+    """``python -m dsc_fmu.interop.libcosim FMU STEP STOP OUT.npy --outputs a,b [--inputs in.csv]``: exit code 0, or
+    1 after a ``DscFmuError`` (libcosimpy missing, an FMU libcosim refuses), printed as ``dsc-fmu: error: ...``."""
     parser = argparse.ArgumentParser(prog="python -m dsc_fmu.interop.libcosim", description=__doc__.splitlines()[0])
     parser.add_argument("fmu")
     parser.add_argument("step_size", type=float)

@@ -1,9 +1,7 @@
 """Where libcosimpy, the optional extra ``libcosim``, can be installed, and the one-line error where it is missing.
 
-libcosimpy 0.0.6 ships wheels only for CPython 3.11 to 3.14 on x86-64 Linux (``manylinux_2_28``) and
-64-bit Windows, and no sdist; everything of dsc-fmu but ``interop.libcosim`` works without it, so it is an
-extra (``python3 -m pip install 'dsc-fmu[libcosim]'``) and imported only inside the functions that use it.
-"""
+libcosimpy 0.0.6 ships wheels only (``WHEELS``), no sdist; everything of dsc-fmu but ``interop.libcosim`` works
+without it, so it is an extra, imported only inside the functions that use it."""
 
 from __future__ import annotations
 
@@ -13,7 +11,7 @@ from dataclasses import dataclass
 
 from ..errors import DscFmuError
 
-__all__ = ["INSTALL", "WHEELS", "Interpreter", "LibcosimUnavailableError", "require_libcosimpy"]
+__all__ = ["INSTALL", "WHEELS", "LibcosimUnavailableError", "require_libcosimpy"]
 
 INSTALL = "python3 -m pip install 'dsc-fmu[libcosim]'"
 WHEELS = "CPython 3.11-3.14 on x86-64 Linux with glibc 2.28 or newer and on 64-bit Windows"
@@ -29,23 +27,9 @@ class LibcosimUnavailableError(DscFmuError, ImportError):
 
 @dataclass(frozen=True)
 class Interpreter:
-    """A Python interpreter and its machine, as far as choosing a wheel for it goes.
-
-    Parameters
-    ----------
-    implementation : str
-        ``platform.python_implementation()``: "CPython", "PyPy".
-    version : tuple of int
-        Major and minor version.
-    system : str
-        ``platform.system()``: "Linux", "Darwin", "Windows".
-    machine : str
-        ``platform.machine()``: "x86_64", "aarch64", "arm64", "AMD64".
-    glibc : tuple of int or None, optional
-        The C library's version on Linux, None for another C library or another system. Default None.
-    bits : int, optional
-        Width of a pointer in bits. Default 64.
-    """
+    """A Python interpreter and its machine, as far as choosing a wheel goes: ``platform``'s names
+    (``python_implementation``, ``system``, ``machine``), glibc's version on Linux (None: another C library or
+    system), pointer width in bits."""
 
     implementation: str
     version: tuple[int, int]
@@ -56,13 +40,7 @@ class Interpreter:
 
     @classmethod
     def current(cls) -> Interpreter:
-        """The interpreter running this code.
-
-        Returns
-        -------
-        Interpreter
-            Read from ``platform`` and ``sys``.
-        """
+        """The interpreter running this code."""
         library, version = platform.libc_ver()
         glibc = tuple(int(part) for part in version.split(".")[:2]) if library == "glibc" else None
         return cls(platform.python_implementation(), sys.version_info[:2], platform.system(), platform.machine(),

@@ -1,18 +1,8 @@
 """The closed loop as an SSP 1.0 archive, and runs of it with fmpy.ssp (libcosim's: ``interop.libcosim``).
 
-``export_ssp`` writes ``SystemStructure.ssd`` (three components, every connection, the scenario's
-parameters as one ``.ssv`` parameter set per component, the DefaultExperiment) and the three FMUs
-under ``resources/``. Two vendor annotations say how to run it: OMSimulator's on the system (a
-``oms:FixedStepMaster`` for co-simulation, a ``oms:VariableStepSolver`` for model exchange) and
-libcosim's ``osp:FixedStepAlgorithm`` on the DefaultExperiment. The SSD is named by an
-identifier (``model_name``), as OMSimulator requires. The SSD and the parameter sets are validated
-against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from the Modelica Association, BSD
-licence) before anything is written.
-
-``dsc_fmu.interop.libcosim.run_libcosim`` co-simulates such an archive with libcosimpy; ``run_simulate_ssp`` with
-``fmpy.ssp.simulate_ssp`` (which reads no parameter bindings: they are passed to it here). What
-each does differently from ``dsc_fmu.cosim.master`` is in ``dsc_fmu.cosim.exchange``.
-"""
+The SSD and the parameter sets are validated against the SSP 1.0 schemas (``dsc_fmu/interop/schemas/ssp``, from
+the Modelica Association, BSD licence) before anything is written; what the archive holds and how each tool
+runs it: docs/other-tools.md."""
 
 from __future__ import annotations
 
@@ -33,8 +23,7 @@ from ..platforms import LINUX_AARCH64, host_platform
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, fmu_files
 from ..scenario import Interface, Scenario, ScenarioError, one_of
 
-__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "model_name", "validate_ssp",
-           "run_simulate_ssp", "SSPError"]
+__all__ = ["FMI2_ONLY", "SSD_NAMESPACES", "SCHEMA_DIR", "export_ssp", "run_simulate_ssp", "SSPError"]
 
 SSD, SSC, SSV = (f"http://ssp-standard.org/SSP1/{name}" for name in
                  ("SystemStructureDescription", "SystemStructureCommon", "SystemStructureParameterValues"))
@@ -73,20 +62,8 @@ def _number(value: float) -> str:
 
 
 def model_name(scenario_name: str) -> str:
-    """The SSD's name for a scenario: an identifier OMSimulator accepts as its model's name.
-
-    Parameters
-    ----------
-    scenario_name : str
-        The scenario's name, any text.
-
-    Returns
-    -------
-    str
-        ``dsc_fmu_`` and the scenario's name, each character that is not an ASCII letter, digit or
-        underscore replaced by ``_``: ``model_name("paper")`` is ``"dsc_fmu_paper"``,
-        ``model_name("my run-2")`` is ``"dsc_fmu_my_run_2"``.
-    """
+    """The SSD's name for a scenario, an identifier OMSimulator accepts: ``dsc_fmu_`` and the name, each
+    character other than an ASCII letter, digit or underscore replaced by ``_`` (``my run-2``: ``dsc_fmu_my_run_2``)."""
     return _NOT_IDENT.sub("_", f"dsc_fmu_{scenario_name}")
 
 
@@ -180,18 +157,7 @@ def _check(xml: bytes, schema: str, what: str) -> None:
 
 
 def validate_ssp(ssp_file: Path | str) -> None:
-    """Validate the SSD and every parameter set of an archive against the SSP 1.0 schemas.
-
-    Parameters
-    ----------
-    ssp_file : pathlib.Path or str
-        The SSP archive.
-
-    Raises
-    ------
-    SSPError
-        If a file does not validate, with each problem's line and message.
-    """
+    """Validate an archive's SSD and parameter sets against the SSP 1.0 schemas; SSPError naming each problem's line."""
     with zipfile.ZipFile(ssp_file) as archive:
         _check(archive.read("SystemStructure.ssd"), "SystemStructureDescription.xsd", f"{ssp_file}: SystemStructure.ssd")
         for item in archive.namelist():
@@ -202,10 +168,9 @@ def validate_ssp(ssp_file: Path | str) -> None:
 def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
                interface: Interface | str = Interface.CO_SIMULATION, step_size: float | None = None,
                stop_time: float | None = None) -> Path:
-    """Write the scenario's closed loop as an SSP 1.0 archive.
+    """Write the scenario's closed loop as an SSP 1.0 archive, its model named ``model_name(scenario.name)``.
 
-    Only ``out_file`` is written, and only once everything has been checked. The archive's model is
-    named ``model_name(scenario.name)``.
+    Only ``out_file`` is written, and only once everything has been checked.
 
     Parameters
     ----------
@@ -216,14 +181,11 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
     fmu_paths : dict
         FMU name (``registry.ORDER``) -> path of each of the three FMUs.
     interface : {"co-simulation", "model-exchange"} or Interface, optional
-        What OMSimulator's annotation asks for. "co-simulation" (default): its fixed-step master at
-        the communication step. "model-exchange": CVode over the three FMUs at the scenario's
-        ``tolerance`` (``cosim.model_exchange.DEFAULT_TOLERANCE`` if it has none), at most one
-        ``output_interval`` per step. libcosim and fmpy co-simulate either archive.
-    step_size : float or None, optional
-        The communication step, in s. Default None: the scenario's.
-    stop_time : float or None, optional
-        The stop time, in s. Default None: the scenario's.
+        What OMSimulator's annotation asks for: its fixed-step master at the communication step (default), or
+        CVode over the three FMUs at the scenario's ``tolerance`` (``DEFAULT_TOLERANCE`` if it has none), at
+        most one ``output_interval`` per step. libcosim and fmpy co-simulate either archive.
+    step_size, stop_time : float or None, optional
+        The communication step and the stop time, in s. Default None: the scenario's.
 
     Returns
     -------
@@ -233,12 +195,12 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
     Raises
     ------
     ScenarioError
-        If ``interface`` is not one of ``Interface``'s, a simulation setting is bad or not finite, or
-        an FMU lacks a parameter of the scenario.
+        If ``interface`` is not one of ``Interface``'s, a simulation setting is bad or not finite, or an FMU
+        lacks a parameter of the scenario.
     FmuNotFoundError
-        If one of the three FMUs is not given or not a file (a FileNotFoundError).
+        If one of the three FMUs is not given or not a file.
     FmiVersionError
-        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why); nothing is written.
+        If an FMU is not an FMI 2.0 FMU (``FMI2_ONLY`` says why).
     SSPError
         If the SSD or a parameter set does not validate against the SSP 1.0 schemas.
     """
@@ -275,31 +237,27 @@ def export_ssp(scenario: Scenario, out_file: Path | str, fmu_paths: dict, *,
 
 def run_simulate_ssp(ssp_file: Path | str, step_size: float, stop_time: float, *,
                      start_on: str | None = "valid_inputs") -> np.ndarray:
-    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp``.
+    """Co-simulate an SSP archive with ``fmpy.ssp.simulate_ssp``, passing it the archive's parameters.
 
-    ``simulate_ssp`` ignores the archive's parameter bindings, so they are read from it and passed as
-    its ``parameter_set``. It starts every connection at 0 without an initial exchange, so the
-    controller's first step sees v_r = 0, which it refuses (Assumption 2) unless its ``start_on`` is
-    valid_inputs (docs/model.md §5.2).
+    ``simulate_ssp`` ignores the archive's parameter bindings and starts every connection at 0 without an
+    initial exchange, so the controller's first step sees v_r = 0, which it refuses (Assumption 2) unless its
+    ``start_on`` is valid_inputs (docs/model.md §5.2).
 
     Parameters
     ----------
     ssp_file : pathlib.Path or str
         The archive (``export_ssp``).
-    step_size : float
-        The communication step, in s.
-    stop_time : float
-        The stop time, in s.
+    step_size, stop_time : float
+        The communication step and the stop time, in s.
     start_on : {"valid_inputs", "first_use"} or None, optional
-        The controller's ``start_on`` (``models.parameters.START_ON``), overriding the archive's
-        value; None keeps it. Default "valid_inputs".
+        The controller's ``start_on`` (``models.parameters.START_ON``) instead of the archive's; None keeps
+        it. Default "valid_inputs".
 
     Returns
     -------
     numpy.ndarray
-        One row per step (dtype ``cosim.signals.DTYPE``, tracking errors derived), **stamped as
-        simulate_ssp stamps them**: each row holds the values after the step that *starts* at its
-        ``time`` (s).
+        One row per step (dtype ``cosim.signals.DTYPE``), **stamped as simulate_ssp stamps them**: each row
+        holds the values after the step that *starts* at its ``time`` (s).
 
     Raises
     ------
