@@ -15,7 +15,7 @@ from ..fmu.controller_model import DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..registry import FmuSpec
 
-__all__ = ["TIME", "continuous_dependencies", "initial_dependencies"]
+__all__ = ["TIME"]
 
 TIME = "time"
 _POINTS = 3
@@ -87,18 +87,7 @@ def _continuous(probe) -> dict:
 
 
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in continuous-time mode (and at communication points).
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU.
-
-    Returns
-    -------
-    dict of str to tuple of str
-        Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``.
-    """
+    """Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``, in continuous-time mode (and at communication points)."""
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
                    for i, s in enumerate(spec.states)})
@@ -116,18 +105,7 @@ def _initial(probe) -> dict:
 
 
 def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in initialization mode.
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU.
-
-    Returns
-    -------
-    dict of str to tuple of str
-        Each continuous output, state and state derivative -> its inputs, Real parameters and ``TIME``.
-    """
+    """Each continuous output, state and state derivative -> its inputs, Real parameters and ``TIME``, in initialization mode."""
     knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
     knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name))
                    for v in spec.parameters if not v.integer})
