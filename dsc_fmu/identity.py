@@ -39,7 +39,8 @@ def fmu_bundled_python(fmu: Path) -> dict | None:
 
 
 def fmu_fmi_version(fmu: Path) -> str | None:
-    """The ``fmiVersion`` (``"2.0"``, ``"3.0"``) an FMU's ``modelDescription.xml`` declares, whoever built it; None if not readable."""
+    """The ``fmiVersion`` (``"2.0"``, ``"3.0"``) an FMU's ``modelDescription.xml`` declares, whoever built it; None if
+    not readable."""
     return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
 
 

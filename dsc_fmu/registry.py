@@ -135,7 +135,8 @@ CONNECTIONS = _connections()
 
 
 def fmu_files(fmu_paths: dict) -> dict[str, Path]:
-    """The three FMU files of ``fmu_paths`` (FMU name -> path) in ``ORDER``; FmuNotFoundError naming the first not given or not a file."""
+    """The three FMU files of ``fmu_paths`` (FMU name -> path) in ``ORDER``; FmuNotFoundError naming the first not given
+    or not a file."""
     paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
     for name, path in paths.items():
         if name not in fmu_paths or not path.is_file():

@@ -138,8 +138,9 @@ class ScenarioError(DscFmuError, ValueError):
 
 
 def one_of(allowed, value, name: str):
-    """The member of the closed set ``allowed`` (``Order``, ``Coupling``, ...) named ``value``, or for a sequence of names
-    ``value`` itself; otherwise ScenarioError ``"{name} = {value!r} is not allowed; allowed: {the names, comma-separated}"``.
+    """The member of the closed set ``allowed`` (``Order``, ``Coupling``, ...) named ``value``, or for a sequence of
+    names ``value`` itself; otherwise ScenarioError
+    ``"{name} = {value!r} is not allowed; allowed: {the names, comma-separated}"``.
 
     >>> one_of(Order, "jacobi", "order") is Order.JACOBI
     True

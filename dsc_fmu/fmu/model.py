@@ -60,7 +60,8 @@ class Model:
         self._constants = None
 
     def derive(self, p: dict):
-        """What the equations need from the parameters ``p`` (by name), precomputed once per change (``constants``): ``p`` itself by default."""
+        """What the equations need from the parameters ``p`` (by name), precomputed once per change (``constants``):
+        ``p`` itself by default."""
         return p
 
     def initial_state(self, u: list | None, math=math) -> list:
@@ -104,7 +105,8 @@ class Model:
         return None
 
     def before_step(self, t: float, started: bool, rejected: dict) -> str | None:
-        """A step from ``t`` begins (the model does not wait); with values ``rejected`` (as in ``waited``) it is then discarded."""
+        """A step from ``t`` begins (the model does not wait); with values ``rejected`` (as in ``waited``) it is then
+        discarded."""
         return None
 
     def after_step(self) -> str | None:
@@ -117,6 +119,7 @@ class Model:
 
     def discrete_outputs(self, slave) -> list:
         """The integer and Boolean outputs, registered after those of the tables: ``(name, description, boolean,
-        getter)`` of each, none by default. The getters may read the ``slave`` (``state``, ``u``, ``current_state``, ``waiting``).
+        getter)`` of each, none by default. The getters may read the ``slave`` (``state``, ``u``, ``current_state``,
+        ``waiting``).
         """
         return []

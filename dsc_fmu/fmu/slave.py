@@ -168,7 +168,8 @@ class ModelSlave:
     # --- values -------------------------------------------------------------------------------------------
 
     def _accept(self, kind: str, v, value) -> bool:
-        """Whether ``value`` is allowed for ``v``; if not, log why (unless the model may wait for it) and hold the FMU until it is."""
+        """Whether ``value`` is allowed for ``v``; if not, log why (unless the model may wait for it) and hold the FMU
+        until it is."""
         reason = v.check(value)
         if reason is None:
             if self.rejected:
@@ -237,7 +238,8 @@ class ModelSlave:
 
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
-        """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode); FMI 2.0's stop time and tolerance are unused."""
+        """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode); FMI 2.0's stop time and tolerance
+        are unused."""
         self.time = start_time
         self._stale()
 
@@ -307,7 +309,8 @@ class ModelSlave:
     # --- model exchange -----------------------------------------------------------------------------------
 
     def set_point(self, t: float | None, x: list | None) -> None:
-        """Take the time (s) and the continuous states (copied) that a model-exchange importer set; None leaves one as it is."""
+        """Take the time (s) and the continuous states (copied) that a model-exchange importer set; None leaves one as
+        it is."""
         if t is not None:
             self.time = t
         if x is not None:
@@ -325,7 +328,8 @@ class ModelSlave:
         return list(self.current_state())
 
     def get_derivatives(self) -> list:
-        """The states' time derivatives at the current time, inputs and state; RuntimeError (fmiDiscard) while values are refused."""
+        """The states' time derivatives at the current time, inputs and state; RuntimeError (fmiDiscard) while values
+        are refused."""
         if self.rejected:
             raise RuntimeError(f"no derivatives while values are refused: {'; '.join(self.rejected.values())}")
         return self.model.rates(self.time, self.current_state(), self.u)
@@ -383,7 +387,8 @@ class ModelSlave:
         return directional(lambda rows, direction: self._forward(rows, direction, model_exchange), rows, columns, seed)
 
     def adjoint_derivative(self, unknowns: list, knowns: list, seed: list, model_exchange: bool) -> list:
-        """``seed^T J`` (fmi3GetAdjointDerivative), J and errors as in ``directional_derivative``: one forward pass per known."""
+        """``seed^T J`` (fmi3GetAdjointDerivative), J and errors as in ``directional_derivative``: one forward pass per
+        known."""
         rows, columns = self._roles.resolve(unknowns, model_exchange, True), self._roles.resolve(knowns, model_exchange, False)
         return adjoint(lambda rows, direction: self._forward(rows, direction, model_exchange), rows, columns, seed)
 

@@ -20,8 +20,8 @@ from ..errors import DscFmuError
 from ..platforms import Platform
 from ..fmu.native_bridge import CAUSALITIES, TYPE_NAMES, TYPES, VARIABILITIES
 
-__all__ = ["BinaryBuildError", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64", "host_target",
-           "OVERRIDE_VARIABLE"]
+__all__ = ["BinaryBuildError", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64",
+           "host_target", "OVERRIDE_VARIABLE"]
 
 NATIVE_DIR = Path(__file__).parent / "native"
 OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
@@ -100,7 +100,8 @@ class PythonRuntime:
 
 
 def build_python() -> PythonRuntime:
-    """The running Python, which builds the FMUs: what a binary for this system looks for first after ``OVERRIDE_VARIABLE``."""
+    """The running Python, which builds the FMUs: what a binary for this system looks for first after
+    ``OVERRIDE_VARIABLE``."""
     library = ""
     if sys.platform == "win32":
         candidate = Path(sys.base_prefix) / f"python{sys.version_info.major}{sys.version_info.minor}.dll"
@@ -122,7 +123,8 @@ def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
-    """The sources and headers in ``native/`` of the binaries of one FMI version, for every target (not the standard's headers)."""
+    """The sources and headers in ``native/`` of the binaries of one FMI version, for every target (not the standard's
+    headers)."""
     seams = dict.fromkeys(name for target in TARGETS for name in target.platform_sources)
     return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *seams, *_HEADERS)]
 

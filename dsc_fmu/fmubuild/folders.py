@@ -25,7 +25,8 @@ def check_fmi_version(fmi_version: int) -> int:
 
 
 def default_fmu_dir(fmi_version: int = DEFAULT_FMI_VERSION) -> Path:
-    """``build/fmus`` (FMI 2.0) or ``build/fmus3`` (3.0), relative to the working directory; ValueError for another version."""
+    """``build/fmus`` (FMI 2.0) or ``build/fmus3`` (3.0), relative to the working directory; ValueError for another
+    version."""
     return DEFAULT_FMU_DIRS[check_fmi_version(fmi_version)]
 
 

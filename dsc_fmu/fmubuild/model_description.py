@@ -229,6 +229,7 @@ def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) 
 
 
 def documentation(root: ET.Element, spec: FmuSpec, requirements: str) -> bytes:
-    """The FMU's ``documentation/index.html`` (UTF-8) from its completed model description and what the importing machine needs."""
+    """The FMU's ``documentation/index.html`` (UTF-8) from its completed model description and what the importing
+    machine needs."""
     units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in spec.variables.items()}}
     return documentation_html(root, spec.name, units, requirements).encode("utf-8")

@@ -92,7 +92,8 @@ def _continuous(probe) -> dict:
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
     """Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``, in
     continuous-time mode (and at communication points)."""
-    states = {s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i)) for i, s in enumerate(spec.states)}
+    states = {s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
+              for i, s in enumerate(spec.states)}
     return _dependencies(spec, states, _continuous)
 
 

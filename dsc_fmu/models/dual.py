@@ -17,7 +17,7 @@ _new = object.__new__
 
 
 class Dual:
-    """A value with one tangent (its derivative along the direction of the seed): ``value + tangent eps`` with ``eps^2 = 0``.
+    """A value with one tangent, its derivative along the direction of the seed: ``value + tangent eps``, ``eps^2 = 0``.
 
     Arithmetic with floats and duals, unary minus, ``abs``, ``**`` with a float exponent; comparisons
     look at the values only. There is no conversion to float: a dual handed to the ``math`` module

@@ -37,7 +37,8 @@ def bundle_minor(python: bool | str) -> int:
 
 
 def carried_platforms(platforms) -> list[str]:
-    """The platforms (FMI 3.0 tuples) that an FMU built here can carry a CPython for: x86-64 Windows, and this machine's Linux."""
+    """The platforms (FMI 3.0 tuples) that an FMU built here can carry a CPython for: x86-64 Windows, and this machine's
+    Linux."""
     here = host_target()
     linux = here.name if here is not None and here.os == "linux" else None
     return [platform for platform in platforms if platform in (linux, WINDOWS.name)]

@@ -32,7 +32,8 @@ class Runtime:
     needs: tuple = ()
 
     def manifest(self) -> bytes:
-        """``MANIFEST``, which the binary checks the files by: ``dsc-fmu CPython <version> <os>``, then ``<size> <path>`` for each file."""
+        """``MANIFEST``, which the binary checks the files by: ``dsc-fmu CPython <version> <os>``, then ``<size>
+        <path>`` for each file."""
         lines = [f"dsc-fmu CPython {self.version} {self.os}"]
         lines += [f"{len(data)} {path}" for path, data in sorted(self.files.items())]
         return ("\n".join(lines) + "\n").encode()
