@@ -6,25 +6,13 @@ import os
 import secrets
 from pathlib import Path
 
-__all__ = ["atomic_write"]
+__all__ = []  # ``atomic_write`` serves the package's writers
 
 
 def atomic_write(path: Path | str, data: bytes) -> Path:
-    """Write ``data`` to ``path`` through a file beside it that ``os.replace`` moves there: never a partial file.
-
-    The file gets the permissions of any new file (``0o666`` less the umask, not ``mkstemp``'s 0600).
-
-    Parameters
-    ----------
-    path : pathlib.Path or str
-        The file to write; missing parent folders are created.
-    data : bytes
-        The content.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    """Write ``data`` to ``path`` (its missing folders created) through a file beside it that ``os.replace`` moves
+    there: never a partial file. The file gets the permissions of any new file (``0o666`` less the umask, not
+    ``mkstemp``'s 0600).
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -9,7 +9,7 @@ from xml.etree import ElementTree as ET
 
 from .errors import FmiVersionError
 
-__all__ = ["BUILD_ID_FILE", "fmu_build_id", "fmu_bundled_python", "fmu_fmi_version", "require_fmi2"]
+__all__ = ["BUILD_ID_FILE", "fmu_bundled_python"]
 
 # Written by ``fmubuild.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
 # (the version of the CPython it carries for each platform) in one built with ``--bundle-python``.
@@ -17,18 +17,7 @@ BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
 
 def fmu_build_id(fmu: Path) -> str | None:
-    """The source hash an FMU was built from.
-
-    Parameters
-    ----------
-    fmu : pathlib.Path
-        An FMU file.
-
-    Returns
-    -------
-    str or None
-        The ``source_hash`` of its ``BUILD_ID_FILE``; None if it is not one of ours or not readable.
-    """
+    """The ``source_hash`` of an FMU's ``BUILD_ID_FILE``; None if it is not one of ours or not readable."""
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data)["source_hash"])
 
 
@@ -50,35 +39,14 @@ def fmu_bundled_python(fmu: Path) -> dict | None:
 
 
 def fmu_fmi_version(fmu: Path) -> str | None:
-    """The FMI version an FMU declares, whoever built it.
-
-    Parameters
-    ----------
-    fmu : pathlib.Path
-        An FMU file.
-
-    Returns
-    -------
-    str or None
-        The ``fmiVersion`` of its ``modelDescription.xml`` (``"2.0"``, ``"3.0"``); None if not readable.
-    """
+    """The ``fmiVersion`` (``"2.0"``, ``"3.0"``) an FMU's ``modelDescription.xml`` declares, whoever built it; None if
+    not readable."""
     return _read(fmu, "modelDescription.xml", lambda data: ET.fromstring(data).get("fmiVersion"))
 
 
 def require_fmi2(fmus, why: str) -> None:
-    """Refuse FMUs that declare another FMI version than 2.0, for a job that takes FMI 2.0 FMUs only.
-
-    Parameters
-    ----------
-    fmus : iterable of pathlib.Path
-        The FMU files.
-    why : str
-        Why the job takes FMI 2.0 FMUs only, as the message gives it.
-
-    Raises
-    ------
-    FmiVersionError
-        ``"<path> is an FMI 3.0 FMU, not allowed here: <why>; allowed: FMI 2.0 FMUs"``, for the first.
+    """Refuse FMUs that declare another FMI version than 2.0, for a job that takes FMI 2.0 FMUs only: FmiVersionError
+    ``"<path> is an FMI 3.0 FMU, not allowed here: <why>; allowed: FMI 2.0 FMUs"`` for the first.
     """
     for fmu in fmus:
         version = fmu_fmi_version(fmu)

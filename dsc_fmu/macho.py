@@ -6,7 +6,7 @@ import hashlib
 import struct
 from dataclasses import dataclass
 
-__all__ = ["CPU_NAMES", "CodeSignature", "Slice", "read_slices", "universal"]
+__all__ = ["CPU_NAMES"]  # ``fmubuild`` joins with ``universal``, the tests read with ``read_slices``
 
 MH_MAGIC_64 = 0xFEEDFACF  # a thin 64-bit Mach-O, little-endian (x86_64 and arm64 both are)
 MH_MAGIC = 0xFEEDFACE  # a thin 32-bit Mach-O
@@ -30,22 +30,9 @@ def _thin_header(image: bytes, what: str) -> tuple[int, int]:
 
 
 def universal(slices: list[bytes]) -> bytes:
-    """Join thin Mach-O images into one universal file, ordered by CPU type as ``lipo`` does (x86_64 first).
-
-    Parameters
-    ----------
-    slices : list of bytes
-        Thin 64-bit Mach-O images, one per CPU.
-
-    Returns
-    -------
-    bytes
-        A big-endian ``0xcafebabe`` header, one ``fat_arch`` per slice, each slice at a multiple of 2**14 bytes.
-
-    Raises
-    ------
-    ValueError
-        For no slices, a slice that is no thin 64-bit Mach-O, or two slices of one CPU.
+    """Join thin 64-bit Mach-O images (one per CPU) into one universal file, ordered by CPU type as ``lipo`` does
+    (x86_64 first): a big-endian ``0xcafebabe`` header, one ``fat_arch`` per slice, each slice at a multiple of
+    2**14 bytes. ValueError for no slices, a slice that is no thin 64-bit Mach-O, or two slices of one CPU.
     """
     if not slices:
         raise ValueError("universal(): no slices; at least one thin 64-bit Mach-O is needed")
@@ -80,20 +67,9 @@ _PAGE_HASHES = {1: hashlib.sha1, 2: hashlib.sha256}  # CodeDirectory hashType ->
 class CodeSignature:
     """The CodeDirectory of a slice's embedded signature (``LC_CODE_SIGNATURE``), its page hashes checked.
 
-    Parameters
-    ----------
-    version, flags : int
-        The CodeDirectory's version (``0x20400`` is 2.4) and flags (ad hoc ``0x2``, linker-signed ``0x20000``).
-    hash_type : int
-        1 for SHA-1, 2 for SHA-256.
-    page_size : int
-        The bytes a code page holds.
-    code_limit : int
-        The code pages cover the slice's bytes ``[0, code_limit)``; the last page may be short.
-    identifier : str
-        The signing identifier.
-    bad_pages : tuple of int
-        The code pages whose stored hash differs from the hash of the slice's bytes.
+    ``version`` (``0x20400`` is 2.4), ``flags`` (ad hoc ``0x2``, linker-signed ``0x20000``), ``hash_type`` (1 SHA-1,
+    2 SHA-256); the code pages of ``page_size`` bytes cover the slice's bytes ``[0, code_limit)``, the last page may
+    be short; ``bad_pages``: those whose stored hash differs from the hash of the slice's bytes.
     """
 
     version: int
@@ -124,25 +100,13 @@ class CodeSignature:
 class Slice:
     """One thin Mach-O image, alone or in a universal file.
 
-    Parameters
-    ----------
-    cpu : str
-        ``"x86_64"`` or ``"arm64"`` (another CPU as its hexadecimal ``cputype``).
-    file_type : str
-        ``"dylib"``, ``"bundle"``, ``"execute"`` or ``"object"`` (another as its hexadecimal number).
-    offset, size : int
-        Where the slice starts in the data read (0 for a thin file), and its length in bytes.
-    install_name : str or None
-        The install name (``LC_ID_DYLIB``), if any.
-    dylibs : tuple of str
-        The libraries it links (load, weak, re-export, lazy and upward ``LC_*_DYLIB``), in load-command order.
-    minos : str or None
-        The minimum macOS (``"11.0"``) from ``LC_BUILD_VERSION`` or ``LC_VERSION_MIN_MACOSX``.
-    exports : tuple of str
-        The exported symbols, sorted, as in the file (a C name with a leading ``_``): from the export
-        trie, else the symbol table's external defined symbols.
-    signature : CodeSignature or None
-        The embedded code signature, if any.
+    ``cpu``: ``"x86_64"``, ``"arm64"`` or the hexadecimal ``cputype``; ``file_type``: ``"dylib"``, ``"bundle"``,
+    ``"execute"``, ``"object"`` or its hexadecimal number; ``offset`` and ``size`` in bytes in the data read (offset 0
+    for a thin file); ``install_name`` from ``LC_ID_DYLIB``; ``dylibs``: the libraries it links (load, weak,
+    re-export, lazy and upward ``LC_*_DYLIB``), in load-command order; ``minos``: the minimum macOS (``"11.0"``)
+    from ``LC_BUILD_VERSION`` or ``LC_VERSION_MIN_MACOSX``; ``exports``: the exported symbols, sorted, as in the
+    file (a C name with a leading ``_``), from the export trie, else the symbol table's external defined symbols;
+    ``signature``: the embedded code signature, if any.
     """
 
     cpu: str
@@ -281,22 +245,8 @@ def _read_thin(image: bytes, offset: int, what: str) -> Slice:
 
 
 def read_slices(data: bytes) -> list[Slice]:
-    """Read a thin 64-bit or a universal Mach-O.
-
-    Parameters
-    ----------
-    data : bytes
-        The file's contents.
-
-    Returns
-    -------
-    list of Slice
-        Its slices in the file's order (one for a thin file).
-
-    Raises
-    ------
-    ValueError
-        For data that is no 64-bit Mach-O or universal file, or truncated or garbled.
+    """The slices of a thin 64-bit or a universal Mach-O, in the file's order; ValueError for data that is no
+    64-bit Mach-O or universal file, or truncated or garbled.
     """
     (magic,) = _unpack(">I", data, 0, "the magic number")
     if magic != FAT_MAGIC:

@@ -8,26 +8,15 @@ import sys
 from dataclasses import dataclass
 from pathlib import Path
 
-__all__ = ["Platform", "PLATFORMS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64", "host_platform",
-           "library_path"]
+__all__ = ["PLATFORMS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64", "library_path"]
 
 
 @dataclass(frozen=True)
 class Platform:
-    """An operating system on a CPU, and the folders of an FMU that hold its binary.
-
-    Parameters
-    ----------
-    os : {"linux", "windows", "darwin"}
-        The system, as FMI 3.0's platform tuples write it.
-    cpu : {"x86_64", "aarch64"}
-        The CPU, as FMI 3.0's platform tuples write it.
-    folders : tuple of (tuple of str)
-        For FMI 2.0 and 3.0, the folders under ``binaries/`` that hold the binary, the one importers read
-        first. Platforms that share a folder share one file: macOS's two CPUs in FMI 2.0's ``darwin64``
-        (a universal binary).
-    suffix : str
-        The binary's file suffix (``.so``, ``.dll``, ``.dylib``).
+    """An operating system on a CPU (``os``, ``cpu`` as FMI 3.0's platform tuples write them), and the folders of an
+    FMU that hold its binary: for FMI 2.0 and 3.0, the folders under ``binaries/``, the one importers read
+    first. Platforms that share a folder share one file: macOS's two CPUs in FMI 2.0's ``darwin64`` (a universal
+    binary). ``suffix``: ``.so``, ``.dll``, ``.dylib``.
     """
 
     os: str
@@ -41,52 +30,15 @@ class Platform:
         return f"{self.cpu}-{self.os}"
 
     def folder(self, fmi_version: int) -> str:
-        """The folder of the binary.
-
-        Parameters
-        ----------
-        fmi_version : {2, 3}
-            The FMI version of the binary.
-
-        Returns
-        -------
-        str
-            The folder's name under ``binaries/``; the first where several hold the binary.
-        """
+        """The binary's folder under ``binaries/``; the first where several hold it."""
         return self.folders[fmi_version - 2][0]
 
     def file(self, fmi_version: int, model_identifier: str) -> str:
-        """The binary's path in an FMU.
-
-        Parameters
-        ----------
-        fmi_version : {2, 3}
-            The FMI version of the binary.
-        model_identifier : str
-            The FMU's model identifier, the binary's file name without suffix.
-
-        Returns
-        -------
-        str
-            The path inside the FMU archive, with ``/``; the first where several hold the binary.
-        """
+        """The binary's path in an FMU, with ``/``; the first where several hold it."""
         return self.files(fmi_version, model_identifier)[0]
 
     def files(self, fmi_version: int, model_identifier: str) -> list[str]:
-        """Every path of the binary in an FMU.
-
-        Parameters
-        ----------
-        fmi_version : {2, 3}
-            The FMI version of the binary.
-        model_identifier : str
-            The FMU's model identifier, the binary's file name without suffix.
-
-        Returns
-        -------
-        list of str
-            The paths inside the FMU archive, with ``/``: first the one importers read first.
-        """
+        """Every path of the binary in an FMU, with ``/``: first the one importers read first."""
         return [f"binaries/{folder}/{model_identifier}{self.suffix}" for folder in self.folders[fmi_version - 2]]
 
 
@@ -104,13 +56,7 @@ _CPUS = {"x86_64": "x86_64", "amd64": "x86_64", "aarch64": "aarch64", "arm64": "
 
 
 def host_platform() -> Platform | None:
-    """The platform this runs on.
-
-    Returns
-    -------
-    Platform or None
-        One of ``PLATFORMS``, or None if the FMUs carry no binary for this system and CPU.
-    """
+    """The platform this runs on: one of ``PLATFORMS``, or None if the FMUs carry no binary for this system and CPU."""
     here = (_SYSTEMS.get(sys.platform), _CPUS.get(platform.machine().lower()))
     return next((candidate for candidate in PLATFORMS if (candidate.os, candidate.cpu) == here), None)
 

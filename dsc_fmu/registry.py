@@ -26,7 +26,7 @@ from .models.parameters import (
     REFERENCE_PARAMETERS,
 )
 
-__all__ = ["REFERENCE", "PLANT", "CONTROLLER", "ORDER", "FmuSpec", "FMUS", "Connection", "CONNECTIONS", "fmu_files"]
+__all__ = ["REFERENCE", "PLANT", "CONTROLLER", "ORDER", "FmuSpec", "FMUS", "CONNECTIONS"]
 
 REFERENCE, PLANT, CONTROLLER = "ReferenceRobot", "MobileRobot", "DSCController"
 ORDER = (REFERENCE, PLANT, CONTROLLER)
@@ -113,17 +113,7 @@ FMUS = {
 
 @dataclass(frozen=True)
 class Connection:
-    """The output ``signal`` of FMU ``start`` feeds the input of the same name of FMU ``end``.
-
-    Parameters
-    ----------
-    start : str
-        The FMU whose output it is.
-    signal : str
-        The variable's name, the same on both sides.
-    end : str
-        The FMU whose input it is.
-    """
+    """The output ``signal`` of FMU ``start`` feeds the input of the same name of FMU ``end``."""
 
     start: str
     signal: str
@@ -145,23 +135,8 @@ CONNECTIONS = _connections()
 
 
 def fmu_files(fmu_paths: dict) -> dict[str, Path]:
-    """The three FMU files of ``fmu_paths``, checked.
-
-    Parameters
-    ----------
-    fmu_paths : dict
-        FMU name -> path of its file.
-
-    Returns
-    -------
-    dict of str to pathlib.Path
-        The three FMU files in ``ORDER``.
-
-    Raises
-    ------
-    FmuNotFoundError
-        Naming the first FMU that is not given or not a file.
-    """
+    """The three FMU files of ``fmu_paths`` (FMU name -> path) in ``ORDER``; FmuNotFoundError naming the first not given
+    or not a file."""
     paths = {name: Path(fmu_paths.get(name, f"{name}.fmu")) for name in ORDER}
     for name, path in paths.items():
         if name not in fmu_paths or not path.is_file():

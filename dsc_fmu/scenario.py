@@ -17,7 +17,7 @@ from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
 
 __all__ = [
     "ScenarioError", "Simulation", "Scenario", "Order", "Coupling", "Stability", "Interface", "Reference", "ORDERS", "COUPLINGS",
-    "STABILITIES", "INTERFACES", "REFERENCES", "Method", "METHODS", "load_scenario", "one_of", "scenario_names", "SCENARIO_DIR",
+    "STABILITIES", "INTERFACES", "REFERENCES", "Method", "METHODS", "load_scenario", "SCENARIO_DIR",
 ]
 
 
@@ -138,29 +138,10 @@ class ScenarioError(DscFmuError, ValueError):
 
 
 def one_of(allowed, value, name: str):
-    """A value checked against a closed set: the member it names, or one line naming what is allowed.
+    """The member of the closed set ``allowed`` (``Order``, ``Coupling``, ...) named ``value``, or for a sequence of
+    names ``value`` itself; otherwise ScenarioError
+    ``"{name} = {value!r} is not allowed; allowed: {the names, comma-separated}"``.
 
-    Parameters
-    ----------
-    allowed : type or sequence of str
-        A closed set (``Order``, ``Coupling``, ...) or the names allowed (a parameter's choices).
-    value : object
-        What was given.
-    name : str
-        What it was given for, as the message names it (``"paper.toml: [simulation] order"``).
-
-    Returns
-    -------
-    object
-        The member of ``allowed`` named ``value``; for a sequence of names, ``value`` itself.
-
-    Raises
-    ------
-    ScenarioError
-        ``"{name} = {value!r} is not allowed; allowed: {the names, comma-separated}"``.
-
-    Examples
-    --------
     >>> one_of(Order, "jacobi", "order") is Order.JACOBI
     True
     >>> one_of(("rk4", "euler"), "tustin", "discretization")
@@ -371,13 +352,7 @@ class Scenario:
 
 
 def scenario_names() -> list[str]:
-    """Names of the scenarios shipped in ``scenarios/``.
-
-    Returns
-    -------
-    list of str
-        Sorted file stems.
-    """
+    """The sorted names of the scenarios shipped in ``scenarios/``."""
     return sorted(p.stem for p in SCENARIO_DIR.glob("*.toml"))
 
 

@@ -11,8 +11,7 @@ import math
 
 from ..models.dual import Dual
 
-# ``directional``, ``adjoint`` and ``seeded`` serve ``slave.ModelSlave`` only.
-__all__ = ["Roles", "DERIVATIVE", "OUTPUT", "STATE", "INPUT"]
+__all__ = []  # ``slave.ModelSlave`` uses what is here
 
 # The roles of a Real variable: unknowns (state derivatives, outputs), knowns (states, inputs).
 DERIVATIVE, OUTPUT, STATE, INPUT = "derivative", "output", "state", "input"
@@ -26,16 +25,8 @@ _ALLOWED = {
 
 
 class Roles:
-    """The role and index of each Real state, state derivative, output and input of a slave, by value reference.
-
-    Parameters
-    ----------
-    model : fmu.model.Model
-        The model, whose tables give the roles.
-    variables : dict
-        The slave's variables by value reference (pythonfmu's ``vars``).
-    owner : str
-        The slave class's name, for messages.
+    """The role and index of each Real state, state derivative, output and input of a slave, by value reference
+    (``variables``: pythonfmu's ``vars``; ``owner``: the slave class's name, for messages).
     """
 
     def __init__(self, model, variables: dict, owner: str):
@@ -51,28 +42,10 @@ class Roles:
         self._resolved = {}
 
     def resolve(self, references: list, model_exchange: bool, unknown: bool) -> list:
-        """The ``(role, index)`` of each value reference as an unknown or a known.
-
-        Remembered for the last 64 lists (an importer asks with the same lists again).
-
-        Parameters
-        ----------
-        references : list of int
-            Value references.
-        model_exchange : bool
-            Whether the instance is one of model exchange (else co-simulation).
-        unknown : bool
-            Whether they are unknowns (else knowns).
-
-        Returns
-        -------
-        list of tuple
-            ``(role, index)``: one of ``DERIVATIVE``, ``OUTPUT``, ``STATE``, ``INPUT`` and the position in its table.
-
-        Raises
-        ------
-        ValueError
-            Naming the first reference that is not an allowed unknown or known, and what is allowed.
+        """The ``(role, index)`` of each value reference as an unknown (else a known) of model exchange (else
+        co-simulation): one of ``DERIVATIVE``, ``OUTPUT``, ``STATE``, ``INPUT`` and the position in its table.
+        Remembered for the last 64 lists (an importer asks with the same lists again). ValueError naming the first
+        reference that is not an allowed unknown or known, and what is allowed.
         """
         key = (tuple(references), model_exchange, unknown)
         found = self._resolved.get(key)

@@ -9,7 +9,7 @@ import math
 
 from ..models.rk4 import rk4_integrate, substeps
 
-__all__ = ["Model"]
+__all__ = []  # ``Model``, the interface of docs/fmus.md, is subclassed in ``fmu``
 
 
 class Model:
@@ -17,9 +17,11 @@ class Model:
 
     A model keeps its parameters ``p`` (set by the slave, which calls ``parameters_changed`` after
     each change) and what it derives from them (``constants``); the slave keeps the inputs, the
-    state and the time and hands them to the equations. Every equation takes its math from the
-    namespace ``math``: the module, or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u`` for
-    directional derivatives (docs/model.md §5.13).
+    state and the time and hands them to the equations. In every hook, ``t`` is a time in s, ``x`` a
+    state in the order of ``STATES``, ``u`` the inputs in the order of ``INPUTS`` (None while the model
+    waits for valid inputs), and ``math`` the namespace every equation takes its math from: the module,
+    or ``models.dual.DUAL_MATH`` with duals in ``x`` and ``u`` for directional derivatives
+    (docs/model.md §5.13).
 
     The tables (``models.parameters``, ``models.states``): ``PARAMETERS``, ``INPUTS``, ``OUTPUTS``,
     ``STATES`` (the entries of the state vector), ``LOCALS`` (the states' variables that are not
@@ -58,225 +60,66 @@ class Model:
         self._constants = None
 
     def derive(self, p: dict):
-        """What the equations need from the parameters, precomputed once per change (``constants``).
-
-        Parameters
-        ----------
-        p : dict
-            The parameter values by name.
-
-        Returns
-        -------
-        object
-            ``p`` itself by default.
-        """
+        """What the equations need from the parameters ``p`` (by name), precomputed once per change (``constants``):
+        ``p`` itself by default."""
         return p
 
     def initial_state(self, u: list | None, math=math) -> list:
-        """The state before the first step, from the parameters and the inputs.
-
-        Parameters
-        ----------
-        u : list of float or None
-            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
-        math : namespace, optional
-            The ``math`` module or ``DUAL_MATH``.
-
-        Returns
-        -------
-        list of float
-            The state vector, in the order of ``STATES``.
-        """
+        """The state before the first step, from the parameters and the inputs."""
         raise NotImplementedError
 
     def rates(self, t: float, x: list, u: list, math=math) -> list:
-        """The state's time derivative, free of side effects.
-
-        Parameters
-        ----------
-        t : float
-            Time, in s.
-        x : list of float
-            A state, in the order of ``STATES``.
-        u : list of float
-            The inputs, in the order of ``INPUTS``.
-        math : namespace, optional
-            The ``math`` module or ``DUAL_MATH``.
-
-        Returns
-        -------
-        list of float
-            The time derivative of each entry of ``x``.
-        """
+        """The state's time derivative, free of side effects."""
         raise NotImplementedError
 
     def outputs(self, t: float, x: list, u: list | None, math=math) -> list:
-        """The Real outputs.
-
-        Parameters
-        ----------
-        t : float
-            Time, in s.
-        x : list of float
-            A state, in the order of ``STATES``.
-        u : list of float or None
-            The inputs, in the order of ``INPUTS``; None while the model waits for valid inputs.
-        math : namespace, optional
-            The ``math`` module or ``DUAL_MATH``.
-
-        Returns
-        -------
-        list of float
-            The outputs in the order of ``OUTPUTS``, in their units.
-        """
+        """The Real outputs in the order of ``OUTPUTS``, in their units."""
         raise NotImplementedError
 
     def indicators(self, x: list, u: list) -> list:
-        """The event indicators of model exchange.
-
-        Parameters
-        ----------
-        x : list of float
-            A state.
-        u : list of float
-            The inputs.
-
-        Returns
-        -------
-        list of float
-            One value per entry of ``INDICATORS``: none by default.
-        """
+        """The event indicators of model exchange, one per entry of ``INDICATORS``: none by default."""
         return []
 
     def substep_count(self, step_size: float) -> int:
         """How many sub-steps ``integrate`` takes over a step; the slave discards a step of more than ``MAX_SUBSTEPS``.
-
-        Parameters
-        ----------
-        step_size : float
-            The communication step, in s.
-
-        Returns
-        -------
-        int
-            RK4's sub-steps no longer than ``max_step`` by default (docs/model.md §5.11).
+        RK4's sub-steps no longer than ``max_step`` by default (docs/model.md §5.11).
         """
         return substeps(step_size, self.p["max_step"])
 
     def integrate(self, t: float, x: list, step_size: float, inputs) -> list:
-        """The state after a step: RK4 in sub-steps of at most ``max_step`` by default.
-
-        Parameters
-        ----------
-        t : float
-            The start time, in s.
-        x : list of float
-            The state at ``t``.
-        step_size : float
-            The communication step, in s.
-        inputs : callable
-            ``inputs(t)``: the inputs at a time within the step.
-
-        Returns
-        -------
-        list of float
-            The state at ``t + step_size``.
+        """The state at ``t + step_size`` from ``x`` at ``t``, the inputs at a time within the step being ``inputs(t)``:
+        RK4 in sub-steps of at most ``max_step`` by default.
         """
         rates = self.rates
         return rk4_integrate(lambda t, x: rates(t, x, inputs(t)), t, x, step_size, self.p["max_step"])
 
     def may_wait(self, started: bool) -> bool:
-        """Whether refused inputs make the model wait instead of discarding steps.
-
-        While it waits, its steps are taken without integrating, and its state and outputs are those of
-        ``initial_state`` and ``outputs`` with ``u`` None.
-
-        Parameters
-        ----------
-        started : bool
-            Whether the state has left ``initial_state`` (a step was taken).
-
-        Returns
-        -------
-        bool
-            Never by default.
+        """Whether refused inputs make the model wait instead of discarding steps (never by default); ``started``:
+        whether the state has left ``initial_state``. While it waits, its steps are taken without integrating,
+        and its state and outputs are those of ``initial_state`` and ``outputs`` with ``u`` None.
         """
         return False
 
     def waited(self, t: float, rejected: dict) -> str | None:
-        """A step waited for valid inputs.
-
-        Parameters
-        ----------
-        t : float
-            The step's start, in s.
-        rejected : dict
-            Why each refused variable was refused, by name.
-
-        Returns
-        -------
-        str or None
-            A warning to log.
-        """
+        """A step from ``t`` waited for valid inputs; ``rejected``: why each refused variable was refused, by name."""
         return None
 
     def before_step(self, t: float, started: bool, rejected: dict) -> str | None:
-        """A step begins (the model does not wait).
-
-        Parameters
-        ----------
-        t : float
-            The step's start, in s.
-        started : bool
-            Whether a step was taken before.
-        rejected : dict
-            Why each refused variable was refused, by name (then the step is discarded).
-
-        Returns
-        -------
-        str or None
-            A warning to log.
-        """
+        """A step from ``t`` begins (the model does not wait); with values ``rejected`` (as in ``waited``) it is then
+        discarded."""
         return None
 
     def after_step(self) -> str | None:
-        """The step that ``before_step`` began ended, taken or discarded.
-
-        Returns
-        -------
-        str or None
-            A warning to log.
-        """
+        """The step that ``before_step`` began ended, taken or discarded."""
         return None
 
     def event(self, t: float, u: list) -> str | None:
-        """Model exchange, event mode: choose the switches held until the next event.
-
-        Parameters
-        ----------
-        t : float
-            Time, in s.
-        u : list of float
-            The inputs.
-
-        Returns
-        -------
-        str or None
-            A warning to log.
-        """
+        """Model exchange, event mode: choose the switches held until the next event."""
         return None
 
     def discrete_outputs(self, slave) -> list:
-        """The integer and Boolean outputs, registered after those of the tables.
-
-        Parameters
-        ----------
-        slave : fmu.slave.ModelSlave
-            The slave, which the getters may read (its ``state``, ``u``, ``current_state``, ``waiting``).
-
-        Returns
-        -------
-        list of tuple
-            ``(name, description, boolean, getter)`` of each: none by default.
+        """The integer and Boolean outputs, registered after those of the tables: ``(name, description, boolean,
+        getter)`` of each, none by default. The getters may read the ``slave`` (``state``, ``u``, ``current_state``,
+        ``waiting``).
         """
         return []

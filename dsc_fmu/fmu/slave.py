@@ -1,8 +1,6 @@
 """The slave of every FMU: holds a ``model.Model`` and does the FMI part, for FMI 2.0 (``fmi2``) and 3.0 (``fmi3``).
 
-Bundled into every FMU; imports only the standard library and ``models``. The FMI library (pythonfmu,
-pythonfmu3) comes as a table of its names (``FmiLibrary``): ``fmi2`` and ``fmi3`` put ``ModelSlave`` on that
-library's slave class, and an FMU carries the one module of its FMI version.
+Bundled into every FMU; imports only the standard library and ``models`` (docs/fmus.md, "The Python slave").
 """
 
 from __future__ import annotations
@@ -15,28 +13,16 @@ from ..models.parameters import DEFAULT_TOLERANCE, INPUT_COUPLINGS
 from ..models.rk4 import MAX_SUBSTEPS
 from .directional import DERIVATIVE, INPUT, OUTPUT, STATE, Roles, adjoint, directional, seeded
 
-__all__ = ["FmiLibrary", "ModelSlave"]
+__all__ = []  # ``fmi2`` and ``fmi3`` use ``FmiLibrary`` and ``ModelSlave``
 
 HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
 
 
 @dataclass(frozen=True)
 class FmiLibrary:
-    """The names of an FMI library (pythonfmu or pythonfmu3) the slave uses, and how the versions differ.
-
-    Parameters
-    ----------
-    float, integer, boolean : type
-        The variable classes of 64-bit reals (``Real``, ``Float64``), integers (``Integer``, ``Int32``)
-        and Booleans.
-    causality, variability, initial, status : type
-        The enumerations of causalities, variabilities, ``initial`` attributes and log statuses.
-    default_experiment : type
-        The class of the default experiment.
-    parameter_initial : object
-        The ``initial`` of parameters: None (FMI 2.0 writes none) or ``initial.exact`` (FMI 3.0).
-    independent_time : bool
-        Whether the FMI version requires the independent variable ``time`` (FMI 3.0).
+    """The names of an FMI library (pythonfmu or pythonfmu3) the slave uses, and how the versions differ:
+    ``parameter_initial`` is None for FMI 2.0 (no ``initial`` on parameters), ``initial.exact`` for 3.0;
+    ``independent_time`` whether the version requires the variable ``time`` (3.0).
     """
 
     float: type
@@ -69,7 +55,7 @@ def _by_index(value):
 
 
 class ModelSlave:
-    """A slave that holds ``model`` and maps the FMI calls onto it: co-simulation or model exchange.
+    """A slave that holds ``model`` (a ``model.Model``) and maps the FMI calls onto it: co-simulation or model exchange.
 
     ``fmi2.Fmi2ModelSlave`` and ``fmi3.Fmi3ModelSlave`` put it on the FMI library's slave class, which
     supplies ``log(msg, status)`` and the value getters and setters; ``library`` names the library.
@@ -91,13 +77,7 @@ class ModelSlave:
     Model exchange (docs/model-exchange.md): the binary sets the time and states (``set_point``) and reads
     the vectors of ``model.STATES`` and ``model.INDICATORS``; from the end of initialization the state no
     longer follows the inputs, and the model's switches change only in ``update_discrete_states``.
-
-    Parameters
-    ----------
-    model : fmu.model.Model
-        The model, owned by this slave.
-    **kwargs
-        What the FMI library's slave class takes: ``instance_name``, ``resources``, ``visible``.
+    Vectors are in the order of ``model.STATES``, ``model.INPUTS``, ``model.OUTPUTS`` or ``model.INDICATORS``.
     """
 
     library: FmiLibrary
@@ -188,8 +168,8 @@ class ModelSlave:
     # --- values -------------------------------------------------------------------------------------------
 
     def _accept(self, kind: str, v, value) -> bool:
-        """Whether ``value`` is allowed for ``v``; if not, log why (unless the model may wait for it) and hold the
-        FMU until it is."""
+        """Whether ``value`` is allowed for ``v``; if not, log why (unless the model may wait for it) and hold the FMU
+        until it is."""
         reason = v.check(value)
         if reason is None:
             if self.rejected:
@@ -212,77 +192,34 @@ class ModelSlave:
             self._stale()
 
     def waiting(self) -> bool:
-        """Whether the model waits for valid inputs.
-
-        Returns
-        -------
-        bool
-            True while it ``may_wait`` and the only values refused are inputs.
-        """
+        """Whether the model waits for valid inputs: it ``may_wait`` and the only values refused are inputs."""
         return (bool(self.rejected) and self.model.may_wait(self.state is not None)
                 and all(name in self._input_index for name in self.rejected))
 
     def current_state(self) -> list:
-        """The state, also before the first step.
-
-        Returns
-        -------
-        list of float
-            The state, in the order of ``model.STATES``; before the first step the model's ``initial_state``
-            of the current parameters and inputs.
-        """
+        """The state; before the first step the model's ``initial_state`` of the current parameters and inputs."""
         if self.state is not None:
             return self.state
         return self.model.initial_state(None if self.rejected and self.waiting() else self.u)
 
     def output_values(self) -> list:
-        """The Real outputs, computed once per change of what they depend on.
-
-        Returns
-        -------
-        list of float
-            In the order of ``model.OUTPUTS``.
-        """
+        """The Real outputs, computed once per change of what they depend on."""
         if self._cache is None:
             u = None if self.rejected and self.waiting() else self.u
             self._cache = self.model.outputs(self.time, self.current_state(), u)
         return self._cache
 
     def inputs(self, t: float) -> list:
-        """The inputs within the current step: held, or on the line of ``coupling`` (docs/model.md §5.10).
-
-        Parameters
-        ----------
-        t : float
-            A time within the step, in s.
-
-        Returns
-        -------
-        list of float
-            In the order of ``model.INPUTS``.
-        """
+        """The inputs at ``t`` (s) within the current step: held, or on the line of ``coupling`` (docs/model.md §5.10)."""
         if self._slope is None:
             return self.u
         dt = t - self._stamp
         return [value + dt * slope for value, slope in zip(self.u, self._slope)]
 
     def set_input_derivatives(self, refs: list, orders: list, values: list) -> None:
-        """Take first derivatives of Real inputs for the next step only (fmi2SetRealInputDerivatives).
-
-        Parameters
-        ----------
-        refs : sequence of int
-            The inputs' value references.
-        orders : sequence of int
-            The derivatives' orders: 1 only.
-        values : sequence of float
-            The derivatives, in the inputs' units per s.
-
-        Raises
-        ------
-        ValueError
-            If a reference is not a Real input, an order is not 1 or a value is not finite (fmi2Error);
-            then none of them is taken.
+        """Take first derivatives of Real inputs (by value reference, in their units per s) for the next step only
+        (fmi2SetRealInputDerivatives); ValueError (fmi2Error), taking none, if a reference is not a Real input, an order
+        is not 1 or a value is not finite.
         """
         given = {}
         inputs = self.model.INPUTS
@@ -301,15 +238,8 @@ class ModelSlave:
 
     def setup_experiment(self, start_time: float, stop_time: float | None = None,
                          tolerance: float | None = None) -> None:
-        """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode).
-
-        Parameters
-        ----------
-        start_time : float
-            The start time, in s.
-        stop_time, tolerance : float or None, optional
-            FMI 2.0's stop time and tolerance; unused.
-        """
+        """Start at ``start_time`` (fmi2SetupExperiment, fmi3EnterInitializationMode); FMI 2.0's stop time and tolerance
+        are unused."""
         self.time = start_time
         self._stale()
 
@@ -320,19 +250,9 @@ class ModelSlave:
     def do_step(self, current_time: float, step_size: float) -> bool:
         """Take the communication step (fmi2DoStep, fmi3DoStep): what one step does is written here.
 
-        Parameters
-        ----------
-        current_time : float
-            The communication point the step starts from, in s.
-        step_size : float
-            The communication step, in s.
-
-        Returns
-        -------
-        bool
-            True if taken (or waited for valid inputs); False (fmiDiscard, the reason logged) while values
-            are refused, for a step of more than ``MAX_SUBSTEPS`` sub-steps or a state that is not finite,
-            and then the state is unchanged.
+        True if taken (or waited for valid inputs); False (fmiDiscard, the reason logged) while values are refused,
+        for a step of more than ``MAX_SUBSTEPS`` sub-steps or a state that is not finite, and then the state is
+        unchanged.
         """
         model = self.model
         if self.rejected and self.waiting():
@@ -389,15 +309,8 @@ class ModelSlave:
     # --- model exchange -----------------------------------------------------------------------------------
 
     def set_point(self, t: float | None, x: list | None) -> None:
-        """Take the time and the continuous states that a model-exchange importer set.
-
-        Parameters
-        ----------
-        t : float or None
-            The time in s, unless None.
-        x : list of float or None
-            The continuous states (copied), unless None.
-        """
+        """Take the time (s) and the continuous states (copied) that a model-exchange importer set; None leaves one as
+        it is."""
         if t is not None:
             self.time = t
         if x is not None:
@@ -405,64 +318,28 @@ class ModelSlave:
         self._stale()
 
     def set_state(self, index: int, value: float) -> None:
-        """Set one continuous state as ``set_point`` sets them all (fmi2SetReal, fmi3SetFloat64 where the binary allows).
-
-        Parameters
-        ----------
-        index : int
-            The state's position in ``model.STATES``.
-        value : float
-            Its new value, in its unit.
-        """
+        """Set state ``index`` as ``set_point`` sets them all (fmi2SetReal, fmi3SetFloat64 where the binary allows)."""
         state = list(self.current_state())
         state[index] = float(value)
         self.set_point(None, state)
 
     def get_continuous_states(self) -> list:
-        """The continuous states.
-
-        Returns
-        -------
-        list of float
-            A copy of the state, in the order of ``model.STATES``.
-        """
+        """A copy of the continuous states."""
         return list(self.current_state())
 
     def get_derivatives(self) -> list:
-        """The state's time derivative at the current time, inputs and state.
-
-        Returns
-        -------
-        list of float
-            In the order of ``model.STATES``.
-
-        Raises
-        ------
-        RuntimeError
-            While values are refused (fmiDiscard).
-        """
+        """The states' time derivatives at the current time, inputs and state; RuntimeError (fmiDiscard) while values
+        are refused."""
         if self.rejected:
             raise RuntimeError(f"no derivatives while values are refused: {'; '.join(self.rejected.values())}")
         return self.model.rates(self.time, self.current_state(), self.u)
 
     def get_event_indicators(self) -> list:
-        """The event indicators at the current state and inputs.
-
-        Returns
-        -------
-        list of float
-            In the order of ``model.INDICATORS``.
-        """
+        """The event indicators at the current state and inputs."""
         return self.model.indicators(self.current_state(), self.u)
 
     def get_nominals(self) -> list:
-        """The nominal magnitudes of the continuous states.
-
-        Returns
-        -------
-        list of float
-            In the order of ``model.STATES``, in their units.
-        """
+        """The nominal magnitudes of the continuous states, in their units."""
         return [s.nominal for s in self.model.STATES]
 
     def start_continuous_time(self) -> None:
@@ -503,53 +380,15 @@ class ModelSlave:
         §5.13); unknowns are state derivatives and Real outputs, knowns continuous states and Real inputs.
         Co-simulation: at the current state and inputs, the switches as the law chooses them there, the state
         following the inputs until the first step (§5.2); unknowns are Real outputs, knowns Real inputs.
-        One forward pass on dual numbers.
-
-        Parameters
-        ----------
-        unknowns, knowns : list of int
-            The value references of the unknowns and of the knowns.
-        seed : list of float
-            One entry per known: the direction.
-        model_exchange : bool
-            Whether the instance is one of model exchange.
-
-        Returns
-        -------
-        list of float
-            One entry per unknown: its derivative along ``seed``.
-
-        Raises
-        ------
-        ValueError
-            For a reference that is not an allowed unknown or known, or a ``seed`` whose length differs from
-            that of ``knowns``.
+        One forward pass on dual numbers. ValueError for a reference that is not an allowed unknown or known,
+        or a ``seed`` whose length differs from that of ``knowns``.
         """
         rows, columns = self._roles.resolve(unknowns, model_exchange, True), self._roles.resolve(knowns, model_exchange, False)
         return directional(lambda rows, direction: self._forward(rows, direction, model_exchange), rows, columns, seed)
 
     def adjoint_derivative(self, unknowns: list, knowns: list, seed: list, model_exchange: bool) -> list:
-        """``seed^T J`` (fmi3GetAdjointDerivative), J as in ``directional_derivative``: one forward pass per known.
-
-        Parameters
-        ----------
-        unknowns, knowns : list of int
-            The value references of the unknowns and of the knowns.
-        seed : list of float
-            One entry per unknown.
-        model_exchange : bool
-            Whether the instance is one of model exchange.
-
-        Returns
-        -------
-        list of float
-            One entry per known: ``sum_i seed_i d unknown_i / d known``.
-
-        Raises
-        ------
-        ValueError
-            As ``directional_derivative``.
-        """
+        """``seed^T J`` (fmi3GetAdjointDerivative), J and errors as in ``directional_derivative``: one forward pass per
+        known."""
         rows, columns = self._roles.resolve(unknowns, model_exchange, True), self._roles.resolve(knowns, model_exchange, False)
         return adjoint(lambda rows, direction: self._forward(rows, direction, model_exchange), rows, columns, seed)
 

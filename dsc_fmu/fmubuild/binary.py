@@ -20,11 +20,8 @@ from ..errors import DscFmuError
 from ..platforms import Platform
 from ..fmu.native_bridge import CAUSALITIES, TYPE_NAMES, TYPES, VARIABILITIES
 
-__all__ = [
-    "BinaryBuildError", "PythonRuntime", "Target", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64",
-    "MACOS_X86_64", "host_target", "build_python", "compile_binary", "binary_sources", "OVERRIDE_VARIABLE",
-    "ENTRY_FILE",
-]
+__all__ = ["BinaryBuildError", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64",
+           "host_target", "OVERRIDE_VARIABLE"]
 
 NATIVE_DIR = Path(__file__).parent / "native"
 OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
@@ -45,26 +42,10 @@ class BinaryBuildError(DscFmuError, RuntimeError):
 
 @dataclass(frozen=True)
 class Target(Platform):
-    """A platform (``dsc_fmu.platforms``) and how its binary is compiled.
-
-    Parameters
-    ----------
-    os, cpu : str
-        The platform's system and CPU (``Platform``).
-    folders : tuple of (tuple of str)
-        The platform's folders in an FMU, for FMI 2.0 and 3.0.
-    suffix : str
-        The binary's file suffix.
-    zig_target : str
-        Zig's target triple (with the oldest glibc or macOS the binary runs on).
-    platform_sources : tuple of str
-        The platform seam's sources in ``native/`` (``platform.h``).
-    flags : tuple of str
-        Compiler and linker flags for this platform.
-    libraries : tuple of str
-        What the binary links.
-    install_name : str, optional
-        The name a macOS binary gives itself, with ``{}`` for the model identifier. Default "": none.
+    """A platform (``dsc_fmu.platforms``) and how its binary is compiled: Zig's target triple (with the oldest
+    glibc or macOS the binary runs on), the platform seam's sources in ``native/`` (``platform.h``), compiler
+    and linker flags, the libraries linked, and for macOS the name the binary gives itself (``{}``: the model
+    identifier).
     """
 
     zig_target: str = ""
@@ -106,19 +87,10 @@ def host_target() -> Target | None:
 
 @dataclass(frozen=True)
 class PythonRuntime:
-    """The Python a binary prefers (``native/pyhost.c`` has the order in which it looks).
-
-    Parameters
-    ----------
-    version : str
-        Its version, major and minor (``"3.11"``): its candidates come first among the system's.
-    library : str
-        The shared library of the Python that built the binary, or "" (none, or another platform).
-    home : str
-        That Python's home (``sys.base_prefix``), or "".
-    system_name : str, optional
-        The file name of the system's CPython libraries, ``%d`` for the minor version. Default "": the
-        platform's (``libpython3.%d.so.1.0``, ``libpython3.%d.dylib``, ``python3%d.dll``).
+    """The Python a binary prefers (``native/pyhost.c`` has the order in which it looks): its version (``"3.11"``,
+    whose candidates come first), the shared library and home (``sys.base_prefix``) of the Python that built
+    it ("" for none or another platform), and the file name of the system's CPython libraries with ``%d``
+    for the minor version ("": the platform's).
     """
 
     version: str
@@ -128,13 +100,8 @@ class PythonRuntime:
 
 
 def build_python() -> PythonRuntime:
-    """The running Python, which builds the FMUs.
-
-    Returns
-    -------
-    PythonRuntime
-        What a binary for this system looks for first after the override (``OVERRIDE_VARIABLE``).
-    """
+    """The running Python, which builds the FMUs: what a binary for this system looks for first after
+    ``OVERRIDE_VARIABLE``."""
     library = ""
     if sys.platform == "win32":
         candidate = Path(sys.base_prefix) / f"python{sys.version_info.major}{sys.version_info.minor}.dll"
@@ -156,18 +123,8 @@ def _runtime_for(target: Target, runtime: PythonRuntime) -> PythonRuntime:
 
 
 def binary_sources(fmi_version: int) -> list[Path]:
-    """The files the binaries of one FMI version are compiled from.
-
-    Parameters
-    ----------
-    fmi_version : {2, 3}
-        The FMI version of the binaries.
-
-    Returns
-    -------
-    list of pathlib.Path
-        The sources and headers in ``native/``, for every target (the standard's headers excluded).
-    """
+    """The sources and headers in ``native/`` of the binaries of one FMI version, for every target (not the standard's
+    headers)."""
     seams = dict.fromkeys(name for target in TARGETS for name in target.platform_sources)
     return [NATIVE_DIR / name for name in (*_SOURCES[fmi_version], *seams, *_HEADERS)]
 
@@ -254,29 +211,10 @@ def _compiler_environment() -> dict:
 
 def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None,
                    model_identifier: str = "") -> bytes:
-    """Compile the binary layer of one FMI version for one platform, once per process for the same inputs.
-
-    Parameters
-    ----------
-    fmi_version : {2, 3}
-        The FMI version of the binary.
-    target : Target, optional
-        The platform it runs on. Default ``LINUX``.
-    runtime : PythonRuntime, optional
-        The Python it prefers. Default ``build_python()`` (its library only for this platform).
-    model_identifier : str, optional
-        The FMU's model identifier: required for a target whose binary names itself
-        (``Target.install_name``), ignored elsewhere. Default "".
-
-    Returns
-    -------
-    bytes
-        The shared library (``.so``, ``.dll`` or ``.dylib``).
-
-    Raises
-    ------
-    BinaryBuildError
-        If the compiler cannot be run or fails, or a model identifier is missing.
+    """The shared library of one FMI version for one platform, compiled once per process for the same inputs.
+    ``runtime`` defaults to ``build_python()`` (its library only for this platform); ``model_identifier`` is required
+    for a target whose binary names itself (``Target.install_name``). BinaryBuildError if the compiler cannot be
+    run or fails, or a model identifier is missing.
     """
     if target.install_name and not model_identifier:
         raise BinaryBuildError(f"the {target.name} binary names itself after its FMU: give its model identifier")

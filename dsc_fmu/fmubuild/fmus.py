@@ -34,8 +34,7 @@ from .documentation import REQUIREMENTS, bundled_requirements
 from .model_description import complete_model_description, documentation
 
 __all__ = [
-    "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmu", "build_fmus", "ensure_fmus", "current_fmus",
-    "source_hash", "default_fmu_dir", "resolve_fmu_dir",
+    "DEFAULT_FMU_DIR", "DEFAULT_FMU_DIRS", "FMI_VERSIONS", "build_fmus", "ensure_fmus", "current_fmus",
 ]
 
 PACKAGE_DIR = Path(__file__).parents[1]
@@ -84,22 +83,8 @@ def _bundled_files(spec: FmuSpec, fmi_version: int = 2) -> list[Path]:
 
 
 def source_hash(spec: FmuSpec, fmi_version: int = 2) -> str:
-    """The hash of an FMU's sources, this builder, the binary's sources and the FMI library's version.
-
-    An FMU whose build id (``identity.fmu_build_id``) equals it is current, whichever machine and
-    CPython built it (the Python its binary looks for first is a preference, not a source).
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU.
-    fmi_version : {2, 3}, optional
-        The FMI version (``ValueError`` for another). Default 2.
-
-    Returns
-    -------
-    str
-        The SHA-256 digest, in hex.
+    """The SHA-256 (hex) of an FMU's sources, this builder, the binary's sources and the FMI library's version.
+    An FMU whose build id (``identity.fmu_build_id``) equals it is current, whichever machine and CPython built it.
     """
     check_fmi_version(fmi_version)
     library = _library_version(fmi_version)
@@ -229,38 +214,7 @@ def _requirements(runtimes: dict, fmi_version: int) -> str:
 
 def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
               bundle_python: bool | str = False) -> Path:
-    """Build one FMU, atomically.
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU to build.
-    out_dir : pathlib.Path or str
-        The directory, created if missing; the FMU is ``out_dir/<name>.fmu``.
-    fmi_version : {2, 3} or None, optional
-        The FMI version. Default None: that of the FMUs in ``out_dir``, else 2 (``resolve_fmu_dir``).
-    bundle_python : bool or str, optional
-        Carry a CPython for the platforms it can (``fmubuild.bundle``: x86-64 Windows, and Linux of the
-        building machine's CPU; a warning names the others): True for the building CPython's minor
-        version, or ``"3.X"`` for Windows' (Linux's is the building CPython). Default False: the FMU uses
-        the importing machine's.
-
-    Returns
-    -------
-    pathlib.Path
-        The FMU's path.
-
-    Raises
-    ------
-    ValueError
-        If ``fmi_version`` is not 2 or 3.
-    FmiVersionError
-        If ``out_dir`` holds FMUs of another FMI version; nothing is written.
-    BinaryBuildError
-        If the binary does not compile or a bundled module imports the FMI library by its public name.
-    BundleError
-        If a CPython cannot be bundled (``bundle_minor``, ``bundled_runtimes``); nothing is written.
-    """
+    """Build one FMU, ``out_dir/<name>.fmu``, atomically; the arguments and errors are those of ``build_fmus``."""
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     if bundle_python:
         bundle_minor(bundle_python)  # a bad version is refused before anything is built
@@ -315,18 +269,21 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
 
 def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None,
                bundle_python: bool | str = False) -> dict[str, Path]:
-    """Build some or all of the three FMUs.
+    """Build some or all of the three FMUs, each atomically.
 
     Parameters
     ----------
     out_dir : pathlib.Path or str or None, optional
-        The directory. Default None: ``default_fmu_dir`` of the version.
+        The directory, created if missing. Default None: ``default_fmu_dir`` of the version.
     names : iterable of str, optional
         The FMUs to build, keys of ``registry.FMUS``. Default: all three.
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
     bundle_python : bool or str, optional
-        Each FMU carries a CPython (``build_fmu``). Default False.
+        Carry a CPython for the platforms it can (``fmubuild.bundle``: x86-64 Windows, and Linux of the
+        building machine's CPU; a warning names the others): True for the building CPython's minor
+        version, or ``"3.X"`` for Windows' (Linux's is the building CPython). Default False: the FMUs use
+        the importing machine's.
 
     Returns
     -------
@@ -336,7 +293,15 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
     Raises
     ------
     KeyError
-        If a name is not one of the three FMUs; else as ``build_fmu``.
+        If a name is not one of the three FMUs.
+    ValueError
+        If ``fmi_version`` is not 2 or 3.
+    FmiVersionError
+        If the directory holds FMUs of another FMI version; nothing is written.
+    BinaryBuildError
+        If the binary does not compile or a bundled module imports the FMI library by its public name.
+    BundleError
+        If a CPython cannot be bundled (``bundle_minor``, ``bundled_runtimes``); nothing is written.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     return {name: build_fmu(FMUS[name], out_dir, fmi_version, bundle_python) for name in names}
@@ -360,7 +325,7 @@ def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = Non
     Raises
     ------
     ValueError, FmiVersionError, BinaryBuildError
-        As ``build_fmu``.
+        As ``build_fmus``.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {}
@@ -385,7 +350,7 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
     fmi_version : {2, 3} or None, optional
         The FMI version. Default None: that of the FMUs in the directory, else 2 (``resolve_fmu_dir``).
     bundle_python : bool or str, optional
-        FMUs that carry a CPython (``build_fmu``): those of ``out_dir`` serve if they carry one of that
+        FMUs that carry a CPython (``build_fmus``): those of ``out_dir`` serve if they carry one of that
         version for Windows. Default False: any current FMUs serve.
 
     Yields
@@ -396,7 +361,7 @@ def current_fmus(out_dir: Path | str | None = None, fmi_version: int | None = No
     Raises
     ------
     ValueError, FmiVersionError, BinaryBuildError, BundleError
-        As ``build_fmu``.
+        As ``build_fmus``.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     paths = {name: out_dir / f"{name}.fmu" for name in FMUS}

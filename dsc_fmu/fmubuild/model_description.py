@@ -13,7 +13,7 @@ from ..registry import FmuSpec
 from .documentation import documentation_html
 from .structure import TIME, continuous_dependencies, initial_dependencies
 
-__all__ = ["UNITS", "complete_model_description", "documentation"]
+__all__ = ["UNITS"]
 
 # Exponents of the SI base units (kg, m, s, A, rad) of every unit the FMUs use.
 UNITS = {
@@ -201,26 +201,11 @@ def _write_structure(root: ET.Element, spec: FmuSpec, version: _Version, referen
 
 
 def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) -> ET.Element:
-    """Complete the model description that pythonfmu (FMI 2.0) or pythonfmu3 (FMI 3.0) writes.
-
-    Adds model exchange beside co-simulation, units, exact start values, ranges, nominals, derivatives
-    and ModelStructure with its dependencies (``structure``: FMI 3.0 by value reference with the time and
-    event indicators, FMI 2.0 by index), ``canInterpolateInputs`` for an FMI 2.0 FMU with inputs, and the
-    exact partial derivatives the binary provides.
-
-    Parameters
-    ----------
-    xml : bytes
-        ``modelDescription.xml`` as pythonfmu or pythonfmu3 wrote it.
-    spec : registry.FmuSpec
-        The FMU it describes.
-    fmi_version : {2, 3}, optional
-        The FMI version of ``xml``. Default 2.
-
-    Returns
-    -------
-    xml.etree.ElementTree.Element
-        The completed root element, not indented.
+    """The root element (not indented) of ``modelDescription.xml`` as pythonfmu (FMI 2.0) or pythonfmu3 (3.0) wrote it,
+    completed: model exchange beside co-simulation, units, exact start values, ranges, nominals, derivatives and
+    ModelStructure with its dependencies (``structure``: FMI 3.0 by value reference with the time and event
+    indicators, FMI 2.0 by index), ``canInterpolateInputs`` for an FMI 2.0 FMU with inputs, and the exact partial
+    derivatives the binary provides.
     """
     version = _VERSIONS[fmi_version]
     root = ET.fromstring(xml)
@@ -244,21 +229,7 @@ def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) 
 
 
 def documentation(root: ET.Element, spec: FmuSpec, requirements: str) -> bytes:
-    """The FMU's ``documentation/index.html``.
-
-    Parameters
-    ----------
-    root : xml.etree.ElementTree.Element
-        The FMU's completed model description.
-    spec : registry.FmuSpec
-        The FMU it describes.
-    requirements : str
-        What the importing machine needs.
-
-    Returns
-    -------
-    bytes
-        The HTML page, UTF-8.
-    """
+    """The FMU's ``documentation/index.html`` (UTF-8) from its completed model description and what the importing
+    machine needs."""
     units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in spec.variables.items()}}
     return documentation_html(root, spec.name, units, requirements).encode("utf-8")

@@ -15,7 +15,7 @@ from ..fmu.controller_model import DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..registry import FmuSpec
 
-__all__ = ["TIME", "continuous_dependencies", "initial_dependencies"]
+__all__ = ["TIME"]
 
 TIME = "time"
 _POINTS = 3
@@ -47,7 +47,10 @@ def _changed(value: float) -> float:
 
 
 def _dependencies(spec: FmuSpec, knowns: dict, evaluate) -> dict[str, tuple[str, ...]]:
-    """For each unknown ``evaluate(probe)`` returns, the ``knowns`` (name -> ``(get, set)``) whose change changes it."""
+    """For each unknown ``evaluate(probe)`` returns, the knowns (the inputs, ``knowns``: name -> ``(get, set)``, and
+    ``TIME``) whose change changes it."""
+    knowns = {**{v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}, **knowns,
+              TIME: (lambda probe: probe.time, lambda probe, value: setattr(probe, "time", value))}
     rng = random.Random(_SEED)
     found = {}
     for probe in _models(spec):
@@ -87,23 +90,11 @@ def _continuous(probe) -> dict:
 
 
 def continuous_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in continuous-time mode (and at communication points).
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU.
-
-    Returns
-    -------
-    dict of str to tuple of str
-        Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``.
-    """
-    knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
-    knowns.update({s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
-                   for i, s in enumerate(spec.states)})
-    knowns[TIME] = (lambda probe: probe.time, lambda probe, value: setattr(probe, "time", value))
-    return _dependencies(spec, knowns, _continuous)
+    """Each continuous output, state derivative and event indicator -> its inputs, states and ``TIME``, in
+    continuous-time mode (and at communication points)."""
+    states = {s.variable.name: (lambda probe, i=i: probe.state[i], _setter("state", i))
+              for i, s in enumerate(spec.states)}
+    return _dependencies(spec, states, _continuous)
 
 
 def _initial(probe) -> dict:
@@ -116,20 +107,8 @@ def _initial(probe) -> dict:
 
 
 def initial_dependencies(spec: FmuSpec) -> dict[str, tuple[str, ...]]:
-    """The dependencies in initialization mode.
-
-    Parameters
-    ----------
-    spec : registry.FmuSpec
-        The FMU.
-
-    Returns
-    -------
-    dict of str to tuple of str
-        Each continuous output, state and state derivative -> its inputs, Real parameters and ``TIME``.
-    """
-    knowns = {v.name: (lambda probe, i=i: probe.u[i], _setter("u", i)) for i, v in enumerate(spec.inputs)}
-    knowns.update({v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name))
-                   for v in spec.parameters if not v.integer})
-    knowns[TIME] = (lambda probe: probe.time, lambda probe, value: setattr(probe, "time", value))
-    return _dependencies(spec, knowns, _initial)
+    """Each continuous output, state and state derivative -> its inputs, Real parameters and ``TIME``, in
+    initialization mode."""
+    parameters = {v.name: (lambda probe, n=v.name: probe.p[n], _setter("p", v.name)) for v in spec.parameters
+                  if not v.integer}
+    return _dependencies(spec, parameters, _initial)

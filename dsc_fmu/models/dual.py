@@ -11,27 +11,18 @@ takes and the tangent is that branch's. Standard library only: bundled into ever
 import math
 from types import SimpleNamespace
 
-__all__ = ["Dual", "DUAL_MATH"]
+__all__ = ["DUAL_MATH"]
 
 _new = object.__new__
 
 
 class Dual:
-    """A value with one tangent: ``value + tangent eps`` with ``eps^2 = 0``.
+    """A value with one tangent, its derivative along the direction of the seed: ``value + tangent eps``, ``eps^2 = 0``.
 
     Arithmetic with floats and duals, unary minus, ``abs``, ``**`` with a float exponent; comparisons
     look at the values only. There is no conversion to float: a dual handed to the ``math`` module
     raises TypeError instead of losing its tangent.
 
-    Parameters
-    ----------
-    value : float
-        The value.
-    tangent : float, optional
-        Its derivative along the direction of the seed. Default 0.
-
-    Examples
-    --------
     >>> y = 3.0 * DUAL_MATH.sin(Dual(0.0, 1.0)) + 1.0
     >>> y.value, y.tangent
     (1.0, 3.0)

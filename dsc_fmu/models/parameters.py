@@ -6,7 +6,6 @@ import math
 from dataclasses import dataclass, replace
 
 __all__ = [
-    "Variable",
     "PLANT_PARAMETERS",
     "PLANT_INPUTS",
     "PLANT_OUTPUTS",
@@ -20,7 +19,6 @@ __all__ = [
     "START_ON",
     "INPUT_COUPLINGS",
     "DEFAULT_TOLERANCE",
-    "defaults",
 ]
 
 POSITIVE = "positive"
@@ -30,29 +28,11 @@ ANY = "any"
 
 @dataclass(frozen=True)
 class Variable:
-    """One FMU variable: name, start value, SI unit, description and allowed range.
-
-    Parameters
-    ----------
-    name : str
-        The FMU variable's name (docs/model.md).
-    start : float
-        Its start value, in ``unit``: the paper's value for parameters (Section IV).
-    unit : str
-        Its SI unit (``"1"`` for none), as the model description writes it.
-    description : str
-        Its description, citing the paper's equation where it has one.
-    bound : {"any", "positive", "nonnegative"}, optional
-        Finite, > 0 or >= 0. Default "any".
-    tunable : bool, optional
-        Whether a parameter may change between communication points (else fixed). Default False.
-    integer : bool, optional
-        Whether it is an Integer variable (else Real). Default False.
-    minimum, maximum : float or None, optional
-        Inclusive bounds beyond ``bound``. Default None (none).
-    choices : tuple of str, optional
-        The names of an Integer's values 0, 1, ... (a scenario gives the name, the FMU takes the
-        number). Default none.
+    """One FMU variable (docs/model.md): name, start value in ``unit`` (the paper's value for parameters, Section IV),
+    SI unit (``"1"`` for none) as the model description writes it, description (citing the paper's equation where
+    it has one), and allowed range: ``bound`` finite, > 0 or >= 0, and inclusive ``minimum``, ``maximum`` beyond it.
+    ``tunable``: a parameter that may change between communication points; ``integer``: an Integer (else Real);
+    ``choices``: the names of an Integer's values 0, 1, ... (a scenario gives the name, the FMU takes the number).
     """
 
     name: str
@@ -67,18 +47,7 @@ class Variable:
     choices: tuple = ()
 
     def check(self, value: float) -> str | None:
-        """Why ``value`` is not allowed for this variable, if it is not.
-
-        Parameters
-        ----------
-        value : float
-            A value to set, in the variable's unit.
-
-        Returns
-        -------
-        str or None
-            The reason, naming the variable and the value; None if the value is allowed.
-        """
+        """Why ``value`` (in the variable's unit) is not allowed, naming the variable and the value; None if it is."""
         if not math.isfinite(value):
             return f"{self.name} = {value} is not finite"
         if self.bound == POSITIVE and not value > 0:
@@ -105,18 +74,7 @@ class Variable:
 
 
 def defaults(variables) -> dict:
-    """Map each variable's name to its start value.
-
-    Parameters
-    ----------
-    variables : iterable of Variable
-        The variables, for example ``PLANT_PARAMETERS``.
-
-    Returns
-    -------
-    dict
-        ``{name: start}`` in the variables' order.
-    """
+    """``{name: start}`` of ``variables``, in their order."""
     return {v.name: v.start for v in variables}
 
 

@@ -2,7 +2,7 @@
 
 import math
 
-__all__ = ["velocity", "min_speed", "reference_derivatives"]
+__all__ = ["reference_derivatives"]
 
 CONSTANT = 0
 FIGURE_EIGHT = 1
@@ -20,19 +20,8 @@ def _figure_eight(t: float, A: float, B: float, T: float) -> tuple:
 
 
 def velocity(p: dict, t: float) -> tuple:
-    """The reference's velocities at time ``t`` (docs/model.md §5.8).
-
-    Parameters
-    ----------
-    p : dict
-        The ReferenceRobot FMU's parameter values by name; ``p["profile"]`` selects the profile.
-    t : float
-        Time, in s.
-
-    Returns
-    -------
-    tuple of float
-        ``(vr, wr, vr_dot)`` of (9): in m/s, rad/s, m/s2.
+    """``(vr, wr, vr_dot)`` of (9) at time ``t`` (s), in m/s, rad/s, m/s2, for the ReferenceRobot FMU's parameters
+    ``p``, whose ``profile`` selects the profile (docs/model.md §5.8).
     """
     if p["profile"] == FIGURE_EIGHT:
         return _figure_eight(t, p["eight_A"], p["eight_B"], p["eight_T"])
@@ -40,22 +29,9 @@ def velocity(p: dict, t: float) -> tuple:
 
 
 def min_speed(p: dict, t_end: float) -> float:
-    """Smallest vr over ``[0, t_end]`` (docs/model.md §5.7: vr > 0 is required).
-
-    For the figure eight, vr^2 = W^2 (A^2 s + 4 B^2 (2 s - 1)^2) with s = cos^2(W t) in [0, 1],
-    minimised in closed form (over a whole period, so a lower bound for any shorter run).
-
-    Parameters
-    ----------
-    p : dict
-        The ReferenceRobot FMU's parameter values by name.
-    t_end : float
-        The end of the run, in s.
-
-    Returns
-    -------
-    float
-        The smallest vr, in m/s (exact: vr is constant or a closed form in cos(W t)).
+    """Smallest vr (m/s) over ``[0, t_end]`` for the ReferenceRobot FMU's parameters ``p`` (docs/model.md §5.7: vr > 0
+    is required). Exact: for the figure eight, vr^2 = W^2 (A^2 s + 4 B^2 (2 s - 1)^2) with s = cos^2(W t) in
+    [0, 1], minimised in closed form (over a whole period, so a lower bound for any shorter run).
     """
     if p["profile"] != FIGURE_EIGHT:
         return p["vr0"]

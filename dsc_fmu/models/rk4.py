@@ -2,7 +2,7 @@
 
 import math
 
-__all__ = ["MAX_SUBSTEPS", "rk4_integrate"]
+__all__ = ["MAX_SUBSTEPS"]
 
 # The most sub-steps one communication step may take: bounds the work of any single step.
 MAX_SUBSTEPS = 1_000_000
@@ -15,25 +15,9 @@ def substeps(step_size: float, max_step: float) -> int:
 
 
 def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> list:
-    """Integrate ``x_dot = f(t, x)`` from ``t0`` over ``step_size`` with RK4 sub-steps (docs/model.md §5.11).
-
-    Parameters
-    ----------
-    f : callable
-        ``f(t, x)``: the time derivative of the state ``x`` (list) at time ``t`` (s), a list.
-    t0 : float
-        The start time, in s.
-    x : list of float
-        The state at ``t0``.
-    step_size : float
-        The communication step, in s.
-    max_step : float
-        The longest sub-step, in s: ``substeps(step_size, max_step)`` equal sub-steps.
-
-    Returns
-    -------
-    list of float
-        The state at ``t0 + step_size``. Sub-step k starts at ``t0 + k h``: time is never accumulated.
+    """The state at ``t0 + step_size`` (s) of ``x_dot = f(t, x)`` from ``x`` at ``t0``, by RK4 in
+    ``substeps(step_size, max_step)`` equal sub-steps (docs/model.md §5.11). Sub-step k starts at ``t0 + k h``:
+    time is never accumulated.
     """
     n = substeps(step_size, max_step)
     h = step_size / n

@@ -16,30 +16,15 @@ from .modules import BundleError, imported_modules
 from .runtime import MANIFEST, ROOT, Runtime
 from .windows import windows_refused, windows_runtime
 
-__all__ = ["BundleError", "MANIFEST", "ROOT", "OLDEST_MINOR", "Runtime", "bundle_minor", "bundled_runtimes",
-           "carried_platforms"]
+__all__ = ["BundleError", "ROOT"]
 
 # The oldest CPython the FMUs' code runs on (``native/pyhost.c`` refuses older ones).
 OLDEST_MINOR = 9
 
 
 def bundle_minor(python: bool | str) -> int:
-    """The minor version X of the Windows runtime that ``python`` asks for.
-
-    Parameters
-    ----------
-    python : True or str
-        True for the building CPython's minor version, or ``"3.X"``.
-
-    Returns
-    -------
-    int
-        X.
-
-    Raises
-    ------
-    BundleError
-        If ``python`` is neither, or older than 3.9.
+    """The minor version X of the Windows runtime that ``python`` asks for: True for the building CPython's, or
+    ``"3.X"``; BundleError for anything else or older than 3.9.
     """
     if python is True:
         return sys.version_info.minor
@@ -52,46 +37,17 @@ def bundle_minor(python: bool | str) -> int:
 
 
 def carried_platforms(platforms) -> list[str]:
-    """The platforms among ``platforms`` that an FMU built here can carry a CPython for.
-
-    Parameters
-    ----------
-    platforms : iterable of str
-        FMI 3.0 platform tuples.
-
-    Returns
-    -------
-    list of str
-        x86-64 Windows, and this machine's Linux if this is Linux.
-    """
+    """The platforms (FMI 3.0 tuples) that an FMU built here can carry a CPython for: x86-64 Windows, and this machine's
+    Linux."""
     here = host_target()
     linux = here.name if here is not None and here.os == "linux" else None
     return [platform for platform in platforms if platform in (linux, WINDOWS.name)]
 
 
 def bundled_runtimes(fmu: Path, entry: str, python: bool | str, platforms) -> dict:
-    """The runtimes an FMU carries for those of ``platforms`` it can (``carried_platforms``).
-
-    Parameters
-    ----------
-    fmu : pathlib.Path
-        The FMU as the FMI library built it (its ``resources`` hold the code the binary imports).
-    entry : str
-        The modules the binary imports first: ``"<bridge module> <slave module>"``.
-    python : True or str
-        The Windows runtime's version (``bundle_minor``); Linux's is the building CPython.
-    platforms : iterable of str
-        The FMU's platforms, as FMI 3.0 tuples.
-
-    Returns
-    -------
-    dict of str to Runtime
-        By platform.
-
-    Raises
-    ------
-    BundleError
-        If one cannot be bundled (no shared library, no download, code that does not import).
+    """The runtimes (by platform) that an FMU as the FMI library built it carries, for those of ``platforms`` it can.
+    ``entry``: the modules the binary imports first, ``"<bridge module> <slave module>"``; ``python`` as in
+    ``bundle_minor``. BundleError if one cannot be bundled (no shared library, no download, code that does not import).
     """
     minor = bundle_minor(python)
     carried = carried_platforms(platforms)

@@ -9,7 +9,7 @@ import marshal
 import zipfile
 from dataclasses import dataclass, field
 
-__all__ = ["MANIFEST", "ROOT", "Runtime"]
+__all__ = ["ROOT"]
 
 # The runtime's folder beside the FMU's binary, and the file in it that lists the rest with their sizes
 # (native/pyhost.c checks it before it loads anything).
@@ -19,20 +19,10 @@ MANIFEST = "bundle.txt"
 
 @dataclass(frozen=True)
 class Runtime:
-    """One platform's bundled CPython.
-
-    Parameters
-    ----------
-    os : {"linux", "windows"}
-        The system it runs on (its CPU is that of the folder it is carried in).
-    version : str
-        Its full version (``"3.11.7"``).
-    files : dict of str to bytes
-        Its files by path under ``ROOT``, the manifest excepted.
-    licences : dict of str to bytes
-        The licences of what it carries by name (``"CPython"``, ``"libffi"``).
-    needs : tuple of str
-        What it needs of the system beyond what the binary needs (``"glibc 2.36 or newer"``).
+    """One platform's bundled CPython: the system it runs on (``"linux"``, ``"windows"``; its CPU is that of the
+    folder it is carried in), its full version (``"3.11.7"``), its files by path under ``ROOT`` (the manifest
+    excepted), the licences of what it carries by name (``"CPython"``, ``"libffi"``), and what it needs of the
+    system beyond what the binary needs (``"glibc 2.36 or newer"``).
     """
 
     os: str
@@ -42,13 +32,8 @@ class Runtime:
     needs: tuple = ()
 
     def manifest(self) -> bytes:
-        """The runtime's ``MANIFEST``, which the binary checks the files by.
-
-        Returns
-        -------
-        bytes
-            ``dsc-fmu CPython <version> <os>``, then ``<size> <path>`` for each file, by path.
-        """
+        """``MANIFEST``, which the binary checks the files by: ``dsc-fmu CPython <version> <os>``, then ``<size>
+        <path>`` for each file."""
         lines = [f"dsc-fmu CPython {self.version} {self.os}"]
         lines += [f"{len(data)} {path}" for path, data in sorted(self.files.items())]
         return ("\n".join(lines) + "\n").encode()
