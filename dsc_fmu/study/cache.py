@@ -40,8 +40,7 @@ from ..registry import fmu_files
 from ..scenario import TABLES, Reference, Scenario
 from .cases import Case, SweepError, apply
 
-__all__ = ["ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "TRAJECTORY", "REFERENCE_COLUMNS", "CacheWarning",
-           "CacheEntryError"]
+__all__ = ["ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "TRAJECTORY", "REFERENCE_COLUMNS", "CacheWarning"]
 
 ROW_VERSION = 5  # bump when the definition of a row changes
 REFERENCE_GRID = 1e-3  # s: the reference solution's time grid, interpolated at the run's times
