@@ -10,10 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = [
-    "DEVIATION_QUANTITIES", "AGREEMENT_TOLERANCE", "OrderFit", "Boundary", "fit_order", "grid_bracket",
-    "refine_boundary", "group_label", "fit_orders", "summarise",
-]
+__all__ = ["DEVIATION_QUANTITIES", "AGREEMENT_TOLERANCE", "OrderFit", "fit_order"]
 
 DEVIATION_QUANTITIES = ("max_position_deviation_m", "max_heading_deviation_rad", "max_u_deviation_V")
 AGREEMENT_TOLERANCE = 0.2  # predicted and measured boundary agree if |predicted / measured - 1| <= 20 %
@@ -65,18 +62,8 @@ class OrderFit:
 
 @dataclass(frozen=True)
 class Boundary:
-    """A stability boundary bracketed by ``h_stable`` < h* <= ``h_unstable`` (s).
-
-    Parameters
-    ----------
-    h_stable : float
-        The largest step known stable, in s: the estimate of h*.
-    h_unstable : float
-        The smallest step known unstable above it, in s.
-    evaluated : tuple of (float, bool), optional
-        The ``(step_size, stable)`` pairs run during the refinement, step in s, in the order run.
-        Default: none.
-    """
+    """A stability boundary bracketed by ``h_stable`` < h* <= ``h_unstable`` (s), the estimate ``h_stable``;
+    ``evaluated``: the ``(step_size, stable)`` pairs run during the refinement, in the order run."""
 
     h_stable: float
     h_unstable: float
@@ -171,33 +158,11 @@ def fit_order(step_sizes: Sequence[float], deviations: Sequence[float], *, toler
 
 
 def grid_bracket(step_sizes: Sequence[float], stable_flags: Sequence[bool]) -> tuple[float, float] | None:
-    """The grid's bracket ``(h_stable, h_unstable)`` around the first unstable step.
+    """The grid's bracket ``(h_stable, h_unstable)`` (s): the smallest unstable step and the largest stable
+    one below it; None if every step is stable or none below the first unstable one is. Stability need
+    not be monotone in h: the bracket is around the first loss of stability. A step that appears more
+    than once (samples, overrides) counts as stable only if all its runs are.
 
-    Stability need not be monotone in h (a stable step may lie above ``h_unstable``); the bracket is
-    always around the first loss of stability. A step that appears more than once (samples,
-    overrides) counts as stable only if all its runs are.
-
-    Parameters
-    ----------
-    step_sizes : sequence of float
-        Communication steps h, in s, in any order.
-    stable_flags : sequence of bool
-        Whether the run at each step was stable, same length.
-
-    Returns
-    -------
-    tuple of (float, float) or None
-        ``h_unstable`` the smallest unstable step and ``h_stable`` the largest stable step below it,
-        in s; None if every step is stable or none below the first unstable one is: no boundary
-        within the grid (the caller says which).
-
-    Raises
-    ------
-    ValueError
-        If the two sequences differ in length.
-
-    Examples
-    --------
     >>> grid_bracket([0.001, 0.002, 0.005, 0.01], [True, True, False, True])
     (0.002, 0.005)
     """
@@ -215,33 +180,10 @@ def grid_bracket(step_sizes: Sequence[float], stable_flags: Sequence[bool]) -> t
 
 def refine_boundary(is_stable: Callable[[float], bool], h_stable: float, h_unstable: float,
                     rel_tol: float = 0.02) -> Boundary:
-    """Bisect a stability bracket at geometric midpoints until it is narrow enough.
-
-    Each step runs ``is_stable`` at ``sqrt(h_stable * h_unstable)``, until
-    ``(h_unstable - h_stable) / h_stable <= rel_tol``: that takes
-    ``ceil(log2(ln(h_unstable / h_stable) / ln(1 + rel_tol)))`` evaluations. If stability is not
-    monotone in h, the result is one transition from stable to unstable inside the bracket.
-
-    Parameters
-    ----------
-    is_stable : callable
-        ``is_stable(h) -> bool`` runs (or looks up) one co-simulation at step h (s).
-    h_stable : float
-        A step known stable, in s.
-    h_unstable : float
-        A step known unstable, in s, larger than ``h_stable``.
-    rel_tol : float, optional
-        The relative width to reach, > 0. Default 0.02.
-
-    Returns
-    -------
-    Boundary
-        The final bracket and the steps evaluated.
-
-    Raises
-    ------
-    ValueError
-        If not ``0 < h_stable < h_unstable`` or ``rel_tol`` is not positive.
+    """Bisect the bracket (s) at geometric midpoints, running ``is_stable(h)`` at each, until
+    ``(h_unstable - h_stable) / h_stable <= rel_tol``: ``ceil(log2(ln(h_unstable / h_stable) / ln(1 +
+    rel_tol)))`` evaluations. If stability is not monotone in h, the result is one transition from
+    stable to unstable inside the bracket. ValueError unless ``0 < h_stable < h_unstable``, ``rel_tol > 0``.
     """
     if not 0 < h_stable < h_unstable:
         raise ValueError(f"bracket ({h_stable!r}, {h_unstable!r}) is not allowed; allowed: 0 < h_stable < h_unstable")
@@ -270,20 +212,9 @@ def _value(value) -> str:
 
 
 def group_label(row: Mapping) -> str:
-    """The label of a row's series in a sweep.
-
-    Parameters
-    ----------
-    row : Mapping
-        One run's row (keys of ``study.rows.ROW_KEYS``; ``order`` required).
-
-    Returns
-    -------
-    str
-        ``order/discretization``, the coupling if not the hold, ``error-controlled`` for a run with a
-        tolerance, then any overrides ``name=value`` and ``sample N``; e.g.
-        ``gauss-seidel/rk4 linear controller.k4=2 sample 3``.
-    """
+    """The label of a row's series: ``order/discretization``, the coupling if not the hold,
+    ``error-controlled`` for a run with a tolerance, any overrides ``name=value``, ``sample N``; e.g.
+    ``gauss-seidel/rk4 linear controller.k4=2 sample 3``."""
     parts = [f"{row['order']}/{row.get('discretization', 'rk4')}"]
     if row.get("coupling", "hold") != "hold":
         parts.append(row["coupling"])
@@ -309,23 +240,8 @@ def _float(value) -> float:
 
 def fit_orders(rows: Sequence[Mapping], quantities: Sequence[str] = DEVIATION_QUANTITIES,
                **fit_options) -> dict[str, dict[str, OrderFit | str]]:
-    """The observed convergence order of each quantity of each series of a sweep.
-
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-    quantities : sequence of str, optional
-        The row keys to fit against ``step_size``. Default ``DEVIATION_QUANTITIES``.
-    **fit_options
-        ``tolerance`` and ``min_points``, passed to ``fit_order``.
-
-    Returns
-    -------
-    dict of str to dict of str to OrderFit or str
-        ``group_label`` -> quantity -> OrderFit, or the ValueError's message if no order could be
-        fitted.
-    """
+    """``group_label`` -> quantity -> OrderFit (``fit_order`` with ``fit_options``), or the ValueError's
+    message if no order could be fitted."""
     fits: dict[str, dict[str, OrderFit | str]] = {}
     for label, group in group_rows(rows).items():
         fits[label] = {}
@@ -398,36 +314,11 @@ def summarise(rows: Sequence[Mapping], *, stability_definition: str, settings: M
               boundaries: Mapping[str, Boundary | None] | None = None,
               predictions: Mapping[str, float | None] | None = None, notes: Sequence[str] = (),
               tolerance: float = AGREEMENT_TOLERANCE) -> dict:
-    """The content of ``sweep.json``.
-
-    Per series: its order, discretization, overrides and sample, counts, observed orders, stability
-    boundary and the comparison with the prediction.
-
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-    stability_definition : str
-        What "stable" means, in words.
-    settings : Mapping, optional
-        The sweep's settings, stored as given. Default: none.
-    fits : Mapping, optional
-        As from ``fit_orders``; computed from ``rows`` if None.
-    boundaries : Mapping of str to Boundary or None, optional
-        ``group_label`` -> refined boundary; series without one use the grid bracket.
-    predictions : Mapping of str to float or None, optional
-        The linearised boundary h* (s) by ``group_label``, or by coupling order (``"gauss-seidel"``,
-        ``"jacobi"``) for the series with nominal parameters (no overrides, no sample).
-    notes : sequence of str, optional
-        Reasons for any disagreement between predicted and measured boundaries, and other remarks.
-    tolerance : float, optional
-        Predicted and measured boundaries agree if ``|predicted / measured - 1| <= tolerance``.
-        Default ``AGREEMENT_TOLERANCE`` (0.2).
-
-    Returns
-    -------
-    dict
-        JSON-serialisable, NaN and infinities as None (``to_json``).
+    """The content of ``sweep.json`` (JSON-serialisable, NaN and infinities as None): per series its order,
+    discretization, overrides and sample, counts, observed orders (``fits``, else fitted here), stability
+    boundary (``boundaries`` by ``group_label``, else the grid bracket) and the comparison with the
+    prediction (``predictions``: h* in s by ``group_label``, or by coupling order for the series with
+    nominal parameters), agreeing if ``|predicted / measured - 1| <= tolerance``.
     """
     fits = fit_orders(rows) if fits is None else fits
     boundaries, predictions = boundaries or {}, predictions or {}

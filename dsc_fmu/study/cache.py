@@ -1,31 +1,20 @@
 """The sweep's cache: keys of runs and reference solutions, and their entries, written atomically and
 verified whenever they are read.
 
-Layout inside a sweep's output folder::
+Layout inside a sweep folder: ``cache/runs/<key>.npz`` (a run's ``TRAJECTORY``) and ``cache/runs/<key>.json``
+(``{"row", "trajectory_sha256", "provenance", "checksum"}``); ``cache/references/<key>.npz``
+(``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s) and ``.json`` (``{"reference_sha256", "provenance",
+"checksum"}``). The record is written last: an .npz without it is an interrupted write, a plain miss.
+``provenance``: the key, dsc-fmu's version, the FMUs' identities (runs only), Python, NumPy, SciPy, the
+time; ``checksum``: the SHA-256 of the record's canonical JSON without it. An entry that exists but does
+not verify (record, checksum, key, the .npz's SHA-256 and columns: 1-D floats of one length, no pickles)
+is a ``CacheEntryError``; a sweep recomputes it and says so in one ``CacheWarning``.
 
-    cache/runs/<key>.npz          the run's trajectory (``TRAJECTORY`` columns, as recorded)
-    cache/runs/<key>.json         its record, written last (its presence marks the entry):
-                                  {"row": the row (rows.ROW_KEYS), "trajectory_sha256": of the .npz file,
-                                   "provenance": {...}, "checksum": ...}
-    cache/references/<key>.npz    a reference solution (``REFERENCE_COLUMNS`` on a ``REFERENCE_GRID`` grid)
-    cache/references/<key>.json   its record: {"reference_sha256": ..., "provenance": {...}, "checksum": ...}
-
-``provenance`` says what wrote the entry: its key, dsc-fmu's version, the FMUs' identities (runs
-only), the Python, NumPy and SciPy versions and the time. ``checksum`` is the SHA-256 of the
-canonical JSON (sorted keys, no spaces, NaN as ``NaN``) of the record without it. An entry verifies
-if its record parses, has this layout, matches its checksum and its key, and its .npz matches its
-SHA-256 and holds exactly the expected columns, 1-D floats of one length, without pickles. An entry
-that exists but does not verify (damaged, edited, of an older layout) is a ``CacheEntryError``; a
-sweep recomputes it and says so in one ``CacheWarning``. An .npz without its record is a write that
-was interrupted: a plain miss, overwritten.
-
-A run's key (``case_key``) is the SHA-256 of everything that determines its row: the scenario's
-content after the case is applied (parameter values and every simulation setting, the stability
-definition included, so another ``--stability`` runs the cases again; not its file or name), the
-case, the FMUs' identities, the key of its reference solution and ``ROW_VERSION``. A reference's key
-(``reference_key``) leaves out what the monolithic ODE does not see (the step, order, output
-interval, bound and the controller's discretisation) and adds the reference grid, the solver
-settings and a hash of the Python code the reference and the metrics run.
+A run's key (``case_key``) hashes everything that determines its row: the scenario's content with the
+case applied (the stability definition included; not its file or name), the case, the FMUs' identities,
+its reference's key and ``ROW_VERSION``. A reference's key (``reference_key``) leaves out what the
+monolithic ODE does not see (step, order, output interval, bound, the controller's discretisation) and
+adds the reference grid, the solver settings and a hash of the code the reference and the metrics run.
 """
 
 from __future__ import annotations
@@ -51,18 +40,13 @@ from ..registry import fmu_files
 from ..scenario import TABLES, Reference, Scenario
 from .cases import Case, SweepError, apply
 
-__all__ = [
-    "ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "TRAJECTORY", "REFERENCE_COLUMNS", "CacheWarning",
-    "CacheEntryError", "load_trajectory", "load_reference",
-]
+__all__ = ["ROW_VERSION", "REFERENCE_GRID", "REFERENCE_SETTINGS", "TRAJECTORY", "REFERENCE_COLUMNS", "CacheWarning"]
 
 ROW_VERSION = 5  # bump when the definition of a row changes
 REFERENCE_GRID = 1e-3  # s: the reference solution's time grid, interpolated at the run's times
 REFERENCE_SETTINGS = {"rtol": 1e-10, "atol": 1e-10, "method": "DOP853"}
 TRAJECTORY = ("time", "x", "y", "theta", "x_r", "y_r", "theta_r", "u1", "u2")
 REFERENCE_COLUMNS = ("time", "x", "y", "theta", "u1", "u2")
-_RUN_FIELDS = ("row", "trajectory_sha256", "provenance")
-_REFERENCE_FIELDS = ("reference_sha256", "provenance")
 _PACKAGE = Path(__file__).parents[1]
 _CODE = ("cosim/reference_solution.py", "cosim/signals.py", "cosim/metrics.py", "models")
 
@@ -72,29 +56,16 @@ class CacheWarning(UserWarning):
 
 
 class CacheEntryError(SweepError):
-    """A cache entry that is missing or does not verify; its message is ``"<path>: <reason>"``.
-
-    Parameters
-    ----------
-    path : pathlib.Path
-        The file at fault.
-    reason : str
-        Why, on one line.
-    """
+    """A cache entry that is missing or does not verify: ``"<path>: <reason>"``, one line."""
 
     def __init__(self, path: Path, reason: str):
         super().__init__(f"{path}: {reason}")
-        self.path, self.reason = Path(path), reason
 
 
-def _digest(data) -> str:
-    """SHA-256 of ``data`` as canonical JSON (sorted keys, shortest exact float repr)."""
-    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=False).encode()).hexdigest()
-
-
-def _checksum(record: dict) -> str:
-    """SHA-256 of ``record`` as canonical JSON, NaN and infinities written as Python's json does."""
-    return hashlib.sha256(json.dumps(record, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+def _checksum(data, allow_nan: bool = True) -> str:
+    """SHA-256 of ``data`` as canonical JSON (sorted keys, no spaces, shortest exact float repr)."""
+    return hashlib.sha256(json.dumps(data, sort_keys=True, separators=(",", ":"), allow_nan=allow_nan).encode()
+                          ).hexdigest()
 
 
 @functools.cache
@@ -130,38 +101,18 @@ def reference_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     key = {"reference": content, "grid": REFERENCE_GRID, "solver": REFERENCE_SETTINGS, "code": _code_hash()}
     if Reference(kind).through_fmus:
         key.update({"through": kind, "fmus": dict(sorted(fmu_build_ids.items()))})
-    return _digest(key)
+    return _checksum(key, allow_nan=False)
 
 
 def case_key(scenario: Scenario, case: Case, fmu_build_ids: dict) -> str:
     """The key of the row of ``case`` on ``scenario``, run with FMUs of ``fmu_build_ids`` (``fmu_identities``)."""
-    return _digest({
+    return _checksum({
         "scenario": _content(apply(scenario, case)),
         "case": dataclasses.asdict(case),
         "fmus": dict(sorted(fmu_build_ids.items())),
         "reference": reference_key(scenario, case, fmu_build_ids),
         "row_version": ROW_VERSION,
-    })
-
-
-def _provenance(key: str, fmus: dict | None = None) -> dict:
-    written = {"key": key, "dsc_fmu": __version__, "python": platform.python_version(), "numpy": np.__version__,
-               "scipy": version("scipy"), "written": datetime.now(timezone.utc).isoformat(timespec="seconds")}
-    return written if fmus is None else {**written, "fmus": dict(sorted(fmus.items()))}
-
-
-def _write_entry(folder: Path, key: str, array: np.ndarray, columns: tuple, leading: dict, sha256_field: str,
-                 written_by: dict) -> None:
-    """``array`` to ``folder/<key>.npz``, then its record to ``folder/<key>.json``."""
-    if array.dtype.names != columns:
-        raise ValueError(f"columns {array.dtype.names} are not allowed here; allowed: {columns}")
-    buffer = io.BytesIO()
-    np.savez_compressed(buffer, **{name: array[name] for name in columns})
-    data = buffer.getvalue()
-    record = {**leading, sha256_field: hashlib.sha256(data).hexdigest(), "provenance": written_by}
-    record["checksum"] = _checksum(record)
-    atomic_write(folder / f"{key}.npz", data)
-    atomic_write(folder / f"{key}.json", json.dumps(record, indent=1).encode())
+    }, allow_nan=False)
 
 
 def _read_bytes(path: Path) -> bytes | None:
@@ -223,82 +174,67 @@ class SweepCache:
         self.root = Path(out_dir) / "cache"
         self.runs, self.references = self.root / "runs", self.root / "references"
 
-    def _run_record(self, key: str) -> dict | None:
-        path = self.runs / f"{key}.json"
-        record = _read_record(path, key, _RUN_FIELDS)
-        if record is not None and not (isinstance(record["row"], dict) and record["row"].get("key") == key):
+    def _read(self, folder: Path, key: str, sha256_field: str, columns: tuple, leading: tuple = ()) -> tuple | None:
+        """The entry ``key`` of ``folder``, verified: its record (without checksum) and its array."""
+        path = folder / f"{key}.json"
+        record = _read_record(path, key, (*leading, sha256_field, "provenance"))
+        if record is None:
+            return None
+        if leading and not (isinstance(record["row"], dict) and record["row"].get("key") == key):
             raise CacheEntryError(path, "its row is not the row of this key")
-        return record
+        return record, _read_npz(folder / f"{key}.npz", record[sha256_field], columns)
+
+    def _write(self, folder: Path, key: str, array: np.ndarray, columns: tuple, sha256_field: str,
+               leading: dict, fmus: dict | None = None) -> None:
+        """``array`` to ``folder/<key>.npz``, then its record to ``folder/<key>.json``."""
+        if array.dtype.names != columns:
+            raise ValueError(f"columns {array.dtype.names} are not allowed here; allowed: {columns}")
+        buffer = io.BytesIO()
+        np.savez_compressed(buffer, **{name: array[name] for name in columns})
+        data = buffer.getvalue()
+        provenance = {"key": key, "dsc_fmu": __version__, "python": platform.python_version(),
+                      "numpy": np.__version__, "scipy": version("scipy"),
+                      "written": datetime.now(timezone.utc).isoformat(timespec="seconds")}
+        if fmus is not None:
+            provenance["fmus"] = dict(sorted(fmus.items()))
+        record = {**leading, sha256_field: hashlib.sha256(data).hexdigest(), "provenance": provenance}
+        record["checksum"] = _checksum(record)
+        atomic_write(folder / f"{key}.npz", data)
+        atomic_write(folder / f"{key}.json", json.dumps(record, indent=1).encode())
 
     def row(self, key: str) -> dict | None:
         """The row of the run ``key`` (``case_key``), its trajectory verified too."""
-        record = self._run_record(key)
-        if record is not None:
-            _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
-        return record and record["row"]
+        entry = self._read(self.runs, key, "trajectory_sha256", TRAJECTORY, ("row",))
+        return entry and entry[0]["row"]
 
     def trajectory(self, key: str) -> np.ndarray:
         """The ``TRAJECTORY`` of the run ``key``; CacheEntryError if it is not cached."""
-        record = self._run_record(key)
-        if record is None:
+        entry = self._read(self.runs, key, "trajectory_sha256", TRAJECTORY, ("row",))
+        if entry is None:
             raise CacheEntryError(self.runs / f"{key}.json", "missing: no run of this key is cached")
-        return _read_npz(self.runs / f"{key}.npz", record["trajectory_sha256"], TRAJECTORY)
+        return entry[1]
 
     def store_run(self, key: str, row: dict, trajectory: np.ndarray, fmus: dict) -> None:
-        """Cache the run ``key``: its ``TRAJECTORY``, then its record (``fmus``: ``fmu_identities``)."""
-        _write_entry(self.runs, key, trajectory, TRAJECTORY, {"row": row}, "trajectory_sha256", _provenance(key, fmus))
+        """Cache the run ``key`` (``fmus``: ``fmu_identities``)."""
+        self._write(self.runs, key, trajectory, TRAJECTORY, "trajectory_sha256", {"row": row}, fmus)
 
     def reference(self, key: str) -> np.ndarray | None:
         """The reference solution ``key`` (``reference_key``)."""
-        record = _read_record(self.references / f"{key}.json", key, _REFERENCE_FIELDS)
-        return record and _read_npz(self.references / f"{key}.npz", record["reference_sha256"], REFERENCE_COLUMNS)
+        entry = self._read(self.references, key, "reference_sha256", REFERENCE_COLUMNS)
+        return entry and entry[1]
 
     def store_reference(self, key: str, reference: np.ndarray) -> None:
-        """Cache the reference solution ``key``: its ``REFERENCE_COLUMNS``, then its record."""
-        _write_entry(self.references, key, reference, REFERENCE_COLUMNS, {}, "reference_sha256", _provenance(key))
+        self._write(self.references, key, reference, REFERENCE_COLUMNS, "reference_sha256", {})
 
 
 def load_trajectory(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray:
-    """The trajectory of a run cached in a sweep folder.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The sweep folder.
-    row_or_key : dict or str
-        The run's row, or its key.
-
-    Returns
-    -------
-    numpy.ndarray
-        Its ``TRAJECTORY`` columns as recorded, ``time`` (s) first; up to the failure for a diverged run.
-
-    Raises
-    ------
-    CacheEntryError
-        One line, if the run is not cached or its entry does not verify.
-    """
+    """The ``TRAJECTORY`` of a run (its row or key) cached in the sweep folder ``out_dir``, ``time`` (s) first;
+    up to the failure for a diverged run. CacheEntryError if it is not cached or does not verify."""
     return SweepCache(out_dir).trajectory(row_or_key["key"] if isinstance(row_or_key, dict) else row_or_key)
 
 
 def load_reference(out_dir: Path | str, row_or_key: dict | str) -> np.ndarray | None:
-    """The reference solution of a row cached in a sweep folder.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The sweep folder.
-    row_or_key : dict or str
-        The row, or its ``reference_key``.
-
-    Returns
-    -------
-    numpy.ndarray or None
-        Its ``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s; None if the solver failed (none is cached).
-
-    Raises
-    ------
-    CacheEntryError
-        One line, if the entry does not verify.
-    """
+    """The reference solution of a row (or of a ``reference_key``) cached in ``out_dir``: its
+    ``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s; None if the solver failed (none is cached).
+    CacheEntryError if the entry does not verify."""
     return SweepCache(out_dir).reference(row_or_key["reference_key"] if isinstance(row_or_key, dict) else row_or_key)

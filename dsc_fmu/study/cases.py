@@ -28,10 +28,7 @@ from ..models.parameters import DISCRETIZATIONS, Variable
 from ..errors import DscFmuError
 from ..scenario import COUPLINGS, ORDERS, TABLES, Coupling, Order, Scenario, ScenarioError, one_of
 
-__all__ = [
-    "Case", "Perturbation", "SweepError", "parse_set", "parse_perturb", "default_step_sizes", "apply",
-    "Grid", "Runner", "SCHEDULER_TIMEOUT", "parse_scheduler", "DEFAULT_TOLERANCES",
-]
+__all__ = ["Case", "SweepError", "apply", "Grid", "Runner", "SCHEDULER_TIMEOUT", "DEFAULT_TOLERANCES"]
 
 SCHEDULER_TIMEOUT = 10.0  # s: how long a sweep waits for its Dask scheduler to answer
 DEFAULT_TOLERANCES = (1e-2, 1e-3, 1e-4)  # m: the error-controlled runs of a sweep
@@ -99,13 +96,7 @@ class Case:
 
     @property
     def label(self) -> str:
-        """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, hold coupling, controller.k4 = 0.5``.
-
-        Returns
-        -------
-        str
-            The step (or tolerance), order, discretisation, coupling, overrides and sample.
-        """
+        """A short description for messages, e.g. ``h = 0.001 s, jacobi, euler, hold coupling, controller.k4 = 0.5``."""
         parts = [f"h = {self.step_size:g} s" if self.tolerance is None else f"tolerance = {self.tolerance:g} m",
                  self.order, self.discretization, f"{self.coupling} coupling"]
         parts += [f"{key} = {value:g}" if isinstance(value, float) else f"{key} = {value}"
@@ -115,17 +106,8 @@ class Case:
 
 @dataclass(frozen=True)
 class Perturbation:
-    """A plant parameter drawn uniformly per Monte Carlo sample.
-
-    Parameters
-    ----------
-    key : str
-        The parameter, ``plant.NAME``.
-    relative : float or None, optional
-        Drawn within this fraction of its nominal value (0.2 for 20 %); None for an absolute range.
-    low, high : float or None, optional
-        The absolute range ``[low, high]`` drawn from, in the parameter's unit; None for a relative one.
-    """
+    """A plant parameter ``plant.NAME`` drawn uniformly per Monte Carlo sample: within the fraction
+    ``relative`` of its nominal value (0.2 for 20 %), or else in ``[low, high]`` (the parameter's unit)."""
 
     key: str
     relative: float | None = None
@@ -133,18 +115,7 @@ class Perturbation:
     high: float | None = None
 
     def bounds(self, nominal: float) -> tuple[float, float]:
-        """The range drawn from.
-
-        Parameters
-        ----------
-        nominal : float
-            The parameter's nominal value, in its unit.
-
-        Returns
-        -------
-        tuple of float
-            ``(low, high)``, in the parameter's unit.
-        """
+        """``(low, high)``, the range drawn from, around the parameter's ``nominal`` value."""
         if self.relative is None:
             return self.low, self.high
         return nominal * (1.0 - self.relative), nominal * (1.0 + self.relative)
@@ -188,26 +159,9 @@ def _value(key: str, variable: Variable, value, option: str):
 
 
 def parse_set(text: str) -> tuple[str, tuple]:
-    """The values of one parameter to sweep over, from ``--set``.
-
-    Parameters
-    ----------
-    text : str
-        ``"table.name=v1,v2,..."``: ``table`` is plant, controller or reference and ``name`` one of
-        its parameters; values are numbers in the parameter's range, or names for a choice
-        (``reference.profile=constant,figure_eight``).
-
-    Returns
-    -------
-    tuple
-        ``(key, values)``: ``"table.name"`` and the values as floats (a choice by its name),
-        repeated ones kept once.
-
-    Raises
-    ------
-    ScenarioError
-        One line naming the key and what is allowed, if the text, key or a value is not allowed.
-    """
+    """``(key, values)`` of ``--set table.name=v1,v2,...``: numbers in the parameter's range as floats, or
+    a choice's names (``reference.profile=constant,figure_eight``), repeated ones kept once; else
+    ScenarioError (one line)."""
     key, sep, raw = (part.strip() for part in text.partition("="))
     if not sep or not key or not raw:
         raise ScenarioError(f"--set {text!r}: expected TABLE.NAME=VALUE[,VALUE...], for example controller.k4=0.5,1,2")
@@ -217,27 +171,8 @@ def parse_set(text: str) -> tuple[str, tuple]:
 
 
 def parse_perturb(text: str) -> Perturbation:
-    """A plant parameter to draw per Monte Carlo sample, from ``--perturb``.
-
-    Only plant parameters can be perturbed: the paper's Assumption 1 (unknown but bounded
-    parameters) concerns the plant.
-
-    Parameters
-    ----------
-    text : str
-        ``"plant.name=P%"`` (uniform within P % of the nominal value) or ``"plant.name=LOW:HIGH"``
-        (uniform in [LOW, HIGH], in the parameter's unit).
-
-    Returns
-    -------
-    Perturbation
-        The parameter and its bound.
-
-    Raises
-    ------
-    ScenarioError
-        One line naming what is wrong and what is allowed, if the text, key or bound is not allowed.
-    """
+    """The Perturbation of ``--perturb plant.name=P%`` or ``plant.name=LOW:HIGH``; else ScenarioError (one
+    line). Only plant parameters: the paper's Assumption 1 (unknown but bounded parameters) concerns the plant."""
     key, sep, raw = (part.strip() for part in text.partition("="))
     if not sep or not key or not raw:
         raise ScenarioError(f"--perturb {text!r}: expected plant.NAME=P% or plant.NAME=LOW:HIGH, "
@@ -277,21 +212,8 @@ def _check_range(perturbation: Perturbation, variable: Variable, low: float, hig
 
 
 def default_step_sizes(per_decade: int = 4, smallest: float = 1e-4, largest: float = 5e-2) -> list[float]:
-    """Communication steps log-spaced from ``smallest`` up to ``largest``, both included.
-
-    Parameters
-    ----------
-    per_decade : int, optional
-        Steps per decade. Default 4.
-    smallest, largest : float, optional
-        The first and last step in s. Default 1e-4 and 5e-2.
-
-    Returns
-    -------
-    list of float
-        The steps in s, rounded to 3 significant digits, the decades (1e-3, 1e-2 s) on the grid. The
-        default: 1e-4, 1.78e-4, 3.16e-4, 5.62e-4, 1e-3, ..., 3.16e-2, 5e-2 (12 steps).
-    """
+    """Communication steps in s, ``per_decade`` log-spaced from ``smallest`` up to ``largest`` (both included),
+    rounded to 3 significant digits, the decades on the grid: by default 1e-4, 1.78e-4, ..., 3.16e-2, 5e-2."""
     count = math.floor(per_decade * math.log10(largest / smallest) + 1e-9)
     steps = [float(f"{smallest * 10 ** (k / per_decade):.3g}") for k in range(count + 1)]
     return steps if steps[-1] == largest else [*steps, largest]
@@ -487,26 +409,9 @@ _SCHEDULER_ALLOWED = "allowed: tcp://HOST:PORT or tls://HOST:PORT with PORT a wh
 
 
 def parse_scheduler(address: str) -> tuple[str, str, int]:
-    """The protocol, host and port of a Dask scheduler address.
-
-    Parameters
-    ----------
-    address : str
-        ``tcp://HOST:PORT`` or ``tls://HOST:PORT``; ``HOST:PORT`` alone is tcp, ``[IPv6]:PORT`` in
-        brackets, as for ``distributed.comm.parse_address``.
-
-    Returns
-    -------
-    tuple
-        ``(protocol, host, port)``, the port an int.
-
-    Raises
-    ------
-    SweepError
-        One line naming the address and what is allowed, if it is not such an address.
-
-    Examples
-    --------
+    """``(protocol, host, port)`` of a Dask scheduler address ``tcp://HOST:PORT`` or ``tls://HOST:PORT``
+    (``HOST:PORT`` alone is tcp, ``[IPv6]:PORT`` in brackets, as for ``distributed.comm.parse_address``);
+    else SweepError (one line).
 
     >>> parse_scheduler("tcp://10.0.0.5:8786"), parse_scheduler("tls://[::1]:8786")
     (('tcp', '10.0.0.5', 8786), ('tls', '::1', 8786))

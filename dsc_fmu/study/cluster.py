@@ -1,9 +1,5 @@
-"""A sweep on a Dask cluster: a client of its scheduler, checked first, and the sweep's FMUs on every worker.
-
-Workers need dsc-fmu installed with the Python version the FMUs were built with, and one thread each
-(``--nthreads 1``): every FMI call into a pythonfmu FMU takes the GIL, and a worker's Cosimulator
-serves one run at a time.
-"""
+"""A sweep on a Dask cluster (docs/step-size-studies.md): a client of its scheduler, checked first, and the
+sweep's FMUs on every worker."""
 
 from __future__ import annotations
 

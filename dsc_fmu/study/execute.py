@@ -28,7 +28,7 @@ from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
 from .rows import Outcome, Plan, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["Workers", "Execution", "WorkerLostWarning", "LOST_TWICE"]
+__all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE"]
 
 LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
@@ -70,20 +70,19 @@ class Execution:
     def warn(self) -> None:
         """One CacheWarning if entries did not verify, one WorkerLostWarning if workers or runs were lost."""
         if self.unverified:
-            count = len(self.unverified)
-            what = "1 cache entry did not verify and was recomputed:" if count == 1 else \
-                f"{count} cache entries did not verify and were recomputed; the first:"
+            what = "1 cache entry did not verify and was recomputed:" if len(self.unverified) == 1 else \
+                f"{len(self.unverified)} cache entries did not verify and were recomputed; the first:"
             warnings.warn(f"{what} {self.unverified[0]}", CacheWarning, stacklevel=2)
-        parts = []
-        if self.workers_lost:
-            times = "" if self.workers_lost == 1 else f" {self.workers_lost} times"
-            parts.append(f"a worker process was lost (killed or crashed){times}; {self.retried} "
-                         f"{'computation' if self.retried == 1 else 'computations'} in flight retried on a new pool")
-        if self.lost:
-            parts.append(f"{len(self.lost)} {'run' if len(self.lost) == 1 else 'runs'} did not finish: "
-                         "rows with the reason, not cached")
+        times = "" if self.workers_lost == 1 else f" {self.workers_lost} times"
+        parts = [f"a worker process was lost (killed or crashed){times}; {_count(self.retried, 'computation')} in "
+                 "flight retried on a new pool"] if self.workers_lost else []
+        parts += [f"{_count(len(self.lost), 'run')} did not finish: rows with the reason, not cached"] * bool(self.lost)
         if parts:
             warnings.warn("; ".join(parts), WorkerLostWarning, stacklevel=2)
+
+
+def _count(count: int, noun: str) -> str:
+    return f"{count} {noun}{'' if count == 1 else 's'}"
 
 
 def prepare_sweep(out_dir: Path, runner: Runner) -> None:
@@ -188,25 +187,14 @@ class _Lost(NamedTuple):
 
 
 class Workers:
-    """Where a sweep's computations run, from the first that needs them until the sweep ends.
-
-    Locally, ``min(runner.jobs, runs)`` processes of a ``ProcessPoolExecutor`` (spawned), each loading
-    the FMUs once into a folder of its own in ``out_dir/.work``, given one computation at a time; one
-    runs in this process. A lost worker process (killed or crashed: the pool breaks) costs the
-    computations in flight one retry on a new pool; a run lost twice is a row with the reason
-    ``LOST_TWICE``. With ``runner.scheduler``, the executor of a Dask client (``Client.get_executor``),
-    the FMUs on every worker (``cluster.FmusOnWorkers``); a run whose workers Dask lost too often is a
-    row with the reason. Leaving the ``with`` block stops what still runs (at once after an error or
-    Ctrl-C) and removes the work folder, and those of sweeps killed before they could.
-
-    Parameters
-    ----------
-    out_dir : pathlib.Path or str
-        The sweep folder: its cache, and the work folder.
-    fmu_paths : dict
-        The FMU files by name (``ensure_fmus``).
-    runner : Runner, optional
-        Where the runs go and whether a progress line shows. Default ``Runner()``: all cores.
+    """Where a sweep's computations run, from the first that needs them until the sweep ends
+    (docs/step-size-studies.md): ``min(runner.jobs, runs)`` spawned processes of a ``ProcessPoolExecutor``
+    (one: this process), each with the FMUs in its own folder of ``out_dir/.work``, one computation at a
+    time; or with ``runner.scheduler`` a Dask client's executor, the FMUs on every worker
+    (``cluster.FmusOnWorkers``). A broken pool costs the computations in flight one retry on a new one
+    (a run lost twice is a row with ``LOST_TWICE``); a run Dask lost too often is a row with the reason.
+    Leaving the ``with`` block stops what still runs (at once after an error or Ctrl-C) and removes the
+    work folder, and those of sweeps killed before they could.
     """
 
     def __init__(self, out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner()):
@@ -309,45 +297,17 @@ class Workers:
                 future.cancel()
 
     def execute(self, scenario: Scenario, cases: list[Case], progress: bool = True) -> Execution:
-        """Run every case not yet cached and return the rows of all.
+        """Run every case not yet cached and return the rows of all, in the order of ``cases``.
 
-        Each finished run is cached at once, so an interrupted sweep resumes where it stopped.
-        Reference solutions are computed once per physical case and cached too. Cache entries that do
-        not verify are recomputed, references included. Under the "local" stability, a run whose
-        reference solution failed is judged as a settled one and not cached.
-
-        Parameters
-        ----------
-        scenario : Scenario
-            The sweep's scenario.
-        cases : list of Case
-            The cases to run on it (``build_cases``).
-        progress : bool, optional
-            Count the finished runs on a progress line (if ``runner.progress``). Default True.
-
-        Returns
-        -------
-        Execution
-            The rows of all cases, in the order of ``cases``, and what was done.
+        A run's row is made and cached as soon as the run and its reference solution (one per physical
+        case, cached too) are in; entries that do not verify are recomputed. Under the "local" stability,
+        a run whose reference solution failed is judged as a settled one and not cached.
         """
         plans = [Plan.of(scenario, case, self.identities) for case in cases]
         rows, todo, references, missing, unverified = _look_up(self.cache, plans, scenario.name)
         lost, notes, before = [], [], (self.workers_lost, self.retried)
         waiting, remaining = defaultdict(list), Counter(plan.reference_key for plan in todo.values())
         local = scenario.simulation.stability.from_start
-
-        def finish(plan: Plan, outcome: Outcome) -> None:
-            reference = references[plan.reference_key]
-            rows[plan.key] = make_row(plan, outcome, reference)
-            if outcome.lost:
-                lost.append(plan.key)
-            elif reference is not None or not local:  # judged without its reference: not for keeps
-                self.cache.store_run(plan.key, rows[plan.key], outcome.trajectory, self.identities)
-            bar.update()
-            remaining[plan.reference_key] -= 1
-            if not remaining[plan.reference_key]:
-                references.pop(plan.reference_key)  # no run left that needs it
-
         runs = sorted(todo.values(), key=lambda plan: -plan.applied.simulation.stop_time
                       / plan.applied.simulation.step_size)  # the longest first, for an even load
         calls = [_Call(_Fmus.reference, key, applied) for key, applied in missing.items()]
@@ -356,25 +316,33 @@ class Workers:
                           quiet=not (progress and self.runner.progress)) as bar:
             for call, value in self._results(calls, len(runs)) if calls else ():
                 if call.fn is _Fmus.simulate:
-                    plan = todo[call.key]
-                    outcome = Outcome.of_lost(value.reason) if isinstance(value, _Lost) else value
-                    if plan.reference_key in references:
-                        finish(plan, outcome)
-                    else:
-                        waiting[plan.reference_key].append((plan, outcome))
-                    continue
-                if isinstance(value, _Lost):
-                    value = compute_reference(call.applied, self.fmu_paths)
-                if value.solution is None:
-                    judged = "; they are judged as settled runs and not cached" if local else ""
-                    notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
-                                 f"runs{judged}")
+                    ready = [(todo[call.key], Outcome.of_lost(value.reason) if isinstance(value, _Lost) else value)]
+                    if ready[0][0].reference_key not in references:
+                        waiting[ready[0][0].reference_key] += ready
+                        continue
                 else:
-                    self.cache.store_reference(call.key, value.solution)
-                if remaining[call.key]:
-                    references[call.key] = value.solution
-                for plan, outcome in waiting.pop(call.key, []):
-                    finish(plan, outcome)
+                    if isinstance(value, _Lost):
+                        value = compute_reference(call.applied, self.fmu_paths)
+                    if value.solution is None:
+                        judged = "; they are judged as settled runs and not cached" if local else ""
+                        notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
+                                     f"runs{judged}")
+                    else:
+                        self.cache.store_reference(call.key, value.solution)
+                    if remaining[call.key]:
+                        references[call.key] = value.solution
+                    ready = waiting.pop(call.key, [])
+                for plan, outcome in ready:
+                    reference = references[plan.reference_key]
+                    rows[plan.key] = make_row(plan, outcome, reference)
+                    if outcome.lost:
+                        lost.append(plan.key)
+                    elif reference is not None or not local:  # judged without its reference: not for keeps
+                        self.cache.store_run(plan.key, rows[plan.key], outcome.trajectory, self.identities)
+                    bar.update()
+                    remaining[plan.reference_key] -= 1
+                    if not remaining[plan.reference_key]:
+                        references.pop(plan.reference_key)  # no run left that needs it
         for note in notes:
             warnings.warn(note, stacklevel=3)
         keys = [plan.key for plan in plans]
@@ -383,46 +351,67 @@ class Workers:
                          self.workers_lost - before[0], self.retried - before[1])
 
 
-def _read(read, key: str) -> tuple:
-    """``read(key)`` from the cache (None: not cached), and the CacheEntryError of an entry that does not verify."""
-    try:
-        return read(key), None
-    except CacheEntryError as error:
-        return None, error
-
-
 def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> tuple:
     """What ``cache`` holds for ``plans``: the cached rows (named for the scenario ``name``) and the plans
     to run, by key; the cached references they need and those to compute (every one not verifying
     included), by reference key; the entries that did not verify."""
     rows, todo, unverified = {}, {}, []
+
+    def read(entry: Callable, key: str):
+        try:
+            return entry(key)
+        except CacheEntryError as error:
+            unverified.append(error)
+
     for plan in plans:
         if plan.key not in rows and plan.key not in todo:
-            cached, error = _read(cache.row, plan.key)
-            unverified += [error] if error else []
-            if cached is not None:
-                rows[plan.key] = {**cached, "scenario": name}
-            else:
+            cached = read(cache.row, plan.key)
+            if cached is None:
                 todo[plan.key] = plan
-    needed, first = {plan.reference_key for plan in todo.values()}, {}
+            else:
+                rows[plan.key] = {**cached, "scenario": name}
+    needed, first, references, missing = {plan.reference_key for plan in todo.values()}, {}, {}, {}
     for plan in plans:
         first.setdefault(plan.reference_key, plan.applied)
-    references, missing = {}, {}
     for key, applied in first.items():
-        reference, error = _read(cache.reference, key)
-        unverified += [error] if error else []
+        damaged = len(unverified)
+        reference = read(cache.reference, key)
         if reference is not None and key in needed:
             references[key] = reference
-        elif error or key in needed:
+        elif len(unverified) > damaged or key in needed:
             missing[key] = applied
     return rows, todo, references, missing, tuple(unverified)
 
 
 def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(),
             *, warn: bool = True) -> Execution:
-    """Run every case not yet cached in ``out_dir`` and return the rows of all: ``prepare_sweep`` (SweepError
-    in one line if the scheduler cannot be reached or ``out_dir`` cannot be a folder), ``Workers.execute``,
-    then ``Execution.warn`` unless ``warn`` is False."""
+    """Run every case not yet cached in ``out_dir`` and return the rows of all.
+
+    Parameters
+    ----------
+    scenario : Scenario
+        The sweep's scenario.
+    cases : list of Case
+        The cases to run on it (``build_cases``).
+    out_dir : pathlib.Path or str
+        The sweep folder: its cache, and the work folder.
+    fmu_paths : dict
+        The FMU files by name (``ensure_fmus``).
+    runner : Runner, optional
+        Where the runs go and whether a progress line shows. Default ``Runner()``: all cores.
+    warn : bool, optional
+        Whether to warn of what ``Execution.warn`` says. Default True.
+
+    Returns
+    -------
+    Execution
+        The rows of all cases, in the order of ``cases``, and what was done.
+
+    Raises
+    ------
+    SweepError
+        One line, if the scheduler cannot be reached or ``out_dir`` cannot be a folder.
+    """
     prepare_sweep(Path(out_dir), runner)
     with Workers(out_dir, fmu_paths, runner) as workers:
         done = workers.execute(scenario, cases)

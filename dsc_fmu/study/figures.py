@@ -11,7 +11,7 @@ from matplotlib.transforms import blended_transform_factory
 from ..cosim.plots import new_figure
 from .analysis import OrderFit, fit_orders, group_rows
 
-__all__ = ["plot_deviation", "plot_tracking_and_cost", "plot_paths", "plot_spectral_radius", "plot_work_precision"]
+__all__: list[str] = []  # the figures of run_sweep and write_report
 
 _MARKERS = {"rk4": "o", "euler": "s"}
 _LINESTYLES = {"rk4": "-", "euler": ":"}
@@ -96,23 +96,10 @@ def plot_deviation(rows: Sequence[Mapping], fits: Mapping | None, path: Path | s
 
     Log-log against h (s): (a) the max position deviation (m), (b) the max voltage deviation (V). One
     line per series (``study.group_label``); each fitted line dashed over its range, with its slope in
-    the legend; diverged runs as an x at the top edge, runs not stable as open markers.
+    the legend (``fits`` as from ``fit_orders``, else fitted here); diverged runs as an x at the top edge,
+    runs not stable as open markers; (b) only ``with_voltage``.
 
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-    fits : Mapping or None
-        As from ``study.fit_orders``; computed from ``rows`` if None.
-    path : pathlib.Path or str
-        The image file to write (its suffix sets the format).
-    with_voltage : bool, optional
-        Draw panel (b). Default True.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    Writes and returns ``path`` (its suffix sets the format).
     """
     groups = group_rows(rows)
     fits = fit_orders(rows) if fits is None else fits
@@ -150,17 +137,7 @@ def plot_tracking_and_cost(rows: Sequence[Mapping], path: Path | str) -> Path:
     wall time of the run (s). One line per series; diverged runs as an x at the top edge of (a) and as
     x markers at their wall time in (b).
 
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-    path : pathlib.Path or str
-        The image file to write (its suffix sets the format).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    Writes and returns ``path`` (its suffix sets the format).
     """
     groups = group_rows(rows)
     styles = _styles(list(groups), groups)
@@ -204,23 +181,11 @@ def plot_paths(trajectories: Mapping[str, Mapping], reference_traj: Mapping, pat
     """Plot the robot's path in the plane for several runs over the reference solution's path.
 
     Equal axes, starts marked. The view is the reference paths plus a margin, so a diverging path
-    leaves it rather than shrinking it.
+    leaves it rather than shrinking it. ``trajectories``: label -> anything indexable by ``"x"`` and ``"y"``
+    (m), non-finite points left out; ``reference_traj`` likewise, optionally with the reference robot's
+    ``"x_r"`` and ``"y_r"``.
 
-    Parameters
-    ----------
-    trajectories : Mapping of str to Mapping
-        Label -> anything indexable by ``"x"`` and ``"y"`` (m): dict, npz, structured array.
-        Non-finite points are left out.
-    reference_traj : Mapping
-        The reference solution, indexable by ``"x"`` and ``"y"`` (m) and, optionally, by the reference
-        robot's ``"x_r"`` and ``"y_r"`` (m).
-    path : pathlib.Path or str
-        The image file to write (its suffix sets the format).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    Writes and returns ``path`` (its suffix sets the format).
     """
     figure = new_figure(7.0, 7.0)
     axes = figure.add_subplot()
@@ -257,24 +222,11 @@ def plot_spectral_radius(curves: Mapping[str, tuple[Sequence[float], Sequence[fl
 
     One curve of rho (1) against h (s, log) per series, the line rho = 1, each measured boundary h* as a
     vertical dashed line in its series' colour and each predicted one as a dotted line. The y axis is
-    logarithmic if rho spans more than a factor 20.
+    logarithmic if rho spans more than a factor 20. ``curves``: coupling order or series label -> ``(steps,
+    rho)`` (``stability.spectral_radius_curve``); ``measured``, ``predicted``: the same keys -> h* in s, None
+    or non-finite drawing no line.
 
-    Parameters
-    ----------
-    curves : Mapping of str to tuple of (sequence of float, sequence of float)
-        Coupling order or series label -> ``(steps, rho)``: steps h in s and the spectral radius at
-        each (``study.stability.spectral_radius_curve``).
-    measured : Mapping of str to float or None
-        Same keys -> measured boundary h* in s; None or non-finite draws no line.
-    path : pathlib.Path or str
-        The image file to write (its suffix sets the format).
-    predicted : Mapping of str to float or None, optional
-        Same keys -> predicted boundary h* in s; None or non-finite draws no line. Default: none.
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    Writes and returns ``path`` (its suffix sets the format).
     """
     figure = new_figure(7.5, 5.0)
     axes = figure.add_subplot()
@@ -312,17 +264,7 @@ def plot_work_precision(rows: Sequence[Mapping], path: Path | str) -> Path:
     per error-controlled series (its tolerances in m, annotated). Runs that diverged or have no
     deviation are left out.
 
-    Parameters
-    ----------
-    rows : sequence of Mapping
-        One row per run (keys of ``study.rows.ROW_KEYS``).
-    path : pathlib.Path or str
-        The image file to write (its suffix sets the format).
-
-    Returns
-    -------
-    pathlib.Path
-        ``path``.
+    Writes and returns ``path`` (its suffix sets the format).
     """
     figure = new_figure(12.0, 5.0)
     panels = figure.subplots(1, 2, sharey=True)

@@ -18,10 +18,8 @@ from .cache import (
 )
 from .cases import Case, apply
 
-__all__ = [
-    "STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS", "ROW_KEYS",
-    "row_keys", "Outcome", "ReferenceOutcome", "simulate", "compute_reference",
-]
+__all__ = ["STABLE_POSITION_ERROR", "SETTLED_DEFINITION", "LOCAL_DEFINITION", "METRIC_KEYS", "DEVIATION_KEYS",
+           "ROW_KEYS", "simulate"]
 
 STABLE_POSITION_ERROR = 0.5  # m
 GROWTH_FACTOR, GROWTH_SLACK = 1.25, 1e-3  # 1, m: the position error over the last third
@@ -62,18 +60,7 @@ ROW_KEYS = ("scenario", "step_size", "order", "discretization", "coupling", "tol
 
 
 def row_keys(case: Case) -> tuple[str, ...]:
-    """The keys of a case's row, in order.
-
-    Parameters
-    ----------
-    case : Case
-        The case.
-
-    Returns
-    -------
-    tuple of str
-        ``ROW_KEYS`` with the names of the case's overrides (``table.name``) between ``sample`` and ``key``.
-    """
+    """``ROW_KEYS`` with the names of the case's overrides (``table.name``) between ``sample`` and ``key``."""
     at = ROW_KEYS.index("key")
     return (*ROW_KEYS[:at], *(key for key, _ in case.overrides), *ROW_KEYS[at:])
 
@@ -106,29 +93,11 @@ class Plan(NamedTuple):
 class Outcome:
     """What a run gives its row: made by ``simulate``, or by ``Outcome.of_lost`` for a run that did not finish.
 
-    Parameters
-    ----------
-    trajectory : numpy.ndarray
-        The ``TRAJECTORY`` columns as recorded, up to the failure for a diverged run; empty if lost.
-    metrics : dict or None
-        The tracking metrics (``METRIC_KEYS``), None if the run diverged or was lost.
-    diverged_time : float, optional
-        Time (s) at which the run diverged; NaN if it did not.
-    diverged_signal : str or None, optional
-        The signal that diverged, or the failing FMU's name; None if the run did not diverge.
-    diverged_reason : str or None, optional
-        Why the run diverged or did not finish, on one line; None if it finished.
-    steps : float, optional
-        Communication steps taken; NaN if lost.
-    steps_rejected : float, optional
-        Error-controlled steps taken again; NaN for a diverged or lost run.
-    fmu_steps : float, optional
-        doStep calls over all FMUs; NaN for a diverged or lost run.
-    wall_time_s : float, optional
-        Wall time of the run in s; NaN if lost.
-    lost : bool, optional
-        The run did not finish because its worker process was lost: not to be cached (a later
-        sweep tries it again). Default False.
+    The ``TRAJECTORY`` as recorded (up to the failure for a diverged run, empty if lost); the tracking
+    metrics (``METRIC_KEYS``; None if diverged or lost); when (s) and where (the signal, or the failing
+    FMU) it diverged and why, on one line (also why it did not finish); the communication steps, the
+    error-controlled steps taken again and the doStep calls over all FMUs (NaN where unknown); its wall
+    time (s); ``lost``: its worker process was lost, so it is not cached (a later sweep tries it again).
     """
 
     trajectory: np.ndarray
@@ -144,18 +113,7 @@ class Outcome:
 
     @classmethod
     def of_lost(cls, reason: str) -> Outcome:
-        """The outcome of a run that did not finish because its worker process was lost.
-
-        Parameters
-        ----------
-        reason : str
-            Why, on one line; the row's ``diverged_reason``.
-
-        Returns
-        -------
-        Outcome
-            No trajectory, no metrics, NaN where a number would be, ``lost`` set.
-        """
+        """A run that did not finish because its worker process was lost, ``reason`` on one line."""
         return cls(np.zeros(0, dtype=[(name, np.float64) for name in TRAJECTORY]), None, diverged_reason=reason,
                    lost=True)
 
@@ -188,43 +146,16 @@ def simulate(applied: Scenario, cosimulator: Cosimulator) -> Outcome:
 
 
 class ReferenceOutcome(NamedTuple):
-    """The reference solution of a physical case, or why the solver failed (``compute_reference``).
-
-    Parameters
-    ----------
-    solution : numpy.ndarray or None
-        ``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s up to the stop time; None if the solver failed.
-    failure : str or None
-        Why the solver failed, on one line; None if it did not.
-    """
+    """``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s up to the stop time, or None and why the solver failed."""
 
     solution: np.ndarray | None
     failure: str | None
 
 
 def compute_reference(applied: Scenario, fmu_paths: dict | None = None) -> ReferenceOutcome:
-    """The reference solution of an applied case, or why the solver failed.
-
-    The monolithic ODE (docs/model.md), or with ``applied.simulation.reference`` = "model-exchange"
-    the FMUs of ``fmu_paths`` as one ODE.
-
-    Parameters
-    ----------
-    applied : Scenario
-        A case applied to its scenario (``cases.apply``).
-    fmu_paths : dict or None, optional
-        The FMU files by name; needed through model exchange only.
-
-    Returns
-    -------
-    ReferenceOutcome
-        The solution, or why the solver failed.
-
-    Raises
-    ------
-    ValueError
-        If the reference goes through model exchange and ``fmu_paths`` is None.
-    """
+    """The ReferenceOutcome of an applied case (``cases.apply``): of the monolithic ODE (docs/model.md), or
+    with ``applied.simulation.reference`` = "model-exchange" of the FMUs of ``fmu_paths`` as one ODE
+    (ValueError without them)."""
     from ..cosim.model_exchange import simulate_model_exchange  # scipy: only where references are computed
     from ..cosim.reference_solution import output_times, reference_solution
 

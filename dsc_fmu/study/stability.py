@@ -19,12 +19,8 @@ from ..errors import DscFmuError
 from ..scenario import Coupling, Order, Scenario, one_of
 from .tracking import error_coordinates, error_measurements, error_outputs, error_plant_derivatives
 
-__all__ = [
-    "LinearLoop", "OperatingPointError", "ESTIMATES", "error_coordinates", "error_plant_derivatives", "error_outputs",
-    "error_measurements", "closed_loop_derivative", "operating_point", "SOURCES", "linearise",
-    "transition_matrix", "linear_transition_matrix", "spectral_radius",
-    "predicted_boundary",
-]
+__all__ = ["LinearLoop", "OperatingPointError", "ESTIMATES", "SOURCES", "operating_point", "linearise", "spectral_radius",
+           "predicted_boundary"]
 
 # Indices, in the stacked state z = [xp (7); xc (20)], of the parameter estimates a1_hat, a2_hat, W1_hat, W2_hat.
 ESTIMATES = (7, 8, *range(7 + W1_SLICE.start, 7 + W1_SLICE.stop), *range(7 + W2_SLICE.start, 7 + W2_SLICE.stop))
@@ -115,28 +111,9 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
 
 
 def closed_loop_derivative(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
-    """The derivative of the continuous closed loop in error coordinates.
-
-    The plant (11), (7), (8) driven by u of (26), and the controller (15)-(27).
-
-    Parameters
-    ----------
-    k : models.plant.PlantCoefficients
-        The plant's coefficients (``plant_coefficients``).
-    g : models.controller.Gains
-        The controller's gains (``gains``).
-    vr : float
-        The reference's speed, in m/s.
-    wr : float
-        The reference's turn rate, in rad/s.
-    z : array_like
-        ``[xp; xc]`` (27): ``xp`` as from ``error_coordinates``, ``xc`` the controller's 20 states.
-
-    Returns
-    -------
-    numpy.ndarray
-        The 27 derivatives of ``z``, per s.
-    """
+    """The 27 derivatives (per s) of ``z = [xp; xc]`` in error coordinates (``error_coordinates``, the
+    controller's 20 states): the plant (11), (7), (8) driven by u of (26), the controller (15)-(27);
+    ``vr`` in m/s, ``wr`` in rad/s."""
     xp, xc = list(z[:7]), list(z[7:])
     law = control_law(g, xc, error_measurements(error_outputs(k, xp), vr, wr))
     return np.array([*error_plant_derivatives(k, vr, wr, xp, (law.u1, law.u2)), *law.derivative])
@@ -327,10 +304,11 @@ def sampled_pieces(loop: LinearLoop, h: float, discretization: str) -> tuple[np.
 
 
 def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
-    """The transition matrix of the sampled loop with held inputs over one communication step.
+    """The transition matrix M of ``[xp; xc]`` over one communication step ``h`` (s) with held inputs
+    (as ``cosim.master`` steps); ValueError for an ``order`` or ``discretization`` not allowed
+    (None: the loop's).
 
-    The matrix M of the stacked state ``[xp; xc]`` (as ``cosim.master`` steps). At t_k the controller's
-    inputs hold y_k = Cp xp_k and u_k = Cc xc_k + Dc y_k is read (feedthrough), so
+    At t_k the controller's inputs hold y_k = Cp xp_k and u_k = Cc xc_k + Dc y_k is read (feedthrough), so
     ``xp_{k+1} = Phi_p xp_k + Gamma_p u_k = Kp xp_k + Kc xc_k``, ``Kp = Phi_p + Gamma_p Dc Cp``, ``Kc = Gamma_p Cc``.
 
     - Jacobi: the controller integrates with y_k held, ``xc_{k+1} = Gamma_c Cp xp_k + Phi_c xc_k``, so
@@ -339,27 +317,6 @@ def transition_matrix(loop: LinearLoop, h: float, order: str, discretization: st
       ``xc_{k+1} = Gamma_c Cp Kp xp_k + (Phi_c + Gamma_c Cp Kc) xc_k`` and
       ``M = [[Kp, Kc], [Gamma_c Cp Kp, Phi_c + Gamma_c Cp Kc]]``
       (u_{k+1} = Cc xc_{k+1} + Dc y_{k+1} then uses the same y_{k+1}: no further term).
-
-    Parameters
-    ----------
-    loop : LinearLoop
-        The linearised loop.
-    h : float
-        The communication step, in s.
-    order : {"gauss-seidel", "jacobi"}
-        The coupling order (``scenario.ORDERS``).
-    discretization : {"rk4", "euler"} or None, optional
-        The controller's discretization. Default None: the loop's.
-
-    Returns
-    -------
-    numpy.ndarray
-        M, shape (np + nc, np + nc).
-
-    Raises
-    ------
-    ValueError
-        If ``order`` or ``discretization`` is not one of the allowed names.
     """
     order = one_of(Order, order, "order")
     Phi_p, Gamma_p, Phi_c, Gamma_c = sampled_pieces(loop, h, discretization or loop.discretization)
@@ -386,9 +343,8 @@ def ramp_pieces(A: np.ndarray, B: np.ndarray, h: float) -> tuple[np.ndarray, np.
 
 
 def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretization: str | None = None) -> np.ndarray:
-    """The transition matrix of the sampled loop with the linear coupling over one communication step.
-
-    The state is ``s_k = [xp_k; xc_k; u_{k-1}; y_{k-1}]`` (docs/model.md §5.10).
+    """The transition matrix of ``s_k = [xp_k; xc_k; u_{k-1}; y_{k-1}]`` over one communication step ``h``
+    (s) with the linear coupling (docs/model.md §5.10); ValueError for an ``order`` not allowed.
 
     The plant sees the ramp through ``u_{k-1}`` and ``u_k = Cc xc_k + Dc y_k``:
     ``xp_{k+1} = Phi_p xp_k + G0_p u_k + G1_p (u_k - u_{k-1})`` (``ramp_pieces``). The controller sees its
@@ -396,27 +352,6 @@ def linear_transition_matrix(loop: LinearLoop, h: float, order: str, discretizat
     G1_c (y_k - y_{k-1})``, or interpolated from ``y_k`` to ``y_{k+1} = Cp xp_{k+1}`` (Gauss-Seidel),
     ``xc_{k+1} = Phi_c xc_k + G0_c y_k + G1_c (y_{k+1} - y_k)``. With ``discretization`` = euler the
     controller takes ``xc + h (Ac xc + Bc y(t_k))``: ``G1_c = 0``.
-
-    Parameters
-    ----------
-    loop : LinearLoop
-        The linearised loop.
-    h : float
-        The communication step, in s.
-    order : {"gauss-seidel", "jacobi"}
-        The coupling order (``scenario.ORDERS``).
-    discretization : {"rk4", "euler"} or None, optional
-        The controller's discretization. Default None: the loop's.
-
-    Returns
-    -------
-    numpy.ndarray
-        The matrix of ``s_k``, shape (np + nc + nu + ny, np + nc + nu + ny).
-
-    Raises
-    ------
-    ValueError
-        If ``order`` is not one of the allowed names.
     """
     order = one_of(Order, order, "order")
     Phi_p, G0_p, G1_p = ramp_pieces(loop.Ap, loop.Bp, h)
