@@ -165,6 +165,17 @@ def test_jacobi_mode_is_our_master(paper, fmu_paths, fmu3_paths, version):
     assert np.array_equal(ours, mine)
 
 
+def test_exchange_modes_keep_the_fmus_coupling_whatever_the_scenario_says_of_input_derivatives(paper, fmu_paths):
+    """The other masters set no input derivatives, so the FMUs keep the scenario's coupling (linear here):
+    the scenario's ``input_derivatives``, which only our master acts on, changes nothing in their runs."""
+    linear = paper.with_simulation(coupling="linear")
+    own = cosimulate_exchange(linear, fmu_paths, "libcosim", step_size=H, stop_time=T).result
+    told = cosimulate_exchange(linear.with_simulation(input_derivatives=True), fmu_paths, "libcosim",
+                               step_size=H, stop_time=T).result
+    held = cosimulate_exchange(paper, fmu_paths, "libcosim", step_size=H, stop_time=T).result
+    assert np.array_equal(own, told) and not np.array_equal(own, held)
+
+
 def test_exchange_modes_give_the_same_through_fmi3(paper, fmu_paths, fmu3_paths):
     for mode in ("libcosim", "simulate_ssp"):
         scenario = dataclasses.replace(paper, controller={**paper.controller, "start_on": 1})

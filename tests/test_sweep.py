@@ -4,6 +4,7 @@ import dataclasses
 import json
 import math
 import re
+import threading
 import time
 import types
 from pathlib import Path
@@ -496,6 +497,37 @@ def test_the_dask_plugin_loads_the_fmus_once_per_worker_and_removes_them(short, 
     assert plugin.fmus._cosimulator.runs == 2  # the same Cosimulator, reused
     plugin.teardown(worker)
     assert not folder.exists()
+
+
+def test_two_sweeps_of_the_same_fmus_get_a_plugin_each(fmu_paths):
+    """A Dask worker replaces (and tears down) a plugin registered under a name it holds: two sweeps of the
+    same FMUs on one cluster must not share a name, or the second would free the first's FMUs."""
+    names = {sweep_dask.FmusOnWorkers(fmu_paths, sweep_execute._Fmus).name for _ in range(2)}
+    assert len(names) == 2
+
+
+def test_closing_a_worker_fmus_waits_for_the_run_in_progress(fmu_paths, tmp_path):
+    """A plugin's teardown (Ctrl-C, the sweep's end) while a run goes on frees the FMUs only after it."""
+    fmus = sweep_execute._Fmus(fmu_paths, tmp_path / "work")
+    running, finish, seen = threading.Event(), threading.Event(), []
+
+    def run(place, applied):
+        running.set()
+        finish.wait(10)
+        seen.append(place.folder.exists())
+
+    (tmp_path / "work").mkdir()
+    computing = threading.Thread(target=fmus.compute, args=(run, None))
+    computing.start()
+    running.wait(10)
+    closing = threading.Thread(target=fmus.close)
+    closing.start()
+    closing.join(0.2)
+    assert closing.is_alive()  # waiting for the run
+    finish.set()
+    computing.join(10)
+    closing.join(10)
+    assert seen == [True] and not (tmp_path / "work").exists()
 
 
 @pytest.mark.slow

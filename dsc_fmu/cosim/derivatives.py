@@ -28,6 +28,8 @@ def _set_slopes(fmu: LoadedFmu, refs: list[int], slopes: list[float]) -> None:
 class InputDerivatives(Exchange):
     """Our exchange with the slopes set before each step (the module's rule), Jacobi or Gauss-Seidel."""
 
+    sets_slopes = True
+
     def __init__(self, jacobi: bool):
         self.jacobi = jacobi
         self.last = None  # (time, u, measurements) of the last exchange

@@ -4,6 +4,7 @@ recorded as an importer replaying one FMU sees it, libcosim's and ``fmpy.ssp.sim
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 
 import numpy as np
@@ -82,12 +83,14 @@ class _SimulateSsp(_StepThenTransfer):
     def stop_time(self, stop: float) -> None:
         return None
 
-    def time_points(self, h: float, stop: float) -> list[tuple[float, float, float, float]]:
-        points, t = [], 0.0
+    def step_count(self, h: float, stop: float) -> int:
+        return sum(1 for _ in self.time_points(h, stop))
+
+    def time_points(self, h: float, stop: float) -> Iterator[tuple[float, float, float, float]]:
+        t = 0.0
         while t < stop:
-            points.append((t, h, t + h, t))
+            yield t, h, t + h, t
             t += h
-        return points
 
 
 _EXCHANGES = {"jacobi": Jacobi, "libcosim": _Libcosim, "simulate_ssp": _SimulateSsp}

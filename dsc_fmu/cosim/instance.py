@@ -77,9 +77,9 @@ class LoadedFmu:
     """One loaded FMU (``load_fmu``): its fmpy instance (``instance``), its variables by name and the calls
     the masters make.
 
-    The calls that FMI 2.0 and 3.0 name differently are this interface's methods (``get_floats``,
-    ``enter_initialization_mode``, ...) on fmpy's methods that ``Fmi2Fmu`` and ``Fmi3Fmu`` name (``_CALLS``);
-    the others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
+    The calls that FMI 2.0 and 3.0 name differently are this interface's methods: ``get_floats``, ...,
+    ``update_discrete_states`` on fmpy's methods that ``Fmi2Fmu`` and ``Fmi3Fmu`` name (``_CALLS``), and
+    ``setup_experiment`` and ``enter_initialization_mode`` written in each (FMI 3.0 has no setup call); the others are fmpy's own methods of ``instance``, made through ``call``. Every call that fails raises
     fmpy's ``FMICallException`` with ``fmu`` set to this FMU's name (``failed_call``).
     """
 
@@ -157,9 +157,10 @@ class LoadedFmu:
         """Set up the experiment on [0, ``stop_time``] s (None: no stop time), enter initialisation mode and
         set the ``parameters`` (by name) in it, or before it with ``set_first`` as some masters do."""
         self.used = True
+        self.setup_experiment(stop_time)
         if set_first:
             self.set_values(parameters)
-        self.enter_initialization_mode(stop_time)
+        self.enter_initialization_mode()
         self.initialised = True
         if not set_first:
             self.set_values(parameters)
@@ -252,9 +253,11 @@ class Fmi2Fmu(LoadedFmu):
     def _instantiate(self, instance, callbacks) -> None:
         instance.instantiate(callbacks=callbacks, loggingOn=True)
 
-    def enter_initialization_mode(self, stop_time: float | None) -> None:
-        """fmi2SetupExperiment on [0, ``stop_time``] s, then fmi2EnterInitializationMode."""
+    def setup_experiment(self, stop_time: float | None) -> None:
+        """fmi2SetupExperiment on [0, ``stop_time``] s."""
         self.call(self.instance.setupExperiment, None, 0.0, stop_time)
+
+    def enter_initialization_mode(self) -> None:
         self.call(self.instance.enterInitializationMode)
 
 
@@ -275,9 +278,12 @@ class Fmi3Fmu(LoadedFmu):
 
         instance.instantiate(loggingOn=True, logMessage=logger)
 
-    def enter_initialization_mode(self, stop_time: float | None) -> None:
-        """fmi3EnterInitializationMode on [0, ``stop_time``] s."""
-        self.call(self.instance.enterInitializationMode, None, 0.0, stop_time)
+    def setup_experiment(self, stop_time: float | None) -> None:
+        """Keep [0, ``stop_time``] s for fmi3EnterInitializationMode, which takes the experiment's times."""
+        self._stop_time = stop_time
+
+    def enter_initialization_mode(self) -> None:
+        self.call(self.instance.enterInitializationMode, None, 0.0, self._stop_time)
 
 
 def load_fmu(name: str, path: Path, workdir: Path | None, log: list[LogMessage], callbacks: fmi2CallbackFunctions,

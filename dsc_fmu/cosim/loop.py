@@ -4,6 +4,7 @@ communication points, the exchange around each step a policy (``Exchange``: ours
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 
 from fmpy.fmi1 import FMICallException
 
@@ -36,16 +37,23 @@ class Exchange:
 
     parameters_first = False
     """The parameters are set before initialisation mode, not in it."""
+    sets_slopes = False
+    """The master sets the inputs' slopes (fmi2SetRealInputDerivatives): the FMUs' ``coupling`` is hold."""
 
     def stop_time(self, stop: float) -> float | None:
         """The stop time in s passed to the FMUs at set-up (None: none)."""
         return stop
 
-    def time_points(self, h: float, stop: float) -> list[tuple[float, float, float, float]]:
+    def step_count(self, h: float, stop: float) -> int:
+        """How many steps ``time_points`` gives."""
+        return step_count(stop, h)
+
+    def time_points(self, h: float, stop: float) -> Iterator[tuple[float, float, float, float]]:
         """(start, step, end, row time) of every step, in s."""
         n = step_count(stop, h)
-        points = [(k * h, h, (k + 1) * h, (k + 1) * h) for k in range(n - 1)]
-        return [*points, ((n - 1) * h, stop - (n - 1) * h, stop, stop)]
+        for k in range(n - 1):
+            yield k * h, h, (k + 1) * h, (k + 1) * h
+        yield (n - 1) * h, stop - (n - 1) * h, stop, stop
 
     def initialise(self, run: Run) -> None:
         """What happens in initialisation mode, after the parameters."""
@@ -102,8 +110,7 @@ class Run:
         self.controlled = controlled
         self.bound = self.settings.bound
         self.reference, self.plant, self.controller = wiring.reference, wiring.plant, wiring.controller
-        self.points = exchange.time_points(self.settings.step_size, self.settings.stop_time)
-        self.n = len(self.points)
+        self.n = exchange.step_count(self.settings.step_size, self.settings.stop_time)
         self.recorder = Recorder(wiring, self.n // every + 2)
         self.at = (0, 0.0)
         self.u = None
@@ -118,7 +125,7 @@ class Run:
             for fmu in fmus:
                 fmu.enter_initialization(
                     exchange.stop_time(settings.stop_time),
-                    self.scenario.parameters(fmu.name, slopes_from_master=settings.input_derivatives),
+                    self.scenario.parameters(fmu.name, slopes_from_master=exchange.sets_slopes),
                     set_first=exchange.parameters_first)
             exchange.initialise(self)
             for fmu in fmus:
@@ -153,10 +160,11 @@ class Run:
         return 3 * self.n if self.step_control is None else self.step_control.fmu_steps
 
     def _fixed(self) -> None:
-        """The steps of ``points``, a row every ``every`` and at the end; a watch that says stop at a row
+        """The exchange's ``time_points``, a row every ``every`` and at the end; a watch that says stop at a row
         ends the run there (``n`` becomes the steps taken)."""
         every, last, step = self.every, self.n - 1, self.exchange.step
-        for k, (t, h, end, stamp) in enumerate(self.points):
+        points = self.exchange.time_points(self.settings.step_size, self.settings.stop_time)
+        for k, (t, h, end, stamp) in enumerate(points):
             self.at = (k, t)
             step(self, t, h, end)
             if (k + 1) % every == 0 or k == last:

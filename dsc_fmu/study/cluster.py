@@ -4,8 +4,8 @@ sweep's FMUs on every worker."""
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import tempfile
+import uuid
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import Callable
@@ -48,7 +48,7 @@ class FmusOnWorkers(WorkerPlugin):
     def __init__(self, fmu_paths: dict, place: Callable):
         self.blobs = {name: Path(path).read_bytes() for name, path in sorted(fmu_paths.items())}
         self.place, self.fmus = place, None
-        self.name = "dsc-fmu-" + hashlib.sha256(b"".join(self.blobs.values())).hexdigest()[:16]
+        self.name = f"dsc-fmu-{uuid.uuid4().hex}"  # one per sweep: a plugin of the same name would replace it
 
     def setup(self, worker) -> None:
         folder = Path(tempfile.mkdtemp(prefix="dsc_fmu_sweep_", dir=worker.local_directory))

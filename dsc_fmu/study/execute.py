@@ -143,11 +143,12 @@ class _Fmus:
         return compute_reference(applied, self.paths)
 
     def close(self) -> None:
-        try:
-            if self._cosimulator is not None:
-                self._cosimulator.close()
-        finally:
-            shutil.rmtree(self.folder, ignore_errors=True)
+        with self.lock:  # after the computation in progress, if any
+            try:
+                if self._cosimulator is not None:
+                    self._cosimulator.close()
+            finally:
+                shutil.rmtree(self.folder, ignore_errors=True)
 
 
 _POOL_WORKER: dict = {}
@@ -212,6 +213,9 @@ class Workers:
             if self._client is not None:
                 try:
                     self._client.unregister_worker_plugin(self._plugin)
+                except Exception:  # noqa: BLE001 - leaving on an error: that one is the one to show
+                    if kind is None:
+                        raise
                 finally:
                     self._client.close()
             elif self._executor is not None:
