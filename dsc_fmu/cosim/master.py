@@ -6,7 +6,7 @@ from __future__ import annotations
 import math
 import time as clock
 import weakref
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TypedDict, Unpack
 
@@ -19,7 +19,7 @@ from .instance import LoadedFmu, LogMessage
 from .loading import LoadedFmus
 from .loop import Exchange, GaussSeidel, Jacobi, Run
 from .progress import Watch
-from .wiring import Wiring
+from .wiring import RunResult, Wiring
 
 __all__ = ["CosimulationError", "CosimulationResult", "Cosimulator", "Overrides", "cosimulate"]
 
@@ -52,16 +52,14 @@ class Overrides(TypedDict, total=False):
     input_derivatives: bool | None
 
 
-@dataclass
-class CosimulationResult:
+@dataclass(kw_only=True)
+class CosimulationResult(RunResult):
     """A finished run.
 
     Parameters
     ----------
     result : numpy.ndarray
         The recorded rows, dtype ``signals.DTYPE``, ``time`` in s first.
-    steps : int
-        Communication steps (the accepted ones of an error-controlled run).
     wall_time : float
         s, from loading the FMUs to freeing them (a ``Cosimulator`` run: this run only).
     settings : dict
@@ -70,25 +68,21 @@ class CosimulationResult:
         The FMUs' log messages.
     fmus : dict, optional
         Each FMU's ``path`` and ``build_id``, by name.
+    stopped_at : float, optional
+        The time in s at which the run's watch stopped it (its result ends there); None if it reached its stop time.
+    steps : int
+        Communication steps (the accepted ones of an error-controlled run).
     fmu_steps, rejected : int, optional
         ``doStep`` calls of all FMUs; the steps an error-controlled run took again, smaller.
     step_sizes : numpy.ndarray, optional
         Error-controlled run: every accepted step's ``time`` (its start, s), ``step_size`` (s) and
         ``estimated_error`` (m).
-    stopped_at : float, optional
-        The time in s at which the run's watch stopped it (its result ends there); None if it reached its stop time.
     """
 
-    result: np.ndarray
     steps: int
-    wall_time: float
-    settings: dict
-    log: list[LogMessage] = field(default_factory=list)
-    fmus: dict = field(default_factory=dict)
     fmu_steps: int = 0
     rejected: int = 0
     step_sizes: np.ndarray | None = None
-    stopped_at: float | None = None
 
 
 class Cosimulator:

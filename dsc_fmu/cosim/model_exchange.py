@@ -6,7 +6,7 @@ from __future__ import annotations
 import ctypes
 import math
 import time as clock
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
@@ -22,7 +22,7 @@ from .linear import closed_loop_state_space, fmu_blocks, loop_jacobian
 from .loading import LoadedFmus
 from .progress import Watch
 from .reference_solution import output_times
-from .wiring import Recorder, Wiring
+from .wiring import Recorder, RunResult, Wiring
 
 if TYPE_CHECKING:
     import control
@@ -36,16 +36,14 @@ monolithic reference solution uses; ``Method`` names the others."""
 _PAST_EVENT = 1e-9  # s: an event is handled this far past the root the solver found, on the step's interpolant
 
 
-@dataclass
-class ModelExchangeResult:
+@dataclass(kw_only=True)
+class ModelExchangeResult(RunResult):
     """A finished model-exchange run.
 
     Parameters
     ----------
     result : numpy.ndarray
         A row at every output time, dtype ``signals.DTYPE`` (the columns of co-simulation).
-    evaluations : int
-        Derivative evaluations the solver asked for.
     wall_time : float
         s, from loading the FMUs to freeing them.
     settings : dict
@@ -57,15 +55,11 @@ class ModelExchangeResult:
         Each FMU's ``path`` and ``build_id``, by name.
     stopped_at : float, optional
         The time in s at which the watch stopped the run (its last row); None if it reached its stop time.
+    evaluations : int
+        Derivative evaluations the solver asked for.
     """
 
-    result: np.ndarray
     evaluations: int
-    wall_time: float
-    settings: dict
-    log: list[LogMessage] = field(default_factory=list)
-    fmus: dict = field(default_factory=dict)
-    stopped_at: float | None = None
 
 
 class _Ode:

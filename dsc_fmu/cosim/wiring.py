@@ -3,15 +3,16 @@
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass, field
 
 import numpy as np
 
 from ..errors import CosimulationError
 from ..registry import CONNECTIONS, CONTROLLER, ORDER, PLANT, REFERENCE
 from . import signals
-from .instance import LoadedFmu, type_name
+from .instance import LoadedFmu, LogMessage, type_name
 
-__all__: list[str] = []  # the package's own: Feed, Wiring, Recorder
+__all__: list[str] = []  # the package's own: Feed, Wiring, Recorder, RunResult
 
 
 def _check(values, names, at: float, bound: float) -> None:
@@ -118,3 +119,16 @@ class Recorder:
             result[name] = self.table[: self.rows, index]
         signals.add_tracking_errors(result)
         return result
+
+
+@dataclass(kw_only=True)
+class RunResult:
+    """What every finished run holds: its rows (``Recorder.result``), wall time (s), settings, the FMUs' log,
+    their ``path`` and ``build_id`` by name, and where a watch stopped it (s; None: at its stop time)."""
+
+    result: np.ndarray
+    wall_time: float
+    settings: dict
+    log: list[LogMessage] = field(default_factory=list)
+    fmus: dict = field(default_factory=dict)
+    stopped_at: float | None = None
