@@ -1,21 +1,5 @@
 """The sweep's cache: keys of runs and reference solutions, and their entries, written atomically and
-verified whenever they are read.
-
-Layout inside a sweep folder: ``cache/runs/<key>.npz`` (a run's ``TRAJECTORY``) and ``cache/runs/<key>.json``
-(``{"row", "trajectory_sha256", "provenance", "checksum"}``); ``cache/references/<key>.npz``
-(``REFERENCE_COLUMNS`` every ``REFERENCE_GRID`` s) and ``.json`` (``{"reference_sha256", "provenance",
-"checksum"}``). The record is written last: an .npz without it is an interrupted write, a plain miss.
-``provenance``: the key, dsc-fmu's version, the FMUs' identities (runs only), Python, NumPy, SciPy, the
-time; ``checksum``: the SHA-256 of the record's canonical JSON without it. An entry that exists but does
-not verify (record, checksum, key, the .npz's SHA-256 and columns: 1-D floats of one length, no pickles)
-is a ``CacheEntryError``; a sweep recomputes it and says so in one ``CacheWarning``.
-
-A run's key (``case_key``) hashes everything that determines its row: the scenario's content with the
-case applied (the stability definition included; not its file or name), the case, the FMUs' identities,
-its reference's key and ``ROW_VERSION``. A reference's key (``reference_key``) leaves out what the
-monolithic ODE does not see (step, order, output interval, bound, the controller's discretisation) and
-adds the reference grid, the solver settings and a hash of the code the reference and the metrics run.
-"""
+verified whenever they are read (docs/step-size-studies.md, "The cache": its layout and what a key hashes)."""
 
 from __future__ import annotations
 
@@ -124,24 +108,6 @@ def _read_bytes(path: Path) -> bytes | None:
         raise CacheEntryError(path, f"cannot be read ({error.strerror or type(error).__name__})") from None
 
 
-def _read_record(path: Path, key: str, fields: tuple) -> dict | None:
-    """The record in ``path`` (without its checksum), verified; None if there is no such file."""
-    text = _read_bytes(path)
-    if text is None:
-        return None
-    try:
-        record = json.loads(text)
-    except (ValueError, RecursionError):
-        raise CacheEntryError(path, "not JSON") from None
-    if not isinstance(record, dict) or sorted(record) != sorted((*fields, "checksum")):
-        raise CacheEntryError(path, "not an entry record (an older cache layout, or edited)")
-    if record.pop("checksum") != _checksum(record):
-        raise CacheEntryError(path, "does not match its checksum (edited or damaged)")
-    if not isinstance(record["provenance"], dict) or record["provenance"].get("key") != key:
-        raise CacheEntryError(path, "written for another key")
-    return record
-
-
 def _read_npz(path: Path, sha256, columns: tuple) -> np.ndarray:
     """The structured array in ``path`` if the file's SHA-256 is ``sha256`` and it holds exactly
     ``columns``, 1-D floats of one length (no pickles)."""
@@ -175,11 +141,22 @@ class SweepCache:
         self.runs, self.references = self.root / "runs", self.root / "references"
 
     def _read(self, folder: Path, key: str, sha256_field: str, columns: tuple, leading: tuple = ()) -> tuple | None:
-        """The entry ``key`` of ``folder``, verified: its record (without checksum) and its array."""
+        """The entry ``key`` of ``folder``, verified: its record (without checksum) and its array; None if there
+        is no record."""
         path = folder / f"{key}.json"
-        record = _read_record(path, key, (*leading, sha256_field, "provenance"))
-        if record is None:
+        text = _read_bytes(path)
+        if text is None:
             return None
+        try:
+            record = json.loads(text)
+        except (ValueError, RecursionError):
+            raise CacheEntryError(path, "not JSON") from None
+        if not isinstance(record, dict) or sorted(record) != sorted((*leading, sha256_field, "provenance", "checksum")):
+            raise CacheEntryError(path, "not an entry record (an older cache layout, or edited)")
+        if record.pop("checksum") != _checksum(record):
+            raise CacheEntryError(path, "does not match its checksum (edited or damaged)")
+        if not isinstance(record["provenance"], dict) or record["provenance"].get("key") != key:
+            raise CacheEntryError(path, "written for another key")
         if leading and not (isinstance(record["row"], dict) and record["row"].get("key") == key):
             raise CacheEntryError(path, "its row is not the row of this key")
         return record, _read_npz(folder / f"{key}.npz", record[sha256_field], columns)

@@ -1,8 +1,10 @@
-"""Running a sweep's cases, cached, through a ``concurrent.futures`` executor: a process pool or a Dask cluster."""
+"""Running a sweep's cases, cached, through a ``concurrent.futures`` executor: a process pool or a Dask cluster
+(docs/step-size-studies.md)."""
 
 from __future__ import annotations
 
 import functools
+import math
 import multiprocessing
 import multiprocessing.util
 import os
@@ -12,7 +14,7 @@ import signal
 import tempfile
 import threading
 import warnings
-from collections import Counter, defaultdict, deque
+from collections import Counter, deque
 from concurrent.futures import FIRST_COMPLETED, Executor, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, fields
@@ -28,7 +30,7 @@ from .cache import CacheEntryError, CacheWarning, SweepCache, fmu_identities
 from .cases import Case, Runner, SweepError, check_scheduler
 from .rows import Outcome, Plan, ReferenceOutcome, compute_reference, make_row, simulate
 
-__all__ = ["execute", "Execution", "WorkerLostWarning", "LOST_TWICE"]
+__all__ = ["WorkerLostWarning", "LOST_TWICE"]
 
 LOST_TWICE = "worker process lost twice (killed or crashed)"
 _WORK_FOLDER = re.compile(r"sweep-(\d+)-")
@@ -40,21 +42,9 @@ class WorkerLostWarning(UserWarning):
 
 @dataclass(frozen=True)
 class Execution:
-    """What running cases did; two executions add up (a sweep's grid and its refinement).
-
-    Parameters
-    ----------
-    rows : list of dict
-        The rows (``rows.ROW_KEYS``), in the order of the cases.
-    cached, ran : int, optional
-        How many came from the cache, and how many were run now.
-    lost : tuple of str, optional
-        The keys of the runs that did not finish: their rows carry the reason, they are not cached.
-    unverified : tuple of CacheEntryError, optional
-        The cache entries that did not verify and were recomputed.
-    workers_lost, retried : int, optional
-        How many times the process pool lost a worker; how many computations in flight were retried.
-    """
+    """What running cases did: their ``rows`` in the order of the cases, how many came from the cache and how
+    many ran, the keys of the runs ``lost`` (rows with the reason, not cached), the ``unverified`` cache
+    entries (``CacheEntryError``) recomputed, the pools broken and the computations retried. Two add up."""
 
     rows: list
     cached: int = 0
@@ -181,6 +171,7 @@ class _Call(NamedTuple):
     fn: Callable  # _Fmus.simulate or _Fmus.reference, of the process it runs in
     key: str
     applied: Scenario
+    retried: bool = False
 
 
 class _Lost(NamedTuple):
@@ -229,8 +220,8 @@ class Workers:
             if self._work is not None:
                 _remove_work(self._work.parent, self._work)
 
-    def _start(self, runs: int) -> None:
-        """The executor: of a Dask client, of ``min(jobs, runs)`` worker processes, or of this process."""
+    def _start(self, size: int) -> None:
+        """The executor: of a Dask client, of ``size`` worker processes, or (``size`` 1) of this process."""
         if self.runner.scheduler is not None:
             from distributed import KilledWorker
 
@@ -238,11 +229,9 @@ class Workers:
 
             self._client = connect(self.runner.scheduler, self.runner.scheduler_timeout)
             plugin = FmusOnWorkers(self.fmu_paths, _Fmus)
-            self._plugin = plugin.name
             self._client.register_plugin(plugin)
-            self._executor = self._client.get_executor(pure=False)
-            self._task = functools.partial(on_worker, plugin.name)
-            self._size, self._lost = None, KilledWorker
+            self._plugin, self._task = plugin.name, functools.partial(on_worker, plugin.name)
+            self._executor, self._size, self._lost = self._client.get_executor(pure=False), math.inf, KilledWorker
             return
         if self._work is None:
             try:
@@ -250,52 +239,50 @@ class Workers:
                 self._work = Path(tempfile.mkdtemp(prefix=f"sweep-{os.getpid()}-", dir=self.out_dir / ".work"))
             except OSError as error:
                 raise _folder_error(self.out_dir, error) from None
-        self._size = max(1, min((os.cpu_count() or 1) if self.runner.jobs is None else self.runner.jobs, runs))
-        self._lost = BrokenProcessPool
-        if self._size <= 1:
+        self._size, self._lost = size, BrokenProcessPool
+        if size == 1:
             self._here, self._executor = _Fmus(self.fmu_paths, self._work / str(os.getpid())), _InProcess()
             self._task = self._here.compute
         else:
-            self._executor = ProcessPoolExecutor(self._size, mp_context=multiprocessing.get_context("spawn"),
+            self._executor = ProcessPoolExecutor(size, mp_context=multiprocessing.get_context("spawn"),
                                                  initializer=_start_pool_worker,
                                                  initargs=(dict(self.fmu_paths), str(self._work)))
             self._task = _on_pool_worker
 
     def _results(self, calls: list[_Call], runs: int):
-        """``(call, value)`` as the calls finish; ``_Lost`` the value of a call whose workers were lost."""
+        """``(call, value)`` as the calls finish; ``_Lost`` the value of a call whose workers were lost. At most
+        one call per worker is in flight: a broken pool fails those, and only those are retried."""
         if self._executor is None:
-            self._start(runs)
-        queue, in_flight, losses = deque(calls), {}, Counter()
+            jobs = (os.cpu_count() or 1) if self.runner.jobs is None else self.runner.jobs
+            self._start(max(1, min(jobs, runs)))
+        queue, in_flight = deque(calls), {}
         try:
             while queue or in_flight:
                 broken = False
                 try:
-                    while queue and (self._size is None or len(in_flight) < self._size):
+                    while queue and len(in_flight) < self._size:
                         in_flight[self._executor.submit(self._task, queue[0].fn, queue[0].applied)] = queue[0]
                         queue.popleft()
                 except BrokenProcessPool:
                     broken = True
                 done, _ = wait(in_flight, return_when=FIRST_COMPLETED)
-                if any(isinstance(future.exception(), BrokenProcessPool) for future in done):
+                if broken or any(isinstance(future.exception(), BrokenProcessPool) for future in done):
                     broken, (done, _) = True, wait(in_flight)  # a broken pool fails every call in flight
-                retry = []
                 for future in done:
                     call, error = in_flight.pop(future), future.exception()
-                    losses[call.key] += isinstance(error, self._lost)
-                    if isinstance(error, BrokenProcessPool) and losses[call.key] == 1:
-                        retry.append(call)
+                    if isinstance(error, BrokenProcessPool) and not call.retried:
+                        queue.appendleft(call._replace(retried=True))
+                        self.retried += 1
                     elif isinstance(error, self._lost):
                         yield call, _Lost(LOST_TWICE if isinstance(error, BrokenProcessPool) else
                                           f"Dask worker lost {error.allowed_failures + 1} times while running it "
                                           "(killed or crashed)")
                     else:
                         yield call, future.result()
-                queue.extendleft(reversed(retry))
-                self.retried += len(retry)
                 if broken:
                     self.workers_lost += 1
                     self._executor.shutdown(wait=True, cancel_futures=True)
-                    self._start(runs)
+                    self._start(self._size)
         finally:
             for future in in_flight:
                 future.cancel()
@@ -307,35 +294,56 @@ class Workers:
         case, cached too) are in; entries that do not verify are recomputed. Under the "local" stability,
         a run whose reference solution failed is judged as a settled one and not cached.
         """
-        plans = [Plan.of(scenario, case, self.identities) for case in cases]
-        rows, todo, references, missing, unverified = _look_up(self.cache, plans, scenario.name)
-        lost, notes, before = [], [], (self.workers_lost, self.retried)
-        waiting, remaining = defaultdict(list), Counter(plan.reference_key for plan in todo.values())
-        local = scenario.simulation.stability.from_start
+        plans, unverified = [Plan.of(scenario, case, self.identities) for case in cases], []
+
+        def read(entry: Callable, key: str):
+            try:
+                return entry(key)
+            except CacheEntryError as error:
+                unverified.append(error)
+
+        rows, todo, first = {}, {}, {}
+        for plan in plans:
+            first.setdefault(plan.reference_key, plan.applied)
+            if plan.key not in rows and plan.key not in todo:
+                cached = read(self.cache.row, plan.key)
+                if cached is None:
+                    todo[plan.key] = plan
+                else:
+                    rows[plan.key] = {**cached, "scenario": scenario.name}
+        needs = Counter(plan.reference_key for plan in todo.values())  # the runs to do that need each reference
+        references, calls = {}, []
+        for key, applied in first.items():
+            damaged = len(unverified)
+            reference = read(self.cache.reference, key)
+            if reference is not None and needs[key]:
+                references[key] = reference
+            elif len(unverified) > damaged or needs[key]:
+                calls.append(_Call(_Fmus.reference, key, applied))
         runs = sorted(todo.values(), key=lambda plan: -plan.applied.simulation.stop_time
                       / plan.applied.simulation.step_size)  # the longest first, for an even load
-        calls = [_Call(_Fmus.reference, key, applied) for key, applied in missing.items()]
         calls += [_Call(_Fmus.simulate, plan.key, plan.applied) for plan in runs]
+        lost, notes, waiting, before = [], [], {}, (self.workers_lost, self.retried)
+        local = scenario.simulation.stability.from_start
         with ProgressLine(len(todo), f"sweep {scenario.name}", "runs",
                           quiet=not (progress and self.runner.progress)) as bar:
             for call, value in self._results(calls, len(runs)) if calls else ():
-                if call.fn is _Fmus.simulate:
-                    ready = [(todo[call.key], Outcome.of_lost(value.reason) if isinstance(value, _Lost) else value)]
-                    if ready[0][0].reference_key not in references:
-                        waiting[ready[0][0].reference_key] += ready
-                        continue
-                else:
-                    if isinstance(value, _Lost):
-                        value = compute_reference(call.applied, self.fmu_paths)
+                if call.fn is _Fmus.reference:
+                    value = compute_reference(call.applied, self.fmu_paths) if isinstance(value, _Lost) else value
                     if value.solution is None:
                         judged = "; they are judged as settled runs and not cached" if local else ""
                         notes.append(f"reference solution failed ({value.failure}): deviations are NaN for its "
                                      f"runs{judged}")
                     else:
                         self.cache.store_reference(call.key, value.solution)
-                    if remaining[call.key]:
+                    if needs[call.key]:
                         references[call.key] = value.solution
                     ready = waiting.pop(call.key, [])
+                else:
+                    ready = [(todo[call.key], Outcome.of_lost(value.reason) if isinstance(value, _Lost) else value)]
+                    if ready[0][0].reference_key not in references:
+                        waiting.setdefault(ready[0][0].reference_key, []).extend(ready)
+                        continue
                 for plan, outcome in ready:
                     reference = references[plan.reference_key]
                     rows[plan.key] = make_row(plan, outcome, reference)
@@ -344,78 +352,20 @@ class Workers:
                     elif reference is not None or not local:  # judged without its reference: not for keeps
                         self.cache.store_run(plan.key, rows[plan.key], outcome.trajectory, self.identities)
                     bar.update()
-                    remaining[plan.reference_key] -= 1
-                    if not remaining[plan.reference_key]:
+                    needs[plan.reference_key] -= 1
+                    if not needs[plan.reference_key]:
                         references.pop(plan.reference_key)  # no run left that needs it
         for note in notes:
             warnings.warn(note, stacklevel=3)
-        keys = [plan.key for plan in plans]
-        ran = sum(key in todo for key in keys)
-        return Execution([rows[key] for key in keys], len(keys) - ran, ran, tuple(lost), unverified,
+        ran = sum(plan.key in todo for plan in plans)
+        return Execution([rows[plan.key] for plan in plans], len(plans) - ran, ran, tuple(lost), tuple(unverified),
                          self.workers_lost - before[0], self.retried - before[1])
-
-
-def _look_up(cache: SweepCache, plans: list[Plan], name: str) -> tuple:
-    """What ``cache`` holds for ``plans``: the cached rows (named for the scenario ``name``) and the plans
-    to run, by key; the cached references they need and those to compute (every one not verifying
-    included), by reference key; the entries that did not verify."""
-    rows, todo, unverified = {}, {}, []
-
-    def read(entry: Callable, key: str):
-        try:
-            return entry(key)
-        except CacheEntryError as error:
-            unverified.append(error)
-
-    for plan in plans:
-        if plan.key not in rows and plan.key not in todo:
-            cached = read(cache.row, plan.key)
-            if cached is None:
-                todo[plan.key] = plan
-            else:
-                rows[plan.key] = {**cached, "scenario": name}
-    needed, first, references, missing = {plan.reference_key for plan in todo.values()}, {}, {}, {}
-    for plan in plans:
-        first.setdefault(plan.reference_key, plan.applied)
-    for key, applied in first.items():
-        damaged = len(unverified)
-        reference = read(cache.reference, key)
-        if reference is not None and key in needed:
-            references[key] = reference
-        elif len(unverified) > damaged or key in needed:
-            missing[key] = applied
-    return rows, todo, references, missing, tuple(unverified)
 
 
 def execute(scenario: Scenario, cases: list[Case], out_dir: Path | str, fmu_paths: dict, runner: Runner = Runner(),
             *, warn: bool = True) -> Execution:
-    """Run every case not yet cached in ``out_dir`` and return the rows of all.
-
-    Parameters
-    ----------
-    scenario : Scenario
-        The sweep's scenario.
-    cases : list of Case
-        The cases to run on it (``build_cases``).
-    out_dir : pathlib.Path or str
-        The sweep folder: its cache, and the work folder.
-    fmu_paths : dict
-        The FMU files by name (``ensure_fmus``).
-    runner : Runner, optional
-        Where the runs go and whether a progress line shows. Default ``Runner()``: all cores.
-    warn : bool, optional
-        Whether to warn of what ``Execution.warn`` says. Default True.
-
-    Returns
-    -------
-    Execution
-        The rows of all cases, in the order of ``cases``, and what was done.
-
-    Raises
-    ------
-    SweepError
-        One line, if the scheduler cannot be reached or ``out_dir`` cannot be a folder.
-    """
+    """``Workers.execute`` in the sweep folder ``out_dir`` (checked first, as a sweep checks it), then (``warn``)
+    ``Execution.warn``. SweepError (one line) if the scheduler cannot be reached or ``out_dir`` cannot be a folder."""
     prepare_sweep(Path(out_dir), runner)
     with Workers(out_dir, fmu_paths, runner) as workers:
         done = workers.execute(scenario, cases)
