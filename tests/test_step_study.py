@@ -8,6 +8,7 @@ import pytest
 from dsc_fmu.cli import main
 from dsc_fmu.cosim.master import Cosimulator
 from dsc_fmu.scenario import load_scenario
+from dsc_fmu.study import execute
 from dsc_fmu.study.cases import Case, apply
 from dsc_fmu.study.rows import compute_reference
 from dsc_fmu.study.rows import run_case
@@ -22,10 +23,20 @@ def fmu_dir(fmu_paths):
 
 @pytest.fixture(scope="module")
 def sweep(tmp_path_factory, fmu_dir):
-    out = tmp_path_factory.mktemp("sweep")
-    status = main(["sweep", "on_reference", "--step-sizes", "0.02,0.04,0.06", "--orders", "gauss-seidel,jacobi",
-                   "--tolerances", "", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
+    """The sweep, with the process pools it made counted: one, which the bisection of the boundaries reuses."""
+    out, pools = tmp_path_factory.mktemp("sweep"), []
+
+    class CountedPool(execute.ProcessPoolExecutor):
+        def __init__(self, *args, **kwargs):
+            pools.append(args[0])
+            super().__init__(*args, **kwargs)
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(execute, "ProcessPoolExecutor", CountedPool)
+        status = main(["sweep", "on_reference", "--step-sizes", "0.02,0.04,0.06", "--orders", "gauss-seidel,jacobi",
+                       "--tolerances", "", "--jobs", "2", "--out", str(out), "--fmu-dir", str(fmu_dir)])
     assert status == 0
+    assert pools == [2]
     return out
 
 
