@@ -31,7 +31,8 @@ class Model:
     What the controller adds has a hook here that does nothing for the other models: waiting for
     valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
     guard: ``before_step``, ``after_step``, ``event``), its own integrator (``substep_count``,
-    ``integrate``) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
+    ``integrate``), parameters that must go together (``conflict``), a state reset at events
+    (``reinit``: the projection) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
     warning for the slave to log; None logs nothing.
     """
 
@@ -113,8 +114,17 @@ class Model:
         """The step that ``before_step`` began ended, taken or discarded."""
         return None
 
-    def event(self, t: float, u: list) -> str | None:
-        """Model exchange, event mode: choose the switches held until the next event."""
+    def conflict(self) -> str | None:
+        """Why the parameters do not go together, or None (checked at the end of initialization)."""
+        return None
+
+    def reinit(self, x: list) -> list | None:
+        """Model exchange, event mode: the continuous state after the event, or None where it stays ``x``."""
+        return None
+
+    def event(self, t: float, x: list, u: list) -> str | None:
+        """Model exchange, event mode: choose the switches held until the next event, at the state ``x`` after
+        ``reinit``."""
         return None
 
     def discrete_outputs(self, slave) -> list:
