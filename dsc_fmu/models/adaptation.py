@@ -16,29 +16,33 @@ SIGMA, E_MODIFICATION, PROJECTION, NONE = (ADAPTATIONS.index(name) for name in (
 """The values of the controller's parameter ``adaptation``."""
 
 A1, A2, W1, W2 = 0, 1, slice(4, 12), slice(14, 20)  # the estimates' places in xc
+# A weight vector is on its sphere from this fraction of the bound's square: a vector scaled onto the
+# sphere (``project_estimates``) lands there to rounding, on either side.
+ON_SPHERE = 1.0 - 1e-12
 
 
 def _interval(value, rate, low: float, high: float, held: bool | None) -> tuple:
     """``(rate, active, margin)`` of an estimate kept in ``[low, high]``: the rate zero while the projection acts
-    (on a bound with the rate pointing out, or ``held``); ``margin`` > 0 while the choice stands: the distance to
-    the nearer bound inside, the outward rate while it acts."""
+    (on a bound with the rate pointing out, or ``held``); ``margin`` > 0 while the choice stands: while it acts the
+    outward rate, else the larger of the distance to the nearer bound and the inward rate (an estimate that
+    leaves a bound inward is not due)."""
     outward = rate if value > 0.5 * (low + high) else -rate
     active = ((value >= high or value <= low) and outward > 0.0) if held is None else held
     if active:
         return 0.0, True, outward
-    return rate, False, min(high - value, value - low)
+    return rate, False, max(min(high - value, value - low), -outward)
 
 
 def _ball(W: list, rates: list, Gamma: tuple, bound: float, held: bool | None, math=math) -> tuple:
     """``(rates, active, margin)`` of a weight vector kept in the ball ``|W| <= bound``: Ioannou and Sun's
     projection (§4.8) in the metric of ``Gamma``, ``rates - Gamma W (W^T rates) / (W^T Gamma W)``, while ``W`` is
-    on or outside the sphere with ``W^T rates`` > 0 (or ``held``); ``margin`` as in ``_interval``:
-    ``bound - |W|`` inside, ``W^T rates`` while it acts."""
+    on (``ON_SPHERE``) or outside the sphere with ``W^T rates`` > 0 (or ``held``); ``margin`` as in ``_interval``:
+    ``W^T rates`` while it acts, else the larger of ``bound - |W|`` and ``-W^T rates``."""
     outward = math.fsum(w * r for w, r in zip(W, rates))
     squares = math.fsum(w * w for w in W)
-    active = (squares >= bound * bound and outward > 0.0) if held is None else held
+    active = (squares >= ON_SPHERE * bound * bound and outward > 0.0) if held is None else held
     if not active:
-        return rates, False, bound - math.sqrt(squares)
+        return rates, False, max(bound - math.sqrt(squares), -outward)
     weighted = math.fsum(G * w * w for G, w in zip(Gamma, W))
     if not weighted:  # W = 0, held by an importer's states: no normal to remove
         return rates, True, outward
