@@ -61,6 +61,8 @@ class DSCControllerModel(Model):
     LOCALS = FILTER_STATES
     INDICATORS = EVENT_INDICATORS
     FMU_STATE = {"beta_guard_count": int, "_guarded_last_step": bool, "waited_steps": int, "held": _switches}
+    # The projection acting on every estimate: a branch whose dependencies the others' do not cover.
+    BRANCHES = (None, Switches(0, False, (True, True, True, True)))
 
     def __init__(self):
         super().__init__()

@@ -25,8 +25,9 @@ class Model:
 
     The tables (``models.parameters``, ``models.states``): ``PARAMETERS``, ``INPUTS``, ``OUTPUTS``,
     ``STATES`` (the entries of the state vector), ``LOCALS`` (the states' variables that are not
-    outputs), ``INDICATORS`` (event indicators), and ``FMU_STATE``: the model's own attributes saved
-    in the FMU state beside the slave's, each with the function that copies it (also out of JSON).
+    outputs), ``INDICATORS`` (event indicators), ``FMU_STATE``: the model's own attributes saved in the
+    FMU state beside the slave's, each with the function that copies it (also out of JSON), and
+    ``BRANCHES``: the switches to hold (``held``) while the build searches the dependencies of ModelStructure.
 
     What the controller adds has a hook here that does nothing for the other models: waiting for
     valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
@@ -44,6 +45,9 @@ class Model:
     LOCALS: tuple = ()
     INDICATORS: tuple = ()
     FMU_STATE: dict = {}
+    # The switches held (model exchange) whose branches the build's dependency search covers besides those chosen
+    # at each point: None alone for a model without switches.
+    BRANCHES: tuple = (None,)
 
     def __init__(self):
         self.p = {v.name: v.start for v in self.PARAMETERS}

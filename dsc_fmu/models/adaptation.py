@@ -35,7 +35,7 @@ def _interval(value, rate, low: float, high: float, held: bool | None) -> tuple:
 
 def _ball(W: list, rates: list, Gamma: tuple, bound: float, held: bool | None, math=math) -> tuple:
     """``(rates, active, margin)`` of a weight vector kept in the ball ``|W| <= bound``: Ioannou and Sun's
-    projection (§4.8) in the metric of ``Gamma``, ``rates - Gamma W (W^T rates) / (W^T Gamma W)``, while ``W`` is
+    projection (§4.4) in the metric of ``Gamma``, ``rates - Gamma W (W^T rates) / (W^T Gamma W)``, while ``W`` is
     on (``ON_SPHERE``) or outside the sphere with ``W^T rates`` > 0 (or ``held``); ``margin`` as in ``_interval``:
     ``W^T rates`` while it acts, else the larger of ``bound - |W|`` and ``-W^T rates``."""
     outward = math.fsum(w * r for w, r in zip(W, rates))
@@ -53,7 +53,7 @@ def _ball(W: list, rates: list, Gamma: tuple, bound: float, held: bool | None, m
 def project_rates(g, xc: list, rates: list, held: tuple | None = None, math=math) -> tuple:
     """The gradient laws' rates under the projection of ``adaptation`` = projection (docs/model.md §3).
 
-    The discontinuous operator of Ioannou and Sun (§4.8) on the rates ``rates`` of the gradient laws (the
+    The discontinuous operator of Ioannou and Sun (§4.4) on the rates ``rates`` of the gradient laws (the
     derivative of ``xc`` without leakage), keeping ``a1_hat`` in ``[a1_min, a1_max]``, ``a2_hat`` in
     ``[a2_min, a2_max]``, ``W1_hat`` in ``|W1_hat| <= W1_max`` and ``W2_hat`` in ``|W2_hat| <= W2_max``.
 
