@@ -115,8 +115,8 @@ def test_projection_inside_its_sets_is_the_gradient_law(seed):
 @pytest.mark.parametrize("seed", SEEDS)
 @pytest.mark.parametrize("Gamma", ["paper", "scalar"])
 def test_projection_on_its_boundary(seed, Gamma):
-    """The operator on random rates at a random state. Pointing inward: the rates unchanged. Pointing outward: an interval's rate zero; a ball's rate the
-    gradient's less ``Gamma W (W^T r) / (W^T Gamma W)`` (Ioannou and Sun §4.4), tangent to the sphere; with a
+    """The operator on random rates at a random state. Pointing inward: the rates unchanged. Pointing
+    outward: an interval's rate zero; a ball's rate the gradient's less ``Gamma W (W^T r) / (W^T Gamma W)`` (Ioannou and Sun §4.4), tangent to the sphere; with a
     scalar Gamma that is the gradient less its normal component."""
     xc, m = _random_point(seed)
     rates, _ = _random_point(seed + 100)

@@ -33,8 +33,8 @@ class Model:
     valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
     guard: ``before_step``, ``after_step``, ``event``), its own integrator (``substep_count``,
     ``integrate``), parameters that must go together (``conflict``), a state reset at events
-    (``reinit``: the projection) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
-    warning for the slave to log; None logs nothing.
+    (``reinit``: the projection) and discrete outputs (``discrete_outputs``). A hook that returns a str
+    returns a warning for the slave to log; None logs nothing.
     """
 
     description = ""
