@@ -17,7 +17,7 @@ from dsc_fmu.models import parameters as P
 from dsc_fmu.models.adaptation import E_MODIFICATION, NONE, PROJECTION, SIGMA, project_estimates, project_rates
 from dsc_fmu.models.controller import control_law, gains
 from dsc_fmu.scenario import ScenarioError, load_scenario
-from drives import CONTROLLER
+from drives import CONTROLLER, CONTROLLER_IN
 from in_process import InProcess
 
 SEEDS = range(4)
@@ -28,6 +28,8 @@ TIGHT = {"adaptation": PROJECTION, "a1_min": -0.05, "a1_max": 5.0, "a2_min": 0.0
          "W1_max": 0.05, "W2_max": 10.0}
 SETS = {"a1_hat": (-0.05, 5.0), "a2_hat": (0.0, 4.0), "W1_hat_norm": (0.0, 0.05), "W2_hat_norm": (0.0, 10.0)}
 ROUNDING = 1e-12
+# Constant measurements that drive the estimates steadily (the robot's wheels turning beside the reference).
+STEADY = {**{v.name: v.start for v in P.CONTROLLER_INPUTS}, "omega1": 3.0, "omega2": 2.0, "i1": 1.5}
 
 
 def _gains(**changes):
@@ -211,11 +213,10 @@ def test_fmpy_keeps_the_controller_alone_in_its_sets(fmu_paths, fmu3_paths, vers
     """fmpy's own routes with constant measurements (the estimates drift steadily to their bounds): model
     exchange through the state changes the FMU reports at its events."""
     path = str((fmu_paths if version == 2 else fmu3_paths)["DSCController"])
-    signal = np.zeros(2, dtype=[("time", float), *((v.name, float) for v in P.CONTROLLER_INPUTS)])
-    for v in P.CONTROLLER_INPUTS:
-        signal[v.name] = v.start
+    signal = np.zeros(2, dtype=[("time", float), *((name, float) for name in STEADY)])
+    for name, value in STEADY.items():
+        signal[name] = value
     signal["time"] = (0.0, 3.0)
-    signal["omega1"], signal["omega2"], signal["i1"] = 3.0, 2.0, 1.5
     sets = {"adaptation": PROJECTION, "a1_min": -0.5, "a1_max": 0.5, "a2_min": -0.2, "a2_max": 0.2,
             "W1_max": 1e-3, "W2_max": 0.5}
     rows = simulate_fmu(path, fmi_type=interface, stop_time=3.0, output_interval=1e-2, step_size=1e-2,
@@ -225,6 +226,24 @@ def test_fmpy_keeps_the_controller_alone_in_its_sets(fmu_paths, fmu3_paths, vers
         slack = 1e-6 * high if name.endswith("norm") and interface == "ModelExchange" else ROUNDING * high
         assert rows[name].min() >= low - slack and rows[name].max() <= high + slack, name
         assert rows[name][-1] in (pytest.approx(low, abs=slack), pytest.approx(high, rel=1e-6)), name
+
+
+@pytest.mark.parametrize("discretization", P.DISCRETIZATIONS)
+def test_every_step_of_the_controller_alone_stays_in_the_sets(discretization):
+    """Constant measurements drive the estimates to their bounds; after every step (RK4's sub-steps or
+    Euler's step projected) each lies in its set, and each ends on its boundary."""
+    sets = {"a1_min": -0.5, "a1_max": 0.5, "a2_min": -0.2, "a2_max": 0.2, "W1_max": 1e-3, "W2_max": 0.5}
+    inst = InProcess("DSCController").initialize(
+        sets, {"adaptation": PROJECTION, "discretization": P.DISCRETIZATIONS.index(discretization)})
+    inst.set(CONTROLLER_IN, [STEADY[name] for name in CONTROLLER_IN])
+    names = ("a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm")
+    bounds = ((-0.5, 0.5), (-0.2, 0.2), (0.0, 1e-3), (0.0, 0.5))
+    for k in range(300):
+        inst.step(k * 1e-2, 1e-2)
+        for name, value, (low, high) in zip(names, inst.get(names), bounds):
+            assert low <= value <= high * (1.0 + ROUNDING), (k, name, value)
+    for value, (low, high) in zip(inst.get(names), bounds):
+        assert value in (low, pytest.approx(high, rel=ROUNDING))
 
 
 @pytest.mark.parametrize("changes, message", [
