@@ -11,6 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from .errors import DscFmuError
+from .models.adaptation import projection_conflict
 from .models.parameters import INPUT_COUPLINGS
 from .models.reference import min_speed
 from .registry import CONTROLLER, FMUS, PLANT, REFERENCE
@@ -429,8 +430,9 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
     Raises
     ------
     ScenarioError
-        For a file missing or not TOML, an unknown key, a value out of its range, or a reference speed
-        not positive over the run (Assumption 2).
+        For a file missing or not TOML, an unknown key, a value out of its range, a reference speed
+        not positive over the run (Assumption 2), or a projection's set that is empty or leaves out an
+        initial estimate.
     """
     path = _resolve(name_or_path)
     where = str(path)
@@ -462,4 +464,7 @@ def load_scenario(name_or_path: str | Path = "paper") -> Scenario:
         **{name: _parameters(name, _table(data, name, where), where) for name in TABLES},
     )
     _check_reference_speed(scenario)
+    conflict = projection_conflict(scenario.controller)
+    if conflict is not None:
+        raise ScenarioError(f"{where}: [controller] {conflict}")
     return scenario

@@ -17,6 +17,7 @@ from types import SimpleNamespace
 import pytest
 
 from dsc_fmu.models import parameters as P
+from dsc_fmu.models.adaptation import E_MODIFICATION, NONE, PROJECTION
 from dsc_fmu.models.controller import Switches, control_law, gains
 from dsc_fmu.models.dual import DUAL_MATH, Dual
 from drives import CONTROLLER, CONTROLLER_IN, NAMES, PLANT, PLANT_OUT
@@ -221,6 +222,41 @@ def test_model_exchange_holds_the_wrap_across_pi(after_5s):
     inst = _slave("DSCController", 2, saved, True, _heading_inputs(saved, math.pi + 1e-2),
                   held_at=_heading_inputs(saved, math.pi - 1e-2))
     assert inst.slave.model.held == Switches(0, False)
+    unknowns, knowns = _unknowns(inst, True), _knowns(inst, True)
+    _assert_differences(inst, _jacobian(inst, unknowns, knowns, True), unknowns, knowns)
+
+
+def _on_the_boundaries(saved: dict) -> dict:
+    """Projection bounds with each estimate of the saved point on its set's boundary, on the side its gradient
+    rate points to: the projection acts on all four."""
+    x, m = saved["state"], saved["u"]
+    rates = control_law(gains({**CONTROLLER, "adaptation": NONE}), x, m).derivative
+    bounds = {"adaptation": PROJECTION}
+    for name, i in (("a1", 0), ("a2", 1)):
+        bounds[f"{name}_min"], bounds[f"{name}_max"] = (x[i] - 5.0, x[i]) if rates[i] > 0 else (x[i], x[i] + 5.0)
+    for name, part in (("W1", slice(4, 12)), ("W2", slice(14, 20))):
+        bounds[f"{name}_max"] = math.sqrt(math.fsum(w * w for w in x[part]))
+    return bounds
+
+
+# The adaptation laws at the point of the run: name -> (the controller's parameters, the projection's switches).
+LAWS = {
+    "e": (lambda saved: {"adaptation": E_MODIFICATION}, (False,) * 4),
+    "none": (lambda saved: {"adaptation": NONE}, (False,) * 4),
+    "projection inside its sets": (lambda saved: {"adaptation": PROJECTION}, (False,) * 4),
+    "projection acting on each estimate": (_on_the_boundaries, (True,) * 4),
+}
+
+
+@pytest.mark.parametrize("version", (2, 3))
+@pytest.mark.parametrize("law", LAWS)
+def test_the_adaptation_laws_entries_equal_central_differences(after_5s, version, law):
+    """Model exchange (the laws change only the state derivatives): each law's branch, the projection's held."""
+    saved = dict(after_5s[version]["DSCController"])
+    parameters, projected = LAWS[law]
+    saved["p"] = {**saved["p"], **parameters(saved)}
+    inst = _slave("DSCController", version, saved, True)
+    assert inst.slave.model.held.projected == projected
     unknowns, knowns = _unknowns(inst, True), _knowns(inst, True)
     _assert_differences(inst, _jacobian(inst, unknowns, knowns, True), unknowns, knowns)
 

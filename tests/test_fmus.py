@@ -60,7 +60,8 @@ EXPECTED = {
             "k1", "k2", "k3", "k4", "k5", "gamma1", "gamma2", "sigma1", "sigma2", "sigma3", "sigma4",
             "tau2", "tau3", *(f"Gamma1_{i}" for i in range(1, 9)), *(f"Gamma2_{i}" for i in range(1, 7)),
             "a1_hat0", "a2_hat0", *(f"W1_hat0_{i}" for i in range(1, 9)), *(f"W2_hat0_{i}" for i in range(1, 7)),
-            "discretization", "start_on", "coupling", "beta_min", "max_step",
+            "discretization", "start_on", "coupling", "beta_min", "adaptation", "a1_min", "a1_max", "a2_min",
+            "a2_max", "W1_max", "W2_max", "max_step",
         ),
         "input": (
             "x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2",

@@ -131,44 +131,92 @@ def _knowns(name: str) -> list:
     return [v.name for v in FMUS[name].inputs] + [s.variable.name for s in FMUS[name].states]
 
 
+def _acting(instance, x: list, u: list, evaluate) -> tuple:
+    """Projection parameters and a state near ``x`` at which the projection acts on all four estimates: the
+    gradient rates (``none``) at the point show where each estimate's rate points (they do not depend on the
+    estimate itself, so a weight vector turned round turns its outward rate round)."""
+    spec = FMUS["DSCController"]
+    rates = dict(zip((s.variable.name for s in spec.states), evaluate(x, u, derivatives_only=True)))
+    x = list(x)
+    names = [s.variable.name for s in spec.states]
+    parameters = {"W1_max": 0.1, "W2_max": 0.1}
+    for name in ("a1", "a2"):
+        value, rate = x[names.index(f"{name}_hat")], rates[f"{name}_hat"]
+        low, high = (value - 10.0, value - 0.01) if rate > 0 else (value + 0.01, value + 10.0)
+        parameters.update({f"{name}_min": low, f"{name}_max": high, f"{name}_hat0": min(max(0.0, low), high)})
+    for name, count in (("W1", 8), ("W2", 6)):
+        entries = [names.index(f"{name}_hat_{i}") for i in range(1, count + 1)]
+        if sum(x[i] * rates[f"{name}_hat_{k}"] for k, i in enumerate(entries, start=1)) < 0:
+            for i in entries:
+                x[i] = -x[i]
+    return parameters, x
+
+
 @pytest.mark.parametrize("name", NAMES)
 def test_the_declared_dependencies_are_the_ones_the_fmu_has(model, name):
     """Every output and derivative changes with exactly the inputs and states ModelStructure declares:
-    each known changed in turn at a point away from any special value, through the FMU's binary."""
-    instance = model(name)
+    each known changed in turn at a point away from any special value, through the FMU's binary; for the
+    controller under each adaptation law (the projection acting on all four estimates), whose union
+    ModelStructure declares."""
     spec = FMUS[name]
     inputs = [v.name for v in spec.inputs]
-    instance.set({n: CONTROLLER_START.get(n, 1.0) + 0.3 for n in inputs})
-    instance.start()
     rng = np.random.default_rng(7)
-    x = list(rng.uniform(0.5, 2.0, instance.nx))
+    x = list(rng.uniform(0.5, 2.0, len(spec.states)))
     u = list(rng.uniform(0.5, 2.0, len(inputs)))
     outputs = [v.name for v in spec.outputs]
+    laws = [None] if name != "DSCController" else [*range(len(P.ADAPTATIONS))]
+    found = {}
+    for law in laws:
+        instance = model(name)
+        instance.set({n: CONTROLLER_START.get(n, 1.0) + 0.3 for n in inputs})
 
-    def evaluate(x, u):
-        instance.fmu.setTime(0.7)
-        instance.states(x)
-        if inputs:
-            instance.set(dict(zip(inputs, u)))
-        return {**instance.get(outputs), **dict(zip((s.derivative.name for s in spec.states), instance.derivatives()))}
+        def evaluate(x, u, derivatives_only=False):
+            instance.fmu.setTime(0.7)
+            instance.states(x)
+            if inputs:
+                instance.set(dict(zip(inputs, u)))
+            derivatives = dict(zip((s.derivative.name for s in spec.states), instance.derivatives()))
+            return list(derivatives.values()) if derivatives_only else {**instance.get(outputs), **derivatives}
 
-    base = evaluate(x, u)
-    found = {unknown: set() for unknown in base}
-    for i, known in enumerate(_knowns(name)):
-        changed_x, changed_u = list(x), list(u)
-        if i < len(inputs):
-            changed_u[i] *= 1.001
-        else:
-            changed_x[i - len(inputs)] *= 1.001
-        after = evaluate(changed_x, changed_u)
+        point = x
+        if law is not None:
+            if law == P.ADAPTATIONS.index("projection"):
+                probe = model(name)
+                probe.loaded.set_integers([probe.refs["adaptation"]], [P.ADAPTATIONS.index("none")])
+                probe.start()
+                parameters, point = _acting(probe, x, u, lambda x, u, derivatives_only: _rates(probe, x, u, inputs))
+                instance.set(parameters)
+            instance.loaded.set_integers([instance.refs["adaptation"]], [law])
+        instance.start()
+        evaluate(point, u)
+        instance.event()  # the switches chosen at the point
+        base = evaluate(point, u)
         for unknown in base:
-            if after[unknown] != base[unknown]:
-                found[unknown].add(known)
+            found.setdefault(unknown, set())
+        for i, known in enumerate(_knowns(name)):
+            changed_x, changed_u = list(point), list(u)
+            if i < len(inputs):
+                changed_u[i] *= 1.001
+            else:
+                changed_x[i - len(inputs)] *= 1.001
+            after = evaluate(changed_x, changed_u)
+            for unknown in base:
+                if after[unknown] != base[unknown]:
+                    found[unknown].add(known)
+        if law == P.ADAPTATIONS.index("projection"):
+            assert all(base[f"der({n})"] == 0.0 for n in ("a1_hat", "a2_hat"))  # the projection acts
     md = instance.md
     declared = {u.variable.name: {d.name for d in u.dependencies} - {"time"}
                 for u in (*md.outputs, *md.derivatives) if u.variable.name in found}
     assert found == declared
-    instance.close()
+
+
+def _rates(instance, x: list, u: list, inputs: list) -> list:
+    """The state derivatives of ``instance`` at time 0.7, states ``x`` and inputs ``u``."""
+    instance.fmu.setTime(0.7)
+    instance.states(x)
+    instance.set(dict(zip(inputs, u)))
+    return instance.derivatives()
 
 
 def test_the_plant_derivatives_are_equations_6_to_8(model):

@@ -85,6 +85,28 @@ def test_held_switches_of_model_exchange_round_trip_through_bytes(new):
     assert other.outputs() == ctrl.outputs()
 
 
+def test_the_projection_held_at_an_event_round_trips_through_bytes(new):
+    """At an event the estimates outside their sets are moved onto them (the slave reports the change) and the
+    projection's switches are held; both come back from bytes as they were."""
+    sets = {"a1_min": -1.0, "a1_max": 1.0, "a2_min": -1.0, "a2_max": 1.0, "W1_max": 0.5, "W2_max": 0.5}
+    ctrl = new("DSCController", real=sets, integer={"adaptation": P.ADAPTATIONS.index("projection")})
+    ctrl.set(CONTROLLER_IN, M_PAPER)
+    ctrl.slave.start_continuous_time()
+    outside = list(ctrl.slave.current_state())
+    outside[0:2], outside[4:12], outside[14:20] = [3.0, -3.0], [1.0] * 8, [-1.0] * 6
+    ctrl.slave.set_point(None, outside)
+    assert ctrl.slave.update_discrete_states() is True
+    state = ctrl.slave.current_state()
+    assert state[0:2] == [1.0, -1.0] and state[2:4] == outside[2:4] and state[12:14] == outside[12:14]
+    assert ctrl.get1("W1_hat_norm") == pytest.approx(0.5, rel=1e-15)
+    assert ctrl.get1("W2_hat_norm") == pytest.approx(0.5, rel=1e-15)
+    assert ctrl.slave.update_discrete_states() is False  # in the sets: nothing to move
+    other = new("DSCController")
+    other.set_state(_through_bytes(ctrl, ctrl.get_state()))
+    assert other.slave.model.held == ctrl.slave.model.held and isinstance(other.slave.model.held.projected, tuple)
+    assert other.slave.get_derivatives() == ctrl.slave.get_derivatives()
+
+
 def test_fmu_state_restores_inputs_and_tunable_parameters(new):
     plant = new("MobileRobot")
     plant.set(("u1", "u2"), (4.0, 5.0))

@@ -8,6 +8,7 @@ import numpy as np
 from scipy.integrate import solve_ivp
 
 from . import signals
+from ..models.adaptation import PROJECTION, project_estimates
 from ..models.controller import (
     W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters, weight_norm,
 )
@@ -52,12 +53,20 @@ def measurements(k: PlantCoefficients, ref_params: dict, t: float, plant: list, 
     return [x, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *reference, vr, wr, vr_dot]
 
 
+def controller_state(g: Gains, state: list) -> list:
+    """The controller's 20 states of the closed loop's ``state``; with ``adaptation`` = projection, its
+    estimates moved onto their sets, where the solver's error may have taken them (docs/model.md §5.13)."""
+    xc = state[CONTROLLER_STATES]
+    return project_estimates(g, xc) if g.adaptation == PROJECTION else xc
+
+
 def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
     """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by ``u`` of (26),
-    controller (15)-(27) fed the current measurements, reference robot (9)."""
+    controller (15)-(27) fed the current measurements (its estimates in their sets: ``controller_state``),
+    reference robot (9)."""
     state = list(state)
     plant, reference = state[PLANT_STATES], state[REFERENCE_STATES]
-    law = control_law(g, state[CONTROLLER_STATES], measurements(k, ref_params, t, plant, reference))
+    law = control_law(g, controller_state(g, state), measurements(k, ref_params, t, plant, reference))
     return [
         *plant_derivatives(k, plant, law.u1, law.u2),
         *law.derivative,
@@ -94,7 +103,9 @@ def reference_solution(
     -------
     numpy.ndarray
         One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far at which
-        the beta guard acts (docs/model.md §5).
+        the beta guard acts (docs/model.md §5). The switches are chosen at each evaluation, as co-simulation
+        chooses them; with ``adaptation`` = projection the estimates are those in their sets
+        (``controller_state``).
 
     Raises
     ------
@@ -119,7 +130,7 @@ def reference_solution(
     guard_count = 0
     for t, state in zip(solution.t, solution.y.T):
         state = list(state)
-        xc = state[CONTROLLER_STATES]
+        xc = controller_state(g, state)
         m = measurements(k, ref, t, state[PLANT_STATES], state[REFERENCE_STATES])
         law = control_law(g, xc, m)
         guard_count += law.guarded

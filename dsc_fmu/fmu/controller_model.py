@@ -5,6 +5,7 @@ Bundled into every FMU; imports only the standard library and ``models``.
 
 import math
 
+from ..models.adaptation import PROJECTION, project_estimates, projection_conflict
 from ..models.controller import (
     W1_SLICE, W2_SLICE, Switches, control_law, event_indicators, gains, initial_controller_state, start_filters, switches,
     weight_norm,
@@ -25,8 +26,8 @@ _GUARD = "h2 divides by beta_min (outside the region of Remark 3)"
 
 
 def _switches(held):
-    """The held switches (a list after a JSON round trip), or None."""
-    return None if held is None else Switches(*held)
+    """The held switches (lists after a JSON round trip), or None."""
+    return None if held is None else Switches(held[0], held[1], tuple(held[2]))
 
 
 class DSCControllerModel(Model):
@@ -40,6 +41,11 @@ class DSCControllerModel(Model):
     (``beta_guard_count``: steps in which an evaluation was guarded; in model exchange, events at which
     it engages), shown (``beta_guard_active``) and logged at the first step of each run of such steps;
     in model exchange the switches are held between events (``held``, §5.13).
+
+    With ``adaptation`` = projection the estimates stay in their sets (docs/model.md §5.13): co-simulation
+    moves them back onto the sets after each sub-step, model exchange at each event (``reinit``), where
+    it reports that the continuous states changed. Parameters that make no projection (an interval's
+    ``min`` not below its ``max``, an initial estimate outside its set) fail the end of initialization.
 
     With ``start_on`` = valid_inputs, a controller that has not started and whose only refused values
     are inputs waits instead of discarding its steps: u = 0, S11 = S12 = S13 = 0, beta = 1, estimates
@@ -55,6 +61,8 @@ class DSCControllerModel(Model):
     LOCALS = FILTER_STATES
     INDICATORS = EVENT_INDICATORS
     FMU_STATE = {"beta_guard_count": int, "_guarded_last_step": bool, "waited_steps": int, "held": _switches}
+    # The projection acting on every estimate: a branch whose dependencies the others' do not cover.
+    BRANCHES = (None, Switches(0, False, (True, True, True, True)))
 
     def __init__(self):
         super().__init__()
@@ -84,7 +92,7 @@ class DSCControllerModel(Model):
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
     def indicators(self, x, u):
-        return event_indicators(self.constants, u)
+        return event_indicators(self.constants, x, u, self.held)
 
     def substep_count(self, step_size):
         return 1 if self.p["discretization"] == EULER else super().substep_count(step_size)
@@ -98,9 +106,11 @@ class DSCControllerModel(Model):
                 self._guard_seen = (t, law.beta)
             return law.derivative
 
+        project = (lambda x: project_estimates(c, x)) if c.adaptation == PROJECTION else None
         if self.p["discretization"] == EULER:
-            return euler_step(derivatives, t, x, step_size)
-        return rk4_integrate(derivatives, t, x, step_size, self.p["max_step"])
+            x = euler_step(derivatives, t, x, step_size)
+            return x if project is None else project(x)
+        return rk4_integrate(derivatives, t, x, step_size, self.p["max_step"], project)
 
     def may_wait(self, started):
         return not started and self.p["start_on"] == VALID_INPUTS
@@ -130,8 +140,17 @@ class DSCControllerModel(Model):
         t, beta = seen
         return f"beta = {beta:.6g} < beta_min = {self.p['beta_min']:g} at t = {t:.6g} s: {_GUARD}"
 
-    def event(self, t, u):
-        held = switches(self.constants, u)
+    def conflict(self):
+        return projection_conflict(self.p)
+
+    def reinit(self, x):
+        if self.constants.adaptation != PROJECTION:
+            return None
+        projected = project_estimates(self.constants, x)
+        return None if projected is x else projected
+
+    def event(self, t, x, u):
+        held = switches(self.constants, x, u)
         engages = held.guarded and not (self.held and self.held.guarded)
         self.held = held
         if engages:

@@ -25,14 +25,16 @@ class Model:
 
     The tables (``models.parameters``, ``models.states``): ``PARAMETERS``, ``INPUTS``, ``OUTPUTS``,
     ``STATES`` (the entries of the state vector), ``LOCALS`` (the states' variables that are not
-    outputs), ``INDICATORS`` (event indicators), and ``FMU_STATE``: the model's own attributes saved
-    in the FMU state beside the slave's, each with the function that copies it (also out of JSON).
+    outputs), ``INDICATORS`` (event indicators), ``FMU_STATE``: the model's own attributes saved in the
+    FMU state beside the slave's, each with the function that copies it (also out of JSON), and
+    ``BRANCHES``: the switches to hold (``held``) while the build searches the dependencies of ModelStructure.
 
     What the controller adds has a hook here that does nothing for the other models: waiting for
     valid inputs (``may_wait``, ``waited``; ``u`` None), the start of a step and its end (the beta
     guard: ``before_step``, ``after_step``, ``event``), its own integrator (``substep_count``,
-    ``integrate``) and discrete outputs (``discrete_outputs``). A hook that returns a str returns a
-    warning for the slave to log; None logs nothing.
+    ``integrate``), parameters that must go together (``conflict``), a state reset at events
+    (``reinit``: the projection) and discrete outputs (``discrete_outputs``). A hook that returns a str
+    returns a warning for the slave to log; None logs nothing.
     """
 
     description = ""
@@ -43,6 +45,9 @@ class Model:
     LOCALS: tuple = ()
     INDICATORS: tuple = ()
     FMU_STATE: dict = {}
+    # The switches held (model exchange) whose branches the build's dependency search covers besides those chosen
+    # at each point: None alone for a model without switches.
+    BRANCHES: tuple = (None,)
 
     def __init__(self):
         self.p = {v.name: v.start for v in self.PARAMETERS}
@@ -113,8 +118,17 @@ class Model:
         """The step that ``before_step`` began ended, taken or discarded."""
         return None
 
-    def event(self, t: float, u: list) -> str | None:
-        """Model exchange, event mode: choose the switches held until the next event."""
+    def conflict(self) -> str | None:
+        """Why the parameters do not go together, or None (checked at the end of initialization)."""
+        return None
+
+    def reinit(self, x: list) -> list | None:
+        """Model exchange, event mode: the continuous state after the event, or None where it stays ``x``."""
+        return None
+
+    def event(self, t: float, x: list, u: list) -> str | None:
+        """Model exchange, event mode: choose the switches held until the next event, at the state ``x`` after
+        ``reinit``."""
         return None
 
     def discrete_outputs(self, slave) -> list:

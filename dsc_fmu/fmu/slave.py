@@ -244,7 +244,11 @@ class ModelSlave:
         self._stale()
 
     def exit_initialization_mode(self):
-        """The end of initialization: the outputs are computed again."""
+        """The end of initialization: the outputs are computed again. ValueError (fmiError) if the parameters do
+        not go together (the model's ``conflict``)."""
+        conflict = self.model.conflict()
+        if conflict is not None:
+            raise ValueError(f"parameters that do not go together: {conflict}")
         self._stale()
 
     def do_step(self, current_time: float, step_size: float) -> bool:
@@ -348,10 +352,15 @@ class ModelSlave:
             self.state = self.model.initial_state(self.u)
         self.update_discrete_states()
 
-    def update_discrete_states(self) -> None:
-        """Event mode: the model chooses the switches held until the next event."""
-        self._warn(self.model.event(self.time, self.u))
+    def update_discrete_states(self) -> bool:
+        """Event mode: the model resets the continuous state (``reinit``) and chooses the switches held until the
+        next event; whether the state changed."""
+        state = self.model.reinit(self.current_state())
+        if state is not None:
+            self.state = state
+        self._warn(self.model.event(self.time, self.current_state(), self.u))
         self._stale()
+        return state is not None
 
     # --- FMU state ----------------------------------------------------------------------------------------
 

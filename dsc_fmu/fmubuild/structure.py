@@ -2,8 +2,9 @@
 
 An unknown (an output, a state derivative, an initial value) depends on a known (an input, a state, the
 time, a parameter at initialization) if changing the known changes it: each unknown is evaluated at random
-points, each known changed in turn, for every value of the parameters that choose between laws; at a random
-point a dependency shows as a changed value, and its absence leaves the value exactly as it was.
+points, each known changed in turn, for every value of the parameters that choose between laws and with the
+switches chosen at each point or held in each of the model's ``BRANCHES``; at a random point a dependency
+shows as a changed value, and its absence leaves the value exactly as it was.
 """
 
 from __future__ import annotations
@@ -34,12 +35,17 @@ class _Probe:
 
 
 def _models(spec: FmuSpec):
-    """A probe of ``spec``'s model for every combination of the parameters that choose between laws."""
+    """A probe of ``spec``'s model for every combination of the parameters that choose between laws, and of
+    the switches it holds (its ``BRANCHES``)."""
     choosers = [v for v in spec.parameters if v.choices]
+    model_class = _MODELS[spec.name]
     for values in itertools.product(*(range(len(v.choices)) for v in choosers)):
-        probe = _Probe(_MODELS[spec.name]())
-        probe.p.update({v.name: value for v, value in zip(choosers, values)})
-        yield probe
+        for held in model_class.BRANCHES:
+            probe = _Probe(model_class())
+            probe.p.update({v.name: value for v, value in zip(choosers, values)})
+            if held is not None:
+                probe.model.held = held
+            yield probe
 
 
 def _changed(value: float) -> float:

@@ -12,6 +12,8 @@ import math
 from dataclasses import dataclass
 from typing import NamedTuple
 
+from .adaptation import E_MODIFICATION, PROJECTION, SIGMA, project_rates
+
 # The helpers of the law (weight_norm, wrap, alpha2, switches, event_indicators, initial_controller_state,
 # start_filters) serve the FMUs' models and the reference solution.
 __all__ = ["Gains", "gains", "ControlLaw", "control_law", "Switches", "W1_SLICE", "W2_SLICE"]
@@ -25,6 +27,7 @@ def weight_norm(values, math=math) -> float:
 
 W1_SLICE = slice(4, 12)
 W2_SLICE = slice(14, 20)
+_UNPROJECTED = (False, False, False, False)
 
 
 @dataclass(frozen=True)
@@ -38,7 +41,7 @@ class Gains:
     gamma1, gamma2 : float
         The adaptation gains of (15) and (16).
     sigma1, sigma2, sigma3, sigma4 : float
-        The sigma-modifications of (15), (16), (21) and (27).
+        The sigma-modifications of (15), (16), (21) and (27); the gains of e-modification.
     tau2, tau3 : float
         The filter time constants of (17) and (23), in s.
     Gamma1 : tuple of float
@@ -47,6 +50,12 @@ class Gains:
         The diagonal of the adaptation gain matrix of (27), 6 entries.
     beta_min : float
         The guard of beta (docs/model.md §5.6).
+    adaptation : int
+        The adaptation law, an index of ``parameters.ADAPTATIONS`` (``adaptation.SIGMA``, ...).
+    a1_min, a1_max, a2_min, a2_max : float
+        The intervals of ``a1_hat`` (1/m) and ``a2_hat`` of the projection.
+    W1_max, W2_max : float
+        The bounds of ``|W1_hat|`` and ``|W2_hat|`` of the projection.
     """
 
     k1: float
@@ -65,6 +74,13 @@ class Gains:
     Gamma1: tuple
     Gamma2: tuple
     beta_min: float
+    adaptation: int
+    a1_min: float
+    a1_max: float
+    a2_min: float
+    a2_max: float
+    W1_max: float
+    W2_max: float
 
 
 def gains(p: dict) -> Gains:
@@ -108,6 +124,10 @@ class ControlLaw(NamedTuple):
         The virtual wheel speeds of (14), in rad/s.
     x3bar : tuple of float
         The virtual currents of (20), in A.
+    projected : tuple of bool
+        Whether the projection acts on ``a1_hat``, ``a2_hat``, ``W1_hat``, ``W2_hat`` (adaptation = projection).
+    margins : tuple of float
+        The projection's margins (``adaptation.project_rates``), empty for the other laws.
     """
 
     u1: float
@@ -120,6 +140,8 @@ class ControlLaw(NamedTuple):
     guarded: bool
     x2bar: tuple
     x3bar: tuple
+    projected: tuple
+    margins: tuple
 
 
 class Switches(NamedTuple):
@@ -131,10 +153,14 @@ class Switches(NamedTuple):
         The wrap of (5.4): ``S13bar = (thetar - theta) - 2 pi turns``.
     guarded : bool
         Whether ``h2`` divides by ``beta_min`` (5.6).
+    projected : tuple of bool
+        Whether the projection acts on ``a1_hat``, ``a2_hat``, ``W1_hat``, ``W2_hat`` (5.13; adaptation =
+        projection).
     """
 
     turns: int
     guarded: bool
+    projected: tuple = _UNPROJECTED
 
 
 def wrap(angle: float, math=math) -> float:
@@ -173,18 +199,25 @@ def _surfaces(k1: float, m: list, math=math) -> tuple:
     return S11, S12, p, den, 1.0 + k1 * vr * S11 / den
 
 
-def switches(g: Gains, m: list) -> Switches:
-    """The switches as the law chooses them at measurements ``m``: the wrap of ``thetar - theta`` and whether
-    the beta guard acts (docs/model.md §5.4, §5.6)."""
+def switches(g: Gains, xc: list, m: list) -> Switches:
+    """The switches as the law chooses them at the state ``xc`` and measurements ``m``: the wrap of
+    ``thetar - theta``, whether the beta guard acts and whether the projection acts on each estimate
+    (docs/model.md §5.4, §5.6, §5.13)."""
     heading = m[10] - m[2]
     beta = _surfaces(g.k1, m)[4]
-    return Switches(round((heading - wrap(heading)) / (2.0 * math.pi)), beta < g.beta_min)
+    turns = round((heading - wrap(heading)) / (2.0 * math.pi))
+    if g.adaptation == PROJECTION:
+        return Switches(turns, beta < g.beta_min, control_law(g, xc, m).projected)
+    return Switches(turns, beta < g.beta_min)
 
 
-def event_indicators(g: Gains, m: list) -> list:
-    """``[cos((thetar - theta) / 2), beta - beta_min]`` at measurements ``m``: each changes sign exactly where
-    a switch of ``switches`` changes (docs/model.md §5.13)."""
-    return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min]
+def event_indicators(g: Gains, xc: list, m: list, held: Switches | None = None) -> list:
+    """``[cos((thetar - theta) / 2), beta - beta_min, projection margin]`` at the state ``xc`` and measurements
+    ``m`` with the switches ``held``: each changes sign exactly where a switch of ``switches`` is due
+    (docs/model.md §5.13); the projection's is the least of its margins (``adaptation.project_rates``), 1 for
+    the other laws."""
+    margin = min(control_law(g, xc, m, held).margins) if g.adaptation == PROJECTION else 1.0
+    return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min, margin]
 
 
 def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=math) -> ControlLaw:
@@ -235,8 +268,6 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=
         g.beta_min if guarded else beta
     )
     x2bar1, x2bar2 = h1 + h2, h1 - h2
-    a1_hat_dot = g.gamma1 * (vr * (S11 * cos_e + al2 * S12 * S13) - g.sigma1 * a1_hat)
-    a2_hat_dot = g.gamma2 * ((wr + alpha1) * S13 - g.sigma2 * a2_hat)
 
     # Step 2, robot dynamics: (17)-(22).
     x2f_dot1 = (x2bar1 - x2f1) / g.tau2
@@ -247,7 +278,30 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=
     w1, w2, w3, w4, w5, w6, w7, w8 = W1_hat
     x3bar1 = -g.k4 * S21 + theta_dot * v2 * w1 + v1 * w3 + x2f_dot1 * w5 + x2f_dot2 * w6
     x3bar2 = -g.k4 * S22 - theta_dot * v1 * w2 + v2 * w4 + x2f_dot2 * w7 + x2f_dot1 * w8
-    G1, s3 = g.Gamma1, g.sigma3
+
+    # Step 3, actuators: (23)-(26).
+    x3f_dot1 = (x3bar1 - x3f1) / g.tau3
+    x3f_dot2 = (x3bar2 - x3f2) / g.tau3
+    # Phi2 = [[-i1, 0, -v1, 0, -x3f_dot1, 0], [0, -i2, 0, -v2, 0, -x3f_dot2]], written out.
+    S31, S32 = i1 - x3f1, i2 - x3f2
+    r1, r2, e1, e2, l1, l2 = W2_hat
+    u1 = -g.k5 * S31 + i1 * r1 + v1 * e1 + x3f_dot1 * l1
+    u2 = -g.k5 * S32 + i2 * r2 + v2 * e2 + x3f_dot2 * l2
+
+    # The adaptation laws (15), (16), (21), (27): the leakage of each (docs/model.md §3).
+    law = g.adaptation
+    if law == SIGMA:
+        s1, s2, s3, s4 = g.sigma1, g.sigma2, g.sigma3, g.sigma4
+    elif law == E_MODIFICATION:
+        s1 = g.sigma1 * math.sqrt(S11 * S11 + S12 * S12 + S13 * S13)
+        s2 = g.sigma2 * abs(S13)
+        s3 = g.sigma3 * math.sqrt(S21 * S21 + S22 * S22)
+        s4 = g.sigma4 * math.sqrt(S31 * S31 + S32 * S32)
+    else:
+        s1 = s2 = s3 = s4 = 0.0
+    a1_hat_dot = g.gamma1 * (vr * (S11 * cos_e + al2 * S12 * S13) - s1 * a1_hat)
+    a2_hat_dot = g.gamma2 * ((wr + alpha1) * S13 - s2 * a2_hat)
+    G1 = g.Gamma1
     W1_hat_dot = [
         G1[0] * (-theta_dot * v2 * S21 - s3 * w1),
         G1[1] * (theta_dot * v1 * S22 - s3 * w2),
@@ -258,16 +312,7 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=
         G1[6] * (-x2f_dot2 * S22 - s3 * w7),
         G1[7] * (-x2f_dot1 * S22 - s3 * w8),
     ]
-
-    # Step 3, actuators: (23)-(27).
-    x3f_dot1 = (x3bar1 - x3f1) / g.tau3
-    x3f_dot2 = (x3bar2 - x3f2) / g.tau3
-    # Phi2 = [[-i1, 0, -v1, 0, -x3f_dot1, 0], [0, -i2, 0, -v2, 0, -x3f_dot2]], written out.
-    S31, S32 = i1 - x3f1, i2 - x3f2
-    r1, r2, e1, e2, l1, l2 = W2_hat
-    u1 = -g.k5 * S31 + i1 * r1 + v1 * e1 + x3f_dot1 * l1
-    u2 = -g.k5 * S32 + i2 * r2 + v2 * e2 + x3f_dot2 * l2
-    G2, s4 = g.Gamma2, g.sigma4
+    G2 = g.Gamma2
     W2_hat_dot = [
         G2[0] * (-i1 * S31 - s4 * r1),
         G2[1] * (-i2 * S32 - s4 * r2),
@@ -278,7 +323,11 @@ def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=
     ]
 
     derivative = [a1_hat_dot, a2_hat_dot, x2f_dot1, x2f_dot2, *W1_hat_dot, x3f_dot1, x3f_dot2, *W2_hat_dot]
-    return ControlLaw(u1, u2, derivative, S11, S12, S13, beta, guarded, (x2bar1, x2bar2), (x3bar1, x3bar2))
+    projected, margins = _UNPROJECTED, ()
+    if law == PROJECTION:
+        derivative, projected, margins = project_rates(g, xc, derivative, held and held.projected, math)
+    return ControlLaw(u1, u2, derivative, S11, S12, S13, beta, guarded, (x2bar1, x2bar2), (x3bar1, x3bar2),
+                      projected, margins)
 
 
 def start_filters(g: Gains, xc: list, m: list, math=math) -> list:

@@ -16,6 +16,7 @@ __all__ = [
     "CONTROLLER_OUTPUTS",
     "PROFILES",
     "DISCRETIZATIONS",
+    "ADAPTATIONS",
     "START_ON",
     "INPUT_COUPLINGS",
     "DEFAULT_TOLERANCE",
@@ -152,6 +153,7 @@ PLANT_OUTPUTS = (
 
 PROFILES = ("constant", "figure_eight")
 DISCRETIZATIONS = ("rk4", "euler")
+ADAPTATIONS = ("sigma", "e", "projection", "none")
 START_ON = ("first_use", "valid_inputs")
 
 REFERENCE_PARAMETERS = (
@@ -196,10 +198,14 @@ CONTROLLER_PARAMETERS = (
     Variable("k5", 1.0, "1", "Gain k5 of the voltage law u (eq. 26)", POSITIVE, tunable=True),
     Variable("gamma1", 2.0, "1", "Adaptation gain of a1_hat (eq. 15)", POSITIVE, tunable=True),
     Variable("gamma2", 2.0, "1", "Adaptation gain of a2_hat (eq. 16)", POSITIVE, tunable=True),
-    Variable("sigma1", 0.001, "1", "Sigma-modification of a1_hat (eq. 15)", POSITIVE, tunable=True),
-    Variable("sigma2", 0.001, "1", "Sigma-modification of a2_hat (eq. 16)", POSITIVE, tunable=True),
-    Variable("sigma3", 0.001, "1", "Sigma-modification of W1_hat (eq. 21)", POSITIVE, tunable=True),
-    Variable("sigma4", 0.001, "1", "Sigma-modification of W2_hat (eq. 27)", POSITIVE, tunable=True),
+    Variable("sigma1", 0.001, "1", "Sigma-modification of a1_hat (eq. 15); the gain of e-modification "
+             "(adaptation = e)", POSITIVE, tunable=True),
+    Variable("sigma2", 0.001, "1", "Sigma-modification of a2_hat (eq. 16); the gain of e-modification "
+             "(adaptation = e)", POSITIVE, tunable=True),
+    Variable("sigma3", 0.001, "1", "Sigma-modification of W1_hat (eq. 21); the gain of e-modification "
+             "(adaptation = e)", POSITIVE, tunable=True),
+    Variable("sigma4", 0.001, "1", "Sigma-modification of W2_hat (eq. 27); the gain of e-modification "
+             "(adaptation = e)", POSITIVE, tunable=True),
     Variable("tau2", 0.01, "s", "Time constant of the first-order filter of x2bar (eq. 17)", POSITIVE, tunable=True),
     Variable("tau3", 0.01, "s", "Time constant of the first-order filter of x3bar (eq. 23)", POSITIVE, tunable=True),
     *_gains("Gamma1", (1e-4,) * 8, "Adaptation gain matrix Gamma1 of W1_hat (eq. 21)"),
@@ -237,6 +243,22 @@ CONTROLLER_PARAMETERS = (
         "beta_min", 0.05, "1",
         "Guard of beta (docs/model.md §5): where beta < beta_min, h2 divides by beta_min instead", POSITIVE, tunable=True,
     ),
+    Variable(
+        "adaptation", 0, "1",
+        "Adaptation law of a1_hat, a2_hat, W1_hat, W2_hat (eqs. 15, 16, 21, 27; Remark 4; docs/model.md §3): "
+        "0 = sigma (sigma-modification: the paper's), 1 = e (e-modification: the leakage sigma_i scaled by the "
+        "norm of the law's error surface), 2 = projection (no leakage; each estimate kept in its set: "
+        "a1_min..a1_max, a2_min..a2_max, |W1_hat| <= W1_max, |W2_hat| <= W2_max), 3 = none (no leakage)",
+        NONNEGATIVE, integer=True, maximum=len(ADAPTATIONS) - 1, choices=ADAPTATIONS,
+    ),
+    Variable("a1_min", 0.0, "1/m", "Projection: lower bound of a1_hat (adaptation = projection; a1 = 1/r)"),
+    Variable("a1_max", 20.0, "1/m", "Projection: upper bound of a1_hat (adaptation = projection; a1 = 1/r)"),
+    Variable("a2_min", 0.0, "1", "Projection: lower bound of a2_hat (adaptation = projection; a2 = R/r)"),
+    Variable("a2_max", 20.0, "1", "Projection: upper bound of a2_hat (adaptation = projection; a2 = R/r)"),
+    Variable("W1_max", 1.0, "1", "Projection: bound of the Euclidean norm of W1_hat (adaptation = projection)",
+             POSITIVE),
+    Variable("W2_max", 40.0, "1", "Projection: bound of the Euclidean norm of W2_hat (adaptation = projection)",
+             POSITIVE),
     MAX_STEP,
 )
 

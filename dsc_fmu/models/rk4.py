@@ -14,10 +14,10 @@ def substeps(step_size: float, max_step: float) -> int:
     return max(1, math.ceil(step_size / max_step * (1.0 - 1e-12)))
 
 
-def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> list:
+def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float, project=None) -> list:
     """The state at ``t0 + step_size`` (s) of ``x_dot = f(t, x)`` from ``x`` at ``t0``, by RK4 in
     ``substeps(step_size, max_step)`` equal sub-steps (docs/model.md §5.11). Sub-step k starts at ``t0 + k h``:
-    time is never accumulated.
+    time is never accumulated. ``project``, if given, maps the state after each sub-step (onto a set).
     """
     n = substeps(step_size, max_step)
     h = step_size / n
@@ -33,6 +33,8 @@ def rk4_integrate(f, t0: float, x: list, step_size: float, max_step: float) -> l
             xi + sixth * (a + 2.0 * b + 2.0 * c + d)
             for xi, a, b, c, d in zip(x, k1, k2, k3, k4)
         ]
+        if project is not None:
+            x = project(x)
     return x
 
 

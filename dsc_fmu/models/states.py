@@ -93,5 +93,7 @@ EVENT_INDICATORS = (
              "(docs/model.md §5.13)"),
     Variable("guard_indicator", 0.0, "1", "beta - beta_min: changes sign where the beta guard switches "
              "(docs/model.md §5.13)"),
+    Variable("projection_indicator", 0.0, "1", "The projection's least margin: changes sign where it starts or "
+             "stops acting on an estimate (adaptation = projection; 1 for the other laws; docs/model.md §5.13)"),
 )
 """The controller's event indicators, in the order of ``controller.event_indicators``."""

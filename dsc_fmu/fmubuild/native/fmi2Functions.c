@@ -218,11 +218,12 @@ fmi2Status fmi2EnterEventMode(fmi2Component c) {
 fmi2Status fmi2NewDiscreteStates(fmi2Component c, fmi2EventInfo *eventInfo) {
     BEGIN(fmi2NewDiscreteStates);
     if (!instance_given(instance, eventInfo, "event info")) END(STATUS_ERROR);
-    int status = instance_update_discrete_states(instance);
+    int changed = 0;
+    int status = instance_update_discrete_states(instance, &changed);
     eventInfo->newDiscreteStatesNeeded = fmi2False;
     eventInfo->terminateSimulation = fmi2False;
     eventInfo->nominalsOfContinuousStatesChanged = fmi2False;
-    eventInfo->valuesOfContinuousStatesChanged = fmi2False;
+    eventInfo->valuesOfContinuousStatesChanged = changed ? fmi2True : fmi2False;
     eventInfo->nextEventTimeDefined = fmi2False;
     eventInfo->nextEventTime = 0.0;
     END(status);

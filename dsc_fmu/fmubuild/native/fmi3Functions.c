@@ -337,11 +337,12 @@ fmi3Status fmi3UpdateDiscreteStates(fmi3Instance c, fmi3Boolean *discreteStatesN
         !valuesOfContinuousStatesChanged || !nextEventTimeDefined || !nextEventTime) {
         END(instance_fail(instance, STATUS_ERROR, "an output argument is NULL"));
     }
-    int status = instance_update_discrete_states(instance);
+    int changed = 0;
+    int status = instance_update_discrete_states(instance, &changed);
     *discreteStatesNeedUpdate = fmi3False;
     *terminateSimulation = fmi3False;
     *nominalsOfContinuousStatesChanged = fmi3False;
-    *valuesOfContinuousStatesChanged = fmi3False;
+    *valuesOfContinuousStatesChanged = changed ? fmi3True : fmi3False;
     *nextEventTimeDefined = fmi3False;
     *nextEventTime = 0.0;
     END(status);

@@ -410,8 +410,8 @@ int instance_get_vector(Instance *instance, Vector which, double values[], size_
     return status;
 }
 
-int instance_update_discrete_states(Instance *instance) {
-    return slave_call(&instance->slave, "update_discrete_states", 0, NULL, NULL);
+int instance_update_discrete_states(Instance *instance, int *changed) {
+    return slave_update_discrete_states(&instance->slave, changed);
 }
 
 int instance_enter(Instance *instance, ModelState next) {

@@ -123,8 +123,8 @@ int instance_set_states(Instance *instance, const double x[], size_t nx);
 /* The vector `which` into `values` (`n` must be its length). Derivatives and event indicators that fail
    or are not finite are STATUS_DISCARD (the model's trouble); anything else STATUS_ERROR. */
 int instance_get_vector(Instance *instance, Vector which, double values[], size_t n);
-/* Event mode: the slave's update_discrete_states. */
-int instance_update_discrete_states(Instance *instance);
+/* Event mode: the slave's update_discrete_states; `changed`: whether it changed a continuous state's value. */
+int instance_update_discrete_states(Instance *instance, int *changed);
 /* Move to `next` (EventMode, ContinuousTimeMode). */
 int instance_enter(Instance *instance, ModelState next);
 /* A size the importer asks for (NULL: an error). */

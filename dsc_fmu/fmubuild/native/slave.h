@@ -141,6 +141,10 @@ int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange)
    else runs. */
 int slave_call(Slave *s, const char *method, int n, const double *values, const int *defined);
 
+/* update_discrete_states (event mode): STATUS_OK with `changed` whether the slave changed the value of a
+   continuous state, or STATUS_ERROR after logging the exception. */
+int slave_update_discrete_states(Slave *s, int *changed);
+
 /* do_step(time, step): STATUS_OK with `accepted` the slave's answer, or STATUS_DISCARD after logging
    the exception. */
 int slave_step(Slave *s, double time, double step, int *accepted);

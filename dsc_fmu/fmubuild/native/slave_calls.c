@@ -186,6 +186,10 @@ int slave_call(Slave *s, const char *method, int n, const double *values, const 
     return call_logged(s, method, NULL, n, values, defined, STATUS_ERROR, NULL);
 }
 
+int slave_update_discrete_states(Slave *s, int *changed) {
+    return call_logged(s, "update_discrete_states", NULL, 0, NULL, NULL, STATUS_ERROR, changed);
+}
+
 int slave_step(Slave *s, double time, double step, int *accepted) {
     double values[] = {time, step};
     return call_logged(s, "do_step", s->bound[BOUND_DO_STEP], 2, values, NULL, STATUS_DISCARD, accepted);
