@@ -115,7 +115,7 @@ def test_error_dynamics_are_the_time_derivative_of_the_error_coordinates():
     for _ in range(10):
         plant = [*rng.uniform(-5, 5, 2), rng.uniform(-3, 3), *rng.uniform(-10, 10, 2), *rng.uniform(-5, 5, 2)]
         reference, u = list(rng.uniform(-3, 3, 3)), rng.uniform(-50, 50, 2)
-        dp, dr = plant_derivatives(k, plant, *u), reference_derivatives(ref, 0.0, reference)
+        dp, dr = plant_derivatives(k, 0.0, plant, *u), reference_derivatives(ref, 0.0, reference)
         eps = 1e-6
         def moved(e):
             return np.array(st.error_coordinates(list(np.add(plant, e * np.array(dp))),

@@ -14,8 +14,10 @@ __all__ = [
     "CONTROLLER_PARAMETERS",
     "CONTROLLER_INPUTS",
     "CONTROLLER_OUTPUTS",
+    "DRIVE_OUTPUTS",
     "PROFILES",
     "DISCRETIZATIONS",
+    "VOLTAGE_LIMITS",
     "START_ON",
     "INPUT_COUPLINGS",
     "DEFAULT_TOLERANCE",
@@ -101,6 +103,18 @@ MAX_STEP = Variable(
     POSITIVE, tunable=True, minimum=1e-6, maximum=1.0,
 )
 
+# Whether the motor drivers limit the applied voltage (the ``voltage_limit`` parameter, docs/model.md §5.14).
+VOLTAGE_LIMITS = ("off", "on")
+
+
+def _load(name, unit, what, bound=ANY):
+    return tuple(
+        Variable(f"{name}{i}", 0.0, unit, f"{what}, {side} wheel: tau_d{i}(t) = tau_dc{i} + tau_da{i} "
+                 f"sin(2 pi f_d{i} t + phi_d{i}), a load in (2) (docs/model.md §1, §5.14; 0 = none)", bound)
+        for i, side in ((1, "right"), (2, "left"))
+    )
+
+
 PLANT_PARAMETERS = (
     Variable("R", 0.75, "m", "Half the distance between the driving wheels", POSITIVE),
     Variable("d", 0.3, "m", "Distance from the wheel axle midpoint to the centre of mass", NONNEGATIVE),
@@ -131,6 +145,18 @@ PLANT_PARAMETERS = (
         "those of this one; the first step holds)",
         NONNEGATIVE, integer=True, maximum=1, choices=INPUT_COUPLINGS[:2],
     ),
+    Variable(
+        "voltage_limit", 0, "1",
+        "Motor drivers (docs/model.md §1, §5.14): 0 = off (each motor gets its input u_j), 1 = on (it gets "
+        "clip(u_j, -u_max_j, u_max_j): the driver saturates)",
+        NONNEGATIVE, integer=True, maximum=len(VOLTAGE_LIMITS) - 1, choices=VOLTAGE_LIMITS,
+    ),
+    *(Variable(f"u_max{i}", 200.0, "V", f"Largest voltage magnitude the {side} wheel's driver applies, with "
+               "voltage_limit = on (docs/model.md §5.14)", POSITIVE) for i, side in ((1, "right"), (2, "left"))),
+    *_load("tau_dc", "N.m", "Disturbance torque: constant part"),
+    *_load("tau_da", "N.m", "Disturbance torque: amplitude of the sinusoid", NONNEGATIVE),
+    *_load("f_d", "Hz", "Disturbance torque: frequency of the sinusoid", NONNEGATIVE),
+    *_load("phi_d", "rad", "Disturbance torque: phase of the sinusoid at t = 0"),
     MAX_STEP,
 )
 
@@ -149,6 +175,16 @@ PLANT_OUTPUTS = (
     Variable("i1", 0.0, "A", "Motor current, right wheel"),
     Variable("i2", 0.0, "A", "Motor current, left wheel"),
 )
+
+DRIVE_OUTPUTS = (
+    Variable("u1_applied", 0.0, "V", "Voltage the driver applies to the right motor: clip(u1, -u_max1, u_max1) with "
+             "voltage_limit = on, else u1 (docs/model.md §5.14)"),
+    Variable("u2_applied", 0.0, "V", "Voltage the driver applies to the left motor: clip(u2, -u_max2, u_max2) with "
+             "voltage_limit = on, else u2 (docs/model.md §5.14)"),
+    Variable("saturation_time", 0.0, "s", "Time during which either motor's voltage was limited (docs/model.md "
+             "§5.14)"),
+)
+"""The MobileRobot FMU's outputs after ``PLANT_OUTPUTS``: what its motor drivers do (the controller measures none)."""
 
 PROFILES = ("constant", "figure_eight")
 DISCRETIZATIONS = ("rk4", "euler")
