@@ -118,15 +118,15 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
 
 
 def _check_unlimited(k: PlantCoefficients, g: Gains, vr: float, wr: float, z, name: str) -> None:
-    """ValueError if a motor driver limits its voltage at the operating point ``z``: the loop is not linear there."""
+    """ValueError if a motor driver limits its voltage at ``z`` (27, error coordinates): the loop is not linear there."""
     if k.u_max is None:
         return
     law = control_law(g, list(z[7:]), error_measurements(error_outputs(k, list(z[:7])), vr, wr))
     for i, (u, limit) in enumerate(zip((law.u1, law.u2), k.u_max), start=1):
         if abs(u) > limit:
-            raise ValueError(f"{name}: the voltage limit acts at the operating point (u{i} = {u:.6g} V, u_max{i} = "
-                             f"{limit:g} V): the loop is not linear there; allowed: a limit above the operating "
-                             "point's voltages, or voltage_limit = off")
+            raise ValueError(f"{name}: the voltage limit acts at the operating point of steady tracking or on the "
+                             f"way to it (u{i} = {u:.6g} V, u_max{i} = {limit:g} V): the loop is not linear there; "
+                             "allowed: a limit above the operating point's voltages, or voltage_limit = off")
 
 
 def closed_loop_derivative(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
@@ -208,7 +208,8 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
     Raises
     ------
     ValueError
-        If the scenario's reference profile is not constant or a disturbance torque is a sinusoid.
+        If the scenario's reference profile is not constant, a disturbance torque is a sinusoid, or a motor
+        driver limits its voltage where Newton's method starts or ends (docs/model.md §5.14).
     OperatingPointError
         If the integration or Newton's method fails.
     """
@@ -223,7 +224,10 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
         if not solution.success:
             raise OperatingPointError(f"{scenario.name}: the continuous closed loop failed: {solution.message}")
         state = solution.y[:, -1]
-    return _newton(f, state, _FREE if frozen else range(27)), T
+    _check_unlimited(k, g, vr, wr, state, scenario.name)
+    z = _newton(f, state, _FREE if frozen else range(27))
+    _check_unlimited(k, g, vr, wr, z, scenario.name)
+    return z, T
 
 
 def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = True, rel: float = 1e-6,
@@ -277,7 +281,6 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
     vr, wr = _check_constant(scenario)
     k, g = plant_coefficients(scenario.plant), gains(scenario.controller)
     z, T = operating_point(scenario, at_time, frozen, state)
-    _check_unlimited(k, g, vr, wr, z, scenario.name)
     if source == "model":
         matrices = _model_matrices(k, g, vr, wr, z, rel)
     else:
