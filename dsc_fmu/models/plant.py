@@ -1,5 +1,7 @@
 """The electrically driven differential-drive robot: kinematics (1), dynamics (2), motors (5), drivers and loads."""
 
+from __future__ import annotations
+
 import math
 from dataclasses import dataclass
 from typing import NamedTuple
