@@ -109,8 +109,9 @@ VOLTAGE_LIMITS = ("off", "on")
 
 def _load(name, unit, what, bound=ANY):
     return tuple(
-        Variable(f"{name}{i}", 0.0, unit, f"{what}, {side} wheel: tau_d{i}(t) = tau_dc{i} + tau_da{i} "
-                 f"sin(2 pi f_d{i} t + phi_d{i}), a load in (2) (docs/model.md §1, §5.14; 0 = none)", bound)
+        Variable(f"{name}{i}", 0.0, unit, f"{what} of the disturbance torque on the {side} wheel, tau_d{i}(t) = "
+                 f"tau_dc{i} + tau_da{i} sin(2 pi f_d{i} t + phi_d{i}): a load in (2), none while tau_dc{i} and "
+                 f"tau_da{i} are 0 (docs/model.md §5.14)", bound)
         for i, side in ((1, "right"), (2, "left"))
     )
 
@@ -153,10 +154,10 @@ PLANT_PARAMETERS = (
     ),
     *(Variable(f"u_max{i}", 200.0, "V", f"Largest voltage magnitude the {side} wheel's driver applies, with "
                "voltage_limit = on (docs/model.md §5.14)", POSITIVE) for i, side in ((1, "right"), (2, "left"))),
-    *_load("tau_dc", "N.m", "Disturbance torque: constant part"),
-    *_load("tau_da", "N.m", "Disturbance torque: amplitude of the sinusoid", NONNEGATIVE),
-    *_load("f_d", "Hz", "Disturbance torque: frequency of the sinusoid", NONNEGATIVE),
-    *_load("phi_d", "rad", "Disturbance torque: phase of the sinusoid at t = 0"),
+    *_load("tau_dc", "N.m", "Constant part"),
+    *_load("tau_da", "N.m", "Amplitude of the sinusoid", NONNEGATIVE),
+    *_load("f_d", "Hz", "Frequency of the sinusoid", NONNEGATIVE),
+    *_load("phi_d", "rad", "Phase at t = 0 of the sinusoid"),
     MAX_STEP,
 )
 
