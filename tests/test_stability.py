@@ -307,7 +307,7 @@ def test_a_limit_that_does_not_act_leaves_the_loop_and_one_that_acts_is_refused(
     unacting = st.linearise(_with_plant(scenario, voltage_limit=1, u_max1=150.0, u_max2=150.0))
     for name in ("Ap", "Bp", "Cp", "Ac", "Bc", "Cc", "Dc", "operating_point"):
         assert np.array_equal(getattr(unacting, name), getattr(loop, name)), name
-    with pytest.raises(ValueError, match=r"^on_reference: the voltage limit acts at the operating point .*u_max1 = 60 V"):
+    with pytest.raises(ValueError, match=r"^on_reference: the voltage limit acts at the .*u_max\d = 60 V"):
         st.linearise(_with_plant(scenario, voltage_limit=1, u_max1=60.0, u_max2=60.0), at_time=1.0)
 
 
@@ -319,5 +319,5 @@ def test_a_constant_load_moves_the_operating_point_and_a_sinusoid_is_refused(sce
     current = [loaded.operating_point[j] - loop.operating_point[j] for j in (5, 6)]
     assert current == pytest.approx([5.0 / k.nkt1, 5.0 / k.nkt2], rel=0.05)
     np.testing.assert_allclose(loaded.Ap[3:5, 5:7], loop.Ap[3:5, 5:7], rtol=1e-6)  # d z_dot / d ia = M^-1 N KT
-    with pytest.raises(ValueError, match=r"^on_reference: the disturbance torque of wheel 2 is a sinusoid .*f_d2 = 1 Hz"):
+    with pytest.raises(ValueError, match=r"^on_reference: the disturbance torque of wheel 2 is a sinusoid .*= 1 Hz"):
         st.linearise(_with_plant(scenario, tau_da2=1.0, f_d2=1.0))

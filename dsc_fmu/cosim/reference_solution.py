@@ -12,8 +12,8 @@ from ..models.controller import (
     W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters, weight_norm,
 )
 from ..models.plant import (
-    UNLIMITED, PlantCoefficients, applied_voltages, initial_plant_state, plant_coefficients, plant_derivatives, saturation,
-    saturation_indicators, theta_dot,
+    UNLIMITED, PlantCoefficients, applied_voltages, initial_plant_state, plant_coefficients, plant_derivatives,
+    saturation, saturation_indicators, theta_dot,
 )
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
 from .. import registry

@@ -12,7 +12,9 @@ __all__ = ["RECORDED", "COUNTS", "DERIVED", "COLUMNS", "UNITS", "DTYPE"]
 COUNTS = {PLANT: "saturation_count", CONTROLLER: "beta_guard_count"}
 """The Integer output recorded from an FMU besides its Real outputs, by FMU name."""
 
-RECORDED = {name: (*(v.name for v in FMUS[name].outputs), *((COUNTS[name],) if name in COUNTS else ())) for name in ORDER}
+RECORDED = {
+    name: (*(v.name for v in FMUS[name].outputs), *((COUNTS[name],) if name in COUNTS else ())) for name in ORDER
+}
 
 DERIVED = ("xe", "ye", "thetae", "position_error")
 
@@ -27,7 +29,8 @@ COLUMNS = (
 )
 
 UNITS = {
-    "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m", **{name: "1" for name in COUNTS.values()},
+    "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m",
+    **{name: "1" for name in COUNTS.values()},
     **{v.name: v.unit for name in ORDER for v in FMUS[name].outputs},
 }
 

@@ -32,8 +32,9 @@ def _optional_float(value):
 class MobileRobotModel(Model):
     """Inputs: motor voltages u1, u2. Outputs: pose, rates, currents (eqs. 1-8), the drivers' voltages and limit.
 
-    The outputs after the currents are the voltages the drivers apply and how long they limited them. State ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A; ``constants`` are
-    ``models.plant.plant_coefficients``. With ``voltage_limit`` = on, each driver applies ``clip(u_j, -u_max_j,
+    State ``[x, y, theta, v1, v2, i1, i2]`` in m, m, rad, rad/s, rad/s, A, A; ``constants`` are
+    ``models.plant.plant_coefficients``. After the currents the outputs are the voltages the drivers apply and
+    how long they limited them. With ``voltage_limit`` = on, each driver applies ``clip(u_j, -u_max_j,
     u_max_j)`` (docs/model.md §5.14): chosen at each evaluation in co-simulation, held between events in model
     exchange (``held``, §5.13), where the event indicators ``u_max_j -+ u_j`` change sign at each switch. How often
     the limit acted, ``saturation_count``: in co-simulation the steps in which it acted after a step in which it did
@@ -54,7 +55,7 @@ class MobileRobotModel(Model):
 
     def __init__(self):
         super().__init__()
-        self.held = None  # model exchange: the drivers' switches held since the last event; None: chosen at each evaluation
+        self.held = None  # model exchange: the drivers' switches held since the last event; None: chosen at each call
         self.saturation_count = 0
         self.saturation_time = 0.0  # s, up to the last step or (model exchange) the last event
         self._limited_last_step = False
@@ -74,7 +75,8 @@ class MobileRobotModel(Model):
         x_, y, theta, v1, v2, i1, i2 = x
         since = self._limited_since
         limited = self.saturation_time if since is None else self.saturation_time + (t - since)
-        return [x_, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *applied_voltages(k, u[0], u[1], self.held), limited]
+        applied = applied_voltages(k, u[0], u[1], self.held)
+        return [x_, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *applied, limited]
 
     def indicators(self, x, u):
         return saturation_indicators(self.constants, u[0], u[1])

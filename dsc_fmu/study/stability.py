@@ -113,12 +113,13 @@ def _check_constant(scenario: Scenario) -> tuple[float, float]:
         if plant[f"tau_da{i}"] and plant[f"f_d{i}"]:
             raise ValueError(f"{scenario.name}: the disturbance torque of wheel {i} is a sinusoid (tau_da{i} = "
                              f"{plant[f'tau_da{i}']:g} N.m at f_d{i} = {plant[f'f_d{i}']:g} Hz): the loop has no "
-                             f"operating point of steady tracking; allowed: tau_da{i} = 0 or f_d{i} = 0 (a constant load)")
+                             "operating point of steady tracking; "
+                             f"allowed: tau_da{i} = 0 or f_d{i} = 0 (a constant load)")
     return scenario.reference["vr0"], scenario.reference["wr0"]
 
 
 def _check_unlimited(k: PlantCoefficients, g: Gains, vr: float, wr: float, z, name: str) -> None:
-    """ValueError if a motor driver limits its voltage at ``z`` (27, error coordinates): the loop is not linear there."""
+    """ValueError if a motor driver limits its voltage at ``z`` (27, error coordinates): no linear loop there."""
     if k.u_max is None:
         return
     law = control_law(g, list(z[7:]), error_measurements(error_outputs(k, list(z[:7])), vr, wr))
