@@ -14,11 +14,14 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from .errors import FmuNotFoundError
-from .models.states import CONTROLLER_STATES, EVENT_INDICATORS, FILTER_STATES, PLANT_STATES, REFERENCE_STATES
+from .models.states import (
+    CONTROLLER_STATES, EVENT_INDICATORS, FILTER_STATES, PLANT_EVENT_INDICATORS, PLANT_STATES, REFERENCE_STATES,
+)
 from .models.parameters import (
     CONTROLLER_INPUTS,
     CONTROLLER_OUTPUTS,
     CONTROLLER_PARAMETERS,
+    DRIVE_OUTPUTS,
     PLANT_INPUTS,
     PLANT_OUTPUTS,
     PLANT_PARAMETERS,
@@ -98,7 +101,10 @@ FMUS = {
     spec.name: spec
     for spec in (
         FmuSpec(REFERENCE, "reference_robot.py", REFERENCE_PARAMETERS, (), REFERENCE_OUTPUTS, REFERENCE_STATES),
-        FmuSpec(PLANT, "mobile_robot.py", PLANT_PARAMETERS, PLANT_INPUTS, PLANT_OUTPUTS, PLANT_STATES),
+        FmuSpec(
+            PLANT, "mobile_robot.py", PLANT_PARAMETERS, PLANT_INPUTS, (*PLANT_OUTPUTS, *DRIVE_OUTPUTS), PLANT_STATES,
+            indicators=PLANT_EVENT_INDICATORS, depends={"saturation_active": ("u1", "u2")},
+        ),
         FmuSpec(
             CONTROLLER, "dsc_controller.py", CONTROLLER_PARAMETERS, CONTROLLER_INPUTS, CONTROLLER_OUTPUTS,
             CONTROLLER_STATES, FILTER_STATES, EVENT_INDICATORS,

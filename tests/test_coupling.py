@@ -27,7 +27,7 @@ def _solve(f, t0, x0, t1):
 
 def _plant_step(x, t0, u_at):
     c = plant_coefficients(PLANT)
-    return _solve(lambda t, s: plant_derivatives(c, list(s), *u_at(t)), t0, x, t0 + H)
+    return _solve(lambda t, s: plant_derivatives(c, t, list(s), *u_at(t)), t0, x, t0 + H)
 
 
 def _line(t_then, then, t_now, now):

@@ -45,10 +45,12 @@ EXPECTED = {
         "parameter": (
             "R", "d", "r", "mc", "mw", "Ic", "Iw", "Im", "d11", "d22", "Ra1", "Ra2", "La1", "La2",
             "KE1", "KE2", "KT1", "KT2", "N1", "N2", "x0", "y0", "theta0",
-            "omega1_0", "omega2_0", "i1_0", "i2_0", "coupling", "max_step",
+            "omega1_0", "omega2_0", "i1_0", "i2_0", "coupling", "voltage_limit", "u_max1", "u_max2",
+            "tau_dc1", "tau_dc2", "tau_da1", "tau_da2", "f_d1", "f_d2", "phi_d1", "phi_d2", "max_step",
         ),
         "input": ("u1", "u2"),
-        "output": ("x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2"),
+        "output": ("x", "y", "theta", "theta_dot", "omega1", "omega2", "i1", "i2", "u1_applied", "u2_applied",
+                   "saturation_time", "saturation_count", "saturation_active"),
     },
     "ReferenceRobot": {
         "parameter": ("x0", "y0", "theta0", "profile", "vr0", "wr0", "eight_A", "eight_B", "eight_T", "max_step"),
@@ -77,13 +79,16 @@ EXPECTED = {
 
 TABLES = {
     "ReferenceRobot": {"parameter": P.REFERENCE_PARAMETERS, "input": (), "output": P.REFERENCE_OUTPUTS},
-    "MobileRobot": {"parameter": P.PLANT_PARAMETERS, "input": P.PLANT_INPUTS, "output": P.PLANT_OUTPUTS},
+    "MobileRobot": {"parameter": P.PLANT_PARAMETERS, "input": P.PLANT_INPUTS,
+                    "output": (*P.PLANT_OUTPUTS, *P.DRIVE_OUTPUTS)},
     "DSCController": {
         "parameter": P.CONTROLLER_PARAMETERS, "input": P.CONTROLLER_INPUTS, "output": P.CONTROLLER_OUTPUTS,
     },
 }
-# Outputs registered outside the tables (docs/model.md §5: the beta guard made visible), with their FMI type.
-EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"}}
+# Outputs registered outside the tables (docs/model.md §5: the beta guard and the drivers' limit made visible), with
+# their FMI type.
+EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"},
+                 "MobileRobot": {"saturation_count": "Integer", "saturation_active": "Boolean"}}
 
 REFERENCE_OUT = tuple(v.name for v in P.REFERENCE_OUTPUTS)
 
@@ -391,10 +396,14 @@ def test_model_structure_lists_every_output_state_and_derivative(md, name):
         assert all(d.causality == "input" or d.name in states for d in unknown.dependencies), unknown.variable.name
 
 
+# The outputs that depend on inputs: the plant's applied voltages and whether its drivers limit them (§5.14).
+FEEDTHROUGH = {"u1_applied": ["u1"], "u2_applied": ["u2"], "saturation_active": ["u1", "u2"]}
+
+
 @pytest.mark.parametrize("name", ("MobileRobot", "ReferenceRobot"))
-def test_plant_and_reference_outputs_depend_on_no_input(md, name):
+def test_plant_and_reference_outputs_depend_on_no_input_but_the_drivers(md, name):
     assert {u.variable.name: [d.name for d in u.dependencies if d.causality == "input"] for u in md[name].outputs} == {
-        n: [] for n in EXPECTED[name]["output"]
+        n: FEEDTHROUGH.get(n, []) for n in EXPECTED[name]["output"]
     }
 
 

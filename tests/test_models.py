@@ -95,7 +95,7 @@ def test_plant_derivatives_match_matrix_form(case, seed):
         *np.linalg.solve(S["La"], u - S["Ra"] @ ia - S["NKE"] @ z),
     ]
     k = plant_coefficients(p)
-    np.testing.assert_allclose(plant_derivatives(k, state, *u), expected, rtol=1e-12, atol=1e-9)
+    np.testing.assert_allclose(plant_derivatives(k, 0.0, state, *u), expected, rtol=1e-12, atol=1e-9)
     assert theta_dot(k, v1, v2) == pytest.approx(w, rel=1e-14, abs=1e-15)
 
 

@@ -79,7 +79,7 @@ def test_closed_loop_derivatives_are_the_three_models(name, seed):
     m = [x, y, theta, 0.5 * k.r / k.R * (v1 - v2), v1, v2, i1, i2, xr, yr, thetar, vr, wr, vr_dot]
     assert rs.measurements(k, ref, t, state[rs.PLANT_STATES], state[rs.REFERENCE_STATES]) == m
     law = control_law(g, state[rs.CONTROLLER_STATES], m)
-    expected = [*plant_derivatives(k, state[rs.PLANT_STATES], law.u1, law.u2), *law.derivative,
+    expected = [*plant_derivatives(k, t, state[rs.PLANT_STATES], law.u1, law.u2), *law.derivative,
                 vr * math.cos(thetar), vr * math.sin(thetar), wr]
     assert rs.closed_loop_derivatives(t, np.array(state), k, g, ref) == pytest.approx(expected, rel=1e-15)
     assert expected[27:] == reference_derivatives(ref, t, state[rs.REFERENCE_STATES])

@@ -27,13 +27,13 @@ def md(fmu_paths):
 # --- feedthrough and dependencies ---------------------------------------------------------------
 
 
-def test_plant_outputs_do_not_move_with_the_inputs(new):
+def test_plant_outputs_do_not_move_with_the_inputs_but_the_applied_voltages(new):
     plant = new("MobileRobot")
     plant.set(("u1", "u2"), (3.0, -2.0))
     plant.step(0.0, 0.01)
     before = plant.outputs()
     plant.set(("u1", "u2"), (50.0, 40.0))
-    assert plant.outputs() == before
+    assert plant.outputs() == {**before, "u1_applied": 50.0, "u2_applied": 40.0}
 
 
 def test_controller_outputs_move_only_with_their_declared_inputs(md, new):

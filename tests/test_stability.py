@@ -115,7 +115,7 @@ def test_error_dynamics_are_the_time_derivative_of_the_error_coordinates():
     for _ in range(10):
         plant = [*rng.uniform(-5, 5, 2), rng.uniform(-3, 3), *rng.uniform(-10, 10, 2), *rng.uniform(-5, 5, 2)]
         reference, u = list(rng.uniform(-3, 3, 3)), rng.uniform(-50, 50, 2)
-        dp, dr = plant_derivatives(k, plant, *u), reference_derivatives(ref, 0.0, reference)
+        dp, dr = plant_derivatives(k, 0.0, plant, *u), reference_derivatives(ref, 0.0, reference)
         eps = 1e-6
         def moved(e):
             return np.array(st.error_coordinates(list(np.add(plant, e * np.array(dp))),
@@ -294,3 +294,30 @@ def test_linear_coupling_predicted_boundaries_of_on_reference(loop):
         assert 0.01 < linear < hold
     with pytest.raises(ValueError, match="coupling = 'cubic' is not allowed; allowed: hold, linear"):
         st.spectral_radius(loop, 1e-3, "jacobi", coupling="cubic")
+
+
+# --- The drivers' limit and the disturbance torques (docs/model.md §5.14) ----------------------------------
+
+
+def _with_plant(scenario, **values):
+    return dataclasses.replace(scenario, plant={**scenario.plant, **values})
+
+
+def test_a_limit_that_does_not_act_leaves_the_loop_and_one_that_acts_is_refused(scenario, loop):
+    unacting = st.linearise(_with_plant(scenario, voltage_limit=1, u_max1=150.0, u_max2=150.0))
+    for name in ("Ap", "Bp", "Cp", "Ac", "Bc", "Cc", "Dc", "operating_point"):
+        assert np.array_equal(getattr(unacting, name), getattr(loop, name)), name
+    with pytest.raises(ValueError, match=r"^on_reference: the voltage limit acts at the .*u_max\d = 60 V"):
+        st.linearise(_with_plant(scenario, voltage_limit=1, u_max1=60.0, u_max2=60.0), at_time=1.0)
+
+
+def test_a_constant_load_moves_the_operating_point_and_a_sinusoid_is_refused(scenario, loop):
+    """A constant load of 5 N.m on each wheel: the motors carry it with about tau_d / (N KT) more current (eq. (2)
+    with z_dot = 0, the speeds those of the circle); a sinusoid leaves no operating point."""
+    loaded = st.linearise(_with_plant(scenario, tau_dc1=5.0, tau_dc2=5.0, f_d1=2.0))
+    k = plant_coefficients(scenario.plant)
+    current = [loaded.operating_point[j] - loop.operating_point[j] for j in (5, 6)]
+    assert current == pytest.approx([5.0 / k.nkt1, 5.0 / k.nkt2], rel=0.05)
+    np.testing.assert_allclose(loaded.Ap[3:5, 5:7], loop.Ap[3:5, 5:7], rtol=1e-6)  # d z_dot / d ia = M^-1 N KT
+    with pytest.raises(ValueError, match=r"^on_reference: the disturbance torque of wheel 2 is a sinusoid .*= 1 Hz"):
+        st.linearise(_with_plant(scenario, tau_da2=1.0, f_d2=1.0))

@@ -9,7 +9,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..registry import CONTROLLER
 from ..scenario import Scenario, one_of
 from . import signals
 from .loading import LoadedFmus
@@ -22,13 +21,14 @@ __all__: list[str] = []  # the package's own: MODES, ExchangeRun, cosimulate_exc
 @dataclass
 class ExchangeRun:
     """What a run under another master's exchange recorded: the rows (dtype ``signals.DTYPE``), the inputs each
-    FMU held over each step (``time``: the step's start) and, Jacobi only, the controller's outputs read right
-    after its step, before its inputs are updated (row 0: after the first exchange), as an importer replaying it
-    alone records them."""
+    FMU held over each step (``time``: the step's start) and, Jacobi only, the outputs of each FMU with inputs read
+    right after its step, before its inputs are updated (row 0: after the first exchange), as an importer replaying
+    it alone records them (they differ from the rows' where an output depends on an input: the controller's ``u``,
+    the plant's applied voltages), by FMU name."""
 
     result: np.ndarray
     inputs: dict
-    controller_before_inputs: np.ndarray | None = None
+    before_inputs: dict | None = None
 
 
 class _StepThenTransfer(Exchange):
@@ -98,19 +98,20 @@ MODES = tuple(_EXCHANGES)
 
 
 class _Trace:
-    """What each FMU held over each step, and (``before``) the controller's outputs right after its step."""
+    """What each FMU held over each step, and (``before``) the outputs of each FMU with inputs right after its step."""
 
     def __init__(self, wiring: Wiring, before: bool):
         self.wiring = wiring
         self.inputs = {end: [] for end in wiring.feeds}
-        self.before = [] if before else None
+        self.before = {end: [] for end in wiring.feeds} if before else None
 
     def stepped(self, t: float, end: float) -> None:
         for name, feed in self.wiring.feeds.items():
             self.inputs[name].append((t, *feed.held))
         if self.before is not None:
-            values = self.wiring.controller.get_values(signals.RECORDED[CONTROLLER])
-            self.before.append((end, *(values[name] for name in signals.RECORDED[CONTROLLER])))
+            for name, rows in self.before.items():
+                values = self.wiring.fmus[name].get_values(signals.RECORDED[name])
+                rows.append((end, *(values[output] for output in signals.RECORDED[name])))
 
 
 def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_size: float | None = None,
@@ -130,6 +131,8 @@ def cosimulate_exchange(scenario: Scenario, fmu_paths: dict, mode: str, *, step_
               for name, rows in trace.inputs.items()}
     before = None
     if trace.before is not None:
-        columns = ["time", *signals.RECORDED[CONTROLLER]]
-        before = np.array([tuple(result[columns][0]), *trace.before], dtype=[(c, np.float64) for c in columns])
-    return ExchangeRun(result=result, inputs=inputs, controller_before_inputs=before)
+        before = {}
+        for name, rows in trace.before.items():
+            columns = ["time", *signals.RECORDED[name]]
+            before[name] = np.array([tuple(result[columns][0]), *rows], dtype=[(c, np.float64) for c in columns])
+    return ExchangeRun(result=result, inputs=inputs, before_inputs=before)

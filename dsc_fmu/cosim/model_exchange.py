@@ -75,7 +75,7 @@ class _Ode:
         self.sizes = [fmu.states for fmu in self.fmus]
         self.offsets = np.cumsum([0, *self.sizes])
         self.buffers = [(ctypes.c_double * n)() for n in self.sizes]
-        self.indicators = (ctypes.c_double * wiring.controller.indicators)()
+        self.indicators = [(fmu, (ctypes.c_double * fmu.indicators)()) for fmu in self.fmus if fmu.indicators]
         self.evaluated = None
         self.at = 0.0
         self.evaluations = 0
@@ -135,14 +135,17 @@ class _Ode:
         event.terminal = True
         return event
 
-    def indicator(self, index: int):
-        """The solver's event function of the controller's event indicator ``index``."""
-        controller = self.wiring.controller
+    def events(self) -> list:
+        """The solver's event functions: one per event indicator of each FMU, in order."""
+        return [self.indicator(fmu, buffer, index) for fmu, buffer in self.indicators for index in range(len(buffer))]
+
+    def indicator(self, fmu, buffer, index: int):
+        """The solver's event function of the event indicator ``index`` of ``fmu``, read into ``buffer``."""
 
         def event(t: float, y: np.ndarray) -> float:
             self.load(t, y)
-            controller.call(controller.instance.getEventIndicators, self.indicators, len(self.indicators))
-            return self.indicators[index]
+            fmu.call(fmu.instance.getEventIndicators, buffer, len(buffer))
+            return buffer[index]
 
         event.terminal = True
         return event
@@ -186,7 +189,7 @@ def _integrate(ode: _Ode, recorder: Recorder, times: np.ndarray, tolerance: floa
     y = ode.states()
     atol = tolerance * ode.gather(lambda fmu, buffer, n: fmu.call(fmu.instance.getNominalsOfContinuousStates,
                                                                   buffer, n))
-    events = [*(ode.indicator(i) for i in range(len(ode.indicators))), ode.stop_event()]
+    events = [*ode.events(), ode.stop_event()]
     t, stop, handled = 0.0, times[-1], 0
     ode.load(t, y)
     recorder.record(t)

@@ -12,7 +12,10 @@ from ..models.adaptation import PROJECTION, project_estimates
 from ..models.controller import (
     W1_SLICE, W2_SLICE, Gains, control_law, gains, initial_controller_state, start_filters, weight_norm,
 )
-from ..models.plant import PlantCoefficients, initial_plant_state, plant_coefficients, plant_derivatives, theta_dot
+from ..models.plant import (
+    UNLIMITED, PlantCoefficients, applied_voltages, initial_plant_state, plant_coefficients, plant_derivatives,
+    saturation, saturation_indicators, theta_dot,
+)
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
 from .. import registry
 from ..scenario import Scenario
@@ -61,17 +64,50 @@ def controller_state(g: Gains, state: list) -> list:
 
 
 def closed_loop_derivatives(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
-    """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by ``u`` of (26),
-    controller (15)-(27) fed the current measurements (its estimates in their sets: ``controller_state``),
-    reference robot (9)."""
+    """Time derivative of the 30 closed-loop states: plant (6)-(8) driven continuously by ``u`` of (26) through its
+    drivers, disturbed at ``t`` (docs/model.md §5.14), controller (15)-(27) fed the current measurements (its
+    estimates in their sets: ``controller_state``), reference robot (9)."""
     state = list(state)
     plant, reference = state[PLANT_STATES], state[REFERENCE_STATES]
-    law = control_law(g, controller_state(g, state), measurements(k, ref_params, t, plant, reference))
+    law = _law(t, state, k, g, ref_params)
     return [
-        *plant_derivatives(k, plant, law.u1, law.u2),
+        *plant_derivatives(k, t, plant, law.u1, law.u2),
         *law.derivative,
         *reference_derivatives(ref_params, t, reference),
     ]
+
+
+def _law(t: float, state, k: PlantCoefficients, g: Gains, ref_params: dict):
+    """The control law at ``t`` and the closed-loop ``state``."""
+    state = list(state)
+    return control_law(g, controller_state(g, state), measurements(k, ref_params, t, state[PLANT_STATES],
+                                                                   state[REFERENCE_STATES]))
+
+
+def _crossing(index: int):
+    """The solver's event function of the drivers' event indicator ``index`` (``saturation_indicators``)."""
+
+    def event(t, state, k, g, ref_params):
+        law = _law(t, state, k, g, ref_params)
+        return saturation_indicators(k, law.u1, law.u2)[index]
+
+    return event
+
+
+def _limited_stretches(solution, k: PlantCoefficients, g: Gains, ref_params: dict) -> list:
+    """``(start, end)`` in s of each stretch in which a driver limits its voltage: between the roots of the
+    indicators, limited where it is at the stretch's middle; adjacent limited stretches joined."""
+    edges = sorted({0.0, *np.concatenate(solution.t_events).tolist(), float(solution.t[-1])})
+    stretches = []
+    for start, end in zip(edges, edges[1:]):
+        law = _law(0.5 * (start + end), solution.sol(0.5 * (start + end)), k, g, ref_params)
+        if saturation(k, law.u1, law.u2) == UNLIMITED:
+            continue
+        if stretches and stretches[-1][1] == start:
+            stretches[-1] = (stretches[-1][0], end)
+        else:
+            stretches.append((start, end))
+    return stretches
 
 
 def initial_closed_loop_state(scenario: Scenario) -> list:
@@ -105,7 +141,10 @@ def reference_solution(
         One row per time, dtype ``signals.DTYPE``; ``beta_guard_count`` counts the output rows so far at which
         the beta guard acts (docs/model.md §5). The switches are chosen at each evaluation, as co-simulation
         chooses them; with ``adaptation`` = projection the estimates are those in their sets
-        (``controller_state``).
+        (``controller_state``). With the drivers' limit the solver finds the roots of their indicators
+        (docs/model.md §5.14) and integrates across them; ``saturation_count`` counts the stretches between
+        them in which a driver limits its voltage, begun by the row's time, ``saturation_time`` their length
+        up to it.
 
     Raises
     ------
@@ -119,12 +158,15 @@ def reference_solution(
     if times.ndim != 1 or times.size == 0 or times[0] < 0 or np.any(np.diff(times) <= 0):
         raise ValueError("times must be a non-empty, strictly ascending sequence of times >= 0")
     k, g, ref = plant_coefficients(scenario.plant), gains(scenario.controller), scenario.reference
+    limited = k.u_max is not None
+    events = {"events": [_crossing(i) for i in range(4)], "dense_output": True} if limited else {}
     solution = solve_ivp(
         closed_loop_derivatives, (0.0, times[-1]), initial_closed_loop_state(scenario),
-        method=method, t_eval=times, args=(k, g, ref), rtol=rtol, atol=atol,
+        method=method, t_eval=times, args=(k, g, ref), rtol=rtol, atol=atol, **events,
     )
     if not solution.success:
         raise RuntimeError(f"reference solution of {scenario.name!r} failed: {solution.message}")
+    stretches = _limited_stretches(solution, k, g, ref) if limited else []
 
     rows = []
     guard_count = 0
@@ -139,9 +181,14 @@ def reference_solution(
             law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, xc[0], xc[1],
             weight_norm(W1_hat), weight_norm(W2_hat), *W1_hat, *W2_hat, guard_count,
         ]
+        drives = [  # as the plant FMU's outputs() and saturation_count
+            *applied_voltages(k, law.u1, law.u2),
+            math.fsum(min(end, t) - start for start, end in stretches if start < t),
+            sum(start <= t for start, _ in stretches),
+        ]
         rows.append({
             "time": t,
-            **dict(zip(signals.RECORDED[registry.PLANT], m[:8], strict=True)),
+            **dict(zip(signals.RECORDED[registry.PLANT], [*m[:8], *drives], strict=True)),
             **dict(zip(signals.RECORDED[registry.REFERENCE], m[8:], strict=True)),
             **dict(zip(signals.RECORDED[registry.CONTROLLER], controller, strict=True)),
         })

@@ -5,13 +5,15 @@ from __future__ import annotations
 import numpy as np
 
 from ..models.controller import wrap
-from ..registry import CONTROLLER, FMUS, ORDER
+from ..registry import CONTROLLER, FMUS, ORDER, PLANT
 
-__all__ = ["RECORDED", "DERIVED", "COLUMNS", "UNITS", "DTYPE"]
+__all__ = ["RECORDED", "COUNTS", "DERIVED", "COLUMNS", "UNITS", "DTYPE"]
+
+COUNTS = {PLANT: "saturation_count", CONTROLLER: "beta_guard_count"}
+"""The Integer output recorded from an FMU besides its Real outputs, by FMU name."""
 
 RECORDED = {
-    name: (*(v.name for v in FMUS[name].outputs), *(("beta_guard_count",) if name == CONTROLLER else ()))
-    for name in ORDER
+    name: (*(v.name for v in FMUS[name].outputs), *((COUNTS[name],) if name in COUNTS else ())) for name in ORDER
 }
 
 DERIVED = ("xe", "ye", "thetae", "position_error")
@@ -27,7 +29,8 @@ COLUMNS = (
 )
 
 UNITS = {
-    "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m", "beta_guard_count": "1",
+    "time": "s", "xe": "m", "ye": "m", "thetae": "rad", "position_error": "m",
+    **{name: "1" for name in COUNTS.values()},
     **{v.name: v.unit for name in ORDER for v in FMUS[name].outputs},
 }
 

@@ -30,6 +30,12 @@ Dynamics (2): M z_dot + C(q_dot) z + D z = tau
   D   = diag(d11, d22)
 DC motors through gears (5):
   tau = N KT ia,   La ia_dot = u - Ra ia - N KE z
+Motor drivers and loads (not the paper's; off by default):
+  voltage_limit = 1 (on): the motors get ua_j = clip(u_j, -u_max_j, u_max_j) instead of u_j
+  (outputs u1_applied, u2_applied; saturation_count, saturation_time, saturation_active say how often
+  and how long; in model exchange held between events at the roots of u_max_j -+ u_j)
+  disturbance torque in (2): M z_dot + C z + D z = tau - tau_d,
+  tau_dj(t) = tau_dcj + tau_daj sin(2 pi f_dj t + phi_dj)   (N.m, Hz, rad; positive: a load)
 Integrated with classical RK4 in equal sub-steps of at most max_step per communication step.""",
     REFERENCE: """\
 Reference robot (9):

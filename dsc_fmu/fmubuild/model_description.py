@@ -38,6 +38,8 @@ UNITS = {
     "V.s/rad": {"kg": 1, "m": 2, "s": -2, "A": -1, "rad": -1},
     "N.m/A": {"kg": 1, "m": 2, "s": -2, "A": -1},
     "N.m.s/rad": {"kg": 1, "m": 2, "s": -1, "rad": -1},
+    "N.m": {"kg": 1, "m": 2, "s": -2},
+    "Hz": {"s": -1},
 }
 
 def _unit_definitions(used) -> ET.Element:
@@ -231,5 +233,6 @@ def complete_model_description(xml: bytes, spec: FmuSpec, fmi_version: int = 2) 
 def documentation(root: ET.Element, spec: FmuSpec, requirements: str) -> bytes:
     """The FMU's ``documentation/index.html`` (UTF-8) from its completed model description and what the importing
     machine needs."""
-    units = {"time": "s", "beta_guard_count": "1", **{name: v.unit for name, v in spec.variables.items()}}
+    units = {"time": "s", "beta_guard_count": "1", "saturation_count": "1",
+             **{name: v.unit for name, v in spec.variables.items()}}
     return documentation_html(root, spec.name, units, requirements).encode("utf-8")

@@ -16,7 +16,7 @@ from .. import __version__
 from ..cosim import signals
 from ..cosim.exchange import cosimulate_exchange
 from ..identity import require_fmi2
-from ..registry import CONTROLLER, ORDER, fmu_files
+from ..registry import ORDER, fmu_files
 from ..scenario import Scenario, load_scenario
 
 __all__ = ["write_crosscheck", "DEFAULT_STOP_TIME", "FMI2_ONLY"]
@@ -120,7 +120,7 @@ def write_crosscheck(out_dir: Path | str, fmu_paths: dict, *, scenario: Scenario
         shutil.copyfile(fmu_paths[name], folder / f"{name}.fmu")
         columns = ["time", *signals.RECORDED[name]]
         reference = np.zeros(len(run.result), dtype=[(c, np.float64) for c in columns])
-        source = run.controller_before_inputs if name == CONTROLLER else run.result
+        source = run.before_inputs.get(name, run.result)
         for c in columns:
             reference[c] = source[c]
         _write_csv(folder / f"{name}_ref.csv", reference)

@@ -14,9 +14,11 @@ __all__ = [
     "CONTROLLER_PARAMETERS",
     "CONTROLLER_INPUTS",
     "CONTROLLER_OUTPUTS",
+    "DRIVE_OUTPUTS",
     "PROFILES",
     "DISCRETIZATIONS",
     "ADAPTATIONS",
+    "VOLTAGE_LIMITS",
     "START_ON",
     "INPUT_COUPLINGS",
     "DEFAULT_TOLERANCE",
@@ -102,6 +104,19 @@ MAX_STEP = Variable(
     POSITIVE, tunable=True, minimum=1e-6, maximum=1.0,
 )
 
+# Whether the motor drivers limit the applied voltage (the ``voltage_limit`` parameter, docs/model.md §5.14).
+VOLTAGE_LIMITS = ("off", "on")
+
+
+def _load(name, unit, what, bound=ANY):
+    return tuple(
+        Variable(f"{name}{i}", 0.0, unit, f"{what} of the disturbance torque on the {side} wheel, tau_d{i}(t) = "
+                 f"tau_dc{i} + tau_da{i} sin(2 pi f_d{i} t + phi_d{i}): a load in (2), none while tau_dc{i} and "
+                 f"tau_da{i} are 0 (docs/model.md §5.14)", bound)
+        for i, side in ((1, "right"), (2, "left"))
+    )
+
+
 PLANT_PARAMETERS = (
     Variable("R", 0.75, "m", "Half the distance between the driving wheels", POSITIVE),
     Variable("d", 0.3, "m", "Distance from the wheel axle midpoint to the centre of mass", NONNEGATIVE),
@@ -132,6 +147,18 @@ PLANT_PARAMETERS = (
         "those of this one; the first step holds)",
         NONNEGATIVE, integer=True, maximum=1, choices=INPUT_COUPLINGS[:2],
     ),
+    Variable(
+        "voltage_limit", 0, "1",
+        "Motor drivers (docs/model.md §1, §5.14): 0 = off (each motor gets its input u_j), 1 = on (it gets "
+        "clip(u_j, -u_max_j, u_max_j): the driver saturates)",
+        NONNEGATIVE, integer=True, maximum=len(VOLTAGE_LIMITS) - 1, choices=VOLTAGE_LIMITS,
+    ),
+    *(Variable(f"u_max{i}", 200.0, "V", f"Largest voltage magnitude the {side} wheel's driver applies, with "
+               "voltage_limit = on (docs/model.md §5.14)", POSITIVE) for i, side in ((1, "right"), (2, "left"))),
+    *_load("tau_dc", "N.m", "Constant part"),
+    *_load("tau_da", "N.m", "Amplitude of the sinusoid", NONNEGATIVE),
+    *_load("f_d", "Hz", "Frequency of the sinusoid", NONNEGATIVE),
+    *_load("phi_d", "rad", "Phase at t = 0 of the sinusoid"),
     MAX_STEP,
 )
 
@@ -150,6 +177,16 @@ PLANT_OUTPUTS = (
     Variable("i1", 0.0, "A", "Motor current, right wheel"),
     Variable("i2", 0.0, "A", "Motor current, left wheel"),
 )
+
+DRIVE_OUTPUTS = (
+    Variable("u1_applied", 0.0, "V", "Voltage the driver applies to the right motor: clip(u1, -u_max1, u_max1) with "
+             "voltage_limit = on, else u1 (docs/model.md §5.14)"),
+    Variable("u2_applied", 0.0, "V", "Voltage the driver applies to the left motor: clip(u2, -u_max2, u_max2) with "
+             "voltage_limit = on, else u2 (docs/model.md §5.14)"),
+    Variable("saturation_time", 0.0, "s", "Time during which either motor's voltage was limited (docs/model.md "
+             "§5.14)"),
+)
+"""The MobileRobot FMU's outputs after ``PLANT_OUTPUTS``: what its motor drivers do (the controller measures none)."""
 
 PROFILES = ("constant", "figure_eight")
 DISCRETIZATIONS = ("rk4", "euler")

@@ -15,6 +15,7 @@ from .plant import plant_coefficients
 
 __all__ = [
     "ContinuousState", "PLANT_STATES", "REFERENCE_STATES", "CONTROLLER_STATES", "FILTER_STATES", "EVENT_INDICATORS",
+    "PLANT_EVENT_INDICATORS",
 ]
 
 # The unit of a quantity's time derivative, for the units of the states.
@@ -97,3 +98,12 @@ EVENT_INDICATORS = (
              "stops acting on an estimate (adaptation = projection; 1 for the other laws; docs/model.md §5.13)"),
 )
 """The controller's event indicators, in the order of ``controller.event_indicators``."""
+
+PLANT_EVENT_INDICATORS = tuple(
+    Variable(f"u{i}_{side}_indicator", 0.0, "V", f"{expression}: changes sign where the {wheel} wheel's driver "
+             f"{what} (docs/model.md §5.13; 1 with voltage_limit = off)")
+    for i, wheel in ((1, "right"), (2, "left"))
+    for side, expression, what in (("upper", f"u_max{i} - u{i}", "saturates at +u_max"),
+                                   ("lower", f"u_max{i} + u{i}", "saturates at -u_max"))
+)
+"""The plant's event indicators, in the order of ``plant.saturation_indicators``."""

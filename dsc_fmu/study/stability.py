@@ -103,11 +103,31 @@ class LinearLoop:
 
 
 def _check_constant(scenario: Scenario) -> tuple[float, float]:
-    """``(vr0, wr0)``; ValueError unless the profile is constant (the only one with steady tracking)."""
+    """``(vr0, wr0)``; ValueError unless the profile is constant (the only one with steady tracking) and the
+    disturbance torques are (a sinusoid makes the loop time-varying: no operating point)."""
     if PROFILES[int(scenario.reference["profile"])] != "constant":
         raise ValueError(f"{scenario.name}: the reference profile must be 'constant' for an operating point "
                          f"of steady tracking; got {PROFILES[int(scenario.reference['profile'])]!r}")
+    plant = scenario.plant
+    for i in (1, 2):
+        if plant[f"tau_da{i}"] and plant[f"f_d{i}"]:
+            raise ValueError(f"{scenario.name}: the disturbance torque of wheel {i} is a sinusoid (tau_da{i} = "
+                             f"{plant[f'tau_da{i}']:g} N.m at f_d{i} = {plant[f'f_d{i}']:g} Hz): the loop has no "
+                             "operating point of steady tracking; "
+                             f"allowed: tau_da{i} = 0 or f_d{i} = 0 (a constant load)")
     return scenario.reference["vr0"], scenario.reference["wr0"]
+
+
+def _check_unlimited(k: PlantCoefficients, g: Gains, vr: float, wr: float, z, name: str) -> None:
+    """ValueError if a motor driver limits its voltage at ``z`` (27, error coordinates): no linear loop there."""
+    if k.u_max is None:
+        return
+    law = control_law(g, list(z[7:]), error_measurements(error_outputs(k, list(z[:7])), vr, wr))
+    for i, (u, limit) in enumerate(zip((law.u1, law.u2), k.u_max), start=1):
+        if abs(u) > limit:
+            raise ValueError(f"{name}: the voltage limit acts at the operating point of steady tracking or on the "
+                             f"way to it (u{i} = {u:.6g} V, u_max{i} = {limit:g} V): the loop is not linear there; "
+                             "allowed: a limit above the operating point's voltages, or voltage_limit = off")
 
 
 def closed_loop_derivative(k: PlantCoefficients, g: Gains, vr: float, wr: float, z) -> np.ndarray:
@@ -189,7 +209,8 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
     Raises
     ------
     ValueError
-        If the scenario's reference profile is not constant.
+        If the scenario's reference profile is not constant, a disturbance torque is a sinusoid, or a motor
+        driver limits its voltage where Newton's method starts or ends (docs/model.md §5.14).
     OperatingPointError
         If the integration or Newton's method fails.
     """
@@ -204,7 +225,10 @@ def operating_point(scenario: Scenario, at_time: float | None = None, frozen: bo
         if not solution.success:
             raise OperatingPointError(f"{scenario.name}: the continuous closed loop failed: {solution.message}")
         state = solution.y[:, -1]
-    return _newton(f, state, _FREE if frozen else range(27)), T
+    _check_unlimited(k, g, vr, wr, state, scenario.name)
+    z = _newton(f, state, _FREE if frozen else range(27))
+    _check_unlimited(k, g, vr, wr, z, scenario.name)
+    return z, T
 
 
 def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = True, rel: float = 1e-6,
@@ -246,8 +270,9 @@ def linearise(scenario: Scenario, at_time: float | None = None, frozen: bool = T
     Raises
     ------
     ValueError
-        If the scenario's reference profile is not constant, ``source`` is not one of ``SOURCES``, or
-        "fmus" is asked for without ``fmu_paths``.
+        If the scenario's reference profile is not constant, a disturbance torque is a sinusoid, a motor
+        driver limits its voltage at the operating point, ``source`` is not one of ``SOURCES``, or "fmus" is
+        asked for without ``fmu_paths``.
     OperatingPointError
         If no operating point is found.
     """

@@ -44,7 +44,8 @@ def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -
     """The derivative of the plant state in error coordinates, eqs. (11), (7), (8).
 
     Eq. (11) gives S11, S12, S13bar; the wheel and motor rows (7), (8) come from
-    ``models.plant.plant_derivatives`` (they do not depend on the pose).
+    ``models.plant.plant_derivatives`` (they do not depend on the pose), with the drivers' limit and the
+    disturbance torques at t = 0 (``study.stability`` takes only a constant one).
 
     Parameters
     ----------
@@ -66,7 +67,7 @@ def error_plant_derivatives(k: PlantCoefficients, vr: float, wr: float, xp, u) -
     """
     S11, S12, S13bar, v1, v2, i1, i2 = xp
     w = theta_dot(k, v1, v2)
-    rows = plant_derivatives(k, [0.0, 0.0, 0.0, v1, v2, i1, i2], u[0], u[1])
+    rows = plant_derivatives(k, 0.0, [0.0, 0.0, 0.0, v1, v2, i1, i2], u[0], u[1])
     return [w * S12 - 0.5 * k.r * (v1 + v2) + vr * math.cos(S13bar), -w * S11 + vr * math.sin(S13bar),
             wr - w, *rows[3:]]
 
