@@ -1,0 +1,118 @@
+"""Which functions of the FMUs' models are traced to C, with which arguments, and the C file of them (docs/traced-c.md).
+
+Each FMU's model (``fmu.robot_models``, ``fmu.controller_model``) is traced through its own hooks, ``rates`` and
+``outputs``, with its parameters a run-time array in the order of its ``PARAMETERS`` table (``p``), so that what
+it derives from them (``derive``: ``plant_coefficients``, ``gains``) is traced too and one C function serves every
+parameter value. The RK4 loops call the traced rates once per evaluation.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from ..fmu.controller_model import DSCControllerModel
+from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
+from ..models.controller import Switches, control_law
+from . import emit_c
+from .trace import TRACE_MATH, Graph, Untraceable, trace, trace_rk4_substep
+
+__all__ = ["TracedModels", "trace_models"]
+
+MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
+STATES = {"plant": 7, "reference": 3, "controller": 20}
+
+
+def _model(kind: str, p: list, held=None):
+    """The FMU's model with the traced parameters ``p`` (and the controller's switches ``held``)."""
+    model = MODELS[kind]()
+    model.p = dict(zip(model.p, p))
+    if held is not None:
+        model.held = Switches(held[0], held[1] != 0.0)
+    return model
+
+
+def _arguments(kind: str, held: bool = False) -> dict:
+    model = MODELS[kind]
+    arguments = {"p": len(model.PARAMETERS), "t": None, "x": STATES[kind]}
+    if model.INPUTS:
+        arguments["u"] = len(model.INPUTS)
+    if held:
+        arguments["s"] = 2
+    return arguments
+
+
+def _hook(kind: str, hook: str, held: bool):
+    def function(p, t, x, u=None, s=None):
+        return getattr(_model(kind, p, s), hook)(t, x, u, TRACE_MATH)
+
+    return function
+
+
+def _law(p, t, x, u):
+    """The controller's derivative, then whether the beta guard acts and beta: what its RK4 watches (co-simulation)."""
+    law = control_law(_model("controller", p).constants, x, u, None, TRACE_MATH)
+    return [*law.derivative, law.guarded, law.beta]
+
+
+@dataclass
+class TracedModels:
+    """The traced functions, the C file and what could not be traced.
+
+    Parameters
+    ----------
+    functions : dict
+        Each traced function (``trace.Traced``) by its C name.
+    untraceable : dict
+        The reason, by the C name of each function that could not be traced (its FMU keeps the Python path).
+    source : str
+        The C file: ``emit_c.value_function`` of each, ``emit_c.tangent_function`` of the rates and outputs
+        (differentiable in ``x`` and ``u``), ``emit_c.rk4_function`` of each model's RK4 loop.
+    """
+
+    functions: dict
+    untraceable: dict
+    source: str
+
+
+def trace_models() -> TracedModels:
+    """Trace the three FMUs' models and write their C.
+
+    Returns
+    -------
+    TracedModels
+        The functions, the C source and the untraceable ones with their reasons.
+    """
+    graph = Graph()
+    functions, untraceable, definitions = {}, {}, []
+
+    def add(name, make, tangent=()):
+        try:
+            traced = functions[name] = make()
+            definitions.append(emit_c.value_function(traced))
+            if tangent:
+                definitions.append(emit_c.tangent_function(traced, tangent))
+        except Untraceable as error:
+            untraceable[name] = str(error)
+
+    for kind, model in MODELS.items():
+        knowns = ("x", "u") if model.INPUTS else ("x",)
+        for hook in ("rates", "outputs"):
+            for held in (False, True) if kind == "controller" else (False,):
+                name = f"dsc_{kind}_{hook}{'_held' if held else ''}"
+                add(name, lambda: trace(_hook(kind, hook, held), _arguments(kind, held), name, graph), knowns)
+    add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph))
+    for kind, rates in (("plant", "dsc_plant_rates"), ("reference", "dsc_reference_rates"),
+                        ("controller", "dsc_controller_law")):
+        name = f"dsc_{kind}_rk4"
+        if rates in untraceable:
+            untraceable[name] = f"{name}: its rates are not traced ({untraceable[rates]})"
+            continue
+        arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
+        try:
+            substep = trace_rk4_substep(functions[rates], STATES[kind], lambda t, p, **given: given, arguments, name)
+        except Untraceable as error:
+            untraceable[name] = str(error)
+            continue
+        functions[name] = substep
+        definitions.append(emit_c.rk4_function(substep, STATES[kind], 2 if kind == "controller" else 0))
+    return TracedModels(functions, untraceable, emit_c.c_file(definitions))
