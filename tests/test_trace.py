@@ -8,17 +8,14 @@ import ctypes
 import math
 import random
 import struct
-import subprocess
-import sys
 
 import pytest
 
 from dsc_fmu.fmu.controller_model import DSCControllerModel
 from dsc_fmu.fmu.directional import seeded
 from dsc_fmu.fmu.robot_models import MobileRobotModel, ReferenceRobotModel
-from dsc_fmu.fmubuild.emit_c import C_FLAGS, TRACED_MATH_HEADER
 from dsc_fmu.fmubuild.trace import TRACE_MATH, Untraceable, trace
-from dsc_fmu.fmubuild.traced_models import trace_models
+from dsc_fmu.fmubuild.traced_models import compile_library, trace_models
 from dsc_fmu.models.controller import Switches, control_law, switches
 from dsc_fmu.models.dual import DUAL_MATH, tangent
 from dsc_fmu.models.rk4 import rk4_integrate
@@ -34,14 +31,7 @@ def traced():
 
 @pytest.fixture(scope="module")
 def library(traced, tmp_path_factory):
-    folder = tmp_path_factory.mktemp("traced")
-    source = folder / "traced.c"
-    source.write_text(traced.source)
-    output = folder / "traced.so"
-    subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", "x86_64-linux-gnu.2.17", "-shared", "-fPIC", "-O2",
-                    *C_FLAGS, "-Wall", "-Werror", "-Wno-unused-variable", "-DDSC_TRACED_API=",
-                    f"-I{TRACED_MATH_HEADER.parent}", str(source), "-o", str(output), "-lm"], check=True)
-    return ctypes.CDLL(str(output))
+    return ctypes.CDLL(str(compile_library(traced.source, tmp_path_factory.mktemp("traced"))))
 
 
 def _array(values):
@@ -208,7 +198,10 @@ def test_rk4_loops_bit_for_bit(library, kind):
         state, watch = _array(x), _array([0.0, 0.0, 0.0])
         arguments = [_array(list(p.values()))] + ([] if u is None else [_array(u)])
         arguments += [ctypes.c_double(t0), ctypes.c_double(step_size), ctypes.c_long(10), state]
-        fault = getattr(library, f"dsc_{kind}_rk4")(*arguments, *([watch] if kind == "controller" else []))
+        function = getattr(library, f"dsc_{kind}_rk4")
+        function.argtypes = [P] * (1 + (u is not None)) + [ctypes.c_double, ctypes.c_double, ctypes.c_long, P]
+        function.argtypes += [P] if kind == "controller" else []
+        fault = function(*arguments, *([watch] if kind == "controller" else []))
         assert fault == 0 and _same(list(state), expected), (kind, p, x, u, t0, step_size)
         if kind == "controller":
             assert _same(list(watch), [1.0, *seen[0]] if seen else [0.0, 0.0, 0.0])

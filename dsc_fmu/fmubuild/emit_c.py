@@ -219,9 +219,11 @@ def _tangent(graph: Graph, index: int, active: dict) -> list:
 
 
 def tangent_function(traced: Traced, differentiable: tuple) -> str:
-    """The C function ``int <name>_tangent(<arguments>, <seeds>, double *out, double *dout)``: the values as
-    ``value_function`` and their tangents along the seeds, as ``models.dual`` computes them with a dual for each
-    differentiable argument entry of nonzero seed (``fmu.directional.seeded``); returns 1 where Python raises.
+    """The C function ``int <name>_tangent(<arguments>, <seeds>, double *out, double *dout)``: values and tangents.
+
+    ``out`` receives the values as ``value_function`` gives them, ``dout`` their tangents along the seeds, as
+    ``models.dual`` computes them with a dual for each differentiable argument entry of nonzero seed
+    (``fmu.directional.seeded``); it returns 1 where Python raises.
 
     Parameters
     ----------
@@ -254,10 +256,12 @@ def tangent_function(traced: Traced, differentiable: tuple) -> str:
 
 
 def rk4_function(substep: Traced, state: int, watched: int) -> str:
-    """The C loop ``int <name>(<arguments>, long count, double *x, double *watch)`` over ``count`` sub-steps of
-    ``substep`` (``trace.trace_rk4_substep``) from ``t0``: ``x`` becomes the state at ``t0 + step_size``, unchanged
-    where Python raises (returns 1; else 0). With ``watched`` extras per evaluation, ``watch`` receives ``[1, t,
-    extras[1:]...]`` of the first evaluation whose first extra is true (left as given if none is).
+    """The C loop ``int <name>(<arguments>, double t0, double step_size, long count, double *x, double *watch)``.
+
+    It takes ``count`` sub-steps of ``substep`` (``trace.trace_rk4_substep``) from ``t0``: ``x`` becomes the state
+    at ``t0 + step_size``, unchanged where Python raises (it returns 1; else 0). With ``watched`` extras per
+    evaluation, ``watch`` receives ``[1, t, extras[1:]...]`` of the first evaluation whose first extra is true (left
+    as given if none is).
 
     Parameters
     ----------

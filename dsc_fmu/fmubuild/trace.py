@@ -34,8 +34,10 @@ class Untraceable(Exception):
 
 
 class Graph:
-    """The nodes of the traced functions: tuples ``(op, *operands)``, operands node indices (or names and numbers
-    for ``arg``, ``const`` and ``call``), each stored once and numbered in the order made (operands first).
+    """The nodes of traced functions, each distinct operation on distinct operands stored once (hash-consing).
+
+    A node is a tuple ``(op, *operands)``, its operands node indices (names and numbers for ``arg``, ``const`` and
+    ``call``), numbered in the order made, so operands come first.
 
     Attributes
     ----------
@@ -70,12 +72,34 @@ class Graph:
         return index
 
     def constant(self, value) -> int:
-        """The node of the number ``value`` (an int or bool as Python converts it, ``float(value)``)."""
+        """The node of a number.
+
+        Parameters
+        ----------
+        value : float or int
+            The number; an int (or bool) as Python converts it in float arithmetic, ``float(value)``.
+
+        Returns
+        -------
+        int
+            The index of its ``const`` node.
+        """
         value = float(value)
         return self.node(("const", value.hex(), value))
 
     def operand(self, value) -> int | None:
-        """The node of a Symbol or number, None for anything else."""
+        """The node of an operand.
+
+        Parameters
+        ----------
+        value : Symbol, float or int
+            The operand.
+
+        Returns
+        -------
+        int or None
+            Its node, None if it is neither a Symbol nor a number.
+        """
         if type(value) is Symbol:
             return value.node
         if isinstance(value, (int, float)):
@@ -83,15 +107,39 @@ class Graph:
         return None
 
     def select(self, condition: int, if_true: int, if_false: int) -> int:
-        """``condition ? if_true : if_false``; one side if both are the same node."""
+        """The node ``condition ? if_true : if_false``.
+
+        Parameters
+        ----------
+        condition : int
+            A node of bool kind.
+        if_true, if_false : int
+            The nodes selected.
+
+        Returns
+        -------
+        int
+            The select's node; ``if_true`` itself if both are the same node.
+        """
         return if_true if if_true == if_false else self.node(("select", condition, if_true, if_false))
 
     def boolean(self, index: int) -> bool:
-        """Whether node ``index`` is of bool kind (a C int)."""
+        """Whether a node is of bool kind (a C int: a comparison, a select of them, whether Python raises).
+
+        Parameters
+        ----------
+        index : int
+            The node.
+
+        Returns
+        -------
+        bool
+            True for bool kind, False for a number.
+        """
         key = self.nodes[index]
         return key[0] in BOOLEAN or (key[0] == "select" and self.boolean(key[2]))
 
-    def decide(self, condition: int) -> bool:
+    def _decide(self, condition: int) -> bool:
         """The answer of the current run to the decision on ``condition`` (the same answer each time it is asked)."""
         return self._run.decide(condition)
 
@@ -179,7 +227,7 @@ class Symbol:
         """The current run's answer for this comparison (a number: whether it is not zero, as for a float)."""
         graph = self.graph
         condition = self.node if graph.boolean(self.node) else graph.node(("ne", self.node, graph.constant(0.0)))
-        return graph.decide(condition)
+        return graph._decide(condition)
 
 
 def _function(op: str, python):
@@ -345,7 +393,8 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
     inputs : callable
         ``inputs(t, **symbols)``: the keyword arguments other than ``t`` and ``x`` of ``rates`` at time ``t``.
     arguments : dict
-        The sub-step's own arguments (besides ``t0``, ``step_size``, ``count``, ``k`` and ``x``), as in ``trace``.
+        The sub-step's own arguments, as in ``trace``; after them come ``t0``, ``step_size``, ``count``, ``k`` and
+        ``x``.
     name : str
         The name of the sub-step.
 
@@ -356,7 +405,7 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
         time and the extra outputs of ``rates``.
     """
     graph = rates.graph
-    arguments = {"t0": None, "step_size": None, "count": None, "k": None, **arguments, "x": state}
+    arguments = {**arguments, "t0": None, "step_size": None, "count": None, "k": None, "x": state}
 
     def substep(t0, step_size, count, k, x, **symbols):
         watched = []

@@ -8,15 +8,18 @@ parameter value. The RK4 loops call the traced rates once per evaluation.
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from dataclasses import dataclass
+from pathlib import Path
 
 from ..fmu.controller_model import DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..models.controller import Switches, control_law
-from . import emit_c
+from . import binary, emit_c
 from .trace import TRACE_MATH, Graph, Untraceable, trace, trace_rk4_substep
 
-__all__ = ["TracedModels", "trace_models"]
+__all__ = ["TracedModels", "compile_library", "trace_models"]
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
 STATES = {"plant": 7, "reference": 3, "controller": 20}
@@ -116,3 +119,33 @@ def trace_models() -> TracedModels:
         functions[name] = substep
         definitions.append(emit_c.rk4_function(substep, STATES[kind], 2 if kind == "controller" else 0))
     return TracedModels(functions, untraceable, emit_c.c_file(definitions))
+
+
+def compile_library(source: str, folder: Path) -> Path:
+    """Compile a traced C file into a shared library of this machine, its functions exported (tests, benchmarks).
+
+    Parameters
+    ----------
+    source : str
+        The C file's text (``TracedModels.source``).
+    folder : Path
+        Where the file and the library are written.
+
+    Returns
+    -------
+    Path
+        The library, to load with ``ctypes.CDLL``.
+
+    Raises
+    ------
+    subprocess.CalledProcessError
+        If Zig fails.
+    """
+    target = binary.host_target()
+    path, library = folder / "traced.c", folder / f"traced{target.suffix}"
+    path.write_text(source)
+    subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, "-O2",
+                    *emit_c.C_FLAGS, "-Wall", "-Werror", "-Wno-unused-variable", "-fvisibility=default",
+                    "-DDSC_TRACED_API=", f"-I{emit_c.TRACED_MATH_HEADER.parent}", str(path), "-o", str(library),
+                    *target.libraries], check=True, capture_output=True)
+    return library
