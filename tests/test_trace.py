@@ -8,12 +8,14 @@ import ctypes
 import math
 import random
 import struct
+from types import SimpleNamespace
 
 import pytest
 
 from dsc_fmu.fmu.controller_model import DSCControllerModel
 from dsc_fmu.fmu.directional import seeded
 from dsc_fmu.fmu.robot_models import MobileRobotModel, ReferenceRobotModel
+from dsc_fmu.fmu.slave import ModelSlave
 from dsc_fmu.fmubuild.trace import TRACE_MATH, Untraceable, trace
 from dsc_fmu.fmubuild.traced_models import compile_library, trace_models
 from dsc_fmu.models.controller import Switches, control_law, switches
@@ -148,7 +150,8 @@ def test_derivative_code_equals_the_dual_numbers(library):
         model = _model(kind, _parameters(kind, rng, spread=0.1))
         states = {"plant": 7, "reference": 3, "controller": 20}[kind]
         x = [rng.uniform(-3, 3) for _ in range(states)]
-        u = [rng.uniform(-3, 3) for _ in range(2)] if kind == "plant" else _measurements(rng, i % 3) if kind == "controller" else None
+        u = {"plant": [rng.uniform(-3, 3) for _ in range(2)], "controller": _measurements(rng, i % 3),
+             "reference": None}[kind]
         dx = [0.0 if rng.random() < 0.3 else rng.uniform(-1, 1) for _ in x]
         du = None if u is None else [0.0 if rng.random() < 0.3 else rng.uniform(-1, 1) for _ in u]
         xs = seeded(x, dict(enumerate(dx)))
@@ -166,14 +169,15 @@ def test_derivative_code_equals_the_dual_numbers(library):
             assert _same(list(dout), [tangent(v) for v in python]), (kind, hook, x, u, dx, du)
 
 
-def _python_rk4(kind, p, t0, x, u, step_size, count):
-    """``models.rk4.rk4_integrate`` of the model's rates, and for the controller the first guarded (t, beta)."""
+def _python_rk4(kind, p, t0, x, inputs, step_size, count):
+    """``models.rk4.rk4_integrate`` of the model's rates at the inputs ``inputs(t)``, and for the controller the first
+    guarded (t, beta), as ``DSCControllerModel.integrate`` records it."""
     model, seen = _model(kind, p), []
 
     def rates(t, x):
         if kind != "controller":
-            return model.rates(t, x, u)
-        law = control_law(model.constants, x, u)
+            return model.rates(t, x, inputs(t))
+        law = control_law(model.constants, x, inputs(t))
         if law.guarded and not seen:
             seen.append((t, law.beta))
         return law.derivative
@@ -181,8 +185,9 @@ def _python_rk4(kind, p, t0, x, u, step_size, count):
     return rk4_integrate(rates, t0, x, step_size, step_size / count), seen
 
 
-@pytest.mark.parametrize("kind", ["plant", "controller", "reference"])
-def test_rk4_loops_bit_for_bit(library, kind):
+@pytest.mark.parametrize("kind, line", [("plant", False), ("plant", True), ("controller", False), ("controller", True),
+                                        ("reference", False)])
+def test_rk4_loops_bit_for_bit(library, kind, line):
     rng = random.Random(7)
     states = {"plant": 7, "reference": 3, "controller": 20}[kind]
     guarded = 0
@@ -194,12 +199,17 @@ def test_rk4_loops_bit_for_bit(library, kind):
         u = {"plant": [rng.uniform(-12, 12) for _ in range(2)], "controller": _measurements(rng, i % 3),
              "reference": None}[kind]
         t0, step_size = rng.uniform(0, 30), rng.choice((1e-3, 0.01, 0.05))
-        expected, seen = _python_rk4(kind, p, t0, x, u, step_size, 10)
+        slope = [rng.uniform(-0.5, 0.5) for _ in u] if line else None
+        stamp = t0 + rng.choice((0.0, step_size))
+        held = SimpleNamespace(u=u, _slope=slope, _stamp=stamp)
+        expected, seen = _python_rk4(kind, p, t0, x, lambda t: ModelSlave.inputs(held, t), step_size, 10)
         state, watch = _array(x), _array([0.0, 0.0, 0.0])
         arguments = [_array(list(p.values()))] + ([] if u is None else [_array(u)])
+        arguments += [_array(slope), ctypes.c_double(stamp)] if line else []
         arguments += [ctypes.c_double(t0), ctypes.c_double(step_size), ctypes.c_long(10), state]
-        function = getattr(library, f"dsc_{kind}_rk4")
-        function.argtypes = [P] * (1 + (u is not None)) + [ctypes.c_double, ctypes.c_double, ctypes.c_long, P]
+        function = getattr(library, f"dsc_{kind}_rk4{'_line' if line else ''}")
+        function.argtypes = [P] * (1 + (u is not None)) + ([P, ctypes.c_double] if line else [])
+        function.argtypes += [ctypes.c_double, ctypes.c_double, ctypes.c_long, P]
         function.argtypes += [P] if kind == "controller" else []
         fault = function(*arguments, *([watch] if kind == "controller" else []))
         assert fault == 0 and _same(list(state), expected), (kind, p, x, u, t0, step_size)
@@ -232,4 +242,5 @@ def test_untraceable_functions_are_named_with_the_reason(body, reason, monkeypat
 def test_the_untraceable_model_functions_are_reported_by_name(traced):
     for name, reason in traced.untraceable.items():
         assert reason.startswith(f"{name}: ")
-    assert {"dsc_plant_rates", "dsc_controller_rates", "dsc_controller_rk4", "dsc_plant_rk4"} <= set(traced.functions)
+    assert {"dsc_plant_rates", "dsc_controller_rates", "dsc_controller_rates_held", "dsc_controller_rk4",
+            "dsc_plant_rk4", "dsc_reference_rates", "dsc_controller_rk4_line"} <= set(traced.functions)

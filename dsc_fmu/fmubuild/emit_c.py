@@ -20,6 +20,7 @@ C_FLAGS = ("-std=c99", "-ffp-contract=off", "-fno-builtin-sin", "-fno-builtin-co
 _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/", **COMPARISONS}
 _LIBM = {"sin", "cos", "atan", "sqrt"}
 _FSUM_MAX = 64  # the partials array of dsc_fsum
+_MAX_LOOP_DECISIONS = 6  # at most 2^6 specialised loops per RK4 function
 
 
 def _operands(key: tuple) -> list:
@@ -37,15 +38,24 @@ def _operands(key: tuple) -> list:
     return list(key[1:])
 
 
-def _needed(graph: Graph, roots) -> list:
-    """The nodes ``roots`` read, directly or not, themselves included, in index order."""
+def _needed(graph: Graph, roots, chosen: dict | None = None) -> list:
+    """The nodes ``roots`` read, directly or not, themselves included, in index order; a select whose condition is
+    ``chosen`` (condition -> answer) reads only the side chosen."""
     seen, stack = set(), list(roots)
     while stack:
         index = stack.pop()
         if index not in seen:
             seen.add(index)
-            stack.extend(_operands(graph.nodes[index]))
+            stack.extend(_operands(_resolved(graph, index, chosen)))
     return sorted(seen)
+
+
+def _resolved(graph: Graph, index: int, chosen: dict | None) -> tuple:
+    """Node ``index``, a select on a ``chosen`` condition as ``("select", side)``."""
+    key = graph.nodes[index]
+    if chosen and key[0] == "select" and key[1] in chosen:
+        return ("select", key[2] if chosen[key[1]] else key[3])
+    return key
 
 
 def _constant(value: float) -> str:
@@ -56,9 +66,10 @@ def _constant(value: float) -> str:
     return f"({value.hex()})"
 
 
-def _value(graph: Graph, index: int, names: dict) -> list:
-    """The C lines that define node ``index`` (``n<index>``), its arguments read through ``names`` (argument -> C)."""
-    key = graph.nodes[index]
+def _value(graph: Graph, index: int, names: dict, chosen: dict | None = None) -> list:
+    """The C lines that define node ``index`` (``n<index>``), its arguments read through ``names`` (argument -> C), the
+    selects on ``chosen`` conditions as the side chosen."""
+    key = _resolved(graph, index, chosen)
     op, n = key[0], f"n{index}"
     a = [f"n{i}" for i in _operands(key)] if op not in ("call", "result") else []
     kind = "int" if graph.boolean(index) else "double"
@@ -80,16 +91,18 @@ def _value(graph: Graph, index: int, names: dict) -> list:
     if op == "fsum":
         if len(a) > _FSUM_MAX:
             raise Untraceable(f"fsum of {len(a)} values: at most {_FSUM_MAX} are traced")
-        return [f"int f{index};", f"const double {n} = dsc_fsum({len(a)}, (const double[]){{{', '.join(a)}}}, &f{index});"]
+        values = f"(const double[]){{{', '.join(a)}}}"
+        return [f"int f{index};", f"const double {n} = dsc_fsum({len(a)}, {values}, &f{index});"]
     if op == "select":
-        return [f"const {kind} {n} = {a[0]} ? {a[1]} : {a[2]};"]
+        return [f"const {kind} {n} = {a[0]};" if len(a) == 1 else f"const {kind} {n} = {a[0]} ? {a[1]} : {a[2]};"]
     if op == "any":
         return [f"const int {n} = {' | '.join(a) or '0'};"]
     if op == "fault":
         return [f"const int {n} = {_raises(graph, key[1])};"]
     if op == "call":
         arguments = ", ".join(_call_argument(name, value, names) for name, value in key[2])
-        return [f"double c{index}[{_outputs_of(graph, index)}];", f"const int f{index} = {key[1]}({arguments}, c{index});"]
+        return [f"double c{index}[{_outputs_of(graph, index)}];",
+                f"const int f{index} = {key[1]}({arguments}, c{index});"]
     return [f"const double {n} = c{key[1]}[{key[2]}];"]  # result
 
 
@@ -143,7 +156,8 @@ def value_function(traced: Traced) -> str:
         Its C definition.
     """
     names = {name: name for name in traced.arguments}
-    body = [line for i in _needed(traced.graph, [*traced.outputs, traced.fault]) for line in _value(traced.graph, i, names)]
+    nodes = _needed(traced.graph, [*traced.outputs, traced.fault])
+    body = [line for i in nodes for line in _value(traced.graph, i, names)]
     return _function(_signature(traced, names, "") + ", double *out)", body + _outputs(traced, "out") +
                      [f"return n{traced.fault};"])
 
@@ -284,28 +298,45 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
     parts = [f"double {name}" if substep.arguments[name] is None else f"const double *{name}" for name in given]
     signature = f"DSC_TRACED_API int {substep.name}({', '.join(parts)}, long count, double *x_io"
     signature += ", double *watch)" if watched else ")"
-    nodes = _needed(graph, [*substep.outputs, substep.fault])
+    roots = [*substep.outputs, substep.fault]
+    nodes = _needed(graph, roots)
     varying = set()
     for i in nodes:
         key = graph.nodes[i]
         if (key[0] == "arg" and key[1] in ("x", "k")) or any(j in varying for j in _operands(key)):
             varying.add(i)
-    before = [line for i in nodes if i not in varying for line in _value(graph, i, names)]
-    loop = [line for i in nodes if i in varying for line in _value(graph, i, names)]
-    loop.append(f"if (n{substep.fault}) return 1;")
+    tail = [f"if (n{substep.fault}) return 1;"]
     outputs = substep.outputs[state:]
     per_stage = len(outputs) // 4
     for s in range(4 if watched else 0):
         stage = outputs[s * per_stage:(s + 1) * per_stage]
         values = [f"n{stage[0]}", *(f"n{i}" for i in stage[2:])]
         stores = " ".join(f"watch[{j + 1}] = {v};" for j, v in enumerate(values))
-        loop.append(f"if (!seen && n{stage[1]}) {{ seen = 1; watch[0] = 1.0; {stores} }}")
-    loop.extend(f"x[{i}] = n{node};" for i, node in enumerate(substep.outputs[:state]))
+        tail.append(f"if (!seen && n{stage[1]}) {{ seen = 1; watch[0] = 1.0; {stores} }}")
+    tail.extend(f"x[{i}] = n{node};" for i, node in enumerate(substep.outputs[:state]))
+    before = [line for i in nodes if i not in varying for line in _value(graph, i, names)]
     body = [f"double x[{state}];", f"for (int i = 0; i < {state}; i++) x[i] = x_io[i];",
             "const double count_ = (double)count;", *(["int seen = 0;"] if watched else []), *before,
-            "for (long k = 0; k < count; k++) {", "    const double k_ = (double)k;", *(f"    {line}" for line in loop),
-            "}", f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];", "return 0;"]
+            *_loops(graph, roots, varying, names, tail, {}),
+            f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];", "return 0;"]
     return _function(signature, body)
+
+
+def _loops(graph: Graph, roots: list, varying: set, names: dict, tail: list, chosen: dict) -> list:
+    """The sub-step loop, one per combination of the decisions that do not change over the step (``chosen`` so far):
+    each loop evaluates only its own side of the selects on them."""
+    needed = _needed(graph, roots, chosen)
+    fixed = next((graph.nodes[i][1] for i in needed if i in varying and len(_resolved(graph, i, chosen)) == 4
+                  and graph.nodes[i][0] == "select" and graph.nodes[i][1] not in varying), None)
+    if fixed is not None and len(chosen) < _MAX_LOOP_DECISIONS:
+        sides = [_loops(graph, roots, varying, names, tail, {**chosen, fixed: answer}) for answer in (True, False)]
+        return [f"if (n{fixed}) {{", *_indented(sides[0]), "} else {", *_indented(sides[1]), "}"]
+    loop = [line for i in needed if i in varying for line in _value(graph, i, names, chosen)]
+    return ["for (long k = 0; k < count; k++) {", *_indented(["const double k_ = (double)k;", *loop, *tail]), "}"]
+
+
+def _indented(lines: list) -> list:
+    return [f"    {line}" for line in lines]
 
 
 def c_file(functions: list) -> str:

@@ -1,4 +1,4 @@
-"""The models' own Python run on a symbolic number that records its arithmetic as one expression graph (docs/traced-c.md).
+"""The models' own Python run on a symbolic number that records its arithmetic as a graph (docs/traced-c.md).
 
 A ``Symbol`` stands for a run-time value (an entry of an argument array); arithmetic, ``abs``, comparisons and
 the functions of ``TRACE_MATH`` on it add nodes to a ``Graph``, one node per distinct operation on distinct
@@ -11,13 +11,10 @@ graph holds exactly Python's operations in Python's order: nothing is folded or 
 from __future__ import annotations
 
 import math
-from contextlib import contextmanager
 from dataclasses import dataclass
 from types import SimpleNamespace
 
-from ..models import rk4
-
-__all__ = ["Graph", "Symbol", "TRACE_MATH", "Traced", "Untraceable", "trace", "trace_rk4_substep"]
+__all__ = ["Graph", "Symbol", "TRACE_MATH", "TooManyPaths", "Traced", "Untraceable", "trace"]
 
 ARITHMETIC = ("add", "sub", "mul", "div")
 COMPARISONS = {"lt": "<", "le": "<=", "gt": ">", "ge": ">=", "eq": "==", "ne": "!="}
@@ -31,6 +28,10 @@ MAX_PATHS = 512
 
 class Untraceable(Exception):
     """A function the tracer cannot follow: the message names it and says why (that FMU keeps its Python path)."""
+
+
+class TooManyPaths(Untraceable):
+    """A function whose decisions combine in more ways than allowed."""
 
 
 class Graph:
@@ -282,6 +283,8 @@ class Traced:
         The node that is true where Python would raise (a division by zero, a domain error).
     paths : int
         How many runs (combinations of decisions) the trace took.
+    function : callable
+        The traced Python function.
     """
 
     name: str
@@ -290,6 +293,7 @@ class Traced:
     outputs: list
     fault: int
     paths: int
+    function: object
 
 
 def _arguments(graph: Graph, arguments: dict) -> dict:
@@ -302,7 +306,7 @@ def _arguments(graph: Graph, arguments: dict) -> dict:
     return symbols
 
 
-def trace(function, arguments: dict, name: str, graph: Graph | None = None) -> Traced:
+def trace(function, arguments: dict, name: str, graph: Graph | None = None, max_paths: int = MAX_PATHS) -> Traced:
     """Trace ``function(**symbols)``, which returns a flat list of numbers, over every combination of its decisions.
 
     Parameters
@@ -315,6 +319,8 @@ def trace(function, arguments: dict, name: str, graph: Graph | None = None) -> T
         The function's name, in messages and in C.
     graph : Graph, optional
         The graph to add to (a new one by default).
+    max_paths : int, optional
+        The most runs (combinations of decisions) allowed.
 
     Returns
     -------
@@ -325,7 +331,8 @@ def trace(function, arguments: dict, name: str, graph: Graph | None = None) -> T
     ------
     Untraceable
         If the function calls what the tracer cannot follow (a conversion to float, the ``math`` module on a
-        traced value, ...) or takes more than ``MAX_PATHS`` runs; the message names the function and the reason.
+        traced value, ...) or takes more than ``max_paths`` runs (``TooManyPaths``); the message names the function
+        and the reason.
     """
     graph = graph or Graph()
     symbols = _arguments(graph, arguments)
@@ -338,17 +345,18 @@ def trace(function, arguments: dict, name: str, graph: Graph | None = None) -> T
         except Untraceable as error:
             raise Untraceable(f"{name}: {error}") from None
         except (TypeError, AttributeError, ValueError) as error:
-            raise Untraceable(f"{name}: calls what a traced value cannot enter ({type(error).__name__}: {error})") from None
+            reason = f"calls what a traced value cannot enter ({type(error).__name__}: {error})"
+            raise Untraceable(f"{name}: {reason}") from None
         finally:
             graph._run = None
         answers = tuple(answer for _, answer in run.decisions)
         pending.extend(answers[:i] + (False,) for i in range(len(answers) - 1, len(prefix) - 1, -1) if answers[i])
         faults = [graph.node(("fault", n)) for n in sorted(run.raising)]
         leaves.append((run.decisions, outputs + [graph.node(("any", *faults))]))
-        if len(leaves) > MAX_PATHS:
-            raise Untraceable(f"{name}: more than {MAX_PATHS} combinations of decisions")
+        if len(leaves) > max_paths:
+            raise TooManyPaths(f"{name}: more than {max_paths} combinations of decisions")
     merged = _merge(graph, leaves, 0)
-    return Traced(name, graph, dict(arguments), merged[:-1], merged[-1], len(leaves))
+    return Traced(name, graph, dict(arguments), merged[:-1], merged[-1], len(leaves), function)
 
 
 def _output(graph: Graph, value) -> int:
@@ -365,75 +373,5 @@ def _merge(graph: Graph, leaves: list, depth: int) -> list:
     condition = leaves[0][0][depth][0]
     taken = [leaf for leaf in leaves if leaf[0][depth][1]]
     other = [leaf for leaf in leaves if not leaf[0][depth][1]]
-    return [graph.select(condition, a, b) for a, b in zip(_merge(graph, taken, depth + 1), _merge(graph, other, depth + 1))]
-
-
-@contextmanager
-def _symbolic_substep(count: Symbol, index: Symbol):
-    """``models.rk4.rk4_integrate`` taking ``count`` sub-steps (a run-time number) of which it traces sub-step ``index``."""
-    rk4.substeps, saved = (lambda step_size, max_step: count), rk4.substeps
-    rk4.range = lambda n: (index,)
-    try:
-        yield
-    finally:
-        rk4.substeps = saved
-        del rk4.range
-
-
-def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: str) -> Traced:
-    """One sub-step of ``models.rk4.rk4_integrate`` traced from its own source, the rates a call of ``rates``.
-
-    Parameters
-    ----------
-    rates : Traced
-        ``rates(t, x, ...)``: a traced function whose first ``state`` outputs are the state's derivative and whose
-        other outputs are watched (the C loop keeps those of the first evaluation whose first extra is true).
-    state : int
-        The length of the state.
-    inputs : callable
-        ``inputs(t, **symbols)``: the keyword arguments other than ``t`` and ``x`` of ``rates`` at time ``t``.
-    arguments : dict
-        The sub-step's own arguments, as in ``trace``; after them come ``t0``, ``step_size``, ``count``, ``k`` and
-        ``x``.
-    name : str
-        The name of the sub-step.
-
-    Returns
-    -------
-    Traced
-        Outputs: the state after sub-step ``k`` of ``count`` from ``t0``, then for each of the four evaluations its
-        time and the extra outputs of ``rates``.
-    """
-    graph = rates.graph
-    arguments = {**arguments, "t0": None, "step_size": None, "count": None, "k": None, "x": state}
-
-    def substep(t0, step_size, count, k, x, **symbols):
-        watched = []
-
-        def derivative(t, x):
-            call = graph.node(("call", rates.name, _call_arguments(graph, rates, t, x, inputs(t, **symbols))))
-            results = [Symbol(graph, graph.node(("result", call, i))) for i in range(len(rates.outputs))]
-            watched.extend([t, *results[state:]])
-            return results[:state]
-
-        with _symbolic_substep(count, k):
-            x = rk4.rk4_integrate(derivative, t0, x, step_size, math.inf)
-        return [*x, *watched]
-
-    return trace(substep, arguments, name, graph)
-
-
-def _call_arguments(graph: Graph, rates: Traced, t, x, others: dict) -> tuple:
-    """The arguments of a call of ``rates``: per argument, its name and a node (scalar), a tuple of nodes, or None
-    (the caller's array of that name)."""
-    given = {"t": t, "x": x, **others}
-    passed = []
-    for name, size in rates.arguments.items():
-        value = given.get(name)
-        if value is None:
-            passed.append((name, None))
-        elif size is None:
-            passed.append((name, graph.operand(value)))
-        else:
-            passed.append((name, tuple(graph.operand(v) for v in value)))
-    return tuple(passed)
+    merged = zip(_merge(graph, taken, depth + 1), _merge(graph, other, depth + 1))
+    return [graph.select(condition, a, b) for a, b in merged]

@@ -12,12 +12,15 @@ import subprocess
 import sys
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 
 from ..fmu.controller_model import DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
+from ..fmu.slave import ModelSlave
 from ..models.controller import Switches, control_law
 from . import binary, emit_c
-from .trace import TRACE_MATH, Graph, Untraceable, trace, trace_rk4_substep
+from .substep import trace_rk4_substep
+from .trace import TRACE_MATH, Graph, TooManyPaths, Traced, Untraceable, trace
 
 __all__ = ["TracedModels", "compile_library", "trace_models"]
 
@@ -57,6 +60,26 @@ def _law(p, t, x, u):
     return [*law.derivative, law.guarded, law.beta]
 
 
+def _inputs(t, p, u=None, slope=None, stamp=None):
+    """The inputs at ``t`` within a step as the slave gives them (``fmu.slave.ModelSlave.inputs``): held, or on the
+    line through ``u`` at ``stamp`` with slopes ``slope``."""
+    if u is None:
+        return {}
+    return {"u": ModelSlave.inputs(SimpleNamespace(u=u, _slope=slope, _stamp=stamp), t)}
+
+
+def _substep(rates: Traced, kind: str, line: bool, name: str) -> Traced:
+    """The RK4 sub-step of ``kind`` (inputs held, or on a line), its rates traced into it unless their decisions
+    would then combine in more ways than the rates' own (then called)."""
+    arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
+    if line:
+        arguments.update(slope=arguments["u"], stamp=None)
+    try:
+        return trace_rk4_substep(rates, STATES[kind], _inputs, arguments, name, inline=True)
+    except TooManyPaths:
+        return trace_rk4_substep(rates, STATES[kind], _inputs, arguments, name, inline=False)
+
+
 @dataclass
 class TracedModels:
     """The traced functions, the C file and what could not be traced.
@@ -69,7 +92,8 @@ class TracedModels:
         The reason, by the C name of each function that could not be traced (its FMU keeps the Python path).
     source : str
         The C file: ``emit_c.value_function`` of each, ``emit_c.tangent_function`` of the rates and outputs
-        (differentiable in ``x`` and ``u``), ``emit_c.rk4_function`` of each model's RK4 loop.
+        (differentiable in ``x`` and ``u``), ``emit_c.rk4_function`` of each model's RK4 loop with the inputs held
+        (``dsc_<model>_rk4``) and on a line (``dsc_<model>_rk4_line``: ``slope`` and ``stamp`` after ``u``).
     """
 
     functions: dict
@@ -106,18 +130,17 @@ def trace_models() -> TracedModels:
     add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph))
     for kind, rates in (("plant", "dsc_plant_rates"), ("reference", "dsc_reference_rates"),
                         ("controller", "dsc_controller_law")):
-        name = f"dsc_{kind}_rk4"
-        if rates in untraceable:
-            untraceable[name] = f"{name}: its rates are not traced ({untraceable[rates]})"
-            continue
-        arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
-        try:
-            substep = trace_rk4_substep(functions[rates], STATES[kind], lambda t, p, **given: given, arguments, name)
-        except Untraceable as error:
-            untraceable[name] = str(error)
-            continue
-        functions[name] = substep
-        definitions.append(emit_c.rk4_function(substep, STATES[kind], 2 if kind == "controller" else 0))
+        for coupling in ("", "_line") if MODELS[kind].INPUTS else ("",):
+            name = f"dsc_{kind}_rk4{coupling}"
+            if rates in untraceable:
+                untraceable[name] = f"{name}: its rates are not traced ({untraceable[rates]})"
+                continue
+            try:
+                functions[name] = substep = _substep(functions[rates], kind, bool(coupling), name)
+            except Untraceable as error:
+                untraceable[name] = str(error)
+                continue
+            definitions.append(emit_c.rk4_function(substep, STATES[kind], 2 if kind == "controller" else 0))
     return TracedModels(functions, untraceable, emit_c.c_file(definitions))
 
 
@@ -144,7 +167,8 @@ def compile_library(source: str, folder: Path) -> Path:
     target = binary.host_target()
     path, library = folder / "traced.c", folder / f"traced{target.suffix}"
     path.write_text(source)
-    subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, "-O2",
+    subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags,
+                    "-O2",
                     *emit_c.C_FLAGS, "-Wall", "-Werror", "-Wno-unused-variable", "-fvisibility=default",
                     "-DDSC_TRACED_API=", f"-I{emit_c.TRACED_MATH_HEADER.parent}", str(path), "-o", str(library),
                     *target.libraries], check=True, capture_output=True)
