@@ -101,14 +101,8 @@ def _value(graph: Graph, index: int, names: dict, chosen: dict | None = None) ->
         return [f"const int {n} = {_raises(graph, key[1])};"]
     if op == "call":
         arguments = ", ".join(_call_argument(name, value, names) for name, value in key[2])
-        return [f"double c{index}[{_outputs_of(graph, index)}];",
-                f"const int f{index} = {key[1]}({arguments}, c{index});"]
+        return [f"double c{index}[{key[3]}];", f"const int f{index} = {key[1]}({arguments}, c{index});"]
     return [f"const double {n} = c{key[1]}[{key[2]}];"]  # result
-
-
-def _outputs_of(graph: Graph, index: int) -> int:
-    """How many outputs the function called at node ``index`` has: one more than the largest ``result`` read of it."""
-    return 1 + max(key[2] for key in graph.nodes if key[0] == "result" and key[1] == index)
 
 
 def _call_argument(name: str, value, names: dict) -> str:

@@ -67,7 +67,8 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
             if inline:
                 results = rates.function(p=symbols["p"], t=t, x=x, **given)
             else:
-                call = graph.node(("call", rates.name, _call_arguments(graph, rates, t, x, given)))
+                arguments = _call_arguments(graph, rates, t, x, given)
+                call = graph.node(("call", rates.name, arguments, len(rates.outputs)))
                 results = [Symbol(graph, graph.node(("result", call, i))) for i in range(len(rates.outputs))]
             watched.extend([t, *results[state:]])
             return results[:state]

@@ -16,7 +16,6 @@ from types import SimpleNamespace
 
 __all__ = ["Graph", "Symbol", "TRACE_MATH", "TooManyPaths", "Traced", "Untraceable", "trace"]
 
-ARITHMETIC = ("add", "sub", "mul", "div")
 COMPARISONS = {"lt": "<", "le": "<=", "gt": ">", "ge": ">=", "eq": "==", "ne": "!="}
 # Nodes of bool kind (C int): comparisons, selects between them, and whether Python raised (``fault``, ``any``).
 BOOLEAN = {*COMPARISONS, "fault", "any"}
@@ -38,7 +37,8 @@ class Graph:
     """The nodes of traced functions, each distinct operation on distinct operands stored once (hash-consing).
 
     A node is a tuple ``(op, *operands)``, its operands node indices (names and numbers for ``arg``, ``const`` and
-    ``call``), numbered in the order made, so operands come first.
+    ``call``: the function's name, its arguments as ``substep`` passes them, its number of outputs), numbered in the
+    order made, so operands come first.
 
     Attributes
     ----------
@@ -247,15 +247,20 @@ def _function(op: str, python):
     return function
 
 
+_hypot2 = _function("hypot", math.hypot)
+
+
 def _hypot(*args):
     if len(args) != 2:
         raise Untraceable(f"hypot() of {len(args)} coordinates: only two are traced")
-    return _function("hypot", math.hypot)(*args)
+    return _hypot2(*args)
+
+
+_fsum_of = _function("fsum", lambda *values: math.fsum(values))
 
 
 def _fsum(values):
-    values = list(values)
-    return _function("fsum", lambda *v: math.fsum(v))(*values)
+    return _fsum_of(*values)
 
 
 TRACE_MATH = SimpleNamespace(
@@ -350,7 +355,7 @@ def trace(function, arguments: dict, name: str, graph: Graph | None = None, max_
         finally:
             graph._run = None
         answers = tuple(answer for _, answer in run.decisions)
-        pending.extend(answers[:i] + (False,) for i in range(len(answers) - 1, len(prefix) - 1, -1) if answers[i])
+        pending.extend(answers[:i] + (False,) for i in range(len(prefix), len(answers)))  # new decisions: True
         faults = [graph.node(("fault", n)) for n in sorted(run.raising)]
         leaves.append((run.decisions, outputs + [graph.node(("any", *faults))]))
         if len(leaves) > max_paths:
