@@ -30,6 +30,7 @@ CASES = {
     "plant": (MobileRobotModel, [0.1, 0.2, 0.3, 5.0, 4.0, 1.0, 0.8], [6.0, 5.0]),
     "reference": (ReferenceRobotModel, [0.0, 0.0, 0.5], None),
 }
+PARAMETERS = {"reference": {"profile": 1}}  # the figure eight
 
 
 def _python(model, x: list, u, substeps: int, step: float) -> tuple:
@@ -66,7 +67,7 @@ def main() -> None:
         print(f"{'model':<12}{'Python (us)':>14}{'C (us)':>10}{'Python / C':>12}")
         for kind, (cls, x, u) in CASES.items():
             model = cls()
-            model.p["max_step"] = 1e-4
+            model.p.update(max_step=1e-4, **PARAMETERS.get(kind, {}))
             step = 1e-4 * args.substeps
             python = [_python(model, x, u, args.substeps, step) for _ in range(args.repeat)]
             c = [_c(library, kind, model, x, u, args.substeps, step) for _ in range(args.repeat)]
