@@ -144,8 +144,9 @@ def trace_models() -> TracedModels:
     return TracedModels(functions, untraceable, emit_c.c_file(definitions))
 
 
-def compile_library(source: str, folder: Path) -> Path:
-    """Compile a traced C file into a shared library of this machine, its functions exported (tests, benchmarks).
+def compile_library(source: str, folder: Path, target: binary.Target | None = None,
+                    flags: tuple = emit_c.C_FLAGS) -> Path:
+    """Compile a traced C file into a shared library, its functions exported (tests, benchmarks).
 
     Parameters
     ----------
@@ -153,6 +154,10 @@ def compile_library(source: str, folder: Path) -> Path:
         The C file's text (``TracedModels.source``).
     folder : Path
         Where the file and the library are written.
+    target : binary.Target, optional
+        The platform (default: this machine's).
+    flags : tuple of str, optional
+        The compiler's flags beyond the platform's: ``emit_c.C_FLAGS`` by default.
 
     Returns
     -------
@@ -164,12 +169,12 @@ def compile_library(source: str, folder: Path) -> Path:
     subprocess.CalledProcessError
         If Zig fails.
     """
-    target = binary.host_target()
+    target = target or binary.host_target()
     path, library = folder / "traced.c", folder / f"traced{target.suffix}"
     path.write_text(source)
     subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags,
                     "-O2",
-                    *emit_c.C_FLAGS, "-Wall", "-Werror", "-Wno-unused-variable", "-fvisibility=default",
+                    *flags, "-Wall", "-Werror", "-Wno-unused-variable", "-fvisibility=default",
                     "-DDSC_TRACED_API=", f"-I{emit_c.TRACED_MATH_HEADER.parent}", str(path), "-o", str(library),
                     *target.libraries], check=True, capture_output=True)
     return library
