@@ -13,6 +13,18 @@
 #include <float.h>
 #include <math.h>
 
+#ifdef _WIN32
+/* CPython on Windows takes the C library's math from the Universal C Runtime, and MinGW-w64 (Zig's windows-gnu)
+ * would link its own sin, cos and fmod into the DLL: declared imported, they are the UCRT's, as CPython's are. */
+#pragma clang diagnostic push
+#pragma clang diagnostic ignored "-Wdll-attribute-on-redeclaration"
+__declspec(dllimport) double __cdecl sin(double);
+__declspec(dllimport) double __cdecl cos(double);
+__declspec(dllimport) double __cdecl atan(double);
+__declspec(dllimport) double __cdecl fmod(double, double);
+#pragma clang diagnostic pop
+#endif
+
 /* math.fsum of values[0..n-1]; *raised: whether Python raises (an intermediate overflow, -inf + inf). */
 static double dsc_fsum(int n, const double *values, int *raised)
 {
