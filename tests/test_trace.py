@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import random
 
 import pytest
 
@@ -13,7 +14,7 @@ import traced_cases
 from dsc_fmu.fmu.robot_models import MobileRobotModel
 from dsc_fmu.fmubuild.trace import TRACE_MATH, Untraceable, trace
 from dsc_fmu.fmubuild.traced_models import compile_library, trace_models
-from traced_cases import call, model
+from traced_cases import call, model, same
 
 
 @pytest.fixture(scope="module")
@@ -79,3 +80,44 @@ def test_the_untraceable_model_functions_are_reported_by_name(traced):
         assert reason.startswith(f"{name}: ")
     assert {"dsc_plant_rates", "dsc_controller_rates", "dsc_controller_rates_held", "dsc_controller_rk4",
             "dsc_plant_rk4", "dsc_reference_rates", "dsc_controller_rk4_line"} <= set(traced.functions)
+
+
+PORTED = """#include "traced_math.h"
+DSC_TRACED_API double hypot_(double x, double y) { return dsc_hypot(x, y); }
+DSC_TRACED_API double remainder_(double x, double y) { return dsc_remainder(x, y); }
+DSC_TRACED_API double fsum_(int n, const double *values, int *raised) { return dsc_fsum(n, values, raised); }
+"""
+SPECIAL = [0.0, -0.0, math.inf, -math.inf, math.nan, 5e-324, 1e-310, 1e308, -1e308, 1.0, math.pi, 2 * math.pi]
+
+
+def test_cpythons_own_algorithms_ported_bit_for_bit(tmp_path):
+    """``traced_math.h``'s hypot, remainder and fsum against CPython's: specials, subnormals, wide exponents, and
+    fsum's errors (intermediate overflow, -inf + inf) as the raised flag."""
+    library = ctypes.CDLL(str(compile_library(PORTED, tmp_path)))
+    double = ctypes.c_double
+    for name in ("hypot_", "remainder_", "fsum_"):
+        getattr(library, name).restype = double
+    library.hypot_.argtypes = library.remainder_.argtypes = [double, double]
+    rng = random.Random(8)
+    pairs = [(a, b) for a in SPECIAL for b in SPECIAL]
+    pairs += [(rng.uniform(-1, 1) * 10 ** rng.uniform(-30, 30), rng.uniform(-1, 1) * 10 ** rng.uniform(-30, 30))
+              for _ in range(30000)]
+    pairs += [(rng.uniform(-1, 1) * 1e-315, rng.uniform(-1, 1) * 1e-318) for _ in range(2000)]
+    for x, y in pairs:
+        assert same([library.hypot_(x, y)], [math.hypot(x, y)]), (x, y)
+        try:
+            expected = math.remainder(x, y)
+        except ValueError:
+            expected = math.nan
+        assert same([library.remainder_(x, y)], [expected]), (x, y)
+    for _ in range(5000):
+        values = [rng.uniform(-1, 1) * 10 ** rng.uniform(-20, 20) * rng.choice((1, 1, 1e300))
+                  for _ in range(rng.randint(1, 20))]
+        raised = ctypes.c_int()
+        result = library.fsum_(len(values), (double * len(values))(*values), ctypes.byref(raised))
+        try:
+            expected = math.fsum(values)
+        except (OverflowError, ValueError):
+            assert raised.value == 1, values
+        else:
+            assert raised.value == 0 and same([result], [expected]), values
