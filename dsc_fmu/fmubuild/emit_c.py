@@ -21,6 +21,16 @@ _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/", **COMPARISONS}
 _LIBM = {"sin", "cos", "atan", "sqrt"}
 _FSUM_MAX = 64  # the partials array of dsc_fsum
 _MAX_LOOP_DECISIONS = 6  # at most 2^6 specialised loops per RK4 function
+_LOOP_NAMES = {"count": "count_", "k": "k_"}  # the RK4 loop's count and index as doubles (C: long count, k)
+# The tangents of models.dual's one-argument rules: d the argument's tangent, v its value, result the node's value.
+_UNARY_TANGENTS = {
+    "neg": "-{d}",
+    "abs": "{v} >= 0.0 ? {d} : -{d}",
+    "sin": "cos({v}) * {d}",
+    "cos": "-sin({v}) * {d}",
+    "atan": "{d} / (1.0 + {v} * {v})",
+    "sqrt": "{result} != 0.0 ? 0.5 * {d} / {result} : 0.0",
+}
 
 
 def _operands(key: tuple) -> list:
@@ -66,15 +76,15 @@ def _constant(value: float) -> str:
     return f"({value.hex()})"
 
 
-def _value(graph: Graph, index: int, names: dict, chosen: dict | None = None) -> list:
-    """The C lines that define node ``index`` (``n<index>``), its arguments read through ``names`` (argument -> C), the
-    selects on ``chosen`` conditions as the side chosen."""
+def _value(graph: Graph, index: int, chosen: dict | None = None) -> list:
+    """The C lines that define node ``index`` (``n<index>``), the selects on ``chosen`` conditions as the side
+    chosen."""
     key = _resolved(graph, index, chosen)
     op, n = key[0], f"n{index}"
     a = [f"n{i}" for i in _operands(key)] if op not in ("call", "result") else []
     kind = "int" if graph.boolean(index) else "double"
     if op == "arg":
-        source = names[key[1]]
+        source = _LOOP_NAMES.get(key[1], key[1])
         return [f"const double {n} = {source if key[2] is None else f'{source}[{key[2]}]'};"]
     if op == "const":
         return [f"const double {n} = {_constant(key[2])};"]
@@ -100,14 +110,14 @@ def _value(graph: Graph, index: int, names: dict, chosen: dict | None = None) ->
     if op == "fault":
         return [f"const int {n} = {_raises(graph, key[1])};"]
     if op == "call":
-        arguments = ", ".join(_call_argument(name, value, names) for name, value in key[2])
+        arguments = ", ".join(_call_argument(name, value) for name, value in key[2])
         return [f"double c{index}[{key[3]}];", f"const int f{index} = {key[1]}({arguments}, c{index});"]
     return [f"const double {n} = c{key[1]}[{key[2]}];"]  # result
 
 
-def _call_argument(name: str, value, names: dict) -> str:
+def _call_argument(name: str, value) -> str:
     if value is None:
-        return names[name]
+        return name
     if isinstance(value, tuple):
         return f"(const double[]){{{', '.join(f'n{i}' for i in value)}}}"
     return f"n{value}"
@@ -126,9 +136,8 @@ def _raises(graph: Graph, index: int) -> str:
     return f"f{index}"  # fsum, call
 
 
-def _signature(traced: Traced, names: dict, extra: str) -> str:
-    parts = [f"double {names[name]}" if size is None else f"const double *{names[name]}"
-             for name, size in traced.arguments.items()]
+def _signature(traced: Traced, extra: str) -> str:
+    parts = [f"double {name}" if size is None else f"const double *{name}" for name, size in traced.arguments.items()]
     return f"DSC_TRACED_API int {traced.name}{extra}({', '.join(parts)}"
 
 
@@ -149,10 +158,9 @@ def value_function(traced: Traced) -> str:
     str
         Its C definition.
     """
-    names = {name: name for name in traced.arguments}
     nodes = _needed(traced.graph, [*traced.outputs, traced.fault])
-    body = [line for i in nodes for line in _value(traced.graph, i, names)]
-    return _function(_signature(traced, names, "") + ", double *out)", body + _outputs(traced, "out") +
+    body = [line for i in nodes for line in _value(traced.graph, i)]
+    return _function(_signature(traced, "") + ", double *out)", body + _outputs(traced, "out") +
                      [f"return n{traced.fault};"])
 
 
@@ -198,18 +206,8 @@ def _tangent(graph: Graph, index: int, active: dict) -> list:
             tangent = f"({act[0]} && {act[1]}) ? {rule[0]} : {act[0]} ? {rule[1]} : {rule[2]}"
         else:
             tangent = rule[1] if act[0] else rule[2]
-    elif op == "neg":
-        tangent = f"-{d[0]}"
-    elif op == "abs":
-        tangent = f"{v[0]} >= 0.0 ? {d[0]} : -{d[0]}"
-    elif op == "sin":
-        tangent = f"cos({v[0]}) * {d[0]}"
-    elif op == "cos":
-        tangent = f"-sin({v[0]}) * {d[0]}"
-    elif op == "atan":
-        tangent = f"{d[0]} / (1.0 + {v[0]} * {v[0]})"
-    elif op == "sqrt":
-        tangent = f"n{n} != 0.0 ? 0.5 * {d[0]} / n{n} : 0.0"
+    elif op in _UNARY_TANGENTS:
+        tangent = _UNARY_TANGENTS[op].format(d=d[0], v=v[0], result=f"n{n}")
     elif op == "remainder":
         if act[1]:
             raise Untraceable("remainder() by a differentiable divisor has no dual rule")
@@ -221,7 +219,6 @@ def _tangent(graph: Graph, index: int, active: dict) -> list:
                 f"const double d{n} = dsc_fsum({len(ops)}, (const double[]){{{', '.join(tangent0)}}}, &g{n});"]
     else:  # select
         tangent = f"{v[0]} ? {tangent0[1]} : {tangent0[2]}"
-        act = [None, *act[1:]]
         activity = f"{v[0]} ? {act[1] or 0} : {act[2] or 0}"
     return [f"const int a{n} = {activity or 0};", f"const double d{n} = {tangent};"]
 
@@ -246,12 +243,11 @@ def tangent_function(traced: Traced, differentiable: tuple) -> str:
         Its C definition.
     """
     graph = traced.graph
-    names = {name: name for name in traced.arguments}
     nodes = _needed(graph, [*traced.outputs, traced.fault])
     active = _active(graph, nodes, set(differentiable))
     body, faults = [], [f"n{traced.fault}"]
     for i in nodes:
-        body.extend(_value(graph, i, names))
+        body.extend(_value(graph, i))
         if active[i]:
             body.extend(_tangent(graph, i, active))
             if graph.nodes[i][0] == "fsum":
@@ -259,7 +255,7 @@ def tangent_function(traced: Traced, differentiable: tuple) -> str:
     seeds = "".join(f", double d{name}" if traced.arguments[name] is None else f", const double *d{name}"
                     for name in differentiable)
     tangents = [f"dout[{k}] = {f'a{i} ? d{i} : 0.0' if active[i] else '0.0'};" for k, i in enumerate(traced.outputs)]
-    return _function(_signature(traced, names, "_tangent") + seeds + ", double *out, double *dout)",
+    return _function(_signature(traced, "_tangent") + seeds + ", double *out, double *dout)",
                      body + _outputs(traced, "out") + tangents + [f"return {' | '.join(faults)};"])
 
 
@@ -286,8 +282,6 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
         Its C definition.
     """
     graph = substep.graph
-    names = {name: name for name in substep.arguments}
-    names.update(count="count_", k="k_")
     given = [name for name in substep.arguments if name not in ("count", "k", "x")]
     parts = [f"double {name}" if substep.arguments[name] is None else f"const double *{name}" for name in given]
     signature = f"DSC_TRACED_API int {substep.name}({', '.join(parts)}, long count, double *x_io"
@@ -308,24 +302,24 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
         stores = " ".join(f"watch[{j + 1}] = {v};" for j, v in enumerate(values))
         tail.append(f"if (!seen && n{stage[1]}) {{ seen = 1; watch[0] = 1.0; {stores} }}")
     tail.extend(f"x[{i}] = n{node};" for i, node in enumerate(substep.outputs[:state]))
-    before = [line for i in nodes if i not in varying for line in _value(graph, i, names)]
+    before = [line for i in nodes if i not in varying for line in _value(graph, i)]
     body = [f"double x[{state}];", f"for (int i = 0; i < {state}; i++) x[i] = x_io[i];",
             "const double count_ = (double)count;", *(["int seen = 0;"] if watched else []), *before,
-            *_loops(graph, roots, varying, names, tail, {}),
+            *_loops(graph, roots, varying, tail, {}),
             f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];", "return 0;"]
     return _function(signature, body)
 
 
-def _loops(graph: Graph, roots: list, varying: set, names: dict, tail: list, chosen: dict) -> list:
+def _loops(graph: Graph, roots: list, varying: set, tail: list, chosen: dict) -> list:
     """The sub-step loop, one per combination of the decisions that do not change over the step (``chosen`` so far):
     each loop evaluates only its own side of the selects on them."""
     needed = _needed(graph, roots, chosen)
     fixed = next((graph.nodes[i][1] for i in needed if i in varying and len(_resolved(graph, i, chosen)) == 4
                   and graph.nodes[i][0] == "select" and graph.nodes[i][1] not in varying), None)
     if fixed is not None and len(chosen) < _MAX_LOOP_DECISIONS:
-        sides = [_loops(graph, roots, varying, names, tail, {**chosen, fixed: answer}) for answer in (True, False)]
+        sides = [_loops(graph, roots, varying, tail, {**chosen, fixed: answer}) for answer in (True, False)]
         return [f"if (n{fixed}) {{", *_indented(sides[0]), "} else {", *_indented(sides[1]), "}"]
-    loop = [line for i in needed if i in varying for line in _value(graph, i, names, chosen)]
+    loop = [line for i in needed if i in varying for line in _value(graph, i, chosen)]
     return ["for (long k = 0; k < count; k++) {", *_indented(["const double k_ = (double)k;", *loop, *tail]), "}"]
 
 
