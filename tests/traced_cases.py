@@ -22,7 +22,7 @@ from dsc_fmu.models.dual import DUAL_MATH, tangent
 from dsc_fmu.models.rk4 import rk4_integrate
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
-STATES = {"plant": 7, "reference": 3, "controller": 20}
+STATES = {kind: len(model.STATES) for kind, model in MODELS.items()}
 P = ctypes.POINTER(ctypes.c_double)
 RK4 = (("plant", False), ("plant", True), ("controller", False), ("controller", True), ("reference", False))
 

@@ -3,7 +3,7 @@
 Each FMU's model (``fmu.robot_models``, ``fmu.controller_model``) is traced through its own hooks, ``rates`` and
 ``outputs``, with its parameters a run-time array in the order of its ``PARAMETERS`` table (``p``), so that what
 it derives from them (``derive``: ``plant_coefficients``, ``gains``) is traced too and one C function serves every
-parameter value. The RK4 loops call the traced rates once per evaluation.
+parameter value. Each RK4 loop repeats one traced sub-step of ``models.rk4.rk4_integrate`` over those rates.
 """
 
 from __future__ import annotations
@@ -25,7 +25,6 @@ from .trace import TRACE_MATH, Graph, TooManyPaths, Traced, Untraceable, trace
 __all__ = ["TracedModels", "compile_library", "trace_models"]
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
-STATES = {"plant": 7, "reference": 3, "controller": 20}
 
 
 def _model(kind: str, p: list, held=None):
@@ -39,7 +38,7 @@ def _model(kind: str, p: list, held=None):
 
 def _arguments(kind: str, held: bool = False) -> dict:
     model = MODELS[kind]
-    arguments = {"p": len(model.PARAMETERS), "t": None, "x": STATES[kind]}
+    arguments = {"p": len(model.PARAMETERS), "t": None, "x": len(model.STATES)}
     if model.INPUTS:
         arguments["u"] = len(model.INPUTS)
     if held:
@@ -47,7 +46,7 @@ def _arguments(kind: str, held: bool = False) -> dict:
     return arguments
 
 
-def _hook(kind: str, hook: str, held: bool):
+def _hook(kind: str, hook: str):
     def function(p, t, x, u=None, s=None):
         return getattr(_model(kind, p, s), hook)(t, x, u, TRACE_MATH)
 
@@ -74,10 +73,11 @@ def _substep(rates: Traced, kind: str, line: bool, name: str) -> Traced:
     arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
     if line:
         arguments.update(slope=arguments["u"], stamp=None)
+    state = len(MODELS[kind].STATES)
     try:
-        return trace_rk4_substep(rates, STATES[kind], _inputs, arguments, name, inline=True)
+        return trace_rk4_substep(rates, state, _inputs, arguments, name, inline=True)
     except TooManyPaths:
-        return trace_rk4_substep(rates, STATES[kind], _inputs, arguments, name, inline=False)
+        return trace_rk4_substep(rates, state, _inputs, arguments, name, inline=False)
 
 
 @dataclass
@@ -112,22 +112,25 @@ def trace_models() -> TracedModels:
     graph = Graph()
     functions, untraceable, definitions = {}, {}, []
 
-    def add(name, make, tangent=()):
+    def add(name, make, emit):
         try:
-            traced = functions[name] = make()
-            definitions.append(emit_c.value_function(traced))
-            if tangent:
-                definitions.append(emit_c.tangent_function(traced, tangent))
+            traced = make()
+            made = emit(traced)
         except Untraceable as error:
             untraceable[name] = str(error)
+        else:
+            functions[name] = traced
+            definitions.extend(made)
 
     for kind, model in MODELS.items():
         knowns = ("x", "u") if model.INPUTS else ("x",)
         for hook in ("rates", "outputs"):
             for held in (False, True) if kind == "controller" else (False,):
                 name = f"dsc_{kind}_{hook}{'_held' if held else ''}"
-                add(name, lambda: trace(_hook(kind, hook, held), _arguments(kind, held), name, graph), knowns)
-    add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph))
+                add(name, lambda: trace(_hook(kind, hook), _arguments(kind, held), name, graph),
+                    lambda traced: [emit_c.value_function(traced), emit_c.tangent_function(traced, knowns)])
+    add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph),
+        lambda traced: [emit_c.value_function(traced)])
     for kind, rates in (("plant", "dsc_plant_rates"), ("reference", "dsc_reference_rates"),
                         ("controller", "dsc_controller_law")):
         for coupling in ("", "_line") if MODELS[kind].INPUTS else ("",):
@@ -135,12 +138,9 @@ def trace_models() -> TracedModels:
             if rates in untraceable:
                 untraceable[name] = f"{name}: its rates are not traced ({untraceable[rates]})"
                 continue
-            try:
-                functions[name] = substep = _substep(functions[rates], kind, bool(coupling), name)
-            except Untraceable as error:
-                untraceable[name] = str(error)
-                continue
-            definitions.append(emit_c.rk4_function(substep, STATES[kind], 2 if kind == "controller" else 0))
+            watched = 2 if kind == "controller" else 0
+            add(name, lambda: _substep(functions[rates], kind, bool(coupling), name),
+                lambda traced: [emit_c.rk4_function(traced, len(MODELS[kind].STATES), watched)])
     return TracedModels(functions, untraceable, emit_c.c_file(definitions))
 
 
