@@ -83,9 +83,9 @@ def test_the_untraceable_model_functions_are_reported_by_name(traced):
 
 
 PORTED = """#include "traced_math.h"
-DSC_TRACED_API double hypot_(double x, double y) { return dsc_hypot(x, y); }
-DSC_TRACED_API double remainder_(double x, double y) { return dsc_remainder(x, y); }
-DSC_TRACED_API double fsum_(int n, const double *values, int *raised) { return dsc_fsum(n, values, raised); }
+double hypot_(double x, double y) { return dsc_hypot(x, y); }
+double remainder_(double x, double y) { return dsc_remainder(x, y); }
+double fsum_(int n, const double *values, int *raised) { return dsc_fsum(n, values, raised); }
 """
 SPECIAL = [0.0, -0.0, math.inf, -math.inf, math.nan, 5e-324, 1e-310, 1e308, -1e308, 1.0, math.pi, 2 * math.pi]
 

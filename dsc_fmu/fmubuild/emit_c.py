@@ -21,7 +21,7 @@ _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/", **COMPARISONS}
 _LIBM = {"sin", "cos", "atan", "sqrt"}
 _FSUM_MAX = 64  # the partials array of dsc_fsum
 _MAX_LOOP_DECISIONS = 6  # at most 2^6 specialised loops per RK4 function
-_LOOP_NAMES = {"count": "count_", "k": "k_"}  # the RK4 loop's count and index as doubles (C: long count, k)
+_LOOP_NAMES = {"count": "(double)count", "k": "(double)k"}  # the RK4 loop's count and index (C: long) as doubles
 # The tangents of models.dual's one-argument rules: d the argument's tangent, v its value, result the node's value.
 _UNARY_TANGENTS = {
     "neg": "-{d}",
@@ -56,8 +56,17 @@ def _needed(graph: Graph, roots, chosen: dict | None = None) -> list:
         index = stack.pop()
         if index not in seen:
             seen.add(index)
-            stack.extend(_operands(_resolved(graph, index, chosen)))
+            stack.extend(_reads(graph, _resolved(graph, index, chosen)))
     return sorted(seen)
+
+
+def _reads(graph: Graph, key: tuple) -> list:
+    """The nodes whose C values node ``key`` reads: its operands, except that whether a division raises reads only
+    the divisor, and whether another operation raises reads that operation and its operands."""
+    if key[0] != "fault":
+        return _operands(key)
+    raising = graph.nodes[key[1]]
+    return [_operands(raising)[1]] if raising[0] == "div" else [key[1], *_operands(raising)]
 
 
 def _resolved(graph: Graph, index: int, chosen: dict | None) -> tuple:
@@ -223,6 +232,17 @@ def _tangent(graph: Graph, index: int, active: dict) -> list:
     return [f"const int a{n} = {activity or 0};", f"const double d{n} = {tangent};"]
 
 
+def _tangents_needed(graph: Graph, outputs: list, active: dict) -> set:
+    """The nodes whose tangents the tangents of ``outputs`` need: the active ones they read, directly or not."""
+    needed, stack = set(), [i for i in outputs if active[i]]
+    while stack:
+        index = stack.pop()
+        if index not in needed:
+            needed.add(index)
+            stack.extend(j for j in _operands(graph.nodes[index]) if active[j])
+    return needed
+
+
 def tangent_function(traced: Traced, differentiable: tuple) -> str:
     """The C function ``int <name>_tangent(<arguments>, <seeds>, double *out, double *dout)``: values and tangents.
 
@@ -245,10 +265,13 @@ def tangent_function(traced: Traced, differentiable: tuple) -> str:
     graph = traced.graph
     nodes = _needed(graph, [*traced.outputs, traced.fault])
     active = _active(graph, nodes, set(differentiable))
+    # Python sums the tangents of every fsum of duals it evaluates, and may raise there: those are needed too.
+    sums = [i for i in nodes if active[i] and graph.nodes[i][0] == "fsum"]
+    with_tangent = _tangents_needed(graph, [*traced.outputs, *sums], active)
     body, faults = [], [f"n{traced.fault}"]
     for i in nodes:
         body.extend(_value(graph, i))
-        if active[i]:
+        if i in with_tangent:
             body.extend(_tangent(graph, i, active))
             if graph.nodes[i][0] == "fsum":
                 faults.append(f"(a{i} && g{i})")
@@ -286,12 +309,12 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
     parts = [f"double {name}" if substep.arguments[name] is None else f"const double *{name}" for name in given]
     signature = f"DSC_TRACED_API int {substep.name}({', '.join(parts)}, long count, double *x_io"
     signature += ", double *watch)" if watched else ")"
-    roots = [*substep.outputs, substep.fault]
+    roots = [*(substep.outputs if watched else substep.outputs[:state]), substep.fault]
     nodes = _needed(graph, roots)
     varying = set()
     for i in nodes:
         key = graph.nodes[i]
-        if (key[0] == "arg" and key[1] in ("x", "k")) or any(j in varying for j in _operands(key)):
+        if (key[0] == "arg" and key[1] in ("x", "k")) or any(j in varying for j in _reads(graph, key)):
             varying.add(i)
     tail = [f"if (n{substep.fault}) return 1;"]
     outputs = substep.outputs[state:]
@@ -304,7 +327,7 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
     tail.extend(f"x[{i}] = n{node};" for i, node in enumerate(substep.outputs[:state]))
     before = [line for i in nodes if i not in varying for line in _value(graph, i)]
     body = [f"double x[{state}];", f"for (int i = 0; i < {state}; i++) x[i] = x_io[i];",
-            "const double count_ = (double)count;", *(["int seen = 0;"] if watched else []), *before,
+            *(["int seen = 0;"] if watched else []), *before,
             *_loops(graph, roots, varying, tail, {}),
             f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];", "return 0;"]
     return _function(signature, body)
@@ -320,7 +343,7 @@ def _loops(graph: Graph, roots: list, varying: set, tail: list, chosen: dict) ->
         sides = [_loops(graph, roots, varying, tail, {**chosen, fixed: answer}) for answer in (True, False)]
         return [f"if (n{fixed}) {{", *_indented(sides[0]), "} else {", *_indented(sides[1]), "}"]
     loop = [line for i in needed if i in varying for line in _value(graph, i, chosen)]
-    return ["for (long k = 0; k < count; k++) {", *_indented(["const double k_ = (double)k;", *loop, *tail]), "}"]
+    return ["for (long k = 0; k < count; k++) {", *_indented([*loop, *tail]), "}"]
 
 
 def _indented(lines: list) -> list:
@@ -342,5 +365,5 @@ def c_file(functions: list) -> str:
     """
     head = ("/* Generated by dsc_fmu.fmubuild.emit_c from the Python models: do not edit (docs/traced-c.md). */\n"
             "#include <math.h>\n#include \"traced_math.h\"\n"
-            "#ifndef DSC_TRACED_API\n#define DSC_TRACED_API static inline\n#endif\n\n")
+            "#ifndef DSC_TRACED_API\n#define DSC_TRACED_API\n#endif\n\n")
     return head + "\n".join(functions)

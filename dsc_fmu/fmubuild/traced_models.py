@@ -173,8 +173,7 @@ def compile_library(source: str, folder: Path, target: binary.Target | None = No
     path, library = folder / "traced.c", folder / f"traced{target.suffix}"
     path.write_text(source)
     subprocess.run([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags,
-                    "-O2",
-                    *flags, "-Wall", "-Werror", "-Wno-unused-variable", "-fvisibility=default",
-                    "-DDSC_TRACED_API=", f"-I{emit_c.TRACED_MATH_HEADER.parent}", str(path), "-o", str(library),
-                    *target.libraries], check=True, capture_output=True)
+                    "-fvisibility=default", "-O2", *flags, "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
+                    f"-I{emit_c.TRACED_MATH_HEADER.parent}", str(path), "-o", str(library), *target.libraries],
+                   check=True, capture_output=True)
     return library
