@@ -14,6 +14,7 @@ import traced_cases
 from dsc_fmu.fmu.robot_models import MobileRobotModel
 from dsc_fmu.fmubuild.trace import TRACE_MATH, Untraceable, trace
 from dsc_fmu.fmubuild.traced_models import compile_library, trace_models
+from dsc_fmu.models.controller import control_law
 from traced_cases import call, model, same
 
 
@@ -64,15 +65,25 @@ def test_raising_in_python_is_flagged(library):
     assert fault == 1
 
 
+def test_the_side_not_taken_may_divide_by_zero(library):
+    """On the reference with no heading error, S13 = 0: Python takes alpha2's series, C also computes sin(0) / 0 on
+    the other side of the select, gets NaN and discards it; no fault, Python's bits."""
+    p = {v.name: v.start for v in model("controller", {}).PARAMETERS}
+    m = [1.0, 2.0, 0.5, 0.1, 3.0, 2.0, 0.5, 0.4, 1.0, 2.0, 0.5, 1.0, 0.2, 0.0]
+    xc = [0.1] * 20
+    values, fault = call(library, "dsc_controller_rates", [list(p.values()), 0.0, xc, m], 20)
+    assert control_law(model("controller", p).constants, xc, m).S13 == 0.0
+    assert fault == 0 and same(values, model("controller", p).rates(0.0, xc, m))
+
+
 @pytest.mark.parametrize("body, reason", [
     (lambda x: [math.floor(x[0])], "TypeError"),
     (lambda x: [float(x[0]) * 2.0], "TypeError"),
     (lambda x: [TRACE_MATH.sin(x[0]) if x[0] < i else x[0] for i in range(10)], "combinations"),
 ], ids=["math module", "float()", "too many decisions"])
-def test_untraceable_functions_are_named_with_the_reason(body, reason, monkeypatch):
-    monkeypatch.setattr("dsc_fmu.fmubuild.trace.MAX_PATHS", 8)
+def test_untraceable_functions_are_named_with_the_reason(body, reason):
     with pytest.raises(Untraceable, match=f"^my_function: .*{reason}"):
-        trace(lambda x: body(x), {"x": 1}, "my_function")
+        trace(body, {"x": 1}, "my_function", max_paths=8)
 
 
 def test_the_untraceable_model_functions_are_reported_by_name(traced):
