@@ -49,6 +49,10 @@ def test_derivative_code_equals_the_dual_numbers(library):
     assert traced_cases.tangents(library) == (None, {"cases": 1500})
 
 
+def test_the_controllers_initial_state_and_its_tangents_bit_for_bit(library):
+    assert traced_cases.start(library) == (None, {"cases": 1000})
+
+
 @pytest.mark.parametrize("kind, line", traced_cases.RK4)
 def test_rk4_loops_bit_for_bit(library, kind, line):
     differing, counts = traced_cases.rk4(library, kind, line)

@@ -53,6 +53,16 @@ def _hook(kind: str, hook: str):
     return function
 
 
+def _start(p, u):
+    """The controller's state before the first step, its filters started from the inputs (``initial_state``)."""
+    return _model("controller", p).initial_state(u, TRACE_MATH)
+
+
+def _indicators(p, x, u, s):
+    """The controller's event indicators at the held switches (``indicators``)."""
+    return _model("controller", p, s).indicators(x, u)
+
+
 def _law(p, t, x, u):
     """The controller's derivative, then whether the beta guard acts and beta: what its RK4 watches (co-simulation)."""
     law = control_law(_model("controller", p).constants, x, u, None, TRACE_MATH)
@@ -93,7 +103,9 @@ class TracedModels:
     source : str
         The C file: ``emit_c.value_function`` of each, ``emit_c.tangent_function`` of the rates and outputs
         (differentiable in ``x`` and ``u``), ``emit_c.rk4_function`` of each model's RK4 loop with the inputs held
-        (``dsc_<model>_rk4``) and on a line (``dsc_<model>_rk4_line``: ``slope`` and ``stamp`` after ``u``).
+        (``dsc_<model>_rk4``) and on a line (``dsc_<model>_rk4_line``: ``slope`` and ``stamp`` after ``u``); the
+        controller's ``initial_state`` (``dsc_controller_initial_state(p, u, out)``, differentiable in ``u``) and
+        ``indicators`` (``dsc_controller_indicators(p, x, u, s, out)``).
     """
 
     functions: dict
@@ -130,6 +142,12 @@ def trace_models() -> TracedModels:
                 add(name, lambda: trace(_hook(kind, hook), _arguments(kind, held), name, graph),
                     lambda traced: [emit_c.value_function(traced), emit_c.tangent_function(traced, knowns)])
     add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph),
+        lambda traced: [emit_c.value_function(traced)])
+    start = {"p": len(DSCControllerModel.PARAMETERS), "u": len(DSCControllerModel.INPUTS)}
+    add("dsc_controller_initial_state", lambda: trace(_start, start, "dsc_controller_initial_state", graph),
+        lambda traced: [emit_c.value_function(traced), emit_c.tangent_function(traced, ("u",))])
+    switched = {key: size for key, size in _arguments("controller", True).items() if key != "t"}
+    add("dsc_controller_indicators", lambda: trace(_indicators, switched, "dsc_controller_indicators", graph),
         lambda traced: [emit_c.value_function(traced)])
     for kind, rates in (("plant", "dsc_plant_rates"), ("reference", "dsc_reference_rates"),
                         ("controller", "dsc_controller_law")):
