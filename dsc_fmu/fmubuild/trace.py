@@ -11,6 +11,7 @@ graph holds exactly Python's operations in Python's order: nothing is folded or 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from types import SimpleNamespace
 
@@ -298,7 +299,7 @@ class Traced:
     outputs: list
     fault: int
     paths: int
-    function: object
+    function: Callable
 
 
 def _arguments(graph: Graph, arguments: dict) -> dict:
