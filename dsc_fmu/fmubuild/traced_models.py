@@ -28,11 +28,12 @@ MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controll
 
 
 def _model(kind: str, p: list, held=None):
-    """The FMU's model with the traced parameters ``p`` (and the controller's switches ``held``)."""
+    """The FMU's model with the traced parameters ``p`` (and the controller's switches ``held``: the number of turns,
+    then each Boolean switch as a number, nonzero for true)."""
     model = MODELS[kind]()
     model.p = dict(zip(model.p, p))
     if held is not None:
-        model.held = Switches(held[0], held[1] != 0.0)
+        model.held = Switches(held[0], *(switch != 0.0 for switch in held[1:]))
     return model
 
 
@@ -42,7 +43,7 @@ def _arguments(kind: str, held: bool = False) -> dict:
     if model.INPUTS:
         arguments["u"] = len(model.INPUTS)
     if held:
-        arguments["s"] = 2
+        arguments["s"] = len(Switches._fields)
     return arguments
 
 
