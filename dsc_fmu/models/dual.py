@@ -176,6 +176,15 @@ def _remainder(x, y):
     return math.remainder(x, y)
 
 
+def _hypot(x, y):
+    """``hypot(x, y)``: tangent ``(x x' + y y') / hypot`` (0 at the origin, as ``_sqrt``)."""
+    if type(x) is not Dual and type(y) is not Dual:
+        return math.hypot(x, y)
+    x_value, y_value = _value(x), _value(y)
+    length = math.hypot(x_value, y_value)
+    return Dual(length, (x_value * tangent(x) + y_value * tangent(y)) / length if length else 0.0)
+
+
 def _fsum(values):
     """``math.fsum`` of the values and, as exactly, of the tangents."""
     values = list(values)
@@ -185,6 +194,6 @@ def _fsum(values):
 
 
 DUAL_MATH = SimpleNamespace(
-    pi=math.pi, sin=_sin, cos=_cos, atan=_atan, sqrt=_sqrt, remainder=_remainder, fsum=_fsum,
+    pi=math.pi, sin=_sin, cos=_cos, atan=_atan, sqrt=_sqrt, remainder=_remainder, hypot=_hypot, fsum=_fsum,
 )
 """The functions of the ``math`` module that the models use, on duals and floats alike."""

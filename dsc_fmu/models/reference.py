@@ -8,8 +8,9 @@ CONSTANT = 0
 FIGURE_EIGHT = 1
 
 
-def _figure_eight(t: float, A: float, B: float, T: float) -> tuple:
-    """Speed, turn rate and acceleration along x = A sin(W t), y = B sin(2 W t), W = 2 pi / T."""
+def _figure_eight(t: float, A: float, B: float, T: float, math=math) -> tuple:
+    """Speed, turn rate and acceleration along x = A sin(W t), y = B sin(2 W t), W = 2 pi / T (``math``: as in
+    ``velocity``)."""
     W = 2.0 * math.pi / T
     s1, c1 = math.sin(W * t), math.cos(W * t)
     s2, c2 = math.sin(2.0 * W * t), math.cos(2.0 * W * t)
@@ -19,12 +20,13 @@ def _figure_eight(t: float, A: float, B: float, T: float) -> tuple:
     return v, (xd * ydd - yd * xdd) / (v * v), (xd * xdd + yd * ydd) / v
 
 
-def velocity(p: dict, t: float) -> tuple:
+def velocity(p: dict, t: float, math=math) -> tuple:
     """``(vr, wr, vr_dot)`` of (9) at time ``t`` (s), in m/s, rad/s, m/s2, for the ReferenceRobot FMU's parameters
-    ``p``, whose ``profile`` selects the profile (docs/model.md §5.8).
+    ``p``, whose ``profile`` selects the profile (docs/model.md §5.8); ``math``: where ``sin``, ``cos`` and ``hypot``
+    come from (the module, or a namespace such as ``dual.DUAL_MATH``).
     """
     if p["profile"] == FIGURE_EIGHT:
-        return _figure_eight(t, p["eight_A"], p["eight_B"], p["eight_T"])
+        return _figure_eight(t, p["eight_A"], p["eight_B"], p["eight_T"], math)
     return p["vr0"], p["wr0"], 0.0
 
 
@@ -58,7 +60,7 @@ def reference_derivatives(p: dict, t: float, x: list, math=math) -> list:
     x : list of float
         The state ``[xr, yr, thetar]`` in m, m, rad.
     math : namespace, optional
-        Where ``sin`` and ``cos`` come from: the ``math`` module (default), or ``dual.DUAL_MATH`` for
+        Where ``sin``, ``cos`` and ``hypot`` come from: the ``math`` module (default), or ``dual.DUAL_MATH`` for
         directional derivatives with ``x`` duals (the profile depends on ``t`` alone).
 
     Returns
@@ -66,5 +68,5 @@ def reference_derivatives(p: dict, t: float, x: list, math=math) -> list:
     list of float
         ``[vr cos(thetar), vr sin(thetar), wr]`` in m/s, m/s, rad/s.
     """
-    vr, wr, _ = velocity(p, t)
+    vr, wr, _ = velocity(p, t, math)
     return [vr * math.cos(x[2]), vr * math.sin(x[2]), wr]

@@ -1,0 +1,235 @@
+"""The traced C against CPython on random points, free of pytest so that the same checks run on this host
+(``test_trace.py``) and in the arm64 root under qemu (``test_trace_aarch64.py``, task ``traced_points``).
+
+Each check takes the compiled library (``ctypes.CDLL``) and returns what a test asserts: the first case whose
+C results differ from CPython's in any bit (None if none does) and the cases counted per branch.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import math
+import random
+import struct
+from types import SimpleNamespace
+
+from dsc_fmu.fmu.controller_model import DSCControllerModel
+from dsc_fmu.fmu.directional import seeded
+from dsc_fmu.fmu.robot_models import MobileRobotModel, ReferenceRobotModel
+from dsc_fmu.fmu.slave import ModelSlave
+from dsc_fmu.models.controller import Switches, control_law, switches
+from dsc_fmu.models.dual import DUAL_MATH, tangent
+from dsc_fmu.models.rk4 import rk4_integrate
+
+MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
+STATES = {kind: len(model.STATES) for kind, model in MODELS.items()}
+P = ctypes.POINTER(ctypes.c_double)
+RK4 = (("plant", False), ("plant", True), ("controller", False), ("controller", True), ("reference", False))
+
+
+def array(values):
+    """A C array of doubles (one element at least)."""
+    return (ctypes.c_double * max(1, len(values)))(*values)
+
+
+def call(library, name, arguments, outputs):
+    """``name(*arguments, out)``: arrays for lists, doubles for floats; the outputs and the returned fault flag."""
+    out = array([0.0] * outputs)
+    fault = getattr(library, name)(*(array(a) if isinstance(a, list) else ctypes.c_double(a) for a in arguments), out)
+    return list(out), fault
+
+
+def _bits(value) -> bytes:
+    value = float(value)
+    return b"nan" if value != value else struct.pack("<d", value)
+
+
+def same(c_values, python_values) -> bool:
+    """Whether two lists of numbers are equal bit for bit (any NaN equal to any NaN)."""
+    return [_bits(v) for v in c_values] == [_bits(v) for v in python_values]
+
+
+def parameters(kind, rng, spread=0.2):
+    """The model's parameters by name, the Real ones each scaled by a random factor in [1 - spread, 1 + spread]."""
+    return {v.name: v.start if v.integer else v.start * rng.uniform(1 - spread, 1 + spread) + (0.0 if v.start else
+            rng.uniform(-0.1, 0.1)) for v in MODELS[kind].PARAMETERS}
+
+
+def model(kind, p, held=None):
+    """The FMU's model with the parameters ``p`` (and the controller's switches ``held``)."""
+    m = MODELS[kind]()
+    m.p = dict(p)
+    m.held = held if kind == "controller" else None
+    return m
+
+
+def measurements(rng, case):
+    """Controller inputs: ``case`` 0 anywhere (wraps), 1 on the reference (alpha2's series), 2 behind it (beta guard),
+    3 the heading error exactly -pi."""
+    theta, thetar = rng.uniform(-8, 8), rng.uniform(-8, 8)
+    x, y = rng.uniform(-5, 5), rng.uniform(-5, 5)
+    xr, yr = x + rng.uniform(-2, 2), y + rng.uniform(-2, 2)
+    if case == 1:
+        xr, yr, thetar = x, y, theta + rng.uniform(-1.5e-4, 1.5e-4)
+    elif case == 2:
+        d = rng.uniform(0.5, 3.0)
+        xr, yr = x - d * math.cos(theta), y - d * math.sin(theta)
+    elif case == 3:
+        theta, thetar = math.pi, 0.0
+    return [x, y, theta, rng.uniform(-2, 2), rng.uniform(-20, 20), rng.uniform(-20, 20), rng.uniform(-3, 3),
+            rng.uniform(-3, 3), xr, yr, thetar, rng.uniform(0.1, 2.0), rng.uniform(-1, 1), rng.uniform(-1, 1)]
+
+
+def plant(library, count=2000):
+    """``dsc_plant_rates`` and ``dsc_plant_outputs`` at random states, inputs and parameters."""
+    rng = random.Random(1)
+    for _ in range(count):
+        p = parameters("plant", rng)
+        x, u, t = [rng.uniform(-10, 10) for _ in range(7)], [rng.uniform(-12, 12) for _ in range(2)], rng.uniform(0, 30)
+        for hook, outputs in (("rates", 7), ("outputs", 8)):
+            values, fault = call(library, f"dsc_plant_{hook}", [list(p.values()), t, x, u], outputs)
+            if fault or not same(values, getattr(model("plant", p), hook)(t, x, u)):
+                return (hook, p, x, u), {}
+    return None, {"cases": count}
+
+
+def reference(library, profile, count=1000):
+    """``dsc_reference_rates`` with ``profile`` at random times, states and parameters."""
+    rng = random.Random(2 + profile)
+    for _ in range(count):
+        p = {**parameters("reference", rng), "profile": profile}
+        x, t = [rng.uniform(-10, 10) for _ in range(3)], rng.uniform(0, 100)
+        values, fault = call(library, "dsc_reference_rates", [list(p.values()), t, x], 3)
+        if fault or not same(values, model("reference", p).rates(t, x, None)):
+            return (p, x, t), {}
+    return None, {"cases": count}
+
+
+def controller(library, held, count=3000):
+    """The controller's rates and outputs, switches chosen (co-simulation) or ``held`` (model exchange), with the
+    cases counted per branch: wrapped, wrapped to exactly pi, on alpha2's series, guarded or not."""
+    rng = random.Random(4 + held)
+    branches = {"wrap": 0, "wrap to pi": 0, "series": 0, "guarded": 0, "unguarded": 0}
+    for i in range(count):
+        case = i % 4 if i % 4 != 3 or i % 40 == 3 else 0
+        p, xc = parameters("controller", rng, spread=0.1), [rng.uniform(-2, 2) for _ in range(20)]
+        m = measurements(rng, case)
+        chosen = switches(model("controller", p).constants, m)
+        turns = chosen.turns + (0 if case == 1 else rng.choice((-1, 0, 1)))
+        s = Switches(turns, rng.random() < 0.5) if held else None
+        law_model = model("controller", p, s)
+        law = control_law(law_model.constants, xc, m, s)
+        branches["wrap"] += abs(m[10] - m[2]) > math.pi
+        branches["wrap to pi"] += m[10] - m[2] == -math.pi
+        branches["series"] += abs(0.5 * law.S13) < 1e-4
+        branches["guarded" if law.guarded else "unguarded"] += 1
+        arguments = [list(p.values()), 0.0, xc, m, *([[float(s.turns), float(s.guarded)]] if held else [])]
+        for hook, outputs in (("rates", 20), ("outputs", 24)):
+            values, fault = call(library, f"dsc_controller_{hook}{'_held' if held else ''}", arguments, outputs)
+            if fault or not same(values, getattr(law_model, hook)(0.0, xc, m)):
+                return (hook, p, xc, m, s), branches
+    return None, branches
+
+
+def tangents(library, count=1500):
+    """The ``_tangent`` functions against the dual numbers, 30 % of the seeds zero (those knowns stay floats)."""
+    rng = random.Random(6)
+    for i in range(count):
+        kind = ("plant", "reference", "controller")[i % 3]
+        m = model(kind, parameters(kind, rng, spread=0.1))
+        x = [rng.uniform(-3, 3) for _ in range(STATES[kind])]
+        u = {"plant": [rng.uniform(-3, 3) for _ in range(2)], "controller": measurements(rng, i % 3),
+             "reference": None}[kind]
+        dx = [0.0 if rng.random() < 0.3 else rng.uniform(-1, 1) for _ in x]
+        du = None if u is None else [0.0 if rng.random() < 0.3 else rng.uniform(-1, 1) for _ in u]
+        xs, us = seeded(x, dict(enumerate(dx))), None if u is None else seeded(u, dict(enumerate(du)))
+        for hook in ("rates", "outputs") if kind != "reference" else ("rates",):
+            python = getattr(m, hook)(0.5, xs, us, DUAL_MATH)
+            out, dout = array([0.0] * len(python)), array([0.0] * len(python))
+            arguments = [array(list(m.p.values())), ctypes.c_double(0.5), array(x), *([] if u is None else [array(u)])]
+            arguments += [array(dx)] + ([] if u is None else [array(du)])
+            fault = getattr(library, f"dsc_{kind}_{hook}_tangent")(*arguments, out, dout)
+            values = [v.value if hasattr(v, "value") else v for v in python]
+            if fault or not same(list(out), values) or not same(list(dout), [tangent(v) for v in python]):
+                return (kind, hook, x, u, dx, du), {}
+    return None, {"cases": count}
+
+
+def start(library, count=1000):
+    """``dsc_controller_initial_state`` (the filters started from the inputs) and its tangents in the inputs, 30 % of
+    the seeds zero, against ``initial_state`` on floats and on dual numbers."""
+    rng = random.Random(9)
+    for i in range(count):
+        m = model("controller", parameters("controller", rng, spread=0.1))
+        u = measurements(rng, i % 4)
+        du = [0.0 if rng.random() < 0.3 else rng.uniform(-1, 1) for _ in u]
+        python = m.initial_state(seeded(u, dict(enumerate(du))), DUAL_MATH)
+        out, dout = array([0.0] * 20), array([0.0] * 20)
+        fault = library.dsc_controller_initial_state_tangent(array(list(m.p.values())), array(u), array(du), out, dout)
+        values, fault_of_values = call(library, "dsc_controller_initial_state", [list(m.p.values()), u], 20)
+        if (fault or fault_of_values or not same(values, m.initial_state(u)) or not same(list(out), values)
+                or not same(list(dout), [tangent(v) for v in python])):
+            return (m.p, u, du), {}
+    return None, {"cases": count}
+
+
+def _python_rk4(kind, p, t0, x, inputs, step_size, count):
+    """``models.rk4.rk4_integrate`` of the model's rates at the inputs ``inputs(t)``, and for the controller the first
+    guarded (t, beta), as ``DSCControllerModel.integrate`` records it."""
+    m, seen = model(kind, p), []
+
+    def rates(t, x):
+        if kind != "controller":
+            return m.rates(t, x, inputs(t))
+        law = control_law(m.constants, x, inputs(t))
+        if law.guarded and not seen:
+            seen.append((t, law.beta))
+        return law.derivative
+
+    return rk4_integrate(rates, t0, x, step_size, step_size / count), seen
+
+
+def rk4(library, kind, line, runs=600):
+    """``dsc_<kind>_rk4`` (inputs held) or ``_rk4_line`` (inputs on a line) over ten sub-steps against
+    ``models.rk4.rk4_integrate``, the controller's watch included; counts the runs in which the guard acted."""
+    rng = random.Random(7)
+    guarded = 0
+    for i in range(runs):
+        p = parameters(kind, rng, spread=0.1)
+        if kind == "reference":
+            p["profile"] = i % 2
+        x = [rng.uniform(-2, 2) for _ in range(STATES[kind])]
+        u = {"plant": [rng.uniform(-12, 12) for _ in range(2)], "controller": measurements(rng, i % 3),
+             "reference": None}[kind]
+        t0, step_size = rng.uniform(0, 30), rng.choice((1e-3, 0.01, 0.05))
+        slope = [rng.uniform(-0.5, 0.5) for _ in u] if line else None
+        stamp = t0 + rng.choice((0.0, step_size))
+        slave = SimpleNamespace(u=u, _slope=slope, _stamp=stamp)
+        expected, seen = _python_rk4(kind, p, t0, x, lambda t: ModelSlave.inputs(slave, t), step_size, 10)
+        state, watch = array(x), array([0.0, 0.0, 0.0])
+        arguments = [array(list(p.values()))] + ([] if u is None else [array(u)])
+        arguments += [array(slope), ctypes.c_double(stamp)] if line else []
+        arguments += [ctypes.c_double(t0), ctypes.c_double(step_size), ctypes.c_long(10), state]
+        function = getattr(library, f"dsc_{kind}_rk4{'_line' if line else ''}")
+        function.argtypes = [P] * (1 + (u is not None)) + ([P, ctypes.c_double] if line else [])
+        function.argtypes += [ctypes.c_double, ctypes.c_double, ctypes.c_long, P]
+        function.argtypes += [P] if kind == "controller" else []
+        fault = function(*arguments, *([watch] if kind == "controller" else []))
+        watched = [1.0, *seen[0]] if seen else [0.0, 0.0, 0.0]
+        if fault or not same(list(state), expected) or (kind == "controller" and not same(list(watch), watched)):
+            return (kind, line, p, x, u, t0, step_size), {}
+        guarded += bool(seen)
+    return None, {"runs": runs, "guarded": guarded}
+
+
+def traced_points(fmus: dict) -> dict:
+    """Task (``debian_root``): every check above on the library ``fmus["traced"]``; the first differing case of
+    each that has one (as text) and the counts."""
+    library = ctypes.CDLL(fmus["traced"])
+    checks = {"plant": lambda: plant(library), **{f"reference {p}": lambda p=p: reference(library, p) for p in (0, 1)},
+              **{f"controller held={h}": lambda h=h: controller(library, h) for h in (False, True)},
+              "tangents": lambda: tangents(library), "initial state": lambda: start(library),
+              **{f"rk4 {k} line={ln}": lambda k=k, ln=ln: rk4(library, k, ln) for k, ln in RK4}}
+    found = {name: check() for name, check in checks.items()}
+    return {"differing": {name: repr(case) for name, (case, _) in found.items() if case is not None},
+            "counts": {name: counts for name, (_, counts) in found.items()}}
