@@ -229,6 +229,19 @@ def _crosscheck_options(parser: argparse.ArgumentParser) -> None:
     _add_fmus(parser, _USED_IF_CURRENT, "crosscheck")
 
 
+def _laws_options(parser: argparse.ArgumentParser) -> None:
+    from .models.parameters import ADAPTATIONS
+    from .study.laws import DEFAULT_SCENARIOS
+
+    parser.add_argument("scenarios", nargs="*", metavar="scenario", help=f"scenario names ({', '.join(scenario_names())}) "
+                        f"or TOML files (default: {' '.join(DEFAULT_SCENARIOS)})")
+    parser.add_argument("--laws", type=_names, help=f"adaptation laws, comma-separated: {', '.join(ADAPTATIONS)} "
+                        "(default: all)")
+    _add(parser, "step_size", "stop_time")
+    parser.add_argument("--out", type=Path, help="output folder (default: results/laws)")
+    _add_fmus(parser, _BUILT_THERE)
+
+
 def _given(args: argparse.Namespace, *names: str) -> dict:
     """The options among ``names`` the user gave, by name: the others keep their owners' defaults."""
     return {name: getattr(args, name) for name in names if getattr(args, name, None) is not None}
@@ -290,6 +303,16 @@ def _crosscheck(args) -> None:
         folders = write_crosscheck(args.out, fmus, **_given(args, "step_size", "stop_time"))
     for folder in folders.values():
         print(folder)
+
+
+def _laws(args) -> None:
+    from .study.laws import DEFAULT_SCENARIOS, compare_adaptation_laws
+
+    scenarios = [load_scenario(name).with_simulation(step_size=args.step_size, stop_time=args.stop_time)
+                 for name in args.scenarios or DEFAULT_SCENARIOS]
+    folder, version = _fmus(args)
+    print(compare_adaptation_laws(scenarios, args.out or Path("results") / "laws", **_given(args, "laws"),
+                                  fmu_dir=folder, fmi_version=version))
 
 
 def _scenarios(args) -> None:
@@ -369,6 +392,8 @@ COMMANDS = {
                            lambda parser: _export_options(parser, "export-fmu")),
     "crosscheck": _Command("write the FMI cross-check artefacts of the three FMUs (a closed-loop run of the paper "
                            "scenario)", _crosscheck, _crosscheck_options),
+    "compare-laws": _Command("compare the adaptation laws (sigma, e, projection, none) on scenarios: tracking, the "
+                             "estimates' norms, the voltages and the driver's limit", _laws, _laws_options),
     "scenarios": _Command("list the scenarios shipped with dsc-fmu", _scenarios, lambda parser: None),
 }
 

@@ -36,7 +36,7 @@ ALLOWED = {
     "__init__": set(),
 }
 # Above the builder, only these build FMUs; the rest tell FMU builds apart through ``identity``.
-BUILDERS = {"dsc_fmu.cosim.run", "dsc_fmu.study.sweep", "dsc_fmu.cli"}
+BUILDERS = {"dsc_fmu.cosim.run", "dsc_fmu.study.sweep", "dsc_fmu.study.laws", "dsc_fmu.cli"}
 
 
 def _module_name(path: Path) -> str:

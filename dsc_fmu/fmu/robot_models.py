@@ -101,7 +101,7 @@ class MobileRobotModel(Model):
         self._limited_last_step = limited
         return new
 
-    def event(self, t, u):
+    def event(self, t, x, u):
         held = saturation(self.constants, u[0], u[1])
         if held != UNLIMITED and self._limited_since is None:
             self.saturation_count += 1
