@@ -242,3 +242,17 @@ def test_an_fmu_state_restores_the_drivers_switches_and_counts():
     assert other.slave.model.held == (1, 0) and other.slave.model.saturation_count == 1
     assert other.slave.model._limited_since == 0.8
     assert math.isclose(other.get1("u1_applied"), U_MAX)
+
+
+def test_model_structure_declares_what_the_limit_reaches(fmu_paths):
+    """With the drivers limited, ``der(i1)`` and ``u1_applied`` are ``u_max1``'s (and only the first motor's):
+    the dependencies found with the switches held high, declared in ModelStructure's InitialUnknowns (FMI 2.0)."""
+    from fmpy import read_model_description
+
+    md = read_model_description(str(fmu_paths["MobileRobot"]))
+    unknowns = {unknown.variable.name: {v.name for v in unknown.dependencies} for unknown in md.initialUnknowns
+                if unknown.dependencies is not None}  # the discrete outputs declare none
+    for motor, other in ((1, 2), (2, 1)):
+        for name in (f"der(i{motor})", f"u{motor}_applied"):
+            assert f"u_max{motor}" in unknowns[name] and f"u_max{other}" not in unknowns[name], name
+    assert not any(name.startswith("u_max") for name in unknowns["der(x)"] | unknowns["x"])

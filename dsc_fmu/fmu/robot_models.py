@@ -9,7 +9,7 @@ from ..models.parameters import (
     DRIVE_OUTPUTS, PLANT_INPUTS, PLANT_OUTPUTS, PLANT_PARAMETERS, REFERENCE_OUTPUTS, REFERENCE_PARAMETERS,
 )
 from ..models.plant import (
-    FREE, UNLIMITED, applied_voltages, initial_plant_state, plant_coefficients, plant_derivatives, saturation,
+    FREE, HIGH, UNLIMITED, applied_voltages, initial_plant_state, plant_coefficients, plant_derivatives, saturation,
     saturation_indicators, theta_dot,
 )
 from ..models.reference import initial_reference_state, reference_derivatives, velocity
@@ -50,6 +50,7 @@ class MobileRobotModel(Model):
     OUTPUTS = (*PLANT_OUTPUTS, *DRIVE_OUTPUTS)
     STATES = PLANT_STATES
     INDICATORS = PLANT_EVENT_INDICATORS
+    BRANCHES = (None, (HIGH, HIGH))  # the drivers limited: what u_max1, u_max2 reach
     FMU_STATE = {"held": _optional_tuple, "saturation_count": int, "saturation_time": float,
                  "_limited_last_step": bool, "_limited_since": _optional_float}
 
