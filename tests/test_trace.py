@@ -52,7 +52,7 @@ def test_controller_bit_for_bit_on_every_branch(library, held, adaptation):
     differing, branches = traced_cases.controller(library, held, adaptation)
     assert differing is None
     assert min(branches.values()) >= (60 if held else 70), branches
-    assert branches["series"] >= 700 and branches["guarded"] >= 800 and branches["wrap"] >= 1300, branches
+    assert branches["series"] >= 700 and branches["guarded"] >= 750 and branches["wrap"] >= 1300, branches
     if adaptation == PROJECTION:
         assert len(branches) == 13 and min(branches[key] for key in branches if " " in key and key[1] in "12") >= 200
 

@@ -248,10 +248,11 @@ def rk4(library, kind, line, runs=600):
         function.argtypes += [ctypes.c_double, ctypes.c_double, ctypes.c_long, P]
         function.argtypes += [P] if kind != "reference" else []
         fault = function(*arguments, *([watch] if kind != "reference" else []))
-        if kind == "controller":
-            watched = [1.0, *m._guard_seen] if m._guard_seen else [0.0, 0.0, 0.0]
-        else:
-            watched = [float(round(m.saturation_time * 40 / step_size)), 0.0, 0.0]
+        watched = [0.0, 0.0, 0.0]
+        if kind == "controller" and m._guard_seen:
+            watched = [1.0, *m._guard_seen]
+        elif kind == "plant":
+            watched[0] = float(round(m.saturation_time * 40 / step_size))
         if fault or not same(list(state), expected) or (kind != "reference" and not same(list(watch), watched)):
             return (kind, line, p, x, u, t0, step_size), counts
         counts["guarded"] += kind == "controller" and m._guard_seen is not None
