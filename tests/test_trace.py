@@ -54,7 +54,8 @@ def test_controller_bit_for_bit_on_every_branch(library, held, adaptation):
     assert min(branches.values()) >= (60 if held else 70), branches
     assert branches["series"] >= 700 and branches["guarded"] >= 750 and branches["wrap"] >= 1300, branches
     if adaptation == PROJECTION:
-        assert len(branches) == 13 and min(branches[key] for key in branches if " " in key and key[1] in "12") >= 200
+        estimates = [key for key in branches if key.endswith(("projected", "free"))]
+        assert len(estimates) == 8 and min(branches[key] for key in estimates) >= 500, branches
 
 
 def test_derivative_code_equals_the_dual_numbers(library):
