@@ -14,7 +14,7 @@ from pathlib import Path
 from .trace import COMPARISONS, Graph, Traced, Untraceable
 
 __all__ = [
-    "C_FLAGS", "TRACED_MATH_HEADER", "c_file", "dispatch_function", "rk4_function", "tangent_function", "value_function",
+    "C_FLAGS", "TRACED_MATH_HEADER", "c_file", "rk4_function", "tangent_function", "value_function",
 ]
 
 TRACED_MATH_HEADER = Path(__file__).parent / "native" / "traced_math.h"
@@ -354,31 +354,6 @@ def rk4_function(substep: Traced, state: int, watch: str | None) -> str:
             f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];",
             *(["watch[0] = (double)watched;"] if watch == "count" else []), "return 0;"]
     return _function(signature, body)
-
-
-def dispatch_function(name: str, definition: str, cases: list) -> str:
-    """The exported C function ``name`` that calls the function specialised on the parameter values in ``p``.
-
-    Parameters
-    ----------
-    name : str
-        Its name.
-    definition : str
-        The definition of one specialised function (its first line gives the signature).
-    cases : list of tuple
-        ``(values, callee)``: the values of the choices (index in ``p`` to value) and the function to call there.
-
-    Returns
-    -------
-    str
-        Its C definition; it returns 1 (run in Python) for values no case has.
-    """
-    head = definition.splitlines()[0]
-    parameters = head[head.index("(") + 1:head.rindex(")")]
-    arguments = ", ".join(re.findall(r"\w+", part)[-1] for part in parameters.split(","))
-    body = [f"if ({' && '.join(f'p[{i}] == {_constant(float(v))}' for i, v in values.items())}) "
-            f"return {callee}({arguments});" for values, callee in cases]
-    return _function(f"DSC_TRACED_API int {name}({parameters})", [*body, "return 1;"])
 
 
 def _loops(graph: Graph, roots: list, varying: set, tail: list, chosen: dict) -> list:

@@ -15,7 +15,7 @@ import re
 
 from .trace import Untraceable
 
-__all__ = ["Choice", "specialise"]
+__all__ = ["Choice", "dispatch_function", "specialise"]
 
 
 class Choice:
@@ -97,3 +97,29 @@ def specialise(name: str, choices: dict, make) -> list:
         else:
             pending.extend({**values, new: v} for v in reversed(range(len(choices[new]))))
     return found
+
+
+def dispatch_function(name: str, definition: str, cases: list) -> str:
+    """The exported C function ``name`` that calls the function specialised on the parameter values in ``p``.
+
+    Parameters
+    ----------
+    name : str
+        Its name.
+    definition : str
+        The definition of one specialised function (its first line gives the signature).
+    cases : list of tuple
+        ``(values, callee)``: the values of the choices (index in ``p`` to value) and the function to call there.
+
+    Returns
+    -------
+    str
+        Its C definition; it returns 1 (run in Python) for values no case has.
+    """
+    head = definition.splitlines()[0]
+    parameters = head[head.index("(") + 1:head.rindex(")")]
+    arguments = ", ".join(re.findall(r"\w+", part)[-1] for part in parameters.split(","))
+    body = [f"if ({' && '.join(f'p[{i}] == {float(v)!r}' for i, v in values.items())}) "
+            f"return {callee}({arguments});" for values, callee in cases]
+    lines = "".join(f"    {line}\n" for line in [*body, "return 1;"])
+    return f"DSC_TRACED_API int {name}({parameters})\n{{\n{lines}}}\n"

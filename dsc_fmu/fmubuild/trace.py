@@ -148,17 +148,12 @@ class Graph:
 
 class _Run:
     """One run of a traced function: the answers given (``decisions``: (condition, answer) in order), the raising
-    nodes Python evaluated, and ``flags``: bool nodes true where a function merged locally would have raised. A
-    decision already taken by an enclosing run (``parent``: the caller of a function merged locally) keeps its
-    answer."""
+    nodes Python evaluated, ``flags``: bool nodes true where a function merged locally would have raised (``local``).
+    A decision taken by an enclosing run (``parent``: the caller of a function merged locally) keeps its answer."""
 
     def __init__(self, prefix: tuple, parent: _Run | None = None):
-        self.prefix = prefix
-        self.parent = parent
-        self.decisions = []
-        self.answers = {}
-        self.raising = set()
-        self.flags = []
+        self.prefix, self.parent = prefix, parent
+        self.decisions, self.answers, self.raising, self.flags = [], {}, set(), []
 
     def decide(self, condition: int) -> bool:
         run = self.parent

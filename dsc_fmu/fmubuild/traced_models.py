@@ -23,7 +23,7 @@ from ..models.controller import Switches, control_law
 from ..models.plant import UNLIMITED, plant_derivatives, saturation
 from . import binary, emit_c
 from .local import merging_locally
-from .specialise import specialise
+from .specialise import dispatch_function, specialise
 from .substep import trace_rk4_substep
 from .trace import TRACE_MATH, Graph, TooManyPaths, Traced, Untraceable, trace
 
@@ -150,7 +150,7 @@ class TracedModels:
         (``dsc_<model>_rk4``) and on a line (``dsc_<model>_rk4_line``: ``slope`` and ``stamp`` after ``u``); the
         controller's ``initial_state`` (``dsc_controller_initial_state(p, u, out)``, differentiable in ``u``), the
         event indicators (``dsc_<model>_indicators(p, x, u, out)``, ``_held`` with ``s``); each specialised
-        function behind an exported one that chooses by the parameters (``emit_c.dispatch_function``).
+        function behind an exported one that chooses by the parameters (``specialise.dispatch_function``).
     """
 
     functions: dict
@@ -190,7 +190,7 @@ class _Build:
                 emitted.setdefault(suffix, []).append(({index[c]: v for c, v in values.items()}, definition))
         for suffix, cases in emitted.items():
             if cases[0][0]:
-                self.definitions.append(emit_c.dispatch_function(
+                self.definitions.append(dispatch_function(
                     name + suffix, cases[0][1], [(values, _name(definition)) for values, definition in cases]))
         return done
 
