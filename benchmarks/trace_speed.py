@@ -1,11 +1,12 @@
 """Benchmark: one RK4 sub-step of each model in Python against the same sub-step traced to C (docs/traced-c.md).
 
-Python: the FMU model's ``integrate`` (``models.rk4.rk4_integrate`` over its ``rates``; the controller's records
-the beta guard as in a co-simulation step and, under the projection, moves the estimates onto their sets; the
-plant's with the limit counts the evaluations that limited) over one step of ``--substeps`` sub-steps, per sub-step. C: the
+Python: the FMU model's ``integrate`` (``models.rk4.rk4_integrate`` over its ``rates``; the controller's records the
+beta guard as in a co-simulation step and, under the projection, moves the estimates onto their sets; the plant's
+with the limit counts the evaluations that limited) over one step of ``--substeps`` sub-steps, per sub-step. C: the
 generated RK4 loop (``traced_models.trace_models``, compiled here with Zig) over as many sub-steps in one ctypes
-call, so that the call's cost is spread over them. Both start from the paper's parameters (changed per row: the law, the limit, the loads) and the same state
-and inputs, and their results are checked equal bit for bit before timing. Prints both and their ratio.
+call, so that the call's cost is spread over them. Both start from the paper's parameters (changed per row: the law,
+the limit, the loads) and the same state and inputs, and their results are checked equal bit for bit before timing.
+Prints both and their ratio.
 Run: ``python benchmarks/trace_speed.py [--substeps 10000] [--repeat 5]``.
 """
 

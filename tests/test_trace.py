@@ -46,7 +46,7 @@ def test_reference_rates_and_outputs_bit_for_bit_both_profiles(library, profile)
     assert traced_cases.reference(library, profile) == (None, {"cases": 1000})
 
 
-@pytest.mark.parametrize("adaptation", [SIGMA, E_MODIFICATION, PROJECTION, NONE], ids=["sigma", "e", "projection", "none"])
+@pytest.mark.parametrize("adaptation", [SIGMA, E_MODIFICATION, PROJECTION, NONE], ids=ADAPTATIONS)
 @pytest.mark.parametrize("held", [False, True], ids=["cosimulation", "model-exchange"])
 def test_controller_bit_for_bit_on_every_branch(library, held, adaptation):
     differing, branches = traced_cases.controller(library, held, adaptation)

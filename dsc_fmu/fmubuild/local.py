@@ -1,4 +1,4 @@
-"""Functions whose decisions are merged where they are called, not multiplied into their callers' paths (docs/traced-c.md).
+"""Functions whose decisions are merged where they are called, not multiplied into their callers' paths (traced-c.md).
 
 ``trace`` runs a function once per combination of its decisions, so independent decisions multiply: four estimates
 each projected or not, each with its margin's ``min`` and ``max``, make thousands of paths. A function merged locally
