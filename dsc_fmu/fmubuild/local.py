@@ -126,8 +126,9 @@ def merging_locally(places):
     try:
         for module, names in places:
             for name in names:
+                merged = merged_locally(getattr(module, name, None) or getattr(builtins, name))
                 saved.append((module, name, module.__dict__.get(name)))
-                setattr(module, name, merged_locally(getattr(module, name, None) or getattr(builtins, name)))
+                setattr(module, name, merged)
         yield
     finally:
         for module, name, value in reversed(saved):

@@ -3,7 +3,10 @@
 Each FMU's model (``fmu.robot_models``, ``fmu.controller_model``) is traced through its own hooks, ``rates`` and
 ``outputs``, with its parameters a run-time array in the order of its ``PARAMETERS`` table (``p``), so that what
 it derives from them (``derive``: ``plant_coefficients``, ``gains``) is traced too and one C function serves every
-parameter value. Each RK4 loop repeats one traced sub-step of ``models.rk4.rk4_integrate`` over those rates.
+parameter value, but for the Integer parameters with choices (``adaptation``, ``voltage_limit``, ``profile``):
+one function per value a function uses (``specialise``), behind one that chooses by ``p``. The projection's helpers
+are merged where they are called (``LOCAL``). Each RK4 loop repeats one traced sub-step of
+``models.rk4.rk4_integrate`` over the rates the model's ``integrate`` evaluates, watching what it records.
 """
 
 from __future__ import annotations
