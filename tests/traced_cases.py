@@ -114,10 +114,10 @@ def plant(library, held, count=2000):
     for i in range(count):
         p = parameters("plant", rng, voltage_limit=i % 2)
         x, u, t = [rng.uniform(-10, 10) for _ in range(7)], [rng.uniform(-12, 12) for _ in range(2)], rng.uniform(0, 30)
-        s = tuple(rng.choice((FREE, HIGH, LOW)) for _ in range(2)) if held else None
+        s, switched = _held("plant", rng) if held else (None, None)
         m = model("plant", p, s)
         suffix = "_held" if held else ""
-        arguments = [list(p.values()), t, x, u, *([[float(v) for v in s]] if held else [])]
+        arguments = [list(p.values()), t, x, u, *([switched] if held else [])]
         for hook, python in (("rates", m.rates(t, x, u)), ("outputs", m.outputs(t, x, u)[:-1]),
                              ("indicators", m.indicators(x, u))):
             given = [a for a in arguments if a is not t] if hook == "indicators" else arguments
@@ -155,7 +155,8 @@ def controller(library, held, adaptation, count=3000):
         xc, m = controller_state(rng, p), measurements(rng, case)
         chosen = switches(model("controller", p).constants, xc, m)
         turns = chosen.turns + (0 if case == 1 else rng.choice((-1, 0, 1)))
-        s = Switches(turns, rng.random() < 0.5, tuple(rng.random() < 0.5 for _ in range(4))) if held else None
+        s, switched = _held("controller", rng) if held else (None, None)
+        s = s and s._replace(turns=turns)
         law_model = model("controller", p, s)
         law = control_law(law_model.constants, xc, m, s)
         branches["wrap"] += abs(m[10] - m[2]) > math.pi
@@ -166,8 +167,7 @@ def controller(library, held, adaptation, count=3000):
             for estimate, active in zip(("a1", "a2", "W1", "W2"), law.projected):
                 key = f"{estimate} {'projected' if active else 'free'}"
                 branches[key] = branches.get(key, 0) + 1
-        switched = [[float(s.turns), float(s.guarded), *map(float, s.projected)]] if held else []
-        arguments = [list(p.values()), 0.0, xc, m, *switched]
+        arguments = [list(p.values()), 0.0, xc, m, *([[float(turns), *switched[1:]]] if held else [])]
         suffix = "_held" if held else ""
         for hook, outputs in (("rates", 20), ("outputs", 24), ("indicators", 3)):
             given = [a for i, a in enumerate(arguments) if i != 1] if hook == "indicators" else arguments
@@ -178,12 +178,23 @@ def controller(library, held, adaptation, count=3000):
     return None, branches
 
 
+def _held(kind, rng):
+    """Random switches to hold: the plant's drivers, the controller's ``Switches`` (as a tuple and as ``s``)."""
+    if kind == "plant":
+        s = tuple(rng.choice((FREE, HIGH, LOW)) for _ in range(2))
+        return s, [float(v) for v in s]
+    s = Switches(rng.choice((-1, 0, 1)), rng.random() < 0.5, tuple(rng.random() < 0.5 for _ in range(4)))
+    return s, [float(s.turns), float(s.guarded), *map(float, s.projected)]
+
+
 def tangents(library, count=1500):
-    """The ``_tangent`` functions against the dual numbers, 30 % of the seeds zero (those knowns stay floats)."""
+    """The ``_tangent`` functions against the dual numbers, 30 % of the seeds zero (those knowns stay floats); every
+    other plant and controller case with its switches held (``_held_tangent``)."""
     rng = random.Random(6)
     for i in range(count):
         kind = ("plant", "reference", "controller")[i % 3]
-        m = model(kind, parameters(kind, rng, spread=0.1, **CHOICES[kind](i)))
+        held, s = _held(kind, rng) if kind != "reference" and i // 3 % 2 else (None, None)
+        m = model(kind, parameters(kind, rng, spread=0.1, **CHOICES[kind](i)), held)
         x = [rng.uniform(-3, 3) for _ in range(STATES[kind])]
         u = {"plant": [rng.uniform(-3, 3) for _ in range(2)], "controller": measurements(rng, i % 3),
              "reference": None}[kind]
@@ -192,13 +203,15 @@ def tangents(library, count=1500):
         xs, us = seeded(x, dict(enumerate(dx))), None if u is None else seeded(u, dict(enumerate(du)))
         for hook in ("rates", "outputs") if kind != "reference" else ("rates",):
             python = getattr(m, hook)(0.5, xs, us, DUAL_MATH)
+            python = python[:-1] if (kind, hook) == ("plant", "outputs") else python  # saturation_time: bookkeeping
             out, dout = array([0.0] * len(python)), array([0.0] * len(python))
             arguments = [array(list(m.p.values())), ctypes.c_double(0.5), array(x), *([] if u is None else [array(u)])]
-            arguments += [array(dx)] + ([] if u is None else [array(du)])
-            fault = getattr(library, f"dsc_{kind}_{hook}_tangent")(*arguments, out, dout)
+            arguments += ([] if s is None else [array(s)]) + [array(dx)] + ([] if u is None else [array(du)])
+            name = f"dsc_{kind}_{hook}{'' if s is None else '_held'}_tangent"
+            fault = getattr(library, name)(*arguments, out, dout)
             values = [v.value if hasattr(v, "value") else v for v in python]
             if fault or not same(list(out), values) or not same(list(dout), [tangent(v) for v in python]):
-                return (kind, hook, x, u, dx, du), {}
+                return (name, x, u, s, dx, du), {}
     return None, {"cases": count}
 
 
