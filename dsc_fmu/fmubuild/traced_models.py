@@ -17,7 +17,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
-from ..fmu.controller_model import DSCControllerModel
+from ..fmu.controller_model import EULER, DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..fmu.slave import ModelSlave
 from ..models import adaptation, controller
@@ -259,6 +259,9 @@ def _add_rk4(build: _Build, kind: str, coupling: str, watch: str | None, rates: 
         values, traced = matching[0]
         for choice in values:  # the rates' choices: this sub-step is specialised on them too
             fixed[choice].used.append(choice)
+        if kind == "controller" and fixed["discretization"] == EULER:
+            raise Untraceable(f"{full}: discretization = euler takes one Euler step per communication step "
+                              "(DSCControllerModel.integrate), not RK4 sub-steps")
         return _substep(traced, kind, bool(coupling), full, _projection(fixed) if kind == "controller" else None)
 
     build.add(name, kind, make, lambda traced: [("", emit_c.rk4_function(traced, state, watch))])
