@@ -44,4 +44,4 @@ def test_the_traced_c_on_windows_equals_its_cpython(wine, library, tmp_path):
     assert run.returncode == 0, run.stderr[-3000:]
     found = json.loads(run.stdout.strip().splitlines()[-1])
     assert found["differing"] == {}
-    assert found["counts"]["controller held=False"]["series"] >= 700, found["counts"]
+    assert found["counts"]["controller held=False adaptation=0"]["series"] >= 700, found["counts"]

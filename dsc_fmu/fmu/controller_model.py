@@ -91,8 +91,8 @@ class DSCControllerModel(Model):
         law = control_law(self.constants, x, u, self.held, math)
         return [law.u1, law.u2, law.S11, law.S12, law.S13, law.beta, *estimates]
 
-    def indicators(self, x, u):
-        return event_indicators(self.constants, x, u, self.held)
+    def indicators(self, x, u, math=math):
+        return event_indicators(self.constants, x, u, self.held, math)
 
     def substep_count(self, step_size):
         return 1 if self.p["discretization"] == EULER else super().substep_count(step_size)

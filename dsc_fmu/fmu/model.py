@@ -81,7 +81,7 @@ class Model:
         """The Real outputs in the order of ``OUTPUTS``, in their units."""
         raise NotImplementedError
 
-    def indicators(self, x: list, u: list) -> list:
+    def indicators(self, x: list, u: list, math=math) -> list:
         """The event indicators of model exchange, one per entry of ``INDICATORS``: none by default."""
         return []
 

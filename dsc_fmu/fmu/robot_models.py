@@ -79,7 +79,7 @@ class MobileRobotModel(Model):
         applied = applied_voltages(k, u[0], u[1], self.held)
         return [x_, y, theta, theta_dot(k, v1, v2), v1, v2, i1, i2, *applied, limited]
 
-    def indicators(self, x, u):
+    def indicators(self, x, u, math=math):
         return saturation_indicators(self.constants, u[0], u[1])
 
     def integrate(self, t, x, step_size, inputs):
@@ -145,4 +145,4 @@ class ReferenceRobotModel(Model):
         return reference_derivatives(self.p, t, x, math)
 
     def outputs(self, t, x, u, math=math):
-        return [*x, *velocity(self.p, t)]
+        return [*x, *velocity(self.p, t, math)]

@@ -7,11 +7,15 @@ fused multiply-adds, no fused ``sincos``) and linked with the libm CPython uses.
 
 from __future__ import annotations
 
+import re
+from collections import Counter
 from pathlib import Path
 
 from .trace import COMPARISONS, Graph, Traced, Untraceable
 
-__all__ = ["C_FLAGS", "TRACED_MATH_HEADER", "c_file", "rk4_function", "tangent_function", "value_function"]
+__all__ = [
+    "C_FLAGS", "TRACED_MATH_HEADER", "c_file", "rk4_function", "tangent_function", "value_function",
+]
 
 TRACED_MATH_HEADER = Path(__file__).parent / "native" / "traced_math.h"
 C_FLAGS = ("-std=c99", "-ffp-contract=off", "-fno-builtin-sin", "-fno-builtin-cos")
@@ -145,9 +149,13 @@ def _raises(graph: Graph, index: int) -> str:
     return f"f{index}"  # fsum, call
 
 
+def _linkage(traced: Traced) -> str:
+    return "DSC_TRACED_API" if traced.public else "static"
+
+
 def _signature(traced: Traced, extra: str) -> str:
     parts = [f"double {name}" if size is None else f"const double *{name}" for name, size in traced.arguments.items()]
-    return f"DSC_TRACED_API int {traced.name}{extra}({', '.join(parts)}"
+    return f"{_linkage(traced)} int {traced.name}{extra}({', '.join(parts)}"
 
 
 def _outputs(traced: Traced, target: str) -> list:
@@ -173,8 +181,17 @@ def value_function(traced: Traced) -> str:
                      [f"return n{traced.fault};"])
 
 
+_SUM = re.compile(r"const double ([nd]\d+) = (dsc_fsum\(.*)")
+
+
 def _function(signature: str, body: list) -> str:
-    return signature + "\n{\n" + "".join(f"    {line}\n" for line in body) + "}\n"
+    """The C function; a sum whose value nothing reads (it is there for whether Python raises) is not assigned."""
+    uses = Counter(re.findall(r"\b[nd]\d+\b", "\n".join(body)))
+    lines = []
+    for line in body:
+        found = _SUM.search(line)
+        lines.append(line.replace(found.group(0), found.group(2)) if found and uses[found.group(1)] == 1 else line)
+    return signature + "\n{\n" + "".join(f"    {line}\n" for line in lines) + "}\n"
 
 
 def _active(graph: Graph, nodes: list, differentiable: set) -> dict:
@@ -282,13 +299,14 @@ def tangent_function(traced: Traced, differentiable: tuple) -> str:
                      body + _outputs(traced, "out") + tangents + [f"return {' | '.join(faults)};"])
 
 
-def rk4_function(substep: Traced, state: int, watched: int) -> str:
-    """The C loop ``int <name>(<arguments>, double t0, double step_size, long count, double *x, double *watch)``.
+def rk4_function(substep: Traced, state: int, watch: str | None) -> str:
+    """The C loop ``int <name>(<arguments>, long count, double *x, double *watch)``.
 
     It takes ``count`` sub-steps of ``substep`` (``trace.trace_rk4_substep``) from ``t0``: ``x`` becomes the state
-    at ``t0 + step_size``, unchanged where Python raises (it returns 1; else 0). With ``watched`` extras per
-    evaluation, ``watch`` receives ``[1, t, extras[1:]...]`` of the first evaluation whose first extra is true (left
-    as given if none is).
+    at ``t0 + step_size``, unchanged where Python raises (it returns 1; else 0). The rates' extra outputs per
+    evaluation, the first a flag, are watched: ``"first"``: ``watch`` receives ``[1, t, extras[1:]...]`` of the
+    first evaluation whose flag is true (left as given if none is); ``"count"``: ``watch[0]`` the number of
+    evaluations whose flag is true.
 
     Parameters
     ----------
@@ -296,8 +314,8 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
         The traced sub-step.
     state : int
         The length of the state.
-    watched : int
-        The extra outputs of the rates per evaluation (0: no ``watch``).
+    watch : str or None
+        ``"first"``, ``"count"`` or None (no extras, no ``watch`` argument).
 
     Returns
     -------
@@ -307,9 +325,13 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
     graph = substep.graph
     given = [name for name in substep.arguments if name not in ("count", "k", "x")]
     parts = [f"double {name}" if substep.arguments[name] is None else f"const double *{name}" for name in given]
-    signature = f"DSC_TRACED_API int {substep.name}({', '.join(parts)}, long count, double *x_io"
-    signature += ", double *watch)" if watched else ")"
-    roots = [*(substep.outputs if watched else substep.outputs[:state]), substep.fault]
+    signature = f"{_linkage(substep)} int {substep.name}({', '.join(parts)}, long count, double *x_io"
+    signature += ", double *watch)" if watch else ")"
+    outputs = substep.outputs[state:]
+    per_stage = len(outputs) // 4
+    stages = [outputs[s * per_stage:(s + 1) * per_stage] for s in range(4)] if watch else []
+    watched = [node for stage in stages for node in (stage if watch == "first" else stage[1:2])]
+    roots = [*substep.outputs[:state], *watched, substep.fault]
     nodes = _needed(graph, roots)
     varying = set()
     for i in nodes:
@@ -317,19 +339,20 @@ def rk4_function(substep: Traced, state: int, watched: int) -> str:
         if (key[0] == "arg" and key[1] in ("x", "k")) or any(j in varying for j in _reads(graph, key)):
             varying.add(i)
     tail = [f"if (n{substep.fault}) return 1;"]
-    outputs = substep.outputs[state:]
-    per_stage = len(outputs) // 4
-    for s in range(4 if watched else 0):
-        stage = outputs[s * per_stage:(s + 1) * per_stage]
+    for stage in stages:
+        if watch == "count":
+            tail.append(f"if (n{stage[1]}) watched++;")
+            continue
         values = [f"n{stage[0]}", *(f"n{i}" for i in stage[2:])]
         stores = " ".join(f"watch[{j + 1}] = {v};" for j, v in enumerate(values))
-        tail.append(f"if (!seen && n{stage[1]}) {{ seen = 1; watch[0] = 1.0; {stores} }}")
+        tail.append(f"if (!watched && n{stage[1]}) {{ watched = 1; watch[0] = 1.0; {stores} }}")
     tail.extend(f"x[{i}] = n{node};" for i, node in enumerate(substep.outputs[:state]))
     before = [line for i in nodes if i not in varying for line in _value(graph, i)]
     body = [f"double x[{state}];", f"for (int i = 0; i < {state}; i++) x[i] = x_io[i];",
-            *(["int seen = 0;"] if watched else []), *before,
+            *(["long watched = 0;"] if watch else []), *before,
             *_loops(graph, roots, varying, tail, {}),
-            f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];", "return 0;"]
+            f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];",
+            *(["watch[0] = (double)watched;"] if watch == "count" else []), "return 0;"]
     return _function(signature, body)
 
 

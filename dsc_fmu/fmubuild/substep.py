@@ -23,7 +23,8 @@ def _symbolic_substep(count: Symbol, index: Symbol):
         del rk4.range
 
 
-def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: str, inline: bool) -> Traced:
+def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: str, inline: bool,
+                      project=None) -> Traced:
     """One sub-step of ``models.rk4.rk4_integrate`` traced from its own source.
 
     Parameters
@@ -44,6 +45,8 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
     inline : bool
         Whether the rates are traced into the sub-step (what does not change over a step, such as the functions of
         held inputs, is then computed once per step; their decisions combine over the four evaluations) or called.
+    project : callable, optional
+        ``project(p)``: None, or what ``rk4_integrate`` maps the state with after each sub-step (its ``project``).
 
     Returns
     -------
@@ -74,7 +77,7 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
             return results[:state]
 
         with _symbolic_substep(count, k):
-            x = rk4.rk4_integrate(derivative, t0, x, step_size, math.inf)
+            x = rk4.rk4_integrate(derivative, t0, x, step_size, math.inf, project and project(symbols["p"]))
         return [*x, *watched]
 
     return trace(substep, arguments, name, graph, rates.paths if inline else 1)

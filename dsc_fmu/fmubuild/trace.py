@@ -147,16 +147,20 @@ class Graph:
 
 
 class _Run:
-    """One run of a traced function: the answers given (``decisions``: (condition, answer) in order) and the raising
-    nodes Python evaluated."""
+    """One run of a traced function: the answers given (``decisions``: (condition, answer) in order), the raising
+    nodes Python evaluated, ``flags``: bool nodes true where a function merged locally would have raised (``local``).
+    A decision taken by an enclosing run (``parent``: the caller of a function merged locally) keeps its answer."""
 
-    def __init__(self, prefix: tuple):
-        self.prefix = prefix
-        self.decisions = []
-        self.answers = {}
-        self.raising = set()
+    def __init__(self, prefix: tuple, parent: _Run | None = None):
+        self.prefix, self.parent = prefix, parent
+        self.decisions, self.answers, self.raising, self.flags = [], {}, set(), []
 
     def decide(self, condition: int) -> bool:
+        run = self.parent
+        while run is not None:
+            if condition in run.answers:
+                return run.answers[condition]
+            run = run.parent
         if condition not in self.answers:
             position = len(self.decisions)
             answer = self.prefix[position] if position < len(self.prefix) else True
@@ -291,6 +295,9 @@ class Traced:
         How many runs (combinations of decisions) the trace took.
     function : callable
         The traced Python function.
+    public : bool, optional
+        Whether its C functions are exported (default) or internal (``static``: one specialised on parameter
+        choices, called by the exported one, ``specialise``).
     """
 
     name: str
@@ -300,6 +307,7 @@ class Traced:
     fault: int
     paths: int
     function: Callable
+    public: bool = True
 
 
 def _arguments(graph: Graph, arguments: dict) -> dict:
@@ -342,27 +350,36 @@ def trace(function, arguments: dict, name: str, graph: Graph | None = None, max_
     """
     graph = graph or Graph()
     symbols = _arguments(graph, arguments)
+    try:
+        leaves = _paths(graph, lambda: [_output(graph, value) for value in function(**symbols)], name, max_paths)
+    except Untraceable as error:
+        raise type(error)(f"{name}: {error}") from None
+    except (TypeError, AttributeError, ValueError) as error:
+        reason = f"calls what a traced value cannot enter ({type(error).__name__}: {error})"
+        raise Untraceable(f"{name}: {reason}") from None
+    merged = _merge(graph, [(decisions, [*outputs, fault]) for decisions, outputs, fault in leaves], 0)
+    return Traced(name, graph, dict(arguments), merged[:-1], merged[-1], len(leaves), function)
+
+
+def _paths(graph: Graph, call, name: str, max_paths: int, parent: _Run | None = None) -> list:
+    """``(decisions, results, fault)`` of each run of ``call()`` (depth first, every combination of its decisions):
+    what it returned and the node that is true where Python would have raised on that path."""
     leaves, pending = [], [()]
     while pending:
         prefix = pending.pop()
-        graph._run = run = _Run(prefix)
+        graph._run = run = _Run(prefix, parent)
         try:
-            outputs = [_output(graph, value) for value in function(**symbols)]
-        except Untraceable as error:
-            raise Untraceable(f"{name}: {error}") from None
-        except (TypeError, AttributeError, ValueError) as error:
-            reason = f"calls what a traced value cannot enter ({type(error).__name__}: {error})"
-            raise Untraceable(f"{name}: {reason}") from None
+            results = call()
         finally:
-            graph._run = None
+            graph._run = parent
         answers = tuple(answer for _, answer in run.decisions)
         pending.extend(answers[:i] + (False,) for i in range(len(prefix), len(answers)))  # new decisions: True
-        faults = [graph.node(("fault", n)) for n in sorted(run.raising)]
-        leaves.append((run.decisions, outputs + [graph.node(("any", *faults))]))
+        faults = [graph.node(("fault", n)) for n in sorted(run.raising)] + run.flags
+        leaves.append((run.decisions, results, graph.node(("any", *faults))))
         if len(leaves) > max_paths:
-            raise TooManyPaths(f"{name}: more than {max_paths} combinations of decisions")
-    merged = _merge(graph, leaves, 0)
-    return Traced(name, graph, dict(arguments), merged[:-1], merged[-1], len(leaves), function)
+            raise TooManyPaths(f"more than {max_paths} combinations of decisions" +
+                               (f" in {name}()" if parent is not None else ""))
+    return leaves
 
 
 def _output(graph: Graph, value) -> int:

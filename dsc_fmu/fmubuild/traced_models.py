@@ -3,7 +3,10 @@
 Each FMU's model (``fmu.robot_models``, ``fmu.controller_model``) is traced through its own hooks, ``rates`` and
 ``outputs``, with its parameters a run-time array in the order of its ``PARAMETERS`` table (``p``), so that what
 it derives from them (``derive``: ``plant_coefficients``, ``gains``) is traced too and one C function serves every
-parameter value. Each RK4 loop repeats one traced sub-step of ``models.rk4.rk4_integrate`` over those rates.
+parameter value, but for the Integer parameters with choices (``adaptation``, ``voltage_limit``, ``profile``):
+one function per value a function uses (``specialise``), behind one that chooses by ``p``. The projection's helpers
+are merged where they are called (``LOCAL``). Each RK4 loop repeats one traced sub-step of
+``models.rk4.rk4_integrate`` over the rates the model's ``integrate`` evaluates, watching what it records.
 """
 
 from __future__ import annotations
@@ -14,60 +17,101 @@ from dataclasses import dataclass
 from pathlib import Path
 from types import SimpleNamespace
 
-from ..fmu.controller_model import DSCControllerModel
+from ..fmu.controller_model import EULER, DSCControllerModel
 from ..fmu.robot_models import MobileRobotModel, ReferenceRobotModel
 from ..fmu.slave import ModelSlave
+from ..models import adaptation, controller
+from ..models.adaptation import PROJECTION
 from ..models.controller import Switches, control_law
+from ..models.plant import UNLIMITED, plant_derivatives, saturation
 from . import binary, emit_c
+from .local import merging_locally
+from .specialise import dispatch_function, specialise
 from .substep import trace_rk4_substep
 from .trace import TRACE_MATH, Graph, TooManyPaths, Traced, Untraceable, trace
 
 __all__ = ["TracedModels", "compile_library", "trace_models"]
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
+# The switches a model holds between events in model exchange (``held``), from the run-time array ``s``: the plant's
+# drivers (``FREE``, ``HIGH``, ``LOW``), the controller's ``Switches`` (turns, guarded, the four projections;
+# nonzero for true).
+HELD = {
+    "plant": (2, tuple),
+    "controller": (6, lambda s: Switches(s[0], s[1] != 0.0, tuple(switch != 0.0 for switch in s[2:6]))),
+}
+# Outputs the slave computes from its own bookkeeping (the FMU state), not traced.
+BOOKKEEPING = {"saturation_time"}
+# The models' helpers whose decisions are merged where they are called (``local.merging_locally``): the
+# projection's per-estimate choices, its margins' ``min`` and ``max``, the move onto the sets.
+LOCAL = ((adaptation, ("_interval", "_ball", "project_estimates", "min", "max")), (controller, ("min",)))
 
 
-def _model(kind: str, p: list, held=None):
-    """The FMU's model with the traced parameters ``p`` (and the controller's switches ``held``: the number of turns,
-    then each Boolean switch as a number, nonzero for true)."""
+def _model(kind: str, p: list, fixed: dict, s=None):
+    """The FMU's model with the traced parameters ``p``, the choices ``fixed`` (``specialise.Choice``) in place, and
+    the switches held from ``s`` (None: chosen at each evaluation)."""
     model = MODELS[kind]()
-    model.p = dict(zip(model.p, p))
-    if held is not None:
-        model.held = Switches(held[0], *(switch != 0.0 for switch in held[1:]))
+    model.p = {name: fixed.get(name, value) for name, value in zip(model.p, p)}
+    if s is not None:
+        model.held = HELD[kind][1](s)
     return model
 
 
-def _arguments(kind: str, held: bool = False) -> dict:
+def _arguments(kind: str, held: bool = False, time: bool = True) -> dict:
     model = MODELS[kind]
-    arguments = {"p": len(model.PARAMETERS), "t": None, "x": len(model.STATES)}
+    arguments = {"p": len(model.PARAMETERS), **({"t": None} if time else {}), "x": len(model.STATES)}
     if model.INPUTS:
         arguments["u"] = len(model.INPUTS)
     if held:
-        arguments["s"] = len(Switches._fields)
+        arguments["s"] = HELD[kind][0]
     return arguments
 
 
 def _hook(kind: str, hook: str):
-    def function(p, t, x, u=None, s=None):
-        return getattr(_model(kind, p, s), hook)(t, x, u, TRACE_MATH)
+    def function(fixed, p, t, x, u=None, s=None):
+        model = _model(kind, p, fixed, s)
+        values = getattr(model, hook)(t, x, u, TRACE_MATH)
+        if hook == "rates":
+            return values
+        return [value for value, v in zip(values, model.OUTPUTS) if v.name not in BOOKKEEPING]
 
     return function
 
 
-def _start(p, u):
+def _indicators(kind: str):
+    def function(fixed, p, x, u, s=None):
+        return _model(kind, p, fixed, s).indicators(x, u, TRACE_MATH)
+
+    return function
+
+
+def _start(fixed, p, u):
     """The controller's state before the first step, its filters started from the inputs (``initial_state``)."""
-    return _model("controller", p).initial_state(u, TRACE_MATH)
+    return _model("controller", p, fixed).initial_state(u, TRACE_MATH)
 
 
-def _indicators(p, x, u, s):
-    """The controller's event indicators at the held switches (``indicators``)."""
-    return _model("controller", p, s).indicators(x, u)
-
-
-def _law(p, t, x, u):
-    """The controller's derivative, then whether the beta guard acts and beta: what its RK4 watches (co-simulation)."""
-    law = control_law(_model("controller", p).constants, x, u, None, TRACE_MATH)
+def _law(fixed, p, t, x, u):
+    """The controller's derivative, then whether the beta guard acts and beta: what ``DSCControllerModel.integrate``
+    watches in co-simulation."""
+    law = control_law(_model("controller", p, fixed).constants, x, u, None, TRACE_MATH)
     return [*law.derivative, law.guarded, law.beta]
+
+
+def _drive(fixed, p, t, x, u):
+    """The plant's derivative, then whether a driver limits its voltage: what ``MobileRobotModel.integrate`` counts
+    in co-simulation."""
+    k = _model("plant", p, fixed).constants
+    switches = saturation(k, u[0], u[1])
+    return [*plant_derivatives(k, t, x, u[0], u[1], TRACE_MATH, switches), switches != UNLIMITED]
+
+
+def _projection(fixed):
+    """What ``DSCControllerModel.integrate`` maps the state with after each sub-step, for the parameters ``p``."""
+    def project(p):
+        g = _model("controller", p, fixed).constants
+        return (lambda x: adaptation.project_estimates(g, x, TRACE_MATH)) if g.adaptation == PROJECTION else None
+
+    return project
 
 
 def _inputs(t, p, u=None, slope=None, stamp=None):
@@ -78,7 +122,7 @@ def _inputs(t, p, u=None, slope=None, stamp=None):
     return {"u": ModelSlave.inputs(SimpleNamespace(u=u, _slope=slope, _stamp=stamp), t)}
 
 
-def _substep(rates: Traced, kind: str, line: bool, name: str) -> Traced:
+def _substep(rates: Traced, kind: str, line: bool, name: str, project) -> Traced:
     """The RK4 sub-step of ``kind`` (inputs held, or on a line), its rates traced into it unless their decisions
     would then combine in more ways than the rates' own (then called)."""
     arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
@@ -86,9 +130,9 @@ def _substep(rates: Traced, kind: str, line: bool, name: str) -> Traced:
         arguments.update(slope=arguments["u"], stamp=None)
     state = len(MODELS[kind].STATES)
     try:
-        return trace_rk4_substep(rates, state, _inputs, arguments, name, inline=True)
+        return trace_rk4_substep(rates, state, _inputs, arguments, name, True, project)
     except TooManyPaths:
-        return trace_rk4_substep(rates, state, _inputs, arguments, name, inline=False)
+        return trace_rk4_substep(rates, state, _inputs, arguments, name, False, project)
 
 
 @dataclass
@@ -98,20 +142,65 @@ class TracedModels:
     Parameters
     ----------
     functions : dict
-        Each traced function (``trace.Traced``) by its C name.
+        Each traced function (``trace.Traced``) by its C name; one specialised on parameter choices
+        (``specialise``) by its own name, ``<name>__<parameter>_<choice>...``, called by ``<name>``.
     untraceable : dict
-        The reason, by the C name of each function that could not be traced (its FMU keeps the Python path).
+        The reason, by the C name of each function (or specialisation) that could not be traced (its FMU keeps the
+        Python path there: the C function returns 1).
     source : str
         The C file: ``emit_c.value_function`` of each, ``emit_c.tangent_function`` of the rates and outputs
         (differentiable in ``x`` and ``u``), ``emit_c.rk4_function`` of each model's RK4 loop with the inputs held
         (``dsc_<model>_rk4``) and on a line (``dsc_<model>_rk4_line``: ``slope`` and ``stamp`` after ``u``); the
-        controller's ``initial_state`` (``dsc_controller_initial_state(p, u, out)``, differentiable in ``u``) and
-        ``indicators`` (``dsc_controller_indicators(p, x, u, s, out)``).
+        controller's ``initial_state`` (``dsc_controller_initial_state(p, u, out)``, differentiable in ``u``), the
+        event indicators (``dsc_<model>_indicators(p, x, u, out)``, ``_held`` with ``s``); each specialised
+        function behind an exported one that chooses by the parameters (``specialise.dispatch_function``).
     """
 
     functions: dict
     untraceable: dict
     source: str
+
+
+class _Build:
+    """The functions traced so far, their C and what failed."""
+
+    def __init__(self):
+        self.graph = Graph()
+        self.functions, self.untraceable, self.definitions = {}, {}, []
+
+    def add(self, name: str, kind: str, make, emit) -> list:
+        """Trace ``make(fixed, name)`` once per combination of ``kind``'s parameter choices it uses; emit each with
+        ``emit(traced)`` (a list of ``(suffix, definition)``) and, if specialised, the exported dispatcher per suffix.
+        Returns ``(values, traced)`` of those traced."""
+        parameters = MODELS[kind].PARAMETERS
+        choices = {v.name: v.choices for v in parameters if v.integer and v.choices}
+        index = {v.name: i for i, v in enumerate(parameters)}
+        done, emitted = [], {}
+        for values, full, traced in specialise(name, choices, make):
+            try:
+                if isinstance(traced, Untraceable):
+                    raise traced
+                traced.public = not values
+                made = emit(traced)
+            except Untraceable as error:
+                reason = str(error)
+                self.untraceable[full] = reason if reason.startswith(f"{full}: ") else f"{full}: {reason}"
+                continue
+            self.functions[full] = traced
+            done.append((values, traced))
+            for suffix, definition in made:
+                self.definitions.append(definition)
+                emitted.setdefault(suffix, []).append(({index[c]: v for c, v in values.items()}, definition))
+        for suffix, cases in emitted.items():
+            if cases[0][0]:
+                self.definitions.append(dispatch_function(
+                    name + suffix, cases[0][1], [(values, _name(definition)) for values, definition in cases]))
+        return done
+
+
+def _name(definition: str) -> str:
+    head = definition.splitlines()[0]
+    return head[:head.index("(")].split()[-1]
 
 
 def trace_models() -> TracedModels:
@@ -122,45 +211,60 @@ def trace_models() -> TracedModels:
     TracedModels
         The functions, the C source and the untraceable ones with their reasons.
     """
-    graph = Graph()
-    functions, untraceable, definitions = {}, {}, []
+    build = _Build()
+    graph = build.graph
 
-    def add(name, make, emit):
-        try:
-            traced = make()
-            made = emit(traced)
-        except Untraceable as error:
-            untraceable[name] = str(error)
-        else:
-            functions[name] = traced
-            definitions.extend(made)
+    def traced(function, arguments, differentiable=None):
+        def make(fixed, name):
+            return trace(lambda **symbols: function(fixed, **symbols), arguments, name, graph)
 
-    for kind, model in MODELS.items():
-        knowns = ("x", "u") if model.INPUTS else ("x",)
-        for hook in ("rates", "outputs"):
-            for held in (False, True) if kind == "controller" else (False,):
-                name = f"dsc_{kind}_{hook}{'_held' if held else ''}"
-                add(name, lambda: trace(_hook(kind, hook), _arguments(kind, held), name, graph),
-                    lambda traced: [emit_c.value_function(traced), emit_c.tangent_function(traced, knowns)])
-    add("dsc_controller_law", lambda: trace(_law, _arguments("controller"), "dsc_controller_law", graph),
-        lambda traced: [emit_c.value_function(traced)])
-    start = {"p": len(DSCControllerModel.PARAMETERS), "u": len(DSCControllerModel.INPUTS)}
-    add("dsc_controller_initial_state", lambda: trace(_start, start, "dsc_controller_initial_state", graph),
-        lambda traced: [emit_c.value_function(traced), emit_c.tangent_function(traced, ("u",))])
-    switched = {key: size for key, size in _arguments("controller", True).items() if key != "t"}
-    add("dsc_controller_indicators", lambda: trace(_indicators, switched, "dsc_controller_indicators", graph),
-        lambda traced: [emit_c.value_function(traced)])
-    for kind, rates in (("plant", "dsc_plant_rates"), ("reference", "dsc_reference_rates"),
-                        ("controller", "dsc_controller_law")):
-        for coupling in ("", "_line") if MODELS[kind].INPUTS else ("",):
-            name = f"dsc_{kind}_rk4{coupling}"
-            if rates in untraceable:
-                untraceable[name] = f"{name}: its rates are not traced ({untraceable[rates]})"
-                continue
-            watched = 2 if kind == "controller" else 0
-            add(name, lambda: _substep(functions[rates], kind, bool(coupling), name),
-                lambda traced: [emit_c.rk4_function(traced, len(MODELS[kind].STATES), watched)])
-    return TracedModels(functions, untraceable, emit_c.c_file(definitions))
+        def emit(traced):
+            made = [("", emit_c.value_function(traced))]
+            return made + ([("_tangent", emit_c.tangent_function(traced, differentiable))] if differentiable else [])
+
+        return make, emit
+
+    with merging_locally(LOCAL):
+        rates = {}
+        for kind, model in MODELS.items():
+            knowns = ("x", "u") if model.INPUTS else ("x",)
+            for hook in ("rates", "outputs"):
+                for held in (False, True) if kind in HELD else (False,):
+                    name = f"dsc_{kind}_{hook}{'_held' if held else ''}"
+                    done = build.add(name, kind, *traced(_hook(kind, hook), _arguments(kind, held), knowns))
+                    rates.setdefault(kind, done)
+            for held in (False, True) if model.INDICATORS else ():
+                name = f"dsc_{kind}_indicators{'_held' if held else ''}"
+                build.add(name, kind, *traced(_indicators(kind), _arguments(kind, held, time=False)))
+        start = {"p": len(DSCControllerModel.PARAMETERS), "u": len(DSCControllerModel.INPUTS)}
+        build.add("dsc_controller_initial_state", "controller", *traced(_start, start, ("u",)))
+        for kind, law in (("plant", _drive), ("controller", _law)):
+            rates[kind] = build.add(f"dsc_{kind}_law", kind, *traced(law, _arguments(kind)))
+        for kind, watch in (("plant", "count"), ("controller", "first"), ("reference", None)):
+            for coupling in ("", "_line") if MODELS[kind].INPUTS else ("",):
+                _add_rk4(build, kind, coupling, watch, rates[kind])
+    return TracedModels(build.functions, build.untraceable, emit_c.c_file(build.definitions))
+
+
+def _add_rk4(build: _Build, kind: str, coupling: str, watch: str | None, rates: list) -> None:
+    """``dsc_<kind>_rk4<coupling>``: the sub-step over the traced ``rates`` (``(values, traced)`` per specialisation),
+    specialised as they are and on the choices its ``project`` uses."""
+    name, state = f"dsc_{kind}_rk4{coupling}", len(MODELS[kind].STATES)
+
+    def make(fixed, full):
+        matching = [(values, traced) for values, traced in rates
+                    if all(fixed[choice].value == value for choice, value in values.items())]
+        if not matching:
+            raise Untraceable(f"{full}: its rates are not traced")
+        values, traced = matching[0]
+        for choice in values:  # the rates' choices: this sub-step is specialised on them too
+            fixed[choice].used.append(choice)
+        if kind == "controller" and fixed["discretization"] == EULER:
+            raise Untraceable(f"{full}: discretization = euler takes one Euler step per communication step "
+                              "(DSCControllerModel.integrate), not RK4 sub-steps")
+        return _substep(traced, kind, bool(coupling), full, _projection(fixed) if kind == "controller" else None)
+
+    build.add(name, kind, make, lambda traced: [("", emit_c.rk4_function(traced, state, watch))])
 
 
 def compile_library(source: str, folder: Path, target: binary.Target | None = None,

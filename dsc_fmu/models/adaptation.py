@@ -84,7 +84,7 @@ def project_rates(g, xc: list, rates: list, held: tuple | None = None, math=math
     return projected, (a1_active, a2_active, W1_active, W2_active), (a1_margin, a2_margin, W1_margin, W2_margin)
 
 
-def project_estimates(g, xc: list) -> list:
+def project_estimates(g, xc: list, math=math) -> list:
     """The controller state with its estimates moved onto their sets (the discrete-time projection).
 
     docs/model.md §5.13.
@@ -95,6 +95,8 @@ def project_estimates(g, xc: list) -> list:
         The design parameters with the bounds.
     xc : list of float
         The controller state (20 entries).
+    math : namespace, optional
+        Where ``sqrt`` and ``fsum`` come from (the module, or a namespace that traces them).
 
     Returns
     -------

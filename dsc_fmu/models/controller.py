@@ -211,13 +211,13 @@ def switches(g: Gains, xc: list, m: list) -> Switches:
     return Switches(turns, beta < g.beta_min)
 
 
-def event_indicators(g: Gains, xc: list, m: list, held: Switches | None = None) -> list:
+def event_indicators(g: Gains, xc: list, m: list, held: Switches | None = None, math=math) -> list:
     """``[cos((thetar - theta) / 2), beta - beta_min, projection margin]`` at the state ``xc`` and measurements
     ``m`` with the switches ``held``: each changes sign exactly where a switch of ``switches`` is due
     (docs/model.md §5.13); the projection's is the least of its margins (``adaptation.project_rates``), 1 for
-    the other laws."""
-    margin = min(control_law(g, xc, m, held).margins) if g.adaptation == PROJECTION else 1.0
-    return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m)[4] - g.beta_min, margin]
+    the other laws; ``math`` as in ``control_law``."""
+    margin = min(control_law(g, xc, m, held, math).margins) if g.adaptation == PROJECTION else 1.0
+    return [math.cos(0.5 * (m[10] - m[2])), _surfaces(g.k1, m, math)[4] - g.beta_min, margin]
 
 
 def control_law(g: Gains, xc: list, m: list, held: Switches | None = None, math=math) -> ControlLaw:

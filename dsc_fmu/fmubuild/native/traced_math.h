@@ -26,7 +26,7 @@ __declspec(dllimport) double __cdecl fmod(double, double);
 #endif
 
 /* math.fsum of values[0..n-1]; *raised: whether Python raises (an intermediate overflow, -inf + inf). */
-static double dsc_fsum(int n, const double *values, int *raised)
+static inline double dsc_fsum(int n, const double *values, int *raised)
 {
     double partials[64];
     double x, y, t, hi, yr, lo = 0.0, xsave, special_sum = 0.0, inf_sum = 0.0;
@@ -94,7 +94,7 @@ static double dsc_fsum(int n, const double *values, int *raised)
 }
 
 /* math.remainder(x, y): x less the nearest multiple of y, ties to the even multiple. */
-static double dsc_remainder(double x, double y)
+static inline double dsc_remainder(double x, double y)
 {
     if (isfinite(x) && isfinite(y)) {
         double absx, absy, c, m, r;
@@ -122,7 +122,7 @@ static double dsc_remainder(double x, double y)
 }
 
 /* The length of the vector of the n >= 2 magnitudes vec (modified), max the largest: CPython 3.11's vector_norm. */
-static double dsc_vector_norm(int n, double *vec, double max)
+static inline double dsc_vector_norm(int n, double *vec, double max)
 {
     const double T27 = 134217729.0; /* ldexp(1.0, 27) + 1.0 */
     double x, scale, oldcsum, csum = 1.0, frac1 = 0.0, frac2 = 0.0, frac3 = 0.0, t, hi, lo, h;
@@ -179,7 +179,7 @@ static double dsc_vector_norm(int n, double *vec, double max)
 }
 
 /* math.hypot(x, y). */
-static double dsc_hypot(double x, double y)
+static inline double dsc_hypot(double x, double y)
 {
     double vec[2] = {fabs(x), fabs(y)};
     double max = vec[0] > vec[1] ? vec[0] : vec[1];
