@@ -22,6 +22,8 @@ from dsc_fmu.models.parameters import ADAPTATIONS
 from dsc_fmu.models.reference import velocity
 from traced_cases import call, model, same
 
+pytestmark = pytest.mark.xdist_group("traced")  # one worker compiles the library, once
+
 
 @pytest.fixture(scope="module")
 def traced():
