@@ -18,6 +18,7 @@ _EXPORTS = {
     "reference_solution": "dsc_fmu.cosim.reference_solution",
     "run_scenario": "dsc_fmu.cosim.run",
     "run_sweep": "dsc_fmu.study.sweep",
+    "compare_adaptation_laws": "dsc_fmu.study.laws",
     "Grid": "dsc_fmu.study.cases",
     "Runner": "dsc_fmu.study.cases",
     "DscFmuError": "dsc_fmu.errors",

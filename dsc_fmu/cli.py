@@ -233,8 +233,8 @@ def _laws_options(parser: argparse.ArgumentParser) -> None:
     from .models.parameters import ADAPTATIONS
     from .study.laws import DEFAULT_SCENARIOS
 
-    parser.add_argument("scenarios", nargs="*", metavar="scenario", help=f"scenario names ({', '.join(scenario_names())}) "
-                        f"or TOML files (default: {' '.join(DEFAULT_SCENARIOS)})")
+    parser.add_argument("scenarios", nargs="*", metavar="scenario", help="scenario names "
+                        f"({', '.join(scenario_names())}) or TOML files (default: {' '.join(DEFAULT_SCENARIOS)})")
     parser.add_argument("--laws", type=_names, help=f"adaptation laws, comma-separated: {', '.join(ADAPTATIONS)} "
                         "(default: all)")
     _add(parser, "step_size", "stop_time")

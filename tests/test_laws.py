@@ -125,7 +125,7 @@ def test_the_law_and_the_load_are_axes_of_a_sweep_with_cases_keyed_by_them():
     grid = Grid(step_sizes=[1e-3], orders=["gauss-seidel"], couplings=["hold"], tolerances=[],
                 sets=[parse_set("controller.adaptation=sigma,projection"), parse_set("plant.tau_dc1=0,10")])
     cases = grid.cases(scenario)
-    assert [dict(case.overrides) for case in cases] == [
-        {"controller.adaptation": law, "plant.tau_dc1": load} for law in ("sigma", "projection") for load in (0.0, 10.0)]
+    assert [dict(case.overrides) for case in cases] == [{"controller.adaptation": law, "plant.tau_dc1": load}
+                                                        for law in ("sigma", "projection") for load in (0.0, 10.0)]
     identities = {"MobileRobot": "a", "DSCController": "b", "ReferenceRobot": "c"}
     assert len({case_key(scenario, case, identities) for case in cases}) == 4

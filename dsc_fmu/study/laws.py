@@ -12,8 +12,8 @@ from pathlib import Path
 import numpy as np
 
 from ..cosim.master import Cosimulator
-from ..errors import CosimulationError
 from ..cosim.metrics import tracking_metrics
+from ..errors import CosimulationError
 from ..fmubuild.fmus import ensure_fmus, resolve_fmu_dir
 from ..models.parameters import ADAPTATIONS
 from ..scenario import Scenario, ScenarioError, one_of
@@ -23,7 +23,8 @@ __all__ = ["compare_adaptation_laws", "LAW_KEYS", "DEFAULT_SCENARIOS"]
 DEFAULT_SCENARIOS = ("paper", "robustness")  # the paper's, and with the driver's limit and a disturbance
 
 LAW_KEYS = (
-    "scenario", "adaptation", "diverged_time_s", "diverged_reason", "rms_position_error_m", "final_position_error_m", "max_position_error_m",
+    "scenario", "adaptation", "diverged_time_s", "diverged_reason",
+    "rms_position_error_m", "final_position_error_m", "max_position_error_m",
     "estimates_norm_end", "estimates_norm_max", "estimates_norm_growth_per_s",
     "a1_hat_end", "a2_hat_end", "W1_hat_norm_end", "W2_hat_norm_end",
     "max_abs_u_V", "max_abs_u_applied_V", "limit_time_s", "limit_count",
@@ -59,11 +60,13 @@ def law_row(scenario: Scenario, law: str, result: np.ndarray, failure: Cosimulat
                                   "estimates_norm_growth_per_s"), math.nan),
                    diverged_time_s=float(failure.time), diverged_reason=" ".join(str(failure).split()))
     finite = np.isfinite(norm)
-    row.update({"estimates_norm_end": float(norm[finite][-1]), "estimates_norm_max": float(norm[finite].max()),
-            **{f"{name}_end": float(result[name][-1]) for name in ("a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm")},
-            "max_abs_u_V": float(np.nanmax(np.abs([result["u1"], result["u2"]]))),
-            "max_abs_u_applied_V": float(np.nanmax(np.abs([result["u1_applied"], result["u2_applied"]]))),
-            "limit_time_s": float(result["saturation_time"][-1]), "limit_count": int(result["saturation_count"][-1])})
+    row.update({
+        "estimates_norm_end": float(norm[finite][-1]), "estimates_norm_max": float(norm[finite].max()),
+        **{f"{name}_end": float(result[name][-1]) for name in ("a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm")},
+        "max_abs_u_V": float(np.nanmax(np.abs([result["u1"], result["u2"]]))),
+        "max_abs_u_applied_V": float(np.nanmax(np.abs([result["u1_applied"], result["u2_applied"]]))),
+        "limit_time_s": float(result["saturation_time"][-1]), "limit_count": int(result["saturation_count"][-1]),
+    })
     return {key: row[key] for key in LAW_KEYS}
 
 
