@@ -72,7 +72,7 @@ EXPECTED = {
         "output": (
             "u1", "u2", "S11", "S12", "S13", "a1_hat", "a2_hat", "W1_hat_norm", "W2_hat_norm",
             *(f"W1_hat_{i}" for i in range(1, 9)), *(f"W2_hat_{i}" for i in range(1, 7)),
-            "beta", "beta_guard_count", "beta_guard_active", "started",
+            "beta", "beta_guard_count", "beta_guard_active", "projection_active", "started",
         ),
     },
 }
@@ -87,7 +87,8 @@ TABLES = {
 }
 # Outputs registered outside the tables (docs/model.md §5: the beta guard and the drivers' limit made visible), with
 # their FMI type.
-EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean", "started": "Boolean"},
+EXTRA_OUTPUTS = {"DSCController": {"beta_guard_count": "Integer", "beta_guard_active": "Boolean",
+                                   "projection_active": "Boolean", "started": "Boolean"},
                  "MobileRobot": {"saturation_count": "Integer", "saturation_active": "Boolean"}}
 
 REFERENCE_OUT = tuple(v.name for v in P.REFERENCE_OUTPUTS)

@@ -58,6 +58,26 @@ def test_a_persistent_error_makes_the_unmodified_law_drift_and_the_leakage_keep_
     assert np.all(np.abs(a1_hat) < abs(rate / leak))  # bounded, at every output point
 
 
+@pytest.mark.parametrize("version", [2, 3])
+def test_projection_active_says_when_the_projection_holds_an_estimate(fmu_paths, fmu3_paths, version):
+    """Under the persistent error of ``HELD`` a1_hat rises at the rate of (15) to ``a1_max`` and stays there:
+    ``projection_active`` is false until it arrives and true from then on; under sigma-modification never."""
+    rate, _ = a1_rate_and_surface_norm()
+    a1_max = 5.0 * rate
+    path = str((fmu_paths if version == 2 else fmu3_paths)["DSCController"])
+    for law in ("projection", "sigma"):
+        result = simulate_fmu(path, stop_time=10.0, step_size=0.01, output_interval=0.01,
+                              output=["a1_hat", "projection_active"],
+                              start_values={**HELD, "adaptation": ADAPTATIONS.index(law), "a1_max": a1_max})
+        active = result["projection_active"].astype(bool)
+        if law == "sigma":
+            assert not active.any()
+            continue
+        held = result["a1_hat"] == a1_max
+        assert not active[0] and active[-1] and held[-1]
+        assert np.array_equal(active, held), result["time"][active != held]
+
+
 def synthetic_result(rows: int = 301) -> np.ndarray:
     """A result of ``signals.DTYPE`` over 30 s with known estimates, errors and voltages."""
     result = np.zeros(rows, dtype=signals.DTYPE)
