@@ -160,15 +160,24 @@ class DSCControllerModel(Model):
 
     def discrete_outputs(self, slave):
         def law():
-            return None if slave.waiting() else control_law(self.constants, slave.current_state(), slave.u, self.held)
+            if slave.waiting():
+                return None
+            return control_law(self.constants, slave.current_state(), slave.u, self.held)
+
+        def guarded():
+            now = law()
+            return bool(now and now.guarded)
+
+        def projecting():
+            now = law()
+            return bool(now and any(now.projected))
 
         return [
             ("beta_guard_count", "Number of steps in which beta fell below beta_min and the guard acted "
              "(docs/model.md §5)", False, lambda: self.beta_guard_count),
-            ("beta_guard_active", "True while beta < beta_min at the current inputs and state", True,
-             lambda: bool(law() and law().guarded)),
+            ("beta_guard_active", "True while beta < beta_min at the current inputs and state", True, guarded),
             ("projection_active", "True while the projection acts on an estimate at the current inputs and state "
-             "(adaptation = projection: docs/model.md §3, §5.13)", True, lambda: bool(law() and any(law().projected))),
+             "(adaptation = projection: docs/model.md §3, §5.13)", True, projecting),
             ("started", "True once the filter states have started (docs/model.md §5); False while initialising and "
              "while the controller waits for valid inputs (start_on = valid_inputs)", True,
              lambda: slave.state is not None),
