@@ -27,6 +27,7 @@ from pathlib import Path
 from pythonfmu import FmuBuilder
 
 from dsc_fmu.fmubuild.fmus import ensure_fmus
+from dsc_fmu.fmubuild.traced_models import FMU_MODELS, MODELS
 from dsc_fmu.registry import FMUS
 from dsc_fmu.cosim.master import cosimulate
 from dsc_fmu.cosim.reference_solution import reference_solution
@@ -36,7 +37,7 @@ sys.path.insert(0, str(Path(__file__).parents[1] / "tests"))
 from c_hosts import compile_c, run_c, write_plan  # noqa: E402
 
 TRIVIAL_SLAVE = '''
-from pythonfmu import Fmi2Slave, Real, Integer, Fmi2Causality, Fmi2Variability, Fmi2Initial
+from pythonfmu import Fmi2Slave, Real, Integer, Boolean, Fmi2Causality, Fmi2Variability, Fmi2Initial
 
 
 class {name}(Fmi2Slave):
@@ -55,9 +56,9 @@ class {name}(Fmi2Slave):
         for name in {outputs!r}:
             setattr(self, name, 1.0)
             self.register_variable(Real(name, causality=Fmi2Causality.output, initial=Fmi2Initial.exact))
-        for name in {integer_outputs!r}:
-            setattr(self, name, 0)
-            self.register_variable(Integer(
+        for name, boolean in {discrete_outputs!r}:
+            setattr(self, name, False if boolean else 0)
+            self.register_variable((Boolean if boolean else Integer)(
                 name, causality=Fmi2Causality.output, variability=Fmi2Variability.discrete, initial=Fmi2Initial.exact,
             ))
 
@@ -76,7 +77,7 @@ def build_trivial_fmus(out_dir: Path) -> dict[str, Path]:
             parameters=[(v.name, v.integer, v.tunable) for v in spec.parameters],
             inputs=[v.name for v in spec.inputs],
             outputs=[v.name for v in spec.outputs],
-            integer_outputs=["beta_guard_count"] if name == "DSCController" else [],
+            discrete_outputs=[(output, boolean) for output, _, boolean, _ in MODELS[FMU_MODELS[name]]().discrete_outputs(None)],
         ))
         paths[name] = FmuBuilder.build_FMU(script, dest=out_dir / f"{name}.fmu")
     return paths

@@ -73,6 +73,8 @@ _OPTIONS = {
                              f"(default: the building CPython's minor, {sys.version_info.major}."
                              f"{sys.version_info.minor}); without it the FMUs use the "
                              "importing machine's CPython 3.9 or newer"),
+    "traced": _option("--no-traced", action="store_false", help="build FMUs that run their models in Python only, "
+                      "without the C traced from them (docs/traced-c.md; per instance, the parameter traced = off)"),
     "interface": _option("--interface", choices=INTERFACES, help="co-simulation: the FMUs stepped at the "
                          "communication step{stepped}; model-exchange: the three FMUs as one ODE{integrated} "
                          "(default: {default})"),
@@ -168,7 +170,7 @@ def _fmi2_only(command: str) -> str:
 
 def _build_options(parser: argparse.ArgumentParser) -> None:
     _add_fmus(parser, "built there", flags=("--out", "--fmu-dir"))
-    _add(parser, "bundle_python")
+    _add(parser, "bundle_python", "traced")
 
 
 def _run_options(parser: argparse.ArgumentParser) -> None:
@@ -262,7 +264,7 @@ def _build(args) -> None:
     from .fmubuild.fmus import build_fmus
 
     folder, version = _fmus(args)
-    for path in build_fmus(folder, fmi_version=version, bundle_python=args.bundle_python).values():
+    for path in build_fmus(folder, fmi_version=version, bundle_python=args.bundle_python, traced=args.traced).values():
         print(path)
 
 

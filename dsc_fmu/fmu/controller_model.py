@@ -158,6 +158,13 @@ class DSCControllerModel(Model):
             return f"beta < beta_min = {self.p['beta_min']:g} from t = {t:.6g} s: {_GUARD}"
         return None
 
+    def traced_ready(self):
+        return self.p["discretization"] != EULER and not self._guarded_last_step
+
+    def held_values(self):
+        held = self.held
+        return None if held is None else [float(held.turns), float(held.guarded), *map(float, held.projected)]
+
     def discrete_outputs(self, slave):
         def law():
             if slave.waiting():

@@ -48,6 +48,9 @@ class Model:
     # The switches held (model exchange) whose branches the build's dependency search covers besides those chosen
     # at each point: None alone for a model without switches.
     BRANCHES: tuple = (None,)
+    # The Real outputs the model keeps as bookkeeping of its steps rather than computes from the state: not traced
+    # to C (docs/traced-c.md), read from ``bookkeeping``.
+    UNTRACED_OUTPUTS: tuple = ()
 
     def __init__(self):
         self.p = {v.name: v.start for v in self.PARAMETERS}
@@ -130,6 +133,20 @@ class Model:
         """Model exchange, event mode: choose the switches held until the next event, at the state ``x`` after
         ``reinit``."""
         return None
+
+    def traced_ready(self) -> bool:
+        """Whether steps and evaluations may run in the C traced from this model (docs/traced-c.md): whether nothing
+        of its bookkeeping would change in a step in which its watch (the beta guard, the drivers' limit) stays quiet.
+        """
+        return True
+
+    def held_values(self) -> list | None:
+        """The switches held (``held``, model exchange) as the traced C takes them (``s``), or None: none held."""
+        return None
+
+    def bookkeeping(self) -> list:
+        """The values of ``UNTRACED_OUTPUTS``, unchanged by steps and evaluations while ``traced_ready``."""
+        return []
 
     def discrete_outputs(self, slave) -> list:
         """The integer and Boolean outputs, registered after those of the tables: ``(name, description, boolean,

@@ -53,6 +53,7 @@ class MobileRobotModel(Model):
     BRANCHES = (None, (HIGH, HIGH))  # the drivers limited: what u_max1, u_max2 reach
     FMU_STATE = {"held": _optional_tuple, "saturation_count": int, "saturation_time": float,
                  "_limited_last_step": bool, "_limited_since": _optional_float}
+    UNTRACED_OUTPUTS = ("saturation_time",)
 
     def __init__(self):
         super().__init__()
@@ -112,6 +113,15 @@ class MobileRobotModel(Model):
             self._limited_since = None
         self.held = held
         return None
+
+    def traced_ready(self):
+        return not self._limited_last_step and self._limited_since is None
+
+    def held_values(self):
+        return None if self.held is None else [float(switch) for switch in self.held]
+
+    def bookkeeping(self):
+        return [self.saturation_time]
 
     def discrete_outputs(self, slave):
         def active():

@@ -9,13 +9,17 @@ import math
 from dataclasses import dataclass
 
 from ..models.dual import DUAL_MATH, tangent
-from ..models.parameters import DEFAULT_TOLERANCE, INPUT_COUPLINGS
+from ..models.parameters import ANY, DEFAULT_TOLERANCE, INPUT_COUPLINGS, NONNEGATIVE, POSITIVE, TRACED
 from ..models.rk4 import MAX_SUBSTEPS
 from .directional import DERIVATIVE, INPUT, OUTPUT, STATE, Roles, adjoint, directional, seeded
 
 __all__ = []  # ``fmi2`` and ``fmi3`` use ``FmiLibrary`` and ``ModelSlave``
 
 HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
+TRACED_ON = TRACED.index("on")
+# The roles of the variables the binary reads or sets in C (``traced_layout``), and the bounds of its inputs' check.
+PARAMETER, INPUT_VALUE, TRACED_OUTPUT, BOOKKEEPING_OUTPUT = range(4)
+BOUNDS = {ANY: 0, NONNEGATIVE: 1, POSITIVE: 2}
 
 
 @dataclass(frozen=True)
@@ -361,6 +365,63 @@ class ModelSlave:
         self._warn(self.model.event(self.time, self.current_state(), self.u))
         self._stale()
         return state is not None
+
+    # --- the traced C (docs/traced-c.md) ----------------------------------------------------------------------
+
+    def traced_layout(self) -> tuple:
+        """Where the binary finds what the traced C reads, as three flat lists of numbers: ``(variables, sizes,
+        inputs)``.
+
+        ``variables``: value reference, role and index of each parameter (its index in ``p``), input, traced output
+        (its index in the traced outputs) and output of the model's bookkeeping (``Model.UNTRACED_OUTPUTS``), the
+        roles ``PARAMETER``, ``INPUT_VALUE``, ``TRACED_OUTPUT``, ``BOOKKEEPING_OUTPUT``; ``sizes``: the lengths of
+        ``p``, the state, the inputs, the traced outputs and the bookkeeping, the indices of ``max_step`` and
+        ``coupling`` in ``p`` (-1: none), ``MAX_SUBSTEPS`` and the codes of hold and interpolate; ``inputs``: each
+        input's check, its ``BOUNDS`` code, minimum and maximum.
+        """
+        model = self.model
+        references = {v.name: vr for vr, v in self.vars.items()}
+        traced = [v for v in model.OUTPUTS if v.name not in model.UNTRACED_OUTPUTS]
+        roles = [
+            *((v.name, PARAMETER, i) for i, v in enumerate(model.PARAMETERS)),
+            *((v.name, INPUT_VALUE, i) for i, v in enumerate(model.INPUTS)),
+            *((v.name, TRACED_OUTPUT, i) for i, v in enumerate(traced)),
+            *((name, BOOKKEEPING_OUTPUT, i) for i, name in enumerate(model.UNTRACED_OUTPUTS)),
+        ]
+        names = [v.name for v in model.PARAMETERS]
+        sizes = [len(names), len(model.STATES), len(model.INPUTS), len(traced), len(model.UNTRACED_OUTPUTS),
+                 *(names.index(name) if name in names else -1 for name in ("max_step", "coupling")),
+                 MAX_SUBSTEPS, HOLD, INTERPOLATE]
+        inputs = [(BOUNDS[v.bound], -math.inf if v.minimum is None else v.minimum,
+                   math.inf if v.maximum is None else v.maximum) for v in model.INPUTS]
+        return ([number for name, role, i in roles for number in (references[name], role, i)], sizes,
+                [number for check in inputs for number in check])
+
+    def traced_snapshot(self):
+        """What the binary needs to step and evaluate the model in C, or None where Python runs: ``traced`` = off,
+        values refused, before the first step (the state follows the inputs), input derivatives given, or the model
+        not ``traced_ready``.
+
+        ``(p, time, state, inputs, history time, history inputs, held, bookkeeping)``: the parameters in the order
+        of ``PARAMETERS``, the slave's time, state and inputs, the last step's stamped inputs (``history``; None,
+        None before it), the model's ``held_values`` and ``bookkeeping``.
+        """
+        model = self.model
+        if (model.p["traced"] != TRACED_ON or self.rejected or self.state is None or self.derivatives_given
+                or not model.traced_ready()):
+            return None
+        since, before = self.history or (None, None)
+        return list(model.p.values()), self.time, self.state, self.u, since, before, model.held_values(), \
+            model.bookkeeping()
+
+    def traced_sync(self, inputs: list, time: float | None, state: list | None, stamp: float | None,
+                    stamped: list | None) -> None:
+        """Take what the binary did in C since ``traced_snapshot``: the ``inputs`` set, and unless ``time`` is None
+        the steps it took, the last ending at ``time`` in ``state`` with the inputs ``stamped`` at ``stamp``."""
+        self.u = list(inputs)
+        if time is not None:
+            self.time, self.state, self.history = time, list(state), [stamp, list(stamped)]
+        self._stale()
 
     # --- FMU state ----------------------------------------------------------------------------------------
 

@@ -19,6 +19,7 @@ from .. import platforms
 from ..errors import DscFmuError
 from ..platforms import Platform
 from ..fmu.native_bridge import CAUSALITIES, TYPE_NAMES, TYPES, VARIABILITIES
+from .emit_c import C_FLAGS
 
 __all__ = ["BinaryBuildError", "TARGETS", "LINUX", "LINUX_AARCH64", "WINDOWS", "MACOS_ARM64", "MACOS_X86_64",
            "host_target", "OVERRIDE_VARIABLE"]
@@ -30,10 +31,17 @@ OVERRIDE_VARIABLE = "DSC_FMU_PYTHON"
 # build's private package.
 ENTRY_FILE = "dsc_fmu_entry.txt"
 # What the binaries of both versions share: the instance, the slave (by job), the resource URI, the Python.
-_CORE = ("instance.c", "slave.c", "slave_queue.c", "slave_calls.c", "slave_values.c", "slave_states.c", "uri.c",
-         "pyhost.c")
+_CORE = ("instance.c", "slave.c", "slave_queue.c", "slave_calls.c", "slave_values.c", "slave_states.c",
+         "slave_traced.c", "uri.c", "pyhost.c")
 _SOURCES = {2: ("fmi2Functions.c", *_CORE), 3: ("fmi3Functions.c", *_CORE)}
-_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "slave_calls.h", "uri.h", "platform.h")
+_HEADERS = ("adapter.h", "functions.h", "instance.h", "pyhost.h", "slave.h", "slave_calls.h", "uri.h", "platform.h",
+            "traced.h", "traced_math.h")
+# The C of an FMU whose model runs in Python only: the empty table of native/traced.h.
+NO_TRACED_MODEL = '#include "traced.h"\n\nconst TracedModel TRACED_MODEL = {0};\n'
+# How a model's traced C (traced_models.fmu_source) is compiled: bit for bit as CPython computes (C_FLAGS), its
+# functions internal to the binary (only TRACED_MODEL is seen by the rest of it).
+_TRACED_FLAGS = ("-O2", *C_FLAGS, "-DDSC_TRACED_API=static __attribute__((unused))", "-Wall", "-Wextra", "-Werror",
+                 "-Wno-unused-parameter")
 
 
 class BinaryBuildError(DscFmuError, RuntimeError):
@@ -53,6 +61,7 @@ class Target(Platform):
     flags: tuple[str, ...] = ()
     libraries: tuple[str, ...] = ()
     install_name: str = ""
+    object_flags: tuple[str, ...] = ()
 
 
 _POSIX = ("-fPIC", "-fvisibility=hidden")
@@ -62,14 +71,14 @@ _MACOS_SOURCES = ("platform_posix.c", "platform_macos.c")
 # Stripped: otherwise the symbol table names the objects in Zig's cache and the temporary output.
 _MACOS_FLAGS = (*_POSIX, "-s")
 LINUX = Target(**vars(platforms.LINUX), zig_target="x86_64-linux-gnu.2.17", platform_sources=_LINUX_SOURCES,
-               flags=_POSIX, libraries=_LINUX_LIBRARIES)
+               flags=_POSIX, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
 LINUX_AARCH64 = Target(**vars(platforms.LINUX_AARCH64), zig_target="aarch64-linux-gnu.2.17",
-                       platform_sources=_LINUX_SOURCES, flags=_POSIX, libraries=_LINUX_LIBRARIES)
+                       platform_sources=_LINUX_SOURCES, flags=_POSIX, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
 WINDOWS = Target(**vars(platforms.WINDOWS), zig_target="x86_64-windows-gnu", platform_sources=("platform_windows.c",))
 MACOS_ARM64 = Target(**vars(platforms.MACOS_ARM64), zig_target="aarch64-macos.11.0", platform_sources=_MACOS_SOURCES,
-                     flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib")
+                     flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib", object_flags=_POSIX)
 MACOS_X86_64 = Target(**vars(platforms.MACOS_X86_64), zig_target="x86_64-macos.10.13", platform_sources=_MACOS_SOURCES,
-                      flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib")
+                      flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib", object_flags=_POSIX)
 TARGETS = (LINUX, LINUX_AARCH64, WINDOWS, MACOS_ARM64, MACOS_X86_64)
 
 
@@ -184,11 +193,12 @@ def _contract(fmi_version: int) -> list[str]:
     ]
 
 
-def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path, model_identifier: str) -> list[str]:
+def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: Path, model_identifier: str,
+             traced: Path) -> list[str]:
     install_name = [f"-Wl,-install_name,{target.install_name.format(model_identifier)}"] if target.install_name else []
     return [
         sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-shared", *target.flags, *install_name,
-        "-O2",
+        "-O2", "-ffp-contract=off",
         "-std=c11", "-Wall", "-Wextra", "-Werror", "-Wno-unused-parameter",
         f"-I{NATIVE_DIR}", f"-I{_fmi_headers()}",
         f"-DDSC_PYTHON_VERSION={_c_string(runtime.version)}",
@@ -196,7 +206,7 @@ def _command(fmi_version: int, target: Target, runtime: PythonRuntime, output: P
         f"-DDSC_BUILD_PYTHON_HOME={_c_string(runtime.home)}",
         *([f"-DDSC_SYSTEM_PYTHON={_c_string(runtime.system_name)}"] if runtime.system_name else []),
         *_contract(fmi_version),
-        *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], *target.platform_sources)),
+        *(str(NATIVE_DIR / name) for name in (*_SOURCES[fmi_version], *target.platform_sources)), str(traced),
         "-o", str(output), *target.libraries,
     ]
 
@@ -210,11 +220,12 @@ def _compiler_environment() -> dict:
 
 
 def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRuntime | None = None,
-                   model_identifier: str = "") -> bytes:
+                   model_identifier: str = "", traced: str = NO_TRACED_MODEL) -> bytes:
     """The shared library of one FMI version for one platform, compiled once per process for the same inputs.
     ``runtime`` defaults to ``build_python()`` (its library only for this platform); ``model_identifier`` is required
-    for a target whose binary names itself (``Target.install_name``). BinaryBuildError if the compiler cannot be
-    run or fails, or a model identifier is missing.
+    for a target whose binary names itself (``Target.install_name``); ``traced`` is the C of the FMU's model traced
+    (``traced_models.fmu_source``; by default none: the model runs in Python). BinaryBuildError if the compiler
+    cannot be run or fails, or a model identifier is missing.
     """
     if target.install_name and not model_identifier:
         raise BinaryBuildError(f"the {target.name} binary names itself after its FMU: give its model identifier")
@@ -223,7 +234,8 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
     digest = hashlib.sha256(repr((fmi_version, target, runtime, model_identifier, _contract(fmi_version))).encode())
     for path in binary_sources(fmi_version):
         digest.update(path.read_bytes())
-    return _compile(fmi_version, target, runtime, model_identifier, digest.hexdigest())
+    digest.update(traced.encode())
+    return _compile(fmi_version, target, runtime, model_identifier, traced, digest.hexdigest())
 
 
 # Zig's first compile for a platform also builds that platform's C library (MinGW's for Windows): 12 minutes
@@ -231,24 +243,50 @@ def compile_binary(fmi_version: int, target: Target = LINUX, runtime: PythonRunt
 COMPILE_TIMEOUT = 3600
 
 
+def _run_zig(command: list, target: Target, what: str) -> None:
+    """Run Zig's ``command``; BinaryBuildError, naming ``what`` and the compiler's last lines, if it fails."""
+    try:
+        run = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT,
+                             env=_compiler_environment())
+    except subprocess.TimeoutExpired:
+        raise BinaryBuildError(
+            f"compiling {what} for {target.name} took more than {COMPILE_TIMEOUT} s (Zig's first build for "
+            "a platform compiles that platform's C library, kept in its cache): run the command again"
+        ) from None
+    except OSError as error:
+        raise BinaryBuildError(f"compiling {what} for {target.name} failed: cannot run Zig: {error}") from None
+    if run.returncode != 0:
+        detail = (run.stderr or run.stdout).strip().splitlines()
+        raise BinaryBuildError(
+            f"compiling {what} for {target.name} failed ({' '.join(command[:6])} ...): {' | '.join(detail[-5:])}"
+        )
+
+
 @functools.lru_cache(maxsize=32)
-def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, model_identifier: str, digest: str) -> bytes:
+def _traced_object(target: Target, traced: str) -> bytes:
+    """The object file of a traced model's C for ``target``. The C is written under a name made of its hash, in
+    the temp folder: Zig caches an object by the source's path and content, so the same model compiles once."""
+    folder = Path(tempfile.gettempdir()) / "dsc-fmu-traced"
+    folder.mkdir(exist_ok=True)
+    source = folder / f"{hashlib.sha256(traced.encode()).hexdigest()[:32]}.c"
+    if not source.is_file() or source.read_text() != traced:
+        staged = source.with_name(f"{source.stem}.{os.getpid()}.tmp")
+        staged.write_text(traced)
+        os.replace(staged, source)
+    with tempfile.TemporaryDirectory(prefix="dsc_fmu_traced_") as tmp:
+        output = Path(tmp) / "traced.o"
+        _run_zig([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-c", *target.object_flags,
+                  *_TRACED_FLAGS, f"-I{NATIVE_DIR}", str(source), "-o", str(output)], target, "the traced model")
+        return output.read_bytes()
+
+
+@functools.lru_cache(maxsize=32)
+def _compile(fmi_version: int, target: Target, runtime: PythonRuntime, model_identifier: str, traced: str,
+             digest: str) -> bytes:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_binary_") as tmp:
         output = Path(tmp) / f"{model_identifier or 'fmu'}{target.suffix}"  # a signature's identifier is its name
-        command = _command(fmi_version, target, runtime, output, model_identifier)
-        try:
-            run = subprocess.run(command, capture_output=True, text=True, timeout=COMPILE_TIMEOUT,
-                                 env=_compiler_environment())
-        except subprocess.TimeoutExpired:
-            raise BinaryBuildError(
-                f"compiling the FMU binary for {target.name} took more than {COMPILE_TIMEOUT} s (Zig's first build for "
-                "a platform compiles that platform's C library, kept in its cache): run the command again"
-            ) from None
-        except OSError as error:
-            raise BinaryBuildError(f"compiling the FMU binary for {target.name} failed: cannot run Zig: {error}") from None
-        if run.returncode != 0:
-            detail = (run.stderr or run.stdout).strip().splitlines()
-            raise BinaryBuildError(
-                f"compiling the FMU binary for {target.name} failed ({' '.join(command[:6])} ...): {' | '.join(detail[-5:])}"
-            )
+        model = Path(tmp) / "traced.o"
+        model.write_bytes(_traced_object(target, traced))
+        command = _command(fmi_version, target, runtime, output, model_identifier, model)
+        _run_zig(command, target, "the FMU binary")
         return output.read_bytes()

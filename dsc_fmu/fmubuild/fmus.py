@@ -31,6 +31,7 @@ from .folders import (
 from .bundle import MANIFEST, ROOT, Runtime, bundle_minor, bundled_runtimes
 from .bundle.runtime import bytecode
 from .documentation import REQUIREMENTS, bundled_requirements
+from .traced_models import fmu_source
 from .model_description import complete_model_description, documentation
 
 __all__ = [
@@ -178,11 +179,12 @@ def _forget_staged_modules(package: str, script: str) -> None:
         del sys.modules[name]
 
 
-def _binaries(spec: FmuSpec, fmi_version: int) -> dict[str, bytes]:
-    """The binaries by path; targets that share a folder (macOS's ``darwin64``) joined in a universal file."""
+def _binaries(spec: FmuSpec, fmi_version: int, traced: str) -> dict[str, bytes]:
+    """The binaries by path, with the model's ``traced`` C; targets that share a folder (macOS's ``darwin64``) joined
+    in a universal file."""
     slices = {}
     for target in TARGETS:
-        binary = compile_binary(fmi_version, target, model_identifier=spec.name)
+        binary = compile_binary(fmi_version, target, model_identifier=spec.name, traced=traced)
         for name in target.files(fmi_version, spec.name):
             slices.setdefault(name, []).append(binary)
     return {name: images[0] if len(images) == 1 else universal(images) for name, images in slices.items()}
@@ -213,13 +215,14 @@ def _requirements(runtimes: dict, fmi_version: int) -> str:
 
 
 def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None,
-              bundle_python: bool | str = False) -> Path:
+              bundle_python: bool | str = False, traced: bool = True) -> Path:
     """Build one FMU, ``out_dir/<name>.fmu``, atomically; the arguments and errors are those of ``build_fmus``."""
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
     if bundle_python:
         bundle_minor(bundle_python)  # a bad version is refused before anything is built
     digest = source_hash(spec, fmi_version)
     target = out_dir / f"{spec.name}.fmu"
+    model, untraceable = fmu_source(spec.name, traced)
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_build_") as tmp:
         tmp = Path(tmp)
         script, package_dir = _stage(spec, tmp / "stage", digest, fmi_version)
@@ -232,7 +235,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
             runtimes = bundled_runtimes(raw, entry, bundle_python, [target.name for target in TARGETS])
         staged = tmp / f"{spec.name}.fmu"
         with zipfile.ZipFile(raw) as src, zipfile.ZipFile(staged, "w", zipfile.ZIP_DEFLATED) as dst:
-            for name, data in _binaries(spec, fmi_version).items():
+            for name, data in _binaries(spec, fmi_version, model).items():
                 dst.writestr(name, data)
             for platform, runtime in runtimes.items():
                 for name, data in _runtime_files(runtime, platform, fmi_version).items():
@@ -254,7 +257,8 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
                     dst.writestr(name, data)
                     if name.startswith("resources/") and name.endswith(".py"):
                         dst.writestr(*_bytecode(name, data))
-            record = {"source_hash": digest, "dsc_fmu": __version__, "fmi_version": fmi_version}
+            record = {"source_hash": digest, "dsc_fmu": __version__, "fmi_version": fmi_version,
+                      "traced": {"untraceable": untraceable} if traced else None}
             if runtimes:
                 record["python"] = {platform: runtime.version for platform, runtime in runtimes.items()}
             dst.writestr(BUILD_ID_FILE, json.dumps(record))
@@ -268,7 +272,7 @@ def build_fmu(spec: FmuSpec, out_dir: Path | str, fmi_version: int | None = None
 
 
 def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version: int | None = None,
-               bundle_python: bool | str = False) -> dict[str, Path]:
+               bundle_python: bool | str = False, traced: bool = True) -> dict[str, Path]:
     """Build some or all of the three FMUs, each atomically.
 
     Parameters
@@ -284,6 +288,9 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
         building machine's CPU; a warning names the others): True for the building CPython's minor
         version, or ``"3.X"`` for Windows' (Linux's is the building CPython). Default False: the FMUs use
         the importing machine's.
+    traced : bool, optional
+        Compile the C traced from each model into its binaries (docs/traced-c.md; the build record names what could
+        not be traced, which runs in Python). Default True; False: the models run in Python only.
 
     Returns
     -------
@@ -304,7 +311,7 @@ def build_fmus(out_dir: Path | str | None = None, names=tuple(FMUS), fmi_version
         If a CPython cannot be bundled (``bundle_minor``, ``bundled_runtimes``); nothing is written.
     """
     out_dir, fmi_version = resolve_fmu_dir(out_dir, fmi_version)
-    return {name: build_fmu(FMUS[name], out_dir, fmi_version, bundle_python) for name in names}
+    return {name: build_fmu(FMUS[name], out_dir, fmi_version, bundle_python, traced) for name in names}
 
 
 def ensure_fmus(out_dir: Path | str | None = None, fmi_version: int | None = None) -> dict[str, Path]:

@@ -1,4 +1,4 @@
-"""One sub-step of ``models.rk4.rk4_integrate`` traced from its own source, the rates inlined or called."""
+"""One sub-step of ``models.rk4.rk4_integrate`` traced from its own source, calling the traced rates."""
 
 from __future__ import annotations
 
@@ -23,8 +23,7 @@ def _symbolic_substep(count: Symbol, index: Symbol):
         del rk4.range
 
 
-def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: str, inline: bool,
-                      project=None) -> Traced:
+def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: str, project=None) -> Traced:
     """One sub-step of ``models.rk4.rk4_integrate`` traced from its own source.
 
     Parameters
@@ -42,9 +41,6 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
         ``count``, ``k`` and ``x``.
     name : str
         The name of the sub-step.
-    inline : bool
-        Whether the rates are traced into the sub-step (what does not change over a step, such as the functions of
-        held inputs, is then computed once per step; their decisions combine over the four evaluations) or called.
     project : callable, optional
         ``project(p)``: None, or what ``rk4_integrate`` maps the state with after each sub-step (its ``project``).
 
@@ -57,7 +53,7 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
     Raises
     ------
     Untraceable
-        As ``trace``; inline, ``TooManyPaths`` beyond ``rates.paths`` combinations of decisions.
+        As ``trace``.
     """
     graph = rates.graph
     arguments = {**arguments, "t0": None, "step_size": None, "count": None, "k": None, "x": state}
@@ -66,13 +62,9 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
         watched = []
 
         def derivative(t, x):
-            given = inputs(t, **symbols)
-            if inline:
-                results = rates.function(p=symbols["p"], t=t, x=x, **given)
-            else:
-                arguments = _call_arguments(graph, rates, t, x, given)
-                call = graph.node(("call", rates.name, arguments, len(rates.outputs)))
-                results = [Symbol(graph, graph.node(("result", call, i))) for i in range(len(rates.outputs))]
+            arguments = _call_arguments(graph, rates, t, x, inputs(t, **symbols))
+            call = graph.node(("call", rates.name, arguments, len(rates.outputs)))
+            results = [Symbol(graph, graph.node(("result", call, i))) for i in range(len(rates.outputs))]
             watched.extend([t, *results[state:]])
             return results[:state]
 
@@ -80,7 +72,7 @@ def trace_rk4_substep(rates: Traced, state: int, inputs, arguments: dict, name: 
             x = rk4.rk4_integrate(derivative, t0, x, step_size, math.inf, project and project(symbols["p"]))
         return [*x, *watched]
 
-    return trace(substep, arguments, name, graph, rates.paths if inline else 1)
+    return trace(substep, arguments, name, graph, 1)
 
 
 def _call_arguments(graph: Graph, rates: Traced, t, x, others: dict) -> tuple:

@@ -24,15 +24,22 @@ from ..models import adaptation, controller
 from ..models.adaptation import PROJECTION
 from ..models.controller import Switches, control_law
 from ..models.plant import UNLIMITED, plant_derivatives, saturation
+from ..registry import CONTROLLER, PLANT, REFERENCE
 from . import binary, emit_c
 from .local import merging_locally
 from .specialise import dispatch_function, specialise
 from .substep import trace_rk4_substep
-from .trace import TRACE_MATH, Graph, TooManyPaths, Traced, Untraceable, trace
+from .trace import TRACE_MATH, Graph, Traced, Untraceable, trace
 
-__all__ = ["TracedModels", "compile_library", "trace_models"]
+__all__ = ["TracedModels", "compile_library", "fmu_source", "trace_models"]
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
+# The model of each FMU, and the functions its binary calls (``fmu_source``): the RK4 loops, the outputs, model
+# exchange's evaluations with the switches held, and the rates the loops call.
+FMU_MODELS = {REFERENCE: "reference", PLANT: "plant", CONTROLLER: "controller"}
+_ME = ("outputs_held", "rates_held", "indicators_held")
+FMU_FUNCTIONS = {"reference": ("rates", "outputs", "rk4"), "plant": ("law", "rk4", "rk4_line", "outputs", *_ME),
+                 "controller": ("law", "rk4", "rk4_line", "outputs", *_ME)}
 # The switches a model holds between events in model exchange (``held``), from the run-time array ``s``: the plant's
 # drivers (``FREE``, ``HIGH``, ``LOW``), the controller's ``Switches`` (turns, guarded, the four projections;
 # nonzero for true).
@@ -40,8 +47,6 @@ HELD = {
     "plant": (2, tuple),
     "controller": (6, lambda s: Switches(s[0], s[1] != 0.0, tuple(switch != 0.0 for switch in s[2:6]))),
 }
-# Outputs the slave computes from its own bookkeeping (the FMU state), not traced.
-BOOKKEEPING = {"saturation_time"}
 # The models' helpers whose decisions are merged where they are called (``local.merging_locally``): the
 # projection's per-estimate choices, its margins' ``min`` and ``max``, the move onto the sets.
 LOCAL = ((adaptation, ("_interval", "_ball", "project_estimates", "min", "max")), (controller, ("min",)))
@@ -73,7 +78,7 @@ def _hook(kind: str, hook: str):
         values = getattr(model, hook)(t, x, u, TRACE_MATH)
         if hook == "rates":
             return values
-        return [value for value, v in zip(values, model.OUTPUTS) if v.name not in BOOKKEEPING]
+        return [value for value, v in zip(values, model.OUTPUTS) if v.name not in model.UNTRACED_OUTPUTS]
 
     return function
 
@@ -123,16 +128,11 @@ def _inputs(t, p, u=None, slope=None, stamp=None):
 
 
 def _substep(rates: Traced, kind: str, line: bool, name: str, project) -> Traced:
-    """The RK4 sub-step of ``kind`` (inputs held, or on a line), its rates traced into it unless their decisions
-    would then combine in more ways than the rates' own (then called)."""
+    """The RK4 sub-step of ``kind`` (inputs held, or on a line), calling the traced rates."""
     arguments = {key: size for key, size in _arguments(kind).items() if key in ("p", "u")}
     if line:
         arguments.update(slope=arguments["u"], stamp=None)
-    state = len(MODELS[kind].STATES)
-    try:
-        return trace_rk4_substep(rates, state, _inputs, arguments, name, True, project)
-    except TooManyPaths:
-        return trace_rk4_substep(rates, state, _inputs, arguments, name, False, project)
+    return trace_rk4_substep(rates, len(MODELS[kind].STATES), _inputs, arguments, name, project)
 
 
 @dataclass
@@ -203,8 +203,18 @@ def _name(definition: str) -> str:
     return head[:head.index("(")].split()[-1]
 
 
-def trace_models() -> TracedModels:
-    """Trace the three FMUs' models and write their C.
+def trace_models(kinds=tuple(MODELS), functions: dict | None = None, tangents: bool = True) -> TracedModels:
+    """Trace the FMUs' models and write their C.
+
+    Parameters
+    ----------
+    kinds : iterable of str, optional
+        The models (keys of ``MODELS``): all three by default.
+    functions : dict, optional
+        By model, the functions to trace (``"rates"``, ``"outputs_held"``, ``"rk4"``, ...: the C names without
+        ``dsc_<model>_``); None: every one.
+    tangents : bool, optional
+        Whether the C has the tangents of the rates, the outputs and the initial state (``_tangent``).
 
     Returns
     -------
@@ -220,30 +230,99 @@ def trace_models() -> TracedModels:
 
         def emit(traced):
             made = [("", emit_c.value_function(traced))]
-            return made + ([("_tangent", emit_c.tangent_function(traced, differentiable))] if differentiable else [])
+            tangent = differentiable and tangents
+            return made + ([("_tangent", emit_c.tangent_function(traced, differentiable))] if tangent else [])
 
         return make, emit
 
+    def wanted(kind, function):
+        return functions is None or function in functions[kind]
+
     with merging_locally(LOCAL):
         rates = {}
-        for kind, model in MODELS.items():
+        for kind in kinds:
+            model = MODELS[kind]
             knowns = ("x", "u") if model.INPUTS else ("x",)
             for hook in ("rates", "outputs"):
                 for held in (False, True) if kind in HELD else (False,):
-                    name = f"dsc_{kind}_{hook}{'_held' if held else ''}"
-                    done = build.add(name, kind, *traced(_hook(kind, hook), _arguments(kind, held), knowns))
-                    rates.setdefault(kind, done)
+                    function = f"{hook}{'_held' if held else ''}"
+                    if wanted(kind, function):
+                        done = build.add(f"dsc_{kind}_{function}", kind,
+                                         *traced(_hook(kind, hook), _arguments(kind, held), knowns))
+                        rates.setdefault(kind, done)
             for held in (False, True) if model.INDICATORS else ():
-                name = f"dsc_{kind}_indicators{'_held' if held else ''}"
-                build.add(name, kind, *traced(_indicators(kind), _arguments(kind, held, time=False)))
-        start = {"p": len(DSCControllerModel.PARAMETERS), "u": len(DSCControllerModel.INPUTS)}
-        build.add("dsc_controller_initial_state", "controller", *traced(_start, start, ("u",)))
-        for kind, law in (("plant", _drive), ("controller", _law)):
-            rates[kind] = build.add(f"dsc_{kind}_law", kind, *traced(law, _arguments(kind)))
-        for kind, watch in (("plant", "count"), ("controller", "first"), ("reference", None)):
-            for coupling in ("", "_line") if MODELS[kind].INPUTS else ("",):
-                _add_rk4(build, kind, coupling, watch, rates[kind])
+                function = f"indicators{'_held' if held else ''}"
+                if wanted(kind, function):
+                    build.add(f"dsc_{kind}_{function}", kind,
+                              *traced(_indicators(kind), _arguments(kind, held, time=False)))
+            if kind == "controller" and wanted(kind, "initial_state"):
+                start = {"p": len(DSCControllerModel.PARAMETERS), "u": len(DSCControllerModel.INPUTS)}
+                build.add("dsc_controller_initial_state", "controller", *traced(_start, start, ("u",)))
+            law = {"plant": _drive, "controller": _law}.get(kind)
+            if law is not None and wanted(kind, "law"):
+                rates[kind] = build.add(f"dsc_{kind}_law", kind, *traced(law, _arguments(kind)))
+            watch = {"plant": "count", "controller": "first"}.get(kind)
+            for coupling in ("", "_line") if model.INPUTS else ("",):
+                if wanted(kind, f"rk4{coupling}"):
+                    _add_rk4(build, kind, coupling, watch, rates[kind])
     return TracedModels(build.functions, build.untraceable, emit_c.c_file(build.definitions))
+
+
+def fmu_source(name: str, traced: bool = True) -> tuple:
+    """The C of the model of the FMU ``name`` (a key of ``FMU_MODELS``) that its binary compiles, and what could not
+    be traced (``TracedModels.untraceable``).
+
+    The functions of ``FMU_FUNCTIONS`` (internal: the file is compiled with ``DSC_TRACED_API`` static) and
+    ``TRACED_MODEL`` (``native/traced.h``), the table through which the binary calls them; with ``traced`` False
+    an empty table: the FMU runs its model in Python only.
+    """
+    if not traced:
+        return binary.NO_TRACED_MODEL, {}
+    kind = FMU_MODELS[name]
+    models = trace_models((kind,), FMU_FUNCTIONS, tangents=False)
+    return models.source + _table(kind), models.untraceable
+
+
+def _table(kind: str) -> str:
+    """``TRACED_MODEL`` of ``kind``'s functions, each behind the one signature of ``native/traced.h``."""
+    model = MODELS[kind]
+    f = f"dsc_{kind}"
+    inputs = bool(model.INPUTS)
+    u = "u, " if inputs else ""
+    watch = {"plant": "TRACED_WATCH_COUNT", "controller": "TRACED_WATCH_FIRST"}.get(kind, "TRACED_WATCH_NONE")
+    step_watch = ", watch" if kind in HELD else ""
+    step = (f"if (slope) return {f}_rk4_line(p, u, slope, stamp, t0, step_size, count, x{step_watch});\n    "
+            if inputs else "")
+    held = kind in HELD
+    lines = [
+        "#include \"traced.h\"",
+        "",
+        "static int step(const double *p, const double *u, const double *slope, double stamp, double t0, "
+        "double step_size, long count, double *x, double *watch) {",
+        f"    {step}return {f}_rk4(p, {u}t0, step_size, count, x{step_watch});",
+        "}",
+        "",
+        "static int outputs(const double *p, double t, const double *x, const double *u, const double *s, "
+        "double *out) {",
+        *([f"    if (s) return {f}_outputs_held(p, t, x, u, s, out);"] if held else []),
+        f"    return {f}_outputs(p, t, x, {u}out);",
+        "}",
+        "",
+        "static int rates(const double *p, double t, const double *x, const double *u, const double *s, double *out) {",
+        f"    return {f}_rates{'_held' if held else ''}(p, t, x, {u}{'s, ' if held else ''}out);",
+        "}",
+        "",
+    ]
+    if model.INDICATORS:
+        lines += ["static int indicators(const double *p, const double *x, const double *u, const double *s, "
+                  "double *out) {", f"    return {f}_indicators_held(p, x, u, s, out);", "}", ""]
+    traced_outputs = len([v for v in model.OUTPUTS if v.name not in model.UNTRACED_OUTPUTS])
+    fields = {"parameters": len(model.PARAMETERS), "states": len(model.STATES), "inputs": len(model.INPUTS),
+              "outputs": traced_outputs, "switches": HELD[kind][0] if held else 0, "indicators": len(model.INDICATORS),
+              "watch": watch, "step": "step", "outputs_of": "outputs", "rates": "rates",
+              "indicators_of": "indicators" if model.INDICATORS else "0"}
+    lines.append("const TracedModel TRACED_MODEL = {" + ", ".join(f".{k} = {v}" for k, v in fields.items()) + "};")
+    return "\n" + "\n".join(lines) + "\n"
 
 
 def _add_rk4(build: _Build, kind: str, coupling: str, watch: str | None, rates: list) -> None:

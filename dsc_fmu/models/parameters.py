@@ -21,6 +21,7 @@ __all__ = [
     "VOLTAGE_LIMITS",
     "START_ON",
     "INPUT_COUPLINGS",
+    "TRACED",
     "DEFAULT_TOLERANCE",
 ]
 
@@ -104,6 +105,17 @@ MAX_STEP = Variable(
     POSITIVE, tunable=True, minimum=1e-6, maximum=1.0,
 )
 
+# Whether a step and the model's evaluations run in the C traced from the model (the ``traced`` parameter,
+# docs/traced-c.md).
+TRACED = ("on", "off")
+
+TRACED_PARAMETER = Variable(
+    "traced", 0, "1",
+    "Where the model's equations run (docs/traced-c.md): 0 = on (in the C traced from the Python model at build "
+    "time, bit for bit the same results), 1 = off (in Python)",
+    NONNEGATIVE, integer=True, tunable=True, maximum=len(TRACED) - 1, choices=TRACED,
+)
+
 # Whether the motor drivers limit the applied voltage (the ``voltage_limit`` parameter, docs/model.md §5.14).
 VOLTAGE_LIMITS = ("off", "on")
 
@@ -160,6 +172,7 @@ PLANT_PARAMETERS = (
     *_load("f_d", "Hz", "Frequency of the sinusoid", NONNEGATIVE),
     *_load("phi_d", "rad", "Phase at t = 0 of the sinusoid"),
     MAX_STEP,
+    TRACED_PARAMETER,
 )
 
 PLANT_INPUTS = (
@@ -208,6 +221,7 @@ REFERENCE_PARAMETERS = (
     Variable("eight_B", 1.5, "m", "Figure eight: half height of each lobe B", POSITIVE),
     Variable("eight_T", 30.0, "s", "Figure eight: period T of one full figure", POSITIVE),
     MAX_STEP,
+    TRACED_PARAMETER,
 )
 
 REFERENCE_OUTPUTS = (
@@ -297,6 +311,7 @@ CONTROLLER_PARAMETERS = (
     Variable("W2_max", 40.0, "1", "Projection: bound of the Euclidean norm of W2_hat (adaptation = projection)",
              POSITIVE),
     MAX_STEP,
+    TRACED_PARAMETER,
 )
 
 # The controller's input start values: the default scenario's initial state (the robot at rest at

@@ -376,6 +376,7 @@ int slave_create(Slave *s, const char *resources, const char *token, int visible
             if (!slave) log_exception(s, STATUS_ERROR, "creating the slave");
             result = slave && adopt_slave(s, slave) == 0 ? read_variables(s) : -1;
         }
+        if (result == 0) traced_layout(s);
         drain_log(s);
         if (result != 0) release_bridge(s);
         if (locked) unlock_imports(s);
@@ -410,6 +411,7 @@ void slave_free(Slave *s) {
         }
         leave(s, gil);
     }
+    traced_free(s);
     free(s->x);
     s->x = NULL;
     free(s->entry);
@@ -428,6 +430,8 @@ void slave_free(Slave *s) {
 
 int slave_reset(Slave *s) {
     s->pending = 0;
+    s->traced.ready = 0;
+    s->traced.ahead = 0;
     PyGILState_STATE gil = pyhost_enter();
     PyObject *slave = new_slave(s);
     int status = STATUS_OK;

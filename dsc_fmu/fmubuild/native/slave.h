@@ -54,6 +54,30 @@ typedef enum { C_DOUBLE, C_INT, C_INT32, C_BOOL_INT, C_BOOL_BYTE } CType;
 
 typedef void (*SlaveLog)(void *context, int status, const char *category, const char *message);
 
+/* What the steps, gets and sets taken in C have done that the slave has not seen yet (Traced.ahead). */
+enum { AHEAD_INPUTS = 1, AHEAD_STEP = 2 };
+
+/* The values the model traced to C reads (slave_traced.c, traced.h; docs/traced-c.md), copied from the slave at
+   the end of each of its calls (its traced_snapshot) and handed back at the start of the next (traced_sync):
+   between two calls into Python, sets of inputs, gets of outputs, co-simulation steps and model exchange's
+   derivatives and event indicators run here, without Python, where the slave allows it (`ready`). */
+typedef struct {
+    int usable;                 /* the FMU carries a traced model whose sizes agree with the slave's (its layout) */
+    int ready;                  /* the values below are the slave's, as of its last call, but for what is `ahead` */
+    int ahead;                  /* AHEAD_INPUTS, AHEAD_STEP */
+    int outputs_valid;          /* `outputs` are those of the current values */
+    int has_history;            /* a step was taken: `stamp`, `stamped` hold its inputs */
+    int has_held;               /* model exchange: `held` are the switches held since the last event */
+    size_t np, nu, ny, nb;      /* parameters, inputs, traced outputs, outputs of the model's bookkeeping */
+    int max_step, coupling;     /* their indices in p; -1: none */
+    long max_substeps, hold, interpolate;
+    double time, stamp;
+    double *p, *x, *u, *stamped, *slope, *next, *outputs, *bookkeeping, *held;
+    double *checks;             /* each input's bound code, minimum, maximum (native_bridge's layout) */
+    signed char *role;          /* by value reference: the role in the layout, or NO_VARIABLE */
+    int *index;                 /* by value reference: the index in its role's values */
+} Traced;
+
 /* A message waiting for the GIL to be released: one block, the category after the text. */
 typedef struct Message {
     struct Message *next;
@@ -90,6 +114,7 @@ typedef struct {
     Message **last;
     int lost;                   /* messages that found no memory since the last delivery: counted, then reported */
     int interrupted;            /* a KeyboardInterrupt to raise again in the host once the GIL is released */
+    Traced traced;
 } Slave;
 
 /* An empty slave of the instance `instance_name` (which must outlive it) whose messages go to `log`. */
@@ -168,6 +193,15 @@ int slave_set_state(Slave *s, PyObject *state);
 void slave_release(PyObject *object);
 int slave_serialize(Slave *s, PyObject *state, char **bytes, size_t *size);
 int slave_deserialize(Slave *s, const char *bytes, size_t size, PyObject **state);
+
+/* Gets, sets, steps and vectors in C (slave_traced.c): each 1 if done there (values written, `*accepted` set),
+   0 if the call is to go to Python. */
+int traced_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype);
+int traced_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype);
+int traced_step(Slave *s, double time, double step, int *accepted);
+int traced_vector(Slave *s, Vector which, double *values, size_t n);
+/* The values changed by model exchange's set time and states: the outputs are computed again. */
+void traced_touched(Slave *s);
 
 /* The log category of a message with `status` (logStatusWarning, ..., logAll for OK). */
 const char *slave_category(int status);

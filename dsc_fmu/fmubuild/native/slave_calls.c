@@ -102,7 +102,8 @@ static int apply_pending(Slave *s) {
 
 int enter(Slave *s, PyGILState_STATE *gil) {
     *gil = pyhost_enter();
-    return s->pending && apply_pending(s) != 0 ? STATUS_ERROR : STATUS_OK;
+    if (s->pending && apply_pending(s) != 0) return STATUS_ERROR;
+    return traced_sync(s) == 0 ? STATUS_OK : STATUS_ERROR;
 }
 
 /* Queue message `i` of `messages`, what the slave logged: (status, category, text); a status that is not
@@ -141,6 +142,7 @@ void drain_log(Slave *s) {
 }
 
 int done(Slave *s, PyGILState_STATE gil, int status) {
+    traced_snapshot(s);
     drain_log(s);
     leave(s, gil);
     return status;
@@ -191,6 +193,7 @@ int slave_update_discrete_states(Slave *s, int *changed) {
 }
 
 int slave_step(Slave *s, double time, double step, int *accepted) {
+    if (traced_step(s, time, step, accepted)) return STATUS_OK;
     double values[] = {time, step};
     return call_logged(s, "do_step", s->bound[BOUND_DO_STEP], 2, values, NULL, STATUS_DISCARD, accepted);
 }

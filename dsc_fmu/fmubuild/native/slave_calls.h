@@ -47,6 +47,14 @@ PyObject *call(PyObject *function, PyObject *args);
 /* Call the function `name` of the build's bridge module (native_bridge.py) with `args` (stolen). */
 PyObject *bridge_call(Slave *s, const char *name, PyObject *args);
 
+/* The traced model's mirror (slave_traced.c), the GIL held: read the slave's layout once it exists (a failure
+   is logged as a warning: the slave then runs in Python only); take its values at the end of a call; hand
+   back what was done in C at the start of the next (0, or -1 after logging why); free it. */
+void traced_layout(Slave *s);
+void traced_snapshot(Slave *s);
+int traced_sync(Slave *s);
+void traced_free(Slave *s);
+
 /* Queue the pending exception as the failure of `doing` with `status`, and clear it. */
 void log_exception(Slave *s, int status, const char *doing);
 /* Queue the messages the slave logged (cheap when there are none). */

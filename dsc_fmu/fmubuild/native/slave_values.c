@@ -78,6 +78,7 @@ static int copy_values(Slave *s, int type, const unsigned int *vr, size_t n, PyO
 }
 
 int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
+    if (traced_get(s, type, vr, n, values, ctype)) return STATUS_OK;
     PyGILState_STATE gil;
     if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *items[] = {references(vr, n)};
@@ -89,6 +90,7 @@ int slave_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values
 }
 
 int slave_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
+    if (traced_set(s, type, vr, n, values, ctype)) return STATUS_OK;
     PyGILState_STATE gil;
     if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     PyObject *list = py.PyList_New((Py_ssize_t)n);
@@ -138,12 +140,14 @@ int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange)
 }
 
 int slave_set_time(Slave *s, double time) {
+    traced_touched(s);
     s->time = time;
     s->pending |= PENDING_TIME;
     return STATUS_OK;
 }
 
 int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failure) {
+    if (traced_vector(s, which, values, n)) return STATUS_OK;
     PyGILState_STATE gil;
     if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);
     const char *method = VECTOR_METHODS[which];
@@ -166,6 +170,7 @@ int slave_get_vector(Slave *s, Vector which, double *values, size_t n, int failu
 }
 
 int slave_set_states(Slave *s, const double *values, size_t n) {
+    traced_touched(s);
     memcpy(s->x, values, n * sizeof *values);
     s->pending |= PENDING_STATES;
     return STATUS_OK;

@@ -1,0 +1,313 @@
+/* The model traced to C (traced.h) behind the slave (slave.h, Traced; docs/traced-c.md).
+
+   At the end of each call into Python the slave's values are copied here (its traced_snapshot: the
+   parameters, time, state, inputs, the last step's stamped inputs, the held switches, the bookkeeping), or
+   nothing where the slave needs Python for what comes next (traced = off, values refused, before the first
+   step, input derivatives given, the beta guard or a driver's limit acting in the last step). Until the next
+   call into Python, inputs are set, outputs read, co-simulation steps taken and model exchange's derivatives
+   and event indicators evaluated here; anything else, a value the checks of the slave would refuse, a step
+   the traced model would raise in or watches something in (the guard, the limit), goes to Python, which first
+   receives what was done here (traced_sync), so that every message and error is the slave's own. */
+
+#include "slave_calls.h"
+#include "traced.h"
+
+#include <math.h>
+#include <stdlib.h>
+#include <string.h>
+
+/* The roles of native_bridge's layout (fmu/slave.py: PARAMETER, INPUT_VALUE, ...) and the inputs' bounds. */
+enum { ROLE_PARAMETER, ROLE_INPUT, ROLE_OUTPUT, ROLE_BOOKKEEPING };
+enum { BOUND_ANY, BOUND_NONNEGATIVE, BOUND_POSITIVE, CHECK_CELLS = 3 };
+/* The sizes of the layout: p, x, u, traced outputs, bookkeeping, the indices of max_step and coupling in p,
+   the most sub-steps of a step, the codes of hold and interpolate. */
+enum { SIZE_P, SIZE_X, SIZE_U, SIZE_Y, SIZE_B, SIZE_MAX_STEP, SIZE_COUPLING, SIZE_MAX_SUBSTEPS, SIZE_HOLD,
+       SIZE_INTERPOLATE, SIZES };
+/* The entries of the snapshot (ModelSlave.traced_snapshot). */
+enum { SNAP_P, SNAP_TIME, SNAP_STATE, SNAP_INPUTS, SNAP_STAMP, SNAP_STAMPED, SNAP_HELD, SNAP_BOOKKEEPING, SNAPS };
+
+/* The `n` numbers of the sequence `sequence` into `out`: 0, or -1 (a Python error set, or another length). */
+static int read_numbers(PyObject *sequence, double *out, size_t n) {
+    Py_ssize_t size = sequence ? py.PySequence_Size(sequence) : -1;
+    for (Py_ssize_t i = 0; size == (Py_ssize_t)n && i < size && !py.PyErr_Occurred(); i++) {
+        PyObject *item = py.PySequence_GetItem(sequence, i);
+        if (item) out[i] = py.PyFloat_AsDouble(item);
+        clear(&item);
+    }
+    return size == (Py_ssize_t)n && !py.PyErr_Occurred() ? 0 : -1;
+}
+
+/* Item `i` of `sequence` as `n` numbers in a new array (NULL: failed; a Python error set, or another length). */
+static double *numbers_at(PyObject *sequence, Py_ssize_t i, size_t *n) {
+    PyObject *item = py.PySequence_GetItem(sequence, i);
+    Py_ssize_t size = item ? py.PySequence_Size(item) : -1;
+    double *out = size >= 0 ? calloc(size ? (size_t)size : 1, sizeof *out) : NULL;
+    if (out && read_numbers(item, out, (size_t)size) != 0) {
+        free(out);
+        out = NULL;
+    }
+    if (out) *n = (size_t)size;
+    clear(&item);
+    return out;
+}
+
+static double *zeros(size_t n) {
+    return calloc(n ? n : 1, sizeof(double));
+}
+
+/* The value references' roles from the layout's `n` numbers `cells` (value reference, role, index). */
+static int fill_roles(Slave *s, const double *cells, size_t n) {
+    Traced *t = &s->traced;
+    t->role = malloc(s->size ? s->size : 1);
+    t->index = calloc(s->size ? s->size : 1, sizeof *t->index);
+    if (!t->role || !t->index) return -1;
+    memset(t->role, NO_VARIABLE, s->size);
+    size_t counts[] = {t->np, t->nu, t->ny, t->nb};
+    for (size_t i = 0; i + 2 < n; i += 3) {
+        double vr = cells[i], role = cells[i + 1], index = cells[i + 2];
+        if (!(vr >= 0 && vr < s->size && role >= ROLE_PARAMETER && role <= ROLE_BOOKKEEPING && index >= 0 &&
+              index < counts[(int)role]))
+            return -1;
+        t->role[(unsigned int)vr] = (signed char)role;
+        t->index[(unsigned int)vr] = (int)index;
+    }
+    return 0;
+}
+
+/* Whether the slave's sizes are the traced model's. */
+static int agrees(const double *sizes) {
+    const TracedModel *m = &TRACED_MODEL;
+    return sizes[SIZE_P] == m->parameters && sizes[SIZE_X] == m->states && sizes[SIZE_U] == m->inputs &&
+           sizes[SIZE_Y] == m->outputs;
+}
+
+static int allocate(Slave *s, const double *sizes) {
+    Traced *t = &s->traced;
+    t->np = (size_t)sizes[SIZE_P];
+    t->nu = (size_t)sizes[SIZE_U];
+    t->ny = (size_t)sizes[SIZE_Y];
+    t->nb = (size_t)sizes[SIZE_B];
+    t->max_step = (int)sizes[SIZE_MAX_STEP];
+    t->coupling = (int)sizes[SIZE_COUPLING];
+    t->max_substeps = (long)sizes[SIZE_MAX_SUBSTEPS];
+    t->hold = (long)sizes[SIZE_HOLD];
+    t->interpolate = (long)sizes[SIZE_INTERPOLATE];
+    size_t ns = TRACED_MODEL.switches;
+    t->p = zeros(t->np);
+    t->x = zeros((size_t)TRACED_MODEL.states);
+    t->next = zeros((size_t)TRACED_MODEL.states);
+    t->u = zeros(t->nu);
+    t->stamped = zeros(t->nu);
+    t->slope = zeros(t->nu);
+    t->outputs = zeros(t->ny);
+    t->bookkeeping = zeros(t->nb);
+    t->held = zeros(ns);
+    return t->p && t->x && t->next && t->u && t->stamped && t->slope && t->outputs && t->bookkeeping && t->held &&
+                   t->max_step >= 0 && t->max_step < (int)t->np && t->coupling < (int)t->np
+               ? 0
+               : -1;
+}
+
+void traced_layout(Slave *s) {
+    if (TRACED_MODEL.parameters == 0 || !TRACED_MODEL.step) return; /* built without the traced model */
+    PyObject *layout = call(py.PyObject_GetAttrString(s->slave, "traced_layout"), NULL);
+    size_t n_cells = 0, n_sizes = 0, n_checks = 0;
+    double *cells = layout ? numbers_at(layout, 0, &n_cells) : NULL;
+    double *sizes = cells ? numbers_at(layout, 1, &n_sizes) : NULL;
+    s->traced.checks = sizes ? numbers_at(layout, 2, &n_checks) : NULL;
+    clear(&layout);
+    if (!s->traced.checks) {
+        log_exception(s, STATUS_WARNING, "reading the layout of the traced model (the model runs in Python)");
+    } else if (n_sizes != SIZES || !agrees(sizes) || n_checks != CHECK_CELLS * (size_t)sizes[SIZE_U] ||
+               allocate(s, sizes) != 0 || fill_roles(s, cells, n_cells) != 0) {
+        say(s, STATUS_WARNING, "the traced model does not match the slave's variables or memory ran out: the model "
+            "runs in Python");
+    } else {
+        s->traced.usable = 1;
+    }
+    free(cells);
+    free(sizes);
+    if (!s->traced.usable) traced_free(s);
+}
+
+void traced_free(Slave *s) {
+    Traced *t = &s->traced;
+    double **arrays[] = {&t->p, &t->x, &t->u, &t->stamped, &t->slope, &t->next, &t->outputs, &t->bookkeeping,
+                         &t->held, &t->checks};
+    for (size_t i = 0; i < sizeof arrays / sizeof *arrays; i++) free(*arrays[i]);
+    free(t->role);
+    free(t->index);
+    memset(t, 0, sizeof *t);
+}
+
+/* The snapshot's entries into the mirror: 0, or -1 (a Python error set, or another length). */
+static int take(Slave *s, PyObject *snapshot) {
+    Traced *t = &s->traced;
+    PyObject *item[SNAPS] = {NULL};
+    int result = py.PySequence_Size(snapshot) == SNAPS ? 0 : -1;
+    for (int i = 0; result == 0 && i < SNAPS; i++) result = (item[i] = py.PySequence_GetItem(snapshot, i)) ? 0 : -1;
+    size_t nx = (size_t)TRACED_MODEL.states;
+    t->has_history = result == 0 && item[SNAP_STAMP] != py.None;
+    t->has_held = result == 0 && item[SNAP_HELD] != py.None;
+    if (result == 0) result = read_numbers(item[SNAP_P], t->p, t->np);
+    if (result == 0) t->time = py.PyFloat_AsDouble(item[SNAP_TIME]);
+    if (result == 0) result = read_numbers(item[SNAP_STATE], t->x, nx);
+    if (result == 0) result = read_numbers(item[SNAP_INPUTS], t->u, t->nu);
+    if (result == 0 && t->has_history) t->stamp = py.PyFloat_AsDouble(item[SNAP_STAMP]);
+    if (result == 0 && t->has_history) result = read_numbers(item[SNAP_STAMPED], t->stamped, t->nu);
+    if (result == 0 && t->has_held) result = read_numbers(item[SNAP_HELD], t->held, (size_t)TRACED_MODEL.switches);
+    if (result == 0) result = read_numbers(item[SNAP_BOOKKEEPING], t->bookkeeping, t->nb);
+    for (int i = 0; i < SNAPS; i++) clear(&item[i]);
+    return result == 0 && !py.PyErr_Occurred() ? 0 : -1;
+}
+
+void traced_snapshot(Slave *s) {
+    Traced *t = &s->traced;
+    t->ready = 0;
+    if (!t->usable || !s->slave || t->ahead || py.PyErr_Occurred()) return; /* ahead: not handed over, kept */
+    PyObject *snapshot = call(py.PyObject_GetAttrString(s->slave, "traced_snapshot"), NULL);
+    if (snapshot && snapshot != py.None && take(s, snapshot) == 0) {
+        t->ready = 1;
+        t->outputs_valid = 0;
+    } else if (!snapshot || py.PyErr_Occurred()) {
+        log_exception(s, STATUS_WARNING, "traced_snapshot (the next call runs in Python)");
+    } else if (snapshot != py.None) {
+        say(s, STATUS_WARNING, "traced_snapshot returned values whose sizes are not the layout's (the next call runs "
+            "in Python)");
+    }
+    clear(&snapshot);
+}
+
+int traced_sync(Slave *s) {
+    Traced *t = &s->traced;
+    t->ready = 0;
+    if (!t->ahead) return 0;
+    int stepped = (t->ahead & AHEAD_STEP) != 0;
+    PyObject *items[] = {
+        float_list(t->u, t->nu),
+        stepped ? py.PyFloat_FromDouble(t->time) : borrowed(py.None),
+        stepped ? float_list(t->x, (size_t)TRACED_MODEL.states) : borrowed(py.None),
+        stepped ? py.PyFloat_FromDouble(t->stamp) : borrowed(py.None),
+        stepped ? float_list(t->stamped, t->nu) : borrowed(py.None),
+    };
+    PyObject *result = call(py.PyObject_GetAttrString(s->slave, "traced_sync"), pack(5, items));
+    if (!result) {
+        log_exception(s, STATUS_ERROR, "traced_sync");
+        return -1;
+    }
+    clear(&result);
+    t->ahead = 0;
+    return 0;
+}
+
+void traced_touched(Slave *s) {
+    s->traced.outputs_valid = 0;
+}
+
+/* Model exchange's time and state where set since the slave's last call, else the mirror's. */
+static double current_time(const Slave *s) {
+    return s->pending & PENDING_TIME ? s->time : s->traced.time;
+}
+
+static const double *current_state(const Slave *s) {
+    return s->pending & PENDING_STATES ? s->x : s->traced.x;
+}
+
+static const double *held(const Slave *s) {
+    return s->traced.has_held ? s->traced.held : NULL;
+}
+
+/* Whether the slave's check would take `value` for input `i` (Variable.check). */
+static int allowed(const Traced *t, size_t i, double value) {
+    const double *check = &t->checks[CHECK_CELLS * i];
+    int bound = (int)check[0];
+    return isfinite(value) && (bound != BOUND_POSITIVE || value > 0) && (bound != BOUND_NONNEGATIVE || value >= 0) &&
+           value >= check[1] && value <= check[2];
+}
+
+int traced_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype) {
+    Traced *t = &s->traced;
+    if (!t->ready || type != TYPE_REAL || ctype != C_DOUBLE) return 0;
+    const double *v = values;
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] >= s->size || t->role[vr[i]] != ROLE_INPUT || !allowed(t, (size_t)t->index[vr[i]], v[i])) return 0;
+    }
+    for (size_t i = 0; i < n; i++) t->u[t->index[vr[i]]] = v[i];
+    t->ahead |= AHEAD_INPUTS;
+    t->outputs_valid = 0;
+    return 1;
+}
+
+/* The traced outputs at the current values, computed once per change: 0, or 1 where the model raises. */
+static int compute_outputs(Slave *s) {
+    Traced *t = &s->traced;
+    if (t->outputs_valid) return 0;
+    if (TRACED_MODEL.outputs_of(t->p, current_time(s), current_state(s), t->u, held(s), t->outputs) != 0) return 1;
+    t->outputs_valid = 1;
+    return 0;
+}
+
+int traced_get(Slave *s, int type, const unsigned int *vr, size_t n, void *values, CType ctype) {
+    Traced *t = &s->traced;
+    if (!t->ready || type != TYPE_REAL || ctype != C_DOUBLE) return 0;
+    for (size_t i = 0; i < n; i++) {
+        if (vr[i] >= s->size || t->role[vr[i]] == NO_VARIABLE) return 0;
+        if (t->role[vr[i]] == ROLE_OUTPUT && compute_outputs(s) != 0) return 0;
+    }
+    const double *sources[] = {t->p, t->u, t->outputs, t->bookkeeping};
+    double *v = values;
+    for (size_t i = 0; i < n; i++) v[i] = sources[t->role[vr[i]]][t->index[vr[i]]];
+    return 1;
+}
+
+/* The sub-steps of a step (models.rk4.substeps), or 0 for more than the slave allows. */
+static long substeps(const Traced *t, double step) {
+    double count = ceil(step / t->p[t->max_step] * (1.0 - 1e-12));
+    if (!(count <= (double)t->max_substeps)) return 0;
+    return count < 1.0 ? 1 : (long)count;
+}
+
+/* The slope of the inputs over a step stamped at `stamp` (ModelSlave._ramp), or NULL: held. */
+static const double *ramp(Traced *t, double stamp) {
+    long coupling = t->coupling >= 0 ? (long)t->p[t->coupling] : t->hold;
+    if (coupling == t->hold || !t->has_history || !(stamp > t->stamp)) return NULL;
+    for (size_t i = 0; i < t->nu; i++) t->slope[i] = (t->u[i] - t->stamped[i]) / (stamp - t->stamp);
+    return t->slope;
+}
+
+int traced_step(Slave *s, double time, double step, int *accepted) {
+    Traced *t = &s->traced;
+    long count = t->ready ? substeps(t, step) : 0;
+    if (count == 0) return 0;
+    long coupling = t->coupling >= 0 ? (long)t->p[t->coupling] : t->hold;
+    double stamp = coupling == t->interpolate ? time + step : time;
+    const double *slope = ramp(t, stamp);
+    size_t nx = (size_t)TRACED_MODEL.states;
+    double watch[TRACED_WATCH_SIZE] = {0};
+    memcpy(t->next, t->x, nx * sizeof *t->x);
+    if (TRACED_MODEL.step(t->p, t->u, slope, stamp, time, step, count, t->next, watch) != 0 || watch[0] != 0)
+        return 0;
+    for (size_t i = 0; i < nx; i++) {
+        if (!isfinite(t->next[i])) return 0;
+    }
+    memcpy(t->x, t->next, nx * sizeof *t->x);
+    memcpy(t->stamped, t->u, t->nu * sizeof *t->u);
+    t->stamp = stamp;
+    t->has_history = 1;
+    t->time = time + step;
+    t->ahead |= AHEAD_STEP;
+    t->outputs_valid = 0;
+    *accepted = 1;
+    return 1;
+}
+
+int traced_vector(Slave *s, Vector which, double *values, size_t n) {
+    Traced *t = &s->traced;
+    const TracedModel *m = &TRACED_MODEL;
+    if (!t->ready || (m->switches && !t->has_held)) return 0;
+    if (which == VECTOR_DERIVATIVES && n == (size_t)m->states)
+        return m->rates(t->p, current_time(s), current_state(s), t->u, held(s), values) == 0;
+    if (which == VECTOR_INDICATORS && n == (size_t)m->indicators && m->indicators_of)
+        return m->indicators_of(t->p, current_state(s), t->u, held(s), values) == 0;
+    return 0;
+}
