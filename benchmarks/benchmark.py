@@ -13,6 +13,9 @@ RK4 step evaluates four times) and beside the same step with the default RK4 at 
 the Jacobian of the state derivatives
 (fmi2GetDirectionalDerivative with one known, the mean over the states and inputs) against one
 derivative evaluation (``benchmarks/directional_derivatives.py`` measures the same in this process).
+The FMUs step in the C traced from their models (docs/traced-c.md); the same FMUs built with ``--no-traced`` run
+them in Python, side by side in each table; the C master's step beyond its start-up is the difference of a run of
+twice the steps, and model exchange is timed in-process too, from ``tests/c_model_exchange.c``.
 Run: ``python benchmarks/benchmark.py [--stop-time 30] [--step-size 1e-3] [--repeat 3]``.
 """
 
@@ -26,7 +29,7 @@ from pathlib import Path
 
 from pythonfmu import FmuBuilder
 
-from dsc_fmu.fmubuild.fmus import ensure_fmus
+from dsc_fmu.fmubuild.fmus import build_fmus, ensure_fmus
 from dsc_fmu.fmubuild.traced_models import FMU_MODELS, MODELS
 from dsc_fmu.registry import FMUS
 from dsc_fmu.cosim.master import cosimulate
@@ -96,6 +99,40 @@ def _c_master_run(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float
     run = run_c([master, plan], run_dir)
     if run.returncode != 0:
         raise RuntimeError(f"the C master failed: {run.stderr[-500:]}")
+
+
+def _c_master_step(tmp: Path, fmus: dict[str, Path], steps: int, step_size: float, repeat: int) -> float:
+    """Seconds per step of the C master beyond its start-up (CPython's and the FMUs'): the best run of ``2 steps``
+    less the best of ``steps``, over ``steps``."""
+    once = _best(lambda: _c_master_run(tmp, fmus, steps, step_size), repeat)
+    twice = _best(lambda: _c_master_run(tmp, fmus, 2 * steps, step_size), repeat)
+    return (twice - once) / steps
+
+
+def _in_process_costs(fmus: dict[str, Path], tmp: Path, calls: int = 20000) -> dict[str, tuple]:
+    """Per FMU, the processor seconds of a derivative evaluation and of a Jacobian column (all state derivatives
+    by the first input, or the first state without inputs), FMI 2.0 model exchange from ``tests/c_model_exchange.c``:
+    a C importer with no Python in its loop, after 100 RK4 steps of 1 ms."""
+    from fmpy import extract, read_model_description
+
+    host = tmp / "c_model_exchange"
+    if not host.exists():
+        compile_c("c_model_exchange.c", host)
+    costs = {}
+    for name, path in fmus.items():
+        md = read_model_description(str(path))
+        folder = extract(str(path), unzipdir=tmp / f"in_process_{path.parent.name}_{name}")
+        inputs = [v.valueReference for v in md.modelVariables if v.causality == "input"]
+        known = inputs[0] if inputs else md.derivatives[0].variable.derivative.valueReference
+        unknowns = ",".join(str(d.variable.valueReference) for d in md.derivatives)
+        run = run_c([host, 2, folder, name, md.guid, len(md.derivatives), md.numberOfEventIndicators, 100, 1e-3,
+                     md.derivatives[0].variable.valueReference],
+                    tmp, env={"PATH": "/usr/bin:/bin", "TIMING": str(calls), "JACOBIAN": f"{known}:{unknowns}"})
+        if run.returncode != 0:
+            raise RuntimeError(f"c_model_exchange failed on {name}: {run.stderr[-500:]}")
+        timing = next(line for line in run.stdout.splitlines() if line.startswith("timing,"))
+        costs[name] = tuple(float(value) for value in timing.split(",")[1:])
+    return costs
 
 
 def _column_cost(model, md, calls: int) -> float:
@@ -192,24 +229,34 @@ def main() -> None:
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_bench_") as tmp:
         tmp = Path(tmp)
         ours = ensure_fmus(tmp / "fmus")
+        python = build_fmus(tmp / "python", traced=False)
         trivial = build_trivial_fmus(tmp)
         fmus = _best(lambda: cosimulate(scenario, ours), args.repeat)
+        fmus_python = _best(lambda: cosimulate(scenario, python), args.repeat)
         c_master = _best(lambda: _c_master_run(tmp, ours, steps, args.step_size), args.repeat)
+        c_master_python = _best(lambda: _c_master_run(tmp, python, steps, args.step_size), args.repeat)
+        c_step = _c_master_step(tmp, ours, steps, args.step_size, args.repeat)
         floor = _best(lambda: cosimulate(scenario, trivial), args.repeat)
         costs = _evaluation_costs(ours, tmp)
+        in_process = {"traced": _in_process_costs(ours, tmp), "python": _in_process_costs(python, tmp)}
     monolithic = _best(lambda: reference_solution(scenario), args.repeat)
     print(f"paper scenario, {args.stop_time:g} s at a {args.step_size:g} s step ({steps} steps), best of {args.repeat}")
-    print(f"{'route':<42}{'wall time (s)':>15}{'per step (us)':>15}{'ratio':>8}")
+    print("(the FMUs step in the C traced from their models; 'Python': built with --no-traced, docs/traced-c.md)")
+    print(f"{'route':<50}{'wall time (s)':>15}{'per step (us)':>15}{'ratio':>8}")
     rows = (
         ("three FMUs under the fmpy master", fmus),
+        ("three FMUs under the fmpy master, Python", fmus_python),
         ("three FMUs under a C master (no Python)", c_master),
+        ("three FMUs under a C master, Python", c_master_python),
         ("reference solution (one ODE, scipy)", monolithic),
         ("floor: same master, three trivial FMUs", floor),
     )
     for label, seconds in rows:
-        print(f"{label:<42}{seconds:>15.3f}{seconds / steps * 1e6:>15.1f}{seconds / fmus:>8.2f}")
-    print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f}   "
-          f"C master / fmpy master: {c_master / fmus:.2f} (target <= 1.3)")
+        print(f"{label:<50}{seconds:>15.3f}{seconds / steps * 1e6:>15.1f}{seconds / fmus:>8.2f}")
+    print(f"{'C master, one step beyond start-up':<50}{'':>15}{c_step * 1e6:>15.2f}")
+    print(f"FMUs / reference solution: {fmus / monolithic:.2f}   FMUs / floor: {fmus / floor:.2f} (target <= 1.0)   "
+          f"C master / fmpy master: {c_master / fmus:.2f}   Python / traced: fmpy {fmus_python / fmus:.1f}, "
+          f"C master {c_master_python / c_master:.1f}")
     print()
     print("one model evaluation per call, FMI 2.0 through fmpy (us per call; ratio: derivative evaluation / step)")
     print(f"{'FMU':<16}{'derivatives (ME)':>18}{'Euler step (CS)':>17}{'RK4 step (CS)':>15}{'ratio Euler':>13}"
@@ -225,6 +272,15 @@ def main() -> None:
     for name, (derivative, _, _, column) in costs.items():
         print(f"{name:<16}{derivative * 1e6:>13.1f}{column * 1e6:>10.1f}{column / derivative:>8.2f}")
     print("(target: one column <= 5 x one derivative evaluation)")
+    print()
+    print("model exchange in-process: a C importer without Python in its loop (tests/c_model_exchange.c), FMI 2.0,")
+    print("processor us per call: a derivative evaluation (set time, set states, get derivatives) and a Jacobian column")
+    print(f"{'FMU':<16}{'derivatives':>13}{'Python':>9}{'ratio':>8}{'column':>10}{'Python':>9}{'ratio':>8}")
+    for name, (derivative, column) in in_process["traced"].items():
+        derivative_python, column_python = in_process["python"][name]
+        print(f"{name:<16}{derivative * 1e6:>13.2f}{derivative_python * 1e6:>9.2f}{derivative_python / derivative:>8.1f}"
+              f"{column * 1e6:>10.2f}{column_python * 1e6:>9.2f}{column_python / column:>8.1f}")
+    print("(target: each under 1 us with the traced C)")
 
 
 if __name__ == "__main__":

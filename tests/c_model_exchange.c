@@ -12,10 +12,14 @@
    With JACOBIAN set ("KNOWN:UNKNOWN,UNKNOWN,...", value references), it prints after the last step, in
    continuous-time mode, "states,x..." (the state vector) and "jacobian,d..." (the column of the known:
    fmi2GetDirectionalDerivative / fmi3GetDirectionalDerivative with the seed 1), and for FMI 3.0
-   "adjoint,d..." (the same entries, each from fmi3GetAdjointDerivative with the unknown's seed 1). */
+   "adjoint,d..." (the same entries, each from fmi3GetAdjointDerivative with the unknown's seed 1).
+   With TIMING set (a number of calls N), it then prints "timing,E,C": the processor seconds of one derivative
+   evaluation (fmiSetTime, the states set, fmiGetDerivatives) and of one JACOBIAN column (0 without it), the
+   means over N calls of each. */
 
 #include <stdio.h>
 #include <stdlib.h>
+#include <time.h>
 
 #include "fmi_host.h"
 
@@ -111,19 +115,23 @@ static long parse_vrs(const char *text, unsigned int *vrs, size_t capacity) {
     return *text ? -1 : (long)i;
 }
 
-/* The Jacobian column that JACOBIAN asks for (see the top), printed; nothing if it is not set. */
-static void print_jacobian(const double *x, size_t nx) {
+/* The known and the unknowns that JACOBIAN names (see the top): the unknowns' number, 0 if it is not set. */
+static long jacobian_request(unsigned int *known, unsigned int unknowns[64]) {
     const char *text = getenv("JACOBIAN");
-    if (!text) return;
-    unsigned int known = 0, unknowns[64];
+    if (!text) return 0;
     char *end = (char *)text;
-    known = (unsigned int)strtoul(text, &end, 10);
+    *known = (unsigned int)strtoul(text, &end, 10);
     long n = *end == ':' && end != text ? parse_vrs(end + 1, unknowns, 64) : -1;
     if (n <= 0) {
         fprintf(stderr, "JACOBIAN = %s: not KNOWN:UNKNOWN,...\n", text);
         exit(1);
     }
-    double seed = 1.0, column[64], entry;
+    return n;
+}
+
+/* The column of the unknowns by the known, seed 1. */
+static void jacobian_column(unsigned int known, const unsigned int *unknowns, long n, double *column) {
+    double seed = 1.0;
     if (version == 3) {
         check(((fmi3GetDirectionalDerivativeTYPE *)symbol("fmi3GetDirectionalDerivative"))(
                   instance, unknowns, (size_t)n, &known, 1, &seed, 1, column, (size_t)n),
@@ -132,6 +140,15 @@ static void print_jacobian(const double *x, size_t nx) {
         check(((fmi2GetDirectionalDerivativeTYPE *)symbol("fmi2GetDirectionalDerivative"))(
                   instance, unknowns, (size_t)n, &known, 1, &seed, column), "fmi2GetDirectionalDerivative");
     }
+}
+
+/* The Jacobian column that JACOBIAN asks for (see the top), printed; nothing if it is not set. */
+static void print_jacobian(const double *x, size_t nx) {
+    unsigned int known = 0, unknowns[64];
+    long n = jacobian_request(&known, unknowns);
+    if (!n) return;
+    double seed = 1.0, column[64], entry;
+    jacobian_column(known, unknowns, n, column);
     printf("states");
     for (size_t i = 0; i < nx; i++) printf(",%.17g", x[i]);
     printf("\njacobian");
@@ -178,6 +195,26 @@ static void rk4(double t, double h, double *x, size_t nx, double *k[4], double *
     for (size_t i = 0; i < nx; i++) y[i] = x[i] + h * k[2][i];
     derivatives(t + h, y, k[3], nx);
     for (size_t i = 0; i < nx; i++) x[i] = x[i] + sixth * (k[0][i] + 2.0 * k[1][i] + 2.0 * k[2][i] + k[3][i]);
+}
+
+/* What TIMING asks for (see the top), at time t and states x; nothing if it is not set. */
+static void print_timing(double t, const double *x, size_t nx) {
+    const char *text = getenv("TIMING");
+    long calls = text ? atol(text) : 0;
+    if (calls <= 0) return;
+    double *dx = calloc(nx + 1, sizeof *dx), column[64];
+    clock_t start = clock();
+    for (long i = 0; i < calls; i++) derivatives(t, x, dx, nx);
+    double evaluation = (double)(clock() - start) / CLOCKS_PER_SEC / (double)calls, per_column = 0.0;
+    unsigned int known = 0, unknowns[64];
+    long n = jacobian_request(&known, unknowns);
+    if (n) {
+        start = clock();
+        for (long i = 0; i < calls; i++) jacobian_column(known, unknowns, n, column);
+        per_column = (double)(clock() - start) / CLOCKS_PER_SEC / (double)calls;
+    }
+    printf("timing,%.6g,%.6g\n", evaluation, per_column);
+    free(dx);
 }
 
 static void indicators(double *z, size_t nz) {
@@ -257,6 +294,7 @@ int main(int argc, char **argv) {
     }
     printf("events,%d\n", events);
     print_jacobian(x, nx);
+    print_timing(steps * h, x, nx);
     CALL0(fmi2TerminateTYPE, fmi2Terminate, fmi3TerminateTYPE, fmi3Terminate);
     if (version == 3) ((fmi3FreeInstanceTYPE *)symbol("fmi3FreeInstance"))(instance);
     else ((fmi2FreeInstanceTYPE *)symbol("fmi2FreeInstance"))(instance);

@@ -18,7 +18,7 @@ __all__ = []  # ``fmi2`` and ``fmi3`` use ``FmiLibrary`` and ``ModelSlave``
 HOLD, INTERPOLATE = INPUT_COUPLINGS.index("hold"), INPUT_COUPLINGS.index("interpolate")
 TRACED_ON = TRACED.index("on")
 # The roles of the variables the binary reads or sets in C (``traced_layout``), and the bounds of its inputs' check.
-PARAMETER, INPUT_VALUE, TRACED_OUTPUT, BOOKKEEPING_OUTPUT = range(4)
+PARAMETER, INPUT_VALUE, TRACED_OUTPUT, BOOKKEEPING_OUTPUT, STATE_VALUE, STATE_DERIVATIVE = range(6)
 BOUNDS = {ANY: 0, NONNEGATIVE: 1, POSITIVE: 2}
 
 
@@ -373,8 +373,9 @@ class ModelSlave:
         inputs)``.
 
         ``variables``: value reference, role and index of each parameter (its index in ``p``), input, traced output
-        (its index in the traced outputs) and output of the model's bookkeeping (``Model.UNTRACED_OUTPUTS``), the
-        roles ``PARAMETER``, ``INPUT_VALUE``, ``TRACED_OUTPUT``, ``BOOKKEEPING_OUTPUT``; ``sizes``: the lengths of
+        (its index in the traced outputs), output of the model's bookkeeping (``Model.UNTRACED_OUTPUTS``), state and
+        state derivative (their index in the state), the roles ``PARAMETER``, ``INPUT_VALUE``, ``TRACED_OUTPUT``,
+        ``BOOKKEEPING_OUTPUT``, ``STATE_VALUE``, ``STATE_DERIVATIVE``; ``sizes``: the lengths of
         ``p``, the state, the inputs, the traced outputs and the bookkeeping, the indices of ``max_step`` and
         ``coupling`` in ``p`` (-1: none), ``MAX_SUBSTEPS`` and the codes of hold and interpolate; ``inputs``: each
         input's check, its ``BOUNDS`` code, minimum and maximum.
@@ -387,6 +388,8 @@ class ModelSlave:
             *((v.name, INPUT_VALUE, i) for i, v in enumerate(model.INPUTS)),
             *((v.name, TRACED_OUTPUT, i) for i, v in enumerate(traced)),
             *((name, BOOKKEEPING_OUTPUT, i) for i, name in enumerate(model.UNTRACED_OUTPUTS)),
+            *((s.variable.name, STATE_VALUE, i) for i, s in enumerate(model.STATES)),
+            *((s.derivative.name, STATE_DERIVATIVE, i) for i, s in enumerate(model.STATES)),
         ]
         names = [v.name for v in model.PARAMETERS]
         sizes = [len(names), len(model.STATES), len(model.INPUTS), len(traced), len(model.UNTRACED_OUTPUTS),

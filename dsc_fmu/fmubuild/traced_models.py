@@ -35,7 +35,8 @@ __all__ = ["TracedModels", "compile_library", "fmu_source", "trace_models"]
 
 MODELS = {"plant": MobileRobotModel, "reference": ReferenceRobotModel, "controller": DSCControllerModel}
 # The model of each FMU, and the functions its binary calls (``fmu_source``): the RK4 loops, the outputs, model
-# exchange's evaluations with the switches held, and the rates the loops call.
+# exchange's evaluations with the switches held, and the rates the loops call; with the tangents of the outputs
+# and the rates.
 FMU_MODELS = {REFERENCE: "reference", PLANT: "plant", CONTROLLER: "controller"}
 _ME = ("outputs_held", "rates_held", "indicators_held")
 FMU_FUNCTIONS = {"reference": ("rates", "outputs", "rk4"), "plant": ("law", "rk4", "rk4_line", "outputs", *_ME),
@@ -279,7 +280,7 @@ def fmu_source(name: str, traced: bool = True) -> tuple:
     if not traced:
         return binary.NO_TRACED_MODEL, {}
     kind = FMU_MODELS[name]
-    models = trace_models((kind,), FMU_FUNCTIONS, tangents=False)
+    models = trace_models((kind,), FMU_FUNCTIONS)
     return models.source + _table(kind), models.untraceable
 
 
@@ -313,6 +314,19 @@ def _table(kind: str) -> str:
         "}",
         "",
     ]
+    knowns = "dx, du" if inputs else "dx"
+    for name, hook in (("outputs_tangent", "outputs"), ("rates_tangent", "rates")):
+        signature = (f"static int {name}(const double *p, double t, const double *x, const double *u, const double *s, "
+                     "const double *dx, const double *du, double *out, double *dout) {")
+        held_call = f"return {f}_{hook}_held_tangent(p, t, x, u, s, {knowns}, out, dout);"
+        free_call = f"return {f}_{hook}_tangent(p, t, x, {u}{knowns}, out, dout);"
+        if not held:
+            body = [f"    {free_call}"]
+        elif hook == "outputs":
+            body = [f"    if (s) {held_call}", f"    {free_call}"]
+        else:
+            body = [f"    {held_call}"]
+        lines += [signature, *body, "}", ""]
     if model.INDICATORS:
         lines += ["static int indicators(const double *p, const double *x, const double *u, const double *s, "
                   "double *out) {", f"    return {f}_indicators_held(p, x, u, s, out);", "}", ""]
@@ -320,7 +334,8 @@ def _table(kind: str) -> str:
     fields = {"parameters": len(model.PARAMETERS), "states": len(model.STATES), "inputs": len(model.INPUTS),
               "outputs": traced_outputs, "switches": HELD[kind][0] if held else 0, "indicators": len(model.INDICATORS),
               "watch": watch, "step": "step", "outputs_of": "outputs", "rates": "rates",
-              "indicators_of": "indicators" if model.INDICATORS else "0"}
+              "indicators_of": "indicators" if model.INDICATORS else "0", "outputs_tangent": "outputs_tangent",
+              "rates_tangent": "rates_tangent"}
     lines.append("const TracedModel TRACED_MODEL = {" + ", ".join(f".{k} = {v}" for k, v in fields.items()) + "};")
     return "\n" + "\n".join(lines) + "\n"
 

@@ -73,9 +73,12 @@ typedef struct {
     long max_substeps, hold, interpolate;
     double time, stamp;
     double *p, *x, *u, *stamped, *slope, *next, *outputs, *bookkeeping, *held;
+    double *dx, *du, *values, *drates, *doutputs; /* directional derivatives' seeds, values, tangents */
     double *checks;             /* each input's bound code, minimum, maximum (native_bridge's layout) */
     signed char *role;          /* by value reference: the role in the layout, or NO_VARIABLE */
     int *index;                 /* by value reference: the index in its role's values */
+    int *state_of;              /* by value reference: the index of the continuous state it is, or -1 */
+    int *derivative_of;         /* by value reference: the index of the state whose derivative it is, or -1 */
 } Traced;
 
 /* A message waiting for the GIL to be released: one block, the category after the text. */
@@ -200,6 +203,7 @@ int traced_get(Slave *s, int type, const unsigned int *vr, size_t n, void *value
 int traced_set(Slave *s, int type, const unsigned int *vr, size_t n, const void *values, CType ctype);
 int traced_step(Slave *s, double time, double step, int *accepted);
 int traced_vector(Slave *s, Vector which, double *values, size_t n);
+int traced_partials(Slave *s, const Partials *p, int adjoint, int model_exchange);
 /* The values changed by model exchange's set time and states: the outputs are computed again. */
 void traced_touched(Slave *s);
 

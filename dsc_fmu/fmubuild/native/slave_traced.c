@@ -17,7 +17,7 @@
 #include <string.h>
 
 /* The roles of native_bridge's layout (fmu/slave.py: PARAMETER, INPUT_VALUE, ...) and the inputs' bounds. */
-enum { ROLE_PARAMETER, ROLE_INPUT, ROLE_OUTPUT, ROLE_BOOKKEEPING };
+enum { ROLE_PARAMETER, ROLE_INPUT, ROLE_OUTPUT, ROLE_BOOKKEEPING, ROLE_STATE, ROLE_DERIVATIVE };
 enum { BOUND_ANY, BOUND_NONNEGATIVE, BOUND_POSITIVE, CHECK_CELLS = 3 };
 /* The sizes of the layout: p, x, u, traced outputs, bookkeeping, the indices of max_step and coupling in p,
    the most sub-steps of a step, the codes of hold and interpolate. */
@@ -55,21 +55,37 @@ static double *zeros(size_t n) {
     return calloc(n ? n : 1, sizeof(double));
 }
 
+static int *indices(size_t n) {
+    int *array = malloc(sizeof(int) * (n ? n : 1));
+    for (size_t i = 0; array && i < n; i++) array[i] = -1;
+    return array;
+}
+
 /* The value references' roles from the layout's `n` numbers `cells` (value reference, role, index). */
 static int fill_roles(Slave *s, const double *cells, size_t n) {
     Traced *t = &s->traced;
     t->role = malloc(s->size ? s->size : 1);
-    t->index = calloc(s->size ? s->size : 1, sizeof *t->index);
-    if (!t->role || !t->index) return -1;
+    t->index = indices(s->size);
+    t->state_of = indices(s->size);
+    t->derivative_of = indices(s->size);
+    if (!t->role || !t->index || !t->state_of || !t->derivative_of) return -1;
     memset(t->role, NO_VARIABLE, s->size);
-    size_t counts[] = {t->np, t->nu, t->ny, t->nb};
+    size_t nx = (size_t)TRACED_MODEL.states;
+    size_t counts[] = {t->np, t->nu, t->ny, t->nb, nx, nx};
     for (size_t i = 0; i + 2 < n; i += 3) {
         double vr = cells[i], role = cells[i + 1], index = cells[i + 2];
-        if (!(vr >= 0 && vr < s->size && role >= ROLE_PARAMETER && role <= ROLE_BOOKKEEPING && index >= 0 &&
+        if (!(vr >= 0 && vr < s->size && role >= ROLE_PARAMETER && role <= ROLE_DERIVATIVE && index >= 0 &&
               index < counts[(int)role]))
             return -1;
-        t->role[(unsigned int)vr] = (signed char)role;
-        t->index[(unsigned int)vr] = (int)index;
+        unsigned int at = (unsigned int)vr;
+        if (role == ROLE_STATE) {
+            t->state_of[at] = (int)index;
+        } else if (role == ROLE_DERIVATIVE) {
+            t->derivative_of[at] = (int)index;
+        } else {
+            t->role[at] = (signed char)role;
+            t->index[at] = (int)index;
+        }
     }
     return 0;
 }
@@ -102,7 +118,14 @@ static int allocate(Slave *s, const double *sizes) {
     t->outputs = zeros(t->ny);
     t->bookkeeping = zeros(t->nb);
     t->held = zeros(ns);
+    size_t nx = (size_t)TRACED_MODEL.states;
+    t->dx = zeros(nx);
+    t->du = zeros(t->nu);
+    t->values = zeros(nx > t->ny ? nx : t->ny);
+    t->drates = zeros(nx);
+    t->doutputs = zeros(t->ny);
     return t->p && t->x && t->next && t->u && t->stamped && t->slope && t->outputs && t->bookkeeping && t->held &&
+                   t->dx && t->du && t->values && t->drates && t->doutputs &&
                    t->max_step >= 0 && t->max_step < (int)t->np && t->coupling < (int)t->np
                ? 0
                : -1;
@@ -132,11 +155,14 @@ void traced_layout(Slave *s) {
 
 void traced_free(Slave *s) {
     Traced *t = &s->traced;
-    double **arrays[] = {&t->p, &t->x, &t->u, &t->stamped, &t->slope, &t->next, &t->outputs, &t->bookkeeping,
-                         &t->held, &t->checks};
+    double **arrays[] = {&t->p,       &t->x,    &t->u,  &t->stamped, &t->slope,  &t->next,    &t->outputs,
+                         &t->bookkeeping, &t->held, &t->dx, &t->du,      &t->values, &t->drates, &t->doutputs,
+                         &t->checks};
     for (size_t i = 0; i < sizeof arrays / sizeof *arrays; i++) free(*arrays[i]);
     free(t->role);
     free(t->index);
+    free(t->state_of);
+    free(t->derivative_of);
     memset(t, 0, sizeof *t);
 }
 
@@ -310,4 +336,60 @@ int traced_vector(Slave *s, Vector which, double *values, size_t n) {
     if (which == VECTOR_INDICATORS && n == (size_t)m->indicators && m->indicators_of)
         return m->indicators_of(t->p, current_state(s), t->u, held(s), values) == 0;
     return 0;
+}
+
+/* The seeds of the knowns into dx (model exchange's states) and du (inputs), summed where a known repeats
+   (fmu/directional.py): 0, or -1 for a known the traced path does not take (Python then names it). */
+static int seed_knowns(Slave *s, const Partials *q, int model_exchange) {
+    Traced *t = &s->traced;
+    memset(t->dx, 0, sizeof(double) * (size_t)TRACED_MODEL.states);
+    memset(t->du, 0, sizeof(double) * t->nu);
+    for (size_t k = 0; k < q->n_knowns; k++) {
+        unsigned int vr = q->knowns[k];
+        if (vr >= s->size) return -1;
+        if (model_exchange && t->state_of[vr] >= 0) {
+            t->dx[t->state_of[vr]] = t->dx[t->state_of[vr]] + q->seed[k];
+        } else if (t->role[vr] == ROLE_INPUT) {
+            t->du[t->index[vr]] = t->du[t->index[vr]] + q->seed[k];
+        } else {
+            return -1;
+        }
+    }
+    return 0;
+}
+
+/* The role of an unknown: 1 a state derivative, 2 a traced output, 3 an output of the bookkeeping (a constant:
+   its tangent 0); -1 for an unknown the traced path does not take (Python then names it). */
+static int unknown_role(const Slave *s, unsigned int vr, int model_exchange) {
+    const Traced *t = &s->traced;
+    if (vr >= s->size) return -1;
+    if (model_exchange && t->derivative_of[vr] >= 0) return 1;
+    if (t->role[vr] == ROLE_OUTPUT) return 2;
+    return t->role[vr] == ROLE_BOOKKEEPING ? 3 : -1;
+}
+
+int traced_partials(Slave *s, const Partials *q, int adjoint, int model_exchange) {
+    Traced *t = &s->traced;
+    const TracedModel *m = &TRACED_MODEL;
+    if (!t->ready || adjoint || q->n_seed != q->n_knowns || q->n_sensitivity != q->n_unknowns) return 0;
+    if (model_exchange && m->switches && !t->has_held) return 0;
+    int uses = 0;
+    for (size_t k = 0; k < q->n_unknowns; k++) {
+        int role = unknown_role(s, q->unknowns[k], model_exchange);
+        if (role < 0) return 0;
+        uses |= role == 3 ? 0 : role;
+    }
+    if (seed_knowns(s, q, model_exchange) != 0) return 0;
+    double time = model_exchange ? current_time(s) : t->time;
+    const double *x = model_exchange ? current_state(s) : t->x;
+    if ((uses & 1) && m->rates_tangent(t->p, time, x, t->u, held(s), t->dx, t->du, t->values, t->drates) != 0)
+        return 0;
+    if ((uses & 2) && m->outputs_tangent(t->p, time, x, t->u, held(s), t->dx, t->du, t->values, t->doutputs) != 0)
+        return 0;
+    for (size_t k = 0; k < q->n_unknowns; k++) {
+        unsigned int vr = q->unknowns[k];
+        int role = unknown_role(s, vr, model_exchange);
+        q->sensitivity[k] = role == 1 ? t->drates[t->derivative_of[vr]] : role == 2 ? t->doutputs[t->index[vr]] : 0.0;
+    }
+    return 1;
 }

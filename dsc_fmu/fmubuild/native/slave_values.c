@@ -127,6 +127,7 @@ static int copy_floats(Slave *s, const char *method, PyObject *result, double *v
 }
 
 int slave_partials(Slave *s, const Partials *p, int adjoint, int model_exchange) {
+    if (traced_partials(s, p, adjoint, model_exchange)) return STATUS_OK;
     const char *method = adjoint ? "adjoint_derivative" : "directional_derivative";
     PyGILState_STATE gil;
     if (enter(s, &gil) != STATUS_OK) return done(s, gil, STATUS_ERROR);

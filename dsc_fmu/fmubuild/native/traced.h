@@ -28,6 +28,12 @@ typedef struct {
     /* The state's derivative and the event indicators, the switches held at s (model exchange). */
     int (*rates)(const double *p, double t, const double *x, const double *u, const double *s, double *out);
     int (*indicators_of)(const double *p, const double *x, const double *u, const double *s, double *out);
+    /* Their values and their tangents along dx, du (models/dual.py: x[i], u[i] a dual where its seed is
+       nonzero), in `out` and `dout`. */
+    int (*outputs_tangent)(const double *p, double t, const double *x, const double *u, const double *s,
+                           const double *dx, const double *du, double *out, double *dout);
+    int (*rates_tangent)(const double *p, double t, const double *x, const double *u, const double *s,
+                         const double *dx, const double *du, double *out, double *dout);
 } TracedModel;
 
 extern const TracedModel TRACED_MODEL;
