@@ -23,6 +23,12 @@ def fmu3_paths(tmp_path_factory):
 
 
 @pytest.fixture(scope="session")
+def untraced_fmu_paths(tmp_path_factory):
+    """The three FMI 2.0 FMUs built without the C traced from their models (``--no-traced``): Python only."""
+    return build_fmus(tmp_path_factory.mktemp("fmus_untraced"), traced=False)
+
+
+@pytest.fixture(scope="session")
 def fmu_unzipped(fmu_paths, tmp_path_factory):
     """The three FMUs of ``fmu_paths`` extracted once per session (with fmpy), by name."""
     from fmpy import extract
@@ -42,7 +48,8 @@ def wine(tmp_path_factory):
 @pytest.fixture()
 def patched_mobile_robot(tmp_path, monkeypatch):
     """Build a MobileRobot FMU from a copy of ``fmu_sources`` whose slave script has ``addition``
-    inserted after ``marker``: ``build(marker, addition, folder_name)`` returns its path."""
+    inserted after ``marker``: ``build(marker, addition, folder_name)`` returns its path. Built without the traced
+    C (``--no-traced``), which is traced from the models and would not follow the patched slave."""
 
     def build(marker: str, addition: str, folder_name: str):
         sources = tmp_path / f"fmu_sources_{folder_name}"
@@ -53,6 +60,6 @@ def patched_mobile_robot(tmp_path, monkeypatch):
         script.write_text(text.replace(marker, marker + addition, 1))
         with monkeypatch.context() as patch:
             patch.setattr(build_module, "_sources_dir", lambda: sources)
-            return build_fmu(FMUS["MobileRobot"], tmp_path / folder_name)
+            return build_fmu(FMUS["MobileRobot"], tmp_path / folder_name, traced=False)
 
     return build

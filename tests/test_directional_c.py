@@ -22,6 +22,8 @@ from fmpy.fmi3 import FMU3Model, FMU3Slave
 from fmpy.validation import validate_fmu
 
 from test_fmi_states import Walk
+from dsc_fmu.fmubuild.fmus import build_fmu
+from dsc_fmu.registry import FMUS
 
 ERROR = 3
 NAMES = ("ReferenceRobot", "MobileRobot", "DSCController")
@@ -30,11 +32,12 @@ FLAGS = {2: {"providesDirectionalDerivative": "true"},
 
 
 @pytest.fixture(scope="module")
-def plant(fmu_paths, fmu3_paths, tmp_path_factory):
-    """MobileRobot (states, inputs and outputs), FMI 2.0 and 3.0, extracted: version -> folder."""
+def plant(tmp_path_factory):
+    """MobileRobot (states, inputs and outputs), FMI 2.0 and 3.0, extracted: version -> folder. Built without the
+    traced C (``--no-traced``): the binary asks the slave's methods, which the tests stand in for."""
     root = tmp_path_factory.mktemp("partials")
-    return {2: Path(extract(str(fmu_paths["MobileRobot"]), unzipdir=root / "fmi2")),
-            3: Path(extract(str(fmu3_paths["MobileRobot"]), unzipdir=root / "fmi3"))}
+    return {version: Path(extract(str(build_fmu(FMUS["MobileRobot"], root / f"built{version}", version, traced=False)),
+                                  unzipdir=root / f"fmi{version}")) for version in (2, 3)}
 
 
 class Recorder:

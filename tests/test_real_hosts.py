@@ -157,12 +157,13 @@ SHIFT = 1000.0
 @pytest.fixture(scope="module")
 def variant(tmp_path_factory):
     """ReferenceRobot built as with another pythonfmu (a build identity of its own), whose bundled
-    pythonfmu returns every Real 1000 higher: what runs shows which pythonfmu ran."""
+    pythonfmu returns every Real 1000 higher: what runs shows which pythonfmu ran. Built without the traced C
+    (``--no-traced``), so that every value is read through pythonfmu."""
     folder = tmp_path_factory.mktemp("variant")
     patch = pytest.MonkeyPatch()
     patch.setattr(fmus_module, "_library_version", lambda version: f"pythonfmu {pythonfmu.__version__}+variant")
     try:
-        built = build_fmu(FMUS["ReferenceRobot"], folder / "built")
+        built = build_fmu(FMUS["ReferenceRobot"], folder / "built", traced=False)
     finally:
         patch.undo()
     path = folder / "ReferenceRobot.fmu"

@@ -20,7 +20,7 @@ from dsc_fmu.cosim.progress import ProgressLine, TerminalWatch
 NARROW = 40  # columns: the sweep's line is cut
 CTRL_C = b"\x03"
 RUN = re.compile(r"paper: t = (\d+\.\d{3})/300 s, (\d+) steps, (\S+) s/s, (.+) left")
-SWEEP = ["sweep", "figure_eight", "--stop-time", "2", "--step-sizes", "0.001,0.002,0.004", "--couplings", "hold",
+SWEEP = ["sweep", "figure_eight", "--stop-time", "6", "--step-sizes", "0.001,0.002,0.004", "--couplings", "hold",
          "--orders", "gauss-seidel", "--tolerances", "", "--jobs", "1", "--no-refine"]
 
 

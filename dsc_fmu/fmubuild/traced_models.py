@@ -270,12 +270,21 @@ def trace_models(kinds=tuple(MODELS), functions: dict | None = None, tangents: b
 
 
 def fmu_source(name: str, traced: bool = True) -> tuple:
-    """The C of the model of the FMU ``name`` (a key of ``FMU_MODELS``) that its binary compiles, and what could not
-    be traced (``TracedModels.untraceable``).
+    """The C of an FMU's model that its binary compiles, and what could not be traced.
 
-    The functions of ``FMU_FUNCTIONS`` (internal: the file is compiled with ``DSC_TRACED_API`` static) and
-    ``TRACED_MODEL`` (``native/traced.h``), the table through which the binary calls them; with ``traced`` False
-    an empty table: the FMU runs its model in Python only.
+    Parameters
+    ----------
+    name : str
+        The FMU (a key of ``FMU_MODELS``).
+    traced : bool, optional
+        False: an empty table, the FMU runs its model in Python only (``binary.NO_TRACED_MODEL``).
+
+    Returns
+    -------
+    tuple of (str, dict)
+        The C: the functions of ``FMU_FUNCTIONS`` with their tangents (internal: the binary compiles the file with
+        ``DSC_TRACED_API`` static) and ``TRACED_MODEL`` (``native/traced.h``), the table through which the binary
+        calls them; and ``TracedModels.untraceable``.
     """
     if not traced:
         return binary.NO_TRACED_MODEL, {}
