@@ -108,8 +108,9 @@ class DebianRoot:
         ``python`` (default: its first site's) on ``fmus`` (files under ``folder``); its outputs as
         ``read_outputs`` gives them."""
         site = next(s for s in self.specification.sites if s.python == python or not python)
-        out = Path(folder) / f"{task.__name__}-out"
-        out.mkdir()
+        import tempfile
+
+        out = Path(tempfile.mkdtemp(prefix=f"{task.__name__}-out-", dir=folder))
         fmu_paths = json.dumps({name: self.inside(path) for name, path in fmus.items()})
         path = ":".join(self.inside(p) for p in (self.path / site.folder, folder / "src", folder))
         run = self.run([f"/usr/bin/python{site.python}", self.inside(folder / Path(__file__).name),
@@ -252,11 +253,18 @@ def read_outputs(folder: Path) -> dict:
 
 # Tasks: each takes the FMUs (paths by name) and strings, and returns arrays and JSON values by name.
 
-def paper_cosimulation(fmus: dict) -> dict:
-    """The paper's scenario for ``PAPER_STOP`` s through ``dsc_fmu.cosimulate``."""
-    from dsc_fmu import cosimulate, load_scenario
+def paper_cosimulation(fmus: dict, traced: str = "on") -> dict:
+    """The paper's scenario for ``PAPER_STOP`` s through ``dsc_fmu.cosimulate``, the FMUs' parameter ``traced`` set
+    to ``traced`` ("on": their models in the C traced from them, "off": in Python)."""
+    from dataclasses import replace
 
-    run = cosimulate(load_scenario("paper").with_simulation(stop_time=PAPER_STOP), fmus)
+    from dsc_fmu import cosimulate, load_scenario
+    from dsc_fmu.models.parameters import TRACED
+
+    scenario = load_scenario("paper").with_simulation(stop_time=PAPER_STOP)
+    scenario = replace(scenario, **{part: {**getattr(scenario, part), "traced": TRACED.index(traced)}
+                                    for part in ("plant", "controller", "reference")})
+    run = cosimulate(scenario, fmus)
     return {"result": run.result, "steps": run.steps}
 
 

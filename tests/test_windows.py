@@ -119,6 +119,22 @@ def test_each_fmu_in_a_windows_c_importer_equals_linux(importers, wine, pythons,
     assert_like_linux(parse_rows(windows.stdout), linux)
 
 
+@pytest.mark.parametrize("name", NAMES)
+def test_the_traced_c_under_wine_gives_the_bits_of_the_python_path(importers, wine, pythons, fmu_paths,
+                                                                  untraced_fmu_paths, tmp_path, name):
+    """On Windows the traced C takes sin, cos, atan and fmod from the UCRT, as CPython does (docs/traced-c.md): the
+    Windows importer gives the same bits with the FMU as built and built with ``--no-traced`` (Wine's UCRT)."""
+    rows = []
+    for label, paths in (("traced", fmu_paths), ("python", untraced_fmu_paths)):
+        md = read_model_description(str(paths[name]))
+        folder = Path(extract(str(paths[name]), unzipdir=tmp_path / label))
+        arguments = [2, windows_path(folder), name, token_of(md, 2), STEPS, STEP, *outputs(md)]
+        run = wine.run([importers["windows"], *arguments], {"WINEPATH": windows_path(pythons(BUILD_MINOR))})
+        assert run.returncode == 0, run.stderr
+        rows.append(run.stdout)
+    assert rows[0] == rows[1] and len(rows[0].splitlines()) == STEPS + 1
+
+
 def test_model_exchange_in_a_windows_c_importer_equals_linux(wine, pythons, fmu3_paths, tmp_path):
     """The project's model-exchange importer (RK4 in C on the FMU's derivatives), on Windows as on Linux
     (FMI 3.0; the FMI 2.0 adapter is the same C on both systems, tested on Linux)."""
