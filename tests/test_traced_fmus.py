@@ -118,6 +118,24 @@ def slave(fmu_unzipped, name: str, instance: str) -> tuple:
     return fmu, {v.name: v.valueReference for v in md.modelVariables}
 
 
+def model_exchange(fmu_unzipped, name: str, instance: str, value: int) -> tuple:
+    """An FMI 2.0 model-exchange instance of ``name`` with ``traced`` = ``value``, in continuous-time mode; its model
+    description and value references by name."""
+    folder = fmu_unzipped[name]
+    md = read_model_description(folder)
+    refs = {v.name: v.valueReference for v in md.modelVariables}
+    fmu = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=instance,
+                    libraryPath=library_path(folder, 2, name))
+    fmu.instantiate()
+    fmu.setupExperiment(startTime=0.0)
+    fmu.enterInitializationMode()
+    fmu.setInteger([refs["traced"]], [value])
+    fmu.exitInitializationMode()
+    fmu.newDiscreteStates()
+    fmu.enterContinuousTimeMode()
+    return fmu, md, refs
+
+
 def drive(fmu, refs, steps: range, switch=None, voltages=(6.0, -4.0)) -> list:
     """Step the plant with ramping voltages; at each step in ``switch`` (step -> traced value) set the parameter
     first. The outputs after each step."""
@@ -181,24 +199,13 @@ def test_directional_derivatives_give_the_bits_of_python(fmu_unzipped):
     """Model exchange: the Jacobian of the state derivatives and the outputs by the states and inputs, column by
     column, at a point away from the start with the switches held; the same bits with the traced C and in Python."""
     for name in ORDER:
-        folder = fmu_unzipped[name]
-        md = read_model_description(folder)
-        unknowns = [d.variable.valueReference for d in md.derivatives]
-        unknowns += [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
-        knowns = [d.variable.derivative.valueReference for d in md.derivatives]
-        knowns += [v.valueReference for v in md.modelVariables if v.causality == "input"]
-        refs = {v.name: v.valueReference for v in md.modelVariables}
         columns = {}
         for value in (ON, OFF):
-            fmu = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=name, instanceName=f"{name}{value}",
-                            libraryPath=library_path(folder, 2, name))
-            fmu.instantiate()
-            fmu.setupExperiment(startTime=0.0)
-            fmu.enterInitializationMode()
-            fmu.setInteger([refs["traced"]], [value])
-            fmu.exitInitializationMode()
-            fmu.newDiscreteStates()
-            fmu.enterContinuousTimeMode()
+            fmu, md, refs = model_exchange(fmu_unzipped, name, f"{name}{value}", value)
+            unknowns = [d.variable.valueReference for d in md.derivatives]
+            unknowns += [v.valueReference for v in md.modelVariables if v.causality == "output" and v.type == "Real"]
+            knowns = [d.variable.derivative.valueReference for d in md.derivatives]
+            knowns += [v.valueReference for v in md.modelVariables if v.causality == "input"]
             fmu.setTime(0.7)
             x = [0.1 * (i + 1) for i in range(len(md.derivatives))]
             fmu.setReal(knowns[:len(x)], x)
@@ -266,18 +273,7 @@ def test_between_calls_into_python_the_traced_path_runs_without_python(fmu_unzip
     assert not called if value == ON else called.count("do_step") == 49
     fmu.terminate()
     fmu.freeInstance()
-    folder = fmu_unzipped["DSCController"]
-    md = read_model_description(folder)
-    refs = {v.name: v.valueReference for v in md.modelVariables}
-    model = FMU2Model(guid=md.guid, unzipDirectory=folder, modelIdentifier=md.modelExchange.modelIdentifier,
-                      instanceName=f"me{value}", libraryPath=library_path(folder, 2, "DSCController"))
-    model.instantiate()
-    model.setupExperiment(startTime=0.0)
-    model.enterInitializationMode()
-    model.setInteger([refs["traced"]], [value])
-    model.exitInitializationMode()
-    model.newDiscreteStates()
-    model.enterContinuousTimeMode()
+    model, md, refs = model_exchange(fmu_unzipped, "DSCController", f"me{value}", value)
     n = len(md.derivatives)
     x, dx, z = (ctypes.c_double * n)(), (ctypes.c_double * n)(), (ctypes.c_double * md.numberOfEventIndicators)()
     model.getContinuousStates(x, n)
@@ -293,7 +289,7 @@ def test_between_calls_into_python_the_traced_path_runs_without_python(fmu_unzip
             model.getDirectionalDerivative(derivatives, [refs["x"]], [1.0])
             model.getReal([refs["u1"], refs["S13"]])
 
-    called = calls_into(folder, evaluate)
+    called = calls_into(fmu_unzipped["DSCController"], evaluate)
     assert not called if value == ON else called.count("get_derivatives") == 20
     model.terminate()
     model.freeInstance()
