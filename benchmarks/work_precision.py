@@ -73,7 +73,7 @@ def main() -> None:
             run = simulate_model_exchange(scenario, fmus, tolerance=tolerance, output_interval=1e-2, method=method)
             error = deviation(run.result, reference)
             print(f"{label:42s} {f'rtol = {tolerance:g}':>16s} {error * 1e3:9.3f} mm {run.evaluations:8d} {'-':>9s} "
-                  f"{run.wall_time:7.2f} s  {run.settings['jacobians']} Jacobians", flush=True)
+                  f"{run.wall_time:7.2f} s  {run.settings['jacobian_evaluations']} Jacobians", flush=True)
             if error <= args.target:
                 costs[label] = run.wall_time
                 break

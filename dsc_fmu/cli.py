@@ -262,10 +262,14 @@ def _fmus(args: argparse.Namespace) -> tuple[Path, int]:
 
 def _build(args) -> None:
     from .fmubuild.fmus import build_fmus
+    from .identity import BUILD_ID_FILE, fmu_untraced
 
     folder, version = _fmus(args)
     for path in build_fmus(folder, fmi_version=version, bundle_python=args.bundle_python, traced=args.traced).values():
-        print(path)
+        untraced = fmu_untraced(path)
+        reasons = sorted({reason.split(": ", 1)[-1] for reason in (untraced or {}).values()})
+        print(path if not untraced else f"{path}: {len(untraced)} functions run in Python, not traced to C (listed in "
+              f"its {BUILD_ID_FILE}): {'; '.join(reasons)}")
 
 
 def _export(args) -> None:

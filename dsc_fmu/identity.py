@@ -9,10 +9,11 @@ from xml.etree import ElementTree as ET
 
 from .errors import FmiVersionError
 
-__all__ = ["BUILD_ID_FILE", "fmu_bundled_python"]
+__all__ = ["BUILD_ID_FILE", "fmu_bundled_python", "fmu_untraced"]
 
-# Written by ``fmubuild.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version"}``, and ``"python"``
-# (the version of the CPython it carries for each platform) in one built with ``--bundle-python``.
+# Written by ``fmubuild.fmus`` into every FMU: ``{"source_hash", "dsc_fmu", "fmi_version", "traced"}`` (``traced``:
+# ``{"untraceable": {C name: reason}}``, or null for a build without the traced C), and ``"python"`` (the version of
+# the CPython it carries for each platform) in one built with ``--bundle-python``.
 BUILD_ID_FILE = "resources/dsc_fmu_build.json"
 
 
@@ -36,6 +37,23 @@ def fmu_bundled_python(fmu: Path) -> dict | None:
         of ours or is not readable.
     """
     return _read(fmu, BUILD_ID_FILE, lambda data: json.loads(data).get("python"))
+
+
+def fmu_untraced(fmu: Path) -> dict | None:
+    """What of an FMU's model runs in Python, not in the C traced from it (docs/traced-c.md).
+
+    Parameters
+    ----------
+    fmu : pathlib.Path
+        An FMU file.
+
+    Returns
+    -------
+    dict of str to str or None
+        The reason by the name of each function that could not be traced (empty: everything is); None for an FMU
+        built without the traced C (``--no-traced``), not one of ours or not readable.
+    """
+    return _read(fmu, BUILD_ID_FILE, lambda data: (json.loads(data).get("traced") or {}).get("untraceable"))
 
 
 def fmu_fmi_version(fmu: Path) -> str | None:

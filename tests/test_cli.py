@@ -183,13 +183,18 @@ def test_console_script_error_has_no_traceback(tmp_path, command):
 
 
 def test_build_fmus_script_builds_fmi2_by_default(tmp_path):
-    """``build_fmus.py`` is ``dsc-fmu build`` (test_fmi3 runs it with ``--fmi-version 3``): it prints the FMUs' paths."""
+    """``build_fmus.py`` is ``dsc-fmu build`` (test_fmi3 runs it with ``--fmi-version 3``): it prints the FMUs' paths,
+    and for the controller what runs in Python, not traced to C (its Euler step, per law and coupling)."""
     from fmpy import read_model_description
 
     process = subprocess.run([sys.executable, str(REPO / "build_fmus.py"), "--out", str(tmp_path)], capture_output=True,
                              text=True)
     assert process.returncode == 0, process.stderr
-    paths = [Path(line) for line in process.stdout.split()]
+    lines = process.stdout.splitlines()
+    paths = [Path(line.split(": ")[0]) for line in lines]
+    assert lines[-1] == (f"{tmp_path / 'DSCController.fmu'}: 8 functions run in Python, not traced to C (listed in its "
+                         "resources/dsc_fmu_build.json): discretization = euler takes one Euler step per communication "
+                         "step (DSCControllerModel.integrate), not RK4 sub-steps")
     assert sorted(paths) == sorted(tmp_path / f"{n}.fmu" for n in ("ReferenceRobot", "MobileRobot", "DSCController"))
     assert sorted(tmp_path.iterdir()) == sorted(paths)
     assert {read_model_description(str(path)).fmiVersion for path in paths} == {"2.0"}
