@@ -6,6 +6,7 @@ streams are files or closed. C hosts run with an empty environment."""
 import json
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import sysconfig
@@ -294,6 +295,13 @@ def test_a_host_may_fork_after_unloading_an_fmu(fmu_paths, tmp_path):
     run = subprocess.run([sys.executable, "-c", FORK_AFTER_UNLOAD, str(fmu_paths["ReferenceRobot"])], cwd=tmp_path,
                          capture_output=True, text=True, timeout=120)
     assert run.returncode == 0 and run.stdout.strip() == "child exit 7", run.stderr[-2000:]
+
+
+def default_interrupt() -> None:
+    """In the host's process before its Python starts: SIGINT as a terminal's program gets it, even where the tests
+    run with it ignored (started in the background by a shell without job control; the ignoring is inherited), so
+    that its Python turns it into KeyboardInterrupt."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
 INTERRUPTED_HOST = r"""

@@ -8,6 +8,7 @@ import fcntl
 import json
 import os
 import re
+import signal
 import struct
 import subprocess
 import sys
@@ -37,6 +38,7 @@ def in_terminal(arguments: list[str], cwd, columns: int, interrupt_when) -> tupl
             os.close(master)
             os.chdir(cwd)
             os.login_tty(slave)
+            signal.signal(signal.SIGINT, signal.SIG_DFL)
             os.execv(sys.executable, [sys.executable, "-m", "dsc_fmu", *arguments])
         finally:
             os._exit(127)
