@@ -262,17 +262,27 @@ def _run_zig(command: list, target: Target, what: str) -> None:
         )
 
 
+def _traced_folder() -> Path:
+    """Where traced C is written for Zig to compile: the user's cache folder (``XDG_CACHE_HOME`` or ``~/.cache``), or
+    a folder of the user's own in the temp folder; readable and writable by the user only."""
+    cache = os.environ.get("XDG_CACHE_HOME") or (os.path.join(os.environ["HOME"], ".cache") if os.environ.get("HOME")
+                                                 else "")
+    owner = str(os.getuid()) if hasattr(os, "getuid") else os.environ.get("USERNAME", "user")
+    folder = Path(cache) / "dsc-fmu" / "traced" if cache else Path(tempfile.gettempdir()) / f"dsc-fmu-traced-{owner}"
+    folder.mkdir(mode=0o700, parents=True, exist_ok=True)
+    return folder
+
+
 @functools.lru_cache(maxsize=32)
 def _traced_object(target: Target, traced: str) -> bytes:
-    """The object file of a traced model's C for ``target``. The C is written under a name made of its hash, in
-    the temp folder: Zig caches an object by the source's path and content, so the same model compiles once."""
-    folder = Path(tempfile.gettempdir()) / "dsc-fmu-traced"
-    folder.mkdir(exist_ok=True)
+    """The object file of a traced model's C for ``target``. The C is written under a name made of its hash
+    (``_traced_folder``): Zig caches an object by the source's path and content, so the same model compiles once."""
+    folder = _traced_folder()
     source = folder / f"{hashlib.sha256(traced.encode()).hexdigest()[:32]}.c"
     if not source.is_file() or source.read_text() != traced:
-        staged = source.with_name(f"{source.stem}.{os.getpid()}.tmp")
-        staged.write_text(traced)
-        os.replace(staged, source)
+        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as staged:
+            staged.write(traced)
+        os.replace(staged.name, source)
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_traced_") as tmp:
         output = Path(tmp) / "traced.o"
         _run_zig([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-c", *target.object_flags,

@@ -293,6 +293,19 @@ def fmu_source(name: str, traced: bool = True) -> tuple:
     return models.source + _table(kind), models.untraceable
 
 
+def _watched(kind: str) -> int:
+    """How many values ``kind``'s RK4 loop writes into its ``watch`` (``emit_c.rk4_function``): the plant's count
+    (one); the controller's flag, time and the extras of its law after the first (``_law`` evaluated once)."""
+    if kind == "plant":
+        return 1
+    if kind != "controller":
+        return 0
+    model = MODELS[kind]()
+    u = [v.start for v in model.INPUTS]
+    law = _law({}, list(model.p.values()), 0.0, model.initial_state(u), u)
+    return 1 + len(law) - len(model.STATES)
+
+
 def _table(kind: str) -> str:
     """``TRACED_MODEL`` of ``kind``'s functions, each behind the one signature of ``native/traced.h``."""
     model = MODELS[kind]
@@ -342,7 +355,7 @@ def _table(kind: str) -> str:
     traced_outputs = len([v for v in model.OUTPUTS if v.name not in model.UNTRACED_OUTPUTS])
     fields = {"parameters": len(model.PARAMETERS), "states": len(model.STATES), "inputs": len(model.INPUTS),
               "outputs": traced_outputs, "switches": HELD[kind][0] if held else 0, "indicators": len(model.INDICATORS),
-              "watch": watch, "step": "step", "outputs_of": "outputs", "rates": "rates",
+              "watch": watch, "watched": _watched(kind), "step": "step", "outputs_of": "outputs", "rates": "rates",
               "indicators_of": "indicators" if model.INDICATORS else "0", "outputs_tangent": "outputs_tangent",
               "rates_tangent": "rates_tangent"}
     lines.append("const TracedModel TRACED_MODEL = {" + ", ".join(f".{k} = {v}" for k, v in fields.items()) + "};")

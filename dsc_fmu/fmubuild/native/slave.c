@@ -430,8 +430,6 @@ void slave_free(Slave *s) {
 
 int slave_reset(Slave *s) {
     s->pending = 0;
-    s->traced.ready = 0;
-    s->traced.ahead = 0;
     PyGILState_STATE gil = pyhost_enter();
     PyObject *slave = new_slave(s);
     int status = STATUS_OK;
@@ -440,6 +438,9 @@ int slave_reset(Slave *s) {
         status = STATUS_ERROR;
     } else if (adopt_slave(s, slave) != 0) {
         status = STATUS_ERROR;
+    } else {
+        s->traced.ready = 0; /* what the C did belonged to the slave replaced; a failed reset keeps both */
+        s->traced.ahead = 0;
     }
     drain_log(s);
     leave(s, gil);

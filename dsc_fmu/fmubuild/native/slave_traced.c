@@ -90,11 +90,12 @@ static int fill_roles(Slave *s, const double *cells, size_t n) {
     return 0;
 }
 
-/* Whether the slave's sizes are the traced model's. */
-static int agrees(const double *sizes) {
+/* Whether the slave's sizes are the traced model's, and its watch fits. */
+static int agrees(const Slave *s, const double *sizes) {
     const TracedModel *m = &TRACED_MODEL;
     return sizes[SIZE_P] == m->parameters && sizes[SIZE_X] == m->states && sizes[SIZE_U] == m->inputs &&
-           sizes[SIZE_Y] == m->outputs;
+           sizes[SIZE_Y] == m->outputs && s->nx == (size_t)m->states && s->nz == (size_t)m->indicators &&
+           m->watched <= TRACED_WATCH_SIZE;
 }
 
 static int allocate(Slave *s, const double *sizes) {
@@ -121,7 +122,8 @@ static int allocate(Slave *s, const double *sizes) {
     size_t nx = (size_t)TRACED_MODEL.states;
     t->dx = zeros(nx);
     t->du = zeros(t->nu);
-    t->values = zeros(nx > t->ny ? nx : t->ny);
+    size_t widest = nx > t->ny ? nx : t->ny;
+    t->values = zeros(widest > (size_t)TRACED_MODEL.indicators ? widest : (size_t)TRACED_MODEL.indicators);
     t->drates = zeros(nx);
     t->doutputs = zeros(t->ny);
     return t->p && t->x && t->next && t->u && t->stamped && t->slope && t->outputs && t->bookkeeping && t->held &&
@@ -141,7 +143,7 @@ void traced_layout(Slave *s) {
     clear(&layout);
     if (!s->traced.checks) {
         log_exception(s, STATUS_WARNING, "reading the layout of the traced model (the model runs in Python)");
-    } else if (n_sizes != SIZES || !agrees(sizes) || n_checks != CHECK_CELLS * (size_t)sizes[SIZE_U] ||
+    } else if (n_sizes != SIZES || !agrees(s, sizes) || n_checks != CHECK_CELLS * (size_t)sizes[SIZE_U] ||
                allocate(s, sizes) != 0 || fill_roles(s, cells, n_cells) != 0) {
         say(s, STATUS_WARNING, "the traced model does not match the slave's variables or memory ran out: the model "
             "runs in Python");
@@ -303,7 +305,7 @@ static const double *ramp(Traced *t, double stamp) {
 
 int traced_step(Slave *s, double time, double step, int *accepted) {
     Traced *t = &s->traced;
-    long count = t->ready ? substeps(t, step) : 0;
+    long count = t->ready && !t->has_held ? substeps(t, step) : 0; /* held switches: model exchange's state */
     if (count == 0) return 0;
     long coupling = t->coupling >= 0 ? (long)t->p[t->coupling] : t->hold;
     double stamp = coupling == t->interpolate ? time + step : time;
@@ -331,11 +333,14 @@ int traced_vector(Slave *s, Vector which, double *values, size_t n) {
     Traced *t = &s->traced;
     const TracedModel *m = &TRACED_MODEL;
     if (!t->ready || (m->switches && !t->has_held)) return 0;
+    int fault = 1;
     if (which == VECTOR_DERIVATIVES && n == (size_t)m->states)
-        return m->rates(t->p, current_time(s), current_state(s), t->u, held(s), values) == 0;
-    if (which == VECTOR_INDICATORS && n == (size_t)m->indicators && m->indicators_of)
-        return m->indicators_of(t->p, current_state(s), t->u, held(s), values) == 0;
-    return 0;
+        fault = m->rates(t->p, current_time(s), current_state(s), t->u, held(s), t->values);
+    else if (which == VECTOR_INDICATORS && n == (size_t)m->indicators && m->indicators_of)
+        fault = m->indicators_of(t->p, current_state(s), t->u, held(s), t->values);
+    if (fault) return 0; /* the importer's array untouched: Python answers */
+    memcpy(values, t->values, n * sizeof *values);
+    return 1;
 }
 
 /* The seeds of the knowns into dx (model exchange's states) and du (inputs), summed where a known repeats

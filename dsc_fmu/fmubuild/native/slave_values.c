@@ -188,6 +188,5 @@ int slave_get_double(Slave *s, const char *attribute, double *value) {
         status = STATUS_ERROR;
     }
     clear(&object);
-    leave(s, gil);
-    return status;
+    return done(s, gil, status);
 }

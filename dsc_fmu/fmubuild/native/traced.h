@@ -19,6 +19,7 @@ typedef struct {
     int switches;   /* the held switches s of model exchange, */
     int indicators; /* the event indicators */
     int watch;      /* TRACED_WATCH_* */
+    int watched;    /* the values a step writes into watch (at most TRACED_WATCH_SIZE) */
     /* `count` RK4 sub-steps of the step from t0: x becomes the state at t0 + step_size; the inputs held at u,
        or with `slope` on the line through u at `stamp`. */
     int (*step)(const double *p, const double *u, const double *slope, double stamp, double t0, double step_size,
