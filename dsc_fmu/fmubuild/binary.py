@@ -65,20 +65,23 @@ class Target(Platform):
 
 
 _POSIX = ("-fPIC", "-fvisibility=hidden")
+# Every binary stripped (-s): on macOS the symbol table would name the objects in Zig's cache and the temporary output;
+# everywhere the traced model's debug information would be most of the file (the controller's Linux binary: 2.5 MB,
+# stripped 0.55 MB; 2026-12-07).
+_STRIPPED = (*_POSIX, "-s")
 _LINUX_SOURCES = ("platform_posix.c", "platform_linux.c")
 _LINUX_LIBRARIES = ("-ldl", "-lpthread", "-lm")
 _MACOS_SOURCES = ("platform_posix.c", "platform_macos.c")
-# Stripped: otherwise the symbol table names the objects in Zig's cache and the temporary output.
-_MACOS_FLAGS = (*_POSIX, "-s")
 LINUX = Target(**vars(platforms.LINUX), zig_target="x86_64-linux-gnu.2.17", platform_sources=_LINUX_SOURCES,
-               flags=_POSIX, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
+               flags=_STRIPPED, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
 LINUX_AARCH64 = Target(**vars(platforms.LINUX_AARCH64), zig_target="aarch64-linux-gnu.2.17",
-                       platform_sources=_LINUX_SOURCES, flags=_POSIX, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
-WINDOWS = Target(**vars(platforms.WINDOWS), zig_target="x86_64-windows-gnu", platform_sources=("platform_windows.c",))
+                       platform_sources=_LINUX_SOURCES, flags=_STRIPPED, libraries=_LINUX_LIBRARIES, object_flags=_POSIX)
+WINDOWS = Target(**vars(platforms.WINDOWS), zig_target="x86_64-windows-gnu", platform_sources=("platform_windows.c",),
+                 flags=("-s",))
 MACOS_ARM64 = Target(**vars(platforms.MACOS_ARM64), zig_target="aarch64-macos.11.0", platform_sources=_MACOS_SOURCES,
-                     flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib", object_flags=_POSIX)
+                     flags=_STRIPPED, install_name="@rpath/{}.dylib", object_flags=_POSIX)
 MACOS_X86_64 = Target(**vars(platforms.MACOS_X86_64), zig_target="x86_64-macos.10.13", platform_sources=_MACOS_SOURCES,
-                      flags=_MACOS_FLAGS, install_name="@rpath/{}.dylib", object_flags=_POSIX)
+                      flags=_STRIPPED, install_name="@rpath/{}.dylib", object_flags=_POSIX)
 TARGETS = (LINUX, LINUX_AARCH64, WINDOWS, MACOS_ARM64, MACOS_X86_64)
 
 
