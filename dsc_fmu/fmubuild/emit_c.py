@@ -24,7 +24,6 @@ C_FLAGS = ("-std=c99", "-ffp-contract=off", "-fno-builtin-sin", "-fno-builtin-co
 _OPERATORS = {"add": "+", "sub": "-", "mul": "*", "div": "/", **COMPARISONS}
 _LIBM = {"sin", "cos", "atan", "sqrt"}
 _FSUM_MAX = 64  # the partials array of dsc_fsum
-_MAX_LOOP_DECISIONS = 6  # at most 2^6 specialised loops per RK4 function
 _LOOP_NAMES = {"count": "(double)count", "k": "(double)k"}  # the RK4 loop's count and index (C: long) as doubles
 # The tangents of models.dual's one-argument rules: d the argument's tangent, v its value, result the node's value.
 _UNARY_TANGENTS = {
@@ -52,15 +51,14 @@ def _operands(key: tuple) -> list:
     return list(key[1:])
 
 
-def _needed(graph: Graph, roots, chosen: dict | None = None) -> list:
-    """The nodes ``roots`` read, directly or not, themselves included, in index order; a select whose condition is
-    ``chosen`` (condition -> answer) reads only the side chosen."""
+def _needed(graph: Graph, roots) -> list:
+    """The nodes ``roots`` read, directly or not, themselves included, in index order."""
     seen, stack = set(), list(roots)
     while stack:
         index = stack.pop()
         if index not in seen:
             seen.add(index)
-            stack.extend(_reads(graph, _resolved(graph, index, chosen)))
+            stack.extend(_reads(graph, graph.nodes[index]))
     return sorted(seen)
 
 
@@ -73,14 +71,6 @@ def _reads(graph: Graph, key: tuple) -> list:
     return [_operands(raising)[1]] if raising[0] == "div" else [key[1], *_operands(raising)]
 
 
-def _resolved(graph: Graph, index: int, chosen: dict | None) -> tuple:
-    """Node ``index``, a select on a ``chosen`` condition as ``("select", side)``."""
-    key = graph.nodes[index]
-    if chosen and key[0] == "select" and key[1] in chosen:
-        return ("select", key[2] if chosen[key[1]] else key[3])
-    return key
-
-
 def _constant(value: float) -> str:
     if value != value:
         return "NAN"
@@ -89,10 +79,9 @@ def _constant(value: float) -> str:
     return f"({value.hex()})"
 
 
-def _value(graph: Graph, index: int, chosen: dict | None = None) -> list:
-    """The C lines that define node ``index`` (``n<index>``), the selects on ``chosen`` conditions as the side
-    chosen."""
-    key = _resolved(graph, index, chosen)
+def _value(graph: Graph, index: int) -> list:
+    """The C lines that define node ``index`` (``n<index>``)."""
+    key = graph.nodes[index]
     op, n = key[0], f"n{index}"
     a = [f"n{i}" for i in _operands(key)] if op not in ("call", "result") else []
     kind = "int" if graph.boolean(index) else "double"
@@ -117,7 +106,7 @@ def _value(graph: Graph, index: int, chosen: dict | None = None) -> list:
         values = f"(const double[]){{{', '.join(a)}}}"
         return [f"int f{index};", f"const double {n} = dsc_fsum({len(a)}, {values}, &f{index});"]
     if op == "select":
-        return [f"const {kind} {n} = {a[0]};" if len(a) == 1 else f"const {kind} {n} = {a[0]} ? {a[1]} : {a[2]};"]
+        return [f"const {kind} {n} = {a[0]} ? {a[1]} : {a[2]};"]
     if op == "any":
         return [f"const int {n} = {' | '.join(a) or '0'};"]
     if op == "fault":
@@ -350,23 +339,11 @@ def rk4_function(substep: Traced, state: int, watch: str | None) -> str:
     before = [line for i in nodes if i not in varying for line in _value(graph, i)]
     body = [f"double x[{state}];", f"for (int i = 0; i < {state}; i++) x[i] = x_io[i];",
             *(["long watched = 0;"] if watch else []), *before,
-            *_loops(graph, roots, varying, tail, {}),
+            "for (long k = 0; k < count; k++) {",
+            *_indented([*(line for i in nodes if i in varying for line in _value(graph, i)), *tail]), "}",
             f"for (int i = 0; i < {state}; i++) x_io[i] = x[i];",
             *(["watch[0] = (double)watched;"] if watch == "count" else []), "return 0;"]
     return _function(signature, body)
-
-
-def _loops(graph: Graph, roots: list, varying: set, tail: list, chosen: dict) -> list:
-    """The sub-step loop, one per combination of the decisions that do not change over the step (``chosen`` so far):
-    each loop evaluates only its own side of the selects on them."""
-    needed = _needed(graph, roots, chosen)
-    fixed = next((graph.nodes[i][1] for i in needed if i in varying and len(_resolved(graph, i, chosen)) == 4
-                  and graph.nodes[i][0] == "select" and graph.nodes[i][1] not in varying), None)
-    if fixed is not None and len(chosen) < _MAX_LOOP_DECISIONS:
-        sides = [_loops(graph, roots, varying, tail, {**chosen, fixed: answer}) for answer in (True, False)]
-        return [f"if (n{fixed}) {{", *_indented(sides[0]), "} else {", *_indented(sides[1]), "}"]
-    loop = [line for i in needed if i in varying for line in _value(graph, i, chosen)]
-    return ["for (long k = 0; k < count; k++) {", *_indented([*loop, *tail]), "}"]
 
 
 def _indented(lines: list) -> list:
