@@ -204,7 +204,7 @@ def _name(definition: str) -> str:
     return head[:head.index("(")].split()[-1]
 
 
-def trace_models(kinds=tuple(MODELS), functions: dict | None = None, tangents: bool = True) -> TracedModels:
+def trace_models(kinds=tuple(MODELS), functions: dict | None = None) -> TracedModels:
     """Trace the FMUs' models and write their C.
 
     Parameters
@@ -214,8 +214,6 @@ def trace_models(kinds=tuple(MODELS), functions: dict | None = None, tangents: b
     functions : dict, optional
         By model, the functions to trace (``"rates"``, ``"outputs_held"``, ``"rk4"``, ...: the C names without
         ``dsc_<model>_``); None: every one.
-    tangents : bool, optional
-        Whether the C has the tangents of the rates, the outputs and the initial state (``_tangent``).
 
     Returns
     -------
@@ -231,8 +229,7 @@ def trace_models(kinds=tuple(MODELS), functions: dict | None = None, tangents: b
 
         def emit(traced):
             made = [("", emit_c.value_function(traced))]
-            tangent = differentiable and tangents
-            return made + ([("_tangent", emit_c.tangent_function(traced, differentiable))] if tangent else [])
+            return made + ([("_tangent", emit_c.tangent_function(traced, differentiable))] if differentiable else [])
 
         return make, emit
 
