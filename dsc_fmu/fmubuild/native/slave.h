@@ -74,7 +74,7 @@ typedef struct {
     double time, stamp;
     double *p, *x, *u, *stamped, *slope, *next, *outputs, *bookkeeping, *held;
     double *dx, *du, *values, *drates, *doutputs; /* directional derivatives' seeds, values, tangents */
-    double *checks;             /* each input's bound code, minimum, maximum (native_bridge's layout) */
+    double *checks;             /* each input's bound code, minimum, maximum (the slave's traced_layout) */
     signed char *role;          /* by value reference: the role in the layout, or NO_VARIABLE */
     int *index;                 /* by value reference: the index in its role's values */
     int *state_of;              /* by value reference: the index of the continuous state it is, or -1 */

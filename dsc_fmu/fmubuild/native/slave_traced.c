@@ -16,7 +16,8 @@
 #include <stdlib.h>
 #include <string.h>
 
-/* The roles of native_bridge's layout (fmu/slave.py: PARAMETER, INPUT_VALUE, ...) and the inputs' bounds. */
+/* The roles of the slave's layout (fmu/slave.py, traced_layout: PARAMETER, INPUT_VALUE, ...) and the inputs'
+   bounds. */
 enum { ROLE_PARAMETER, ROLE_INPUT, ROLE_OUTPUT, ROLE_BOOKKEEPING, ROLE_STATE, ROLE_DERIVATIVE };
 enum { BOUND_ANY, BOUND_NONNEGATIVE, BOUND_POSITIVE, CHECK_CELLS = 3 };
 /* The sizes of the layout: p, x, u, traced outputs, bookkeeping, the indices of max_step and coupling in p,
