@@ -69,10 +69,10 @@ def test_the_c_master_cross_compiled_runs_the_paper_loop_on_aarch64_bit_identica
 
 def test_the_paper_scenario_through_our_master_on_aarch64_equals_x86_64(arm64_root, workspace, fmu_paths,
                                                                        fmu3_paths, version):
-    """On aarch64 the FMUs' traced C gives the bits of their Python path there, and of x86-64's."""
+    """On aarch64 the FMUs' traced C gives the bits of x86-64's, and (FMI 2.0) of their Python path there."""
     fmus = fmus_of(version, fmu_paths, fmu3_paths, workspace)
     arm = arm64_root.run_task(workspace, paper_cosimulation, fmus)
-    arm_python = arm64_root.run_task(workspace, paper_cosimulation, fmus, "off")
+    arm_python = arm64_root.run_task(workspace, paper_cosimulation, fmus, "off") if version == 2 else None
     host = paper_cosimulation(fmus)
     assert arm["steps"] == host["steps"] == round(PAPER_STOP / STEP)
     arm, host = arm["result"], host["result"]
@@ -81,7 +81,8 @@ def test_the_paper_scenario_through_our_master_on_aarch64_equals_x86_64(arm64_ro
     computed_here = [c for c in host.dtype.names if c not in from_fmus]
     assert len(from_fmus) > 30 and "position_error" in computed_here
     assert_identical(arm, host, from_fmus)
-    assert_identical(arm_python["result"], arm, arm.dtype.names)
+    if arm_python is not None:
+        assert_identical(arm_python["result"], arm, arm.dtype.names)
     for column in computed_here:  # numpy's SIMD loops differ by machine (hypot: 1 ulp)
         np.testing.assert_array_max_ulp(arm[column], host[column], maxulp=1)
 
