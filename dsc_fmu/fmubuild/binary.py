@@ -276,20 +276,35 @@ def _traced_folder() -> Path:
     return folder
 
 
+# The headers a traced model's C includes, written beside it.
+_TRACED_HEADERS = ("traced.h", "traced_math.h")
+
+
+def _write(path: Path, text: str) -> None:
+    """``text`` into ``path`` unless it holds it already, replaced in one step."""
+    if not path.is_file() or path.read_text() != text:
+        with tempfile.NamedTemporaryFile("w", dir=path.parent, suffix=".tmp", delete=False) as staged:
+            staged.write(text)
+        os.replace(staged.name, path)
+
+
 @functools.lru_cache(maxsize=32)
 def _traced_object(target: Target, traced: str) -> bytes:
-    """The object file of a traced model's C for ``target``. The C is written under a name made of its hash
-    (``_traced_folder``): Zig caches an object by the source's path and content, so the same model compiles once."""
-    folder = _traced_folder()
-    source = folder / f"{hashlib.sha256(traced.encode()).hexdigest()[:32]}.c"
-    if not source.is_file() or source.read_text() != traced:
-        with tempfile.NamedTemporaryFile("w", dir=folder, suffix=".tmp", delete=False) as staged:
-            staged.write(traced)
-        os.replace(staged.name, source)
+    """The object file of a traced model's C for ``target``. The C and the headers it includes are written into a
+    folder named by their hash (``_traced_folder``), and nothing of the checkout's or the install's path enters the
+    command: Zig caches an object by its source's path, content and command, so the same model compiles once per
+    machine, whichever checkout or install builds it."""
+    headers = {name: (NATIVE_DIR / name).read_text() for name in _TRACED_HEADERS}
+    digest = hashlib.sha256(repr((traced, sorted(headers.items()))).encode()).hexdigest()[:32]
+    folder = _traced_folder() / digest
+    folder.mkdir(mode=0o700, exist_ok=True)
+    for name, text in headers.items():
+        _write(folder / name, text)
+    _write(folder / "model.c", traced)
     with tempfile.TemporaryDirectory(prefix="dsc_fmu_traced_") as tmp:
         output = Path(tmp) / "traced.o"
         _run_zig([sys.executable, "-m", "ziglang", "cc", "-target", target.zig_target, "-c", *target.object_flags,
-                  *_TRACED_FLAGS, f"-I{NATIVE_DIR}", str(source), "-o", str(output)], target, "the traced model")
+                  *_TRACED_FLAGS, str(folder / "model.c"), "-o", str(output)], target, "the traced model")
         return output.read_bytes()
 
 
